@@ -1,0 +1,82 @@
+//! Errors for bad input: every message names the file, the field and what to do about it.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+/// A problem with something the user gave us (a file, a flag, a scene).
+#[derive(Debug, Clone)]
+pub struct InputError {
+    /// The file (or folder) at fault.
+    pub file: PathBuf,
+    /// Where in the file: a field, a line, a property, an element index.
+    pub field: String,
+    /// What is wrong.
+    pub problem: String,
+    /// What the user can do about it.
+    pub fix: String,
+}
+
+impl InputError {
+    pub fn new(
+        file: impl AsRef<Path>,
+        field: impl Into<String>,
+        problem: impl Into<String>,
+        fix: impl Into<String>,
+    ) -> Self {
+        Self {
+            file: file.as_ref().to_path_buf(),
+            field: field.into(),
+            problem: problem.into(),
+            fix: fix.into(),
+        }
+    }
+}
+
+impl fmt::Display for InputError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "{}: {}: {}. Fix: {}",
+            self.file.display(),
+            self.field,
+            self.problem,
+            self.fix
+        )
+    }
+}
+
+impl std::error::Error for InputError {}
+
+/// Shorthand for returning an [`InputError`] wrapped in `anyhow`.
+pub fn bad_input<T>(
+    file: impl AsRef<Path>,
+    field: impl Into<String>,
+    problem: impl Into<String>,
+    fix: impl Into<String>,
+) -> anyhow::Result<T> {
+    Err(InputError::new(file, field, problem, fix).into())
+}
+
+/// Writes a file atomically: to a temporary sibling first, then renamed over the target, so a
+/// failed run never leaves a half-written file or destroys an existing one.
+pub fn write_atomic(path: &Path, write: impl FnOnce(&mut std::fs::File) -> anyhow::Result<()>) -> anyhow::Result<()> {
+    use anyhow::Context;
+    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let name = path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
+    let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
+    let result = (|| {
+        let mut f = std::fs::File::create(&tmp)
+            .with_context(|| format!("{}: cannot create (is the folder writable?)", tmp.display()))?;
+        write(&mut f)?;
+        f.sync_all().ok();
+        Ok(())
+    })();
+    match result {
+        Ok(()) => std::fs::rename(&tmp, path)
+            .with_context(|| format!("{}: cannot rename {} over it", path.display(), tmp.display())),
+        Err(e) => {
+            let _ = std::fs::remove_file(&tmp);
+            Err(e)
+        }
+    }
+}

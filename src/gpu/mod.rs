@@ -1,0 +1,1 @@
+//! Vulkan layer on ash. (Skeleton: being written.)

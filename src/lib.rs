@@ -1,0 +1,16 @@
+//! lpmsplat: a Vulkan compute engine (on `ash`) that trains 3D Gaussian Splatting scenes and
+//! implements Localized Point Management (LPM, CVPR 2025).
+//!
+//! Dependencies flow one way: `gpu`, `scene` → `splats` → render → train → `lpm` → CLI.
+
+pub mod error;
+pub mod gpu;
+pub mod lpm;
+pub mod reference;
+pub mod scene;
+pub mod splats;
+
+/// Embedded SPIR-V, one constant per `glsl/**/*.comp` (see `build.rs`).
+pub mod shaders {
+    include!(concat!(env!("OUT_DIR"), "/shaders.rs"));
+}

@@ -1,0 +1,1 @@
+//! Localized Point Management. (Skeleton: being written.)

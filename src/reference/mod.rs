@@ -1,0 +1,1 @@
+//! CPU f64 reference implementation: the oracle for GPU kernels. (Skeleton: being written.)

@@ -1,0 +1,200 @@
+//! Scenes: cameras, poses, images, SfM points and their tracks, train/test split, extent.
+//!
+//! A scene folder holds either a COLMAP model (`sparse/0/` or `sparse/`, binary or text) with
+//! `images/`, or `transforms*.json` files (NeRF-synthetic or nerfstudio / instant-ngp form).
+//! Every view is presented to the rest of the engine as an undistorted [`PinholeCamera`] at the
+//! training resolution plus a world-to-camera [`Pose`] in the COLMAP/OpenCV convention.
+
+pub mod camera;
+pub mod colmap;
+pub mod images;
+pub mod split;
+pub mod transforms;
+pub mod undistort;
+
+use std::path::{Path, PathBuf};
+
+pub use camera::{CameraModel, PinholeCamera, Pose};
+pub use images::Image;
+
+/// 2D keypoints of one view, in the pixels of the view's undistorted, resized [`PinholeCamera`].
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Keypoints {
+    /// Keypoint positions (x, y) in pixels, pixel centres at +0.5.
+    pub xy: Vec<[f64; 2]>,
+    /// The SfM point each keypoint observes, or -1.
+    pub point3d: Vec<i64>,
+}
+
+/// SfM points with colours and tracks.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct SfmPoints {
+    /// COLMAP point3D ids.
+    pub ids: Vec<u64>,
+    pub positions: Vec<[f64; 3]>,
+    pub colors: Vec<[u8; 3]>,
+    /// Mean reprojection error per point.
+    pub errors: Vec<f64>,
+    /// Per point: (index into `Scene::views`, keypoint index in that view).
+    pub tracks: Vec<Vec<(u32, u32)>>,
+}
+
+impl SfmPoints {
+    pub fn len(&self) -> usize {
+        self.positions.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.positions.is_empty()
+    }
+}
+
+/// One camera view of the scene.
+#[derive(Debug, Clone, PartialEq)]
+pub struct View {
+    /// File name as listed by the scene (e.g. `DSC_0001.JPG`, `./train/r_0`).
+    pub name: String,
+    /// The name's file stem: output images are written as `<stem>.png`.
+    pub stem: String,
+    /// The image file on disk.
+    pub image_path: PathBuf,
+    /// The lens model of the source image, in source pixels.
+    pub source_model: CameraModel,
+    pub source_width: u32,
+    pub source_height: u32,
+    /// The undistorted pinhole camera at the training resolution.
+    pub camera: PinholeCamera,
+    /// World-to-camera transform.
+    pub pose: Pose,
+    /// COLMAP image id when the scene came from COLMAP.
+    pub colmap_image_id: Option<u32>,
+    /// COLMAP 2D keypoints with their point3D ids (mapped to `camera`'s pixels).
+    pub keypoints: Option<Keypoints>,
+}
+
+/// Where a scene came from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SceneFormat {
+    /// A COLMAP sparse model; `binary` says which form was read.
+    Colmap { sparse_dir: PathBuf, binary: bool },
+    /// `transforms_{train,val,test}.json` with `camera_angle_x`.
+    NerfSynthetic,
+    /// A single `transforms.json` with `fl_x`/`fl_y`/`cx`/`cy`/`w`/`h`.
+    Nerfstudio,
+}
+
+/// Which COLMAP form to read when both exist.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ColmapForm {
+    /// Binary when `cameras.bin` exists, else text.
+    #[default]
+    Auto,
+    Binary,
+    Text,
+}
+
+/// Which split to use as the test set for NeRF-synthetic scenes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum NerfTestSplit {
+    /// `transforms_test.json` when present, else `transforms_val.json`.
+    #[default]
+    TestOrVal,
+    Val,
+    Test,
+}
+
+/// How to load a scene.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LoadOptions {
+    /// `-r N`: divide image sizes by N (rounded). `None`: keep, but cap the width at `max_width`.
+    pub resolution_factor: Option<u32>,
+    /// Width cap applied when no factor is given (1600 in the Inria reference).
+    pub max_width: u32,
+    pub colmap_form: ColmapForm,
+    pub nerf_test_split: NerfTestSplit,
+    /// Hold out every N-th image (index % N == 0) when the scene has no explicit split.
+    pub holdout_every: usize,
+    /// When false, every view is a training view (no test set).
+    pub eval_split: bool,
+}
+
+impl Default for LoadOptions {
+    fn default() -> Self {
+        Self {
+            resolution_factor: None,
+            max_width: 1600,
+            colmap_form: ColmapForm::Auto,
+            nerf_test_split: NerfTestSplit::TestOrVal,
+            holdout_every: 8,
+            eval_split: true,
+        }
+    }
+}
+
+/// A loaded scene (metadata only; pixels are read by [`images::load_images`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scene {
+    pub root: PathBuf,
+    pub format: SceneFormat,
+    /// All views, sorted by name.
+    pub views: Vec<View>,
+    /// Indices into `views`.
+    pub train: Vec<usize>,
+    pub test: Vec<usize>,
+    /// SfM points (COLMAP, or `points3D.ply`-style data when present).
+    pub points: Option<SfmPoints>,
+    /// Mean of the training camera centres.
+    pub center: [f64; 3],
+    /// 1.1 × the largest distance of a training camera centre from `center`.
+    pub extent: f64,
+    /// The background the dataset assumes (white for NeRF-synthetic), when it has one.
+    pub background: Option<[f32; 3]>,
+    /// True when images carry an alpha channel to composite on the background.
+    pub has_alpha: bool,
+}
+
+impl Scene {
+    /// Loads the scene in `root`, detecting its format.
+    pub fn load(root: &Path, opts: &LoadOptions) -> anyhow::Result<Scene> {
+        if !root.exists() {
+            return crate::error::bad_input(
+                root,
+                "scene folder",
+                "does not exist",
+                "pass a folder holding sparse/0 (COLMAP) and images/, or transforms*.json",
+            );
+        }
+        if let Some(sparse) = colmap::find_sparse_dir(root) {
+            return colmap::load_scene(root, &sparse, opts);
+        }
+        if root.join("transforms_train.json").exists() || root.join("transforms.json").exists() {
+            return transforms::load_scene(root, opts);
+        }
+        crate::error::bad_input(
+            root,
+            "scene folder",
+            "holds neither a COLMAP model (sparse/0/cameras.bin|txt or sparse/cameras.bin|txt) nor transforms*.json",
+            "point at the scene's top folder",
+        )
+    }
+
+    pub fn train_views(&self) -> impl Iterator<Item = &View> {
+        self.train.iter().map(|&i| &self.views[i])
+    }
+
+    pub fn test_views(&self) -> impl Iterator<Item = &View> {
+        self.test.iter().map(|&i| &self.views[i])
+    }
+}
+
+/// The training resolution for a source image of `width` × `height`: Inria's rule.
+pub fn target_size(width: u32, height: u32, opts: &LoadOptions) -> (u32, u32) {
+    let scale = match opts.resolution_factor {
+        Some(r) if r > 1 => 1.0 / r as f64,
+        Some(_) => 1.0,
+        None if width > opts.max_width => opts.max_width as f64 / width as f64,
+        None => 1.0,
+    };
+    let w = ((width as f64 * scale).round() as u32).max(1);
+    let h = ((height as f64 * scale).round() as u32).max(1);
+    (w, h)
+}

@@ -1,0 +1,1 @@
+//! Train/test split and scene extent. (Skeleton: being written.)

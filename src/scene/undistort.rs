@@ -1,0 +1,1 @@
+//! Undistortion of distorted camera models to pinhole. (Skeleton: being written.)

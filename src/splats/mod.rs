@@ -1,0 +1,1 @@
+//! The Gaussian model: parameters, PLY in/out (Inria layout), initialisation. (Skeleton.)
