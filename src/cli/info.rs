@@ -1,0 +1,108 @@
+//! `info`: devices, limits, and a scene summary.
+
+use super::SceneArgs;
+use clap::Args;
+use lpmsplat::gpu::{list_devices, GpuContext, GpuOptions};
+use lpmsplat::scene::{Scene, SceneFormat};
+
+#[derive(Args, Debug)]
+pub struct InfoArgs {
+    /// Scene folder to summarise (optional).
+    pub scene: Option<std::path::PathBuf>,
+    /// Downscale images by this factor.
+    #[arg(short = 'r', long = "resolution")]
+    pub resolution: Option<u32>,
+    /// NeRF-synthetic: `val` or `test` as the test split.
+    #[arg(long, value_parser = ["val", "test"])]
+    pub test_split: Option<String>,
+}
+
+pub fn run(gpu: &GpuOptions, args: &InfoArgs) -> anyhow::Result<()> {
+    // A scene summary is useful even without a GPU, so scene errors come first.
+    let scene = match &args.scene {
+        Some(path) => {
+            let s = SceneArgs { scene: path.clone(), resolution: args.resolution, test_split: args.test_split.clone() };
+            Some(Scene::load(path, &s.load_options()?)?)
+        }
+        None => None,
+    };
+    match list_devices() {
+        Ok(devices) => {
+            println!("Vulkan devices:");
+            for (i, name, ty, api) in devices {
+                println!("  [{i}] {name} ({ty}, Vulkan {api})");
+            }
+            let ctx = GpuContext::new(gpu)?;
+            println!("{}", ctx.info.summary());
+            ctx.check_validation()?;
+        }
+        Err(e) => println!("Vulkan: {e:#}"),
+    }
+    if let Some(scene) = scene {
+        print_scene(&scene);
+    }
+    Ok(())
+}
+
+fn print_scene(scene: &Scene) {
+    let format = match &scene.format {
+        SceneFormat::Colmap { sparse_dir, binary } => {
+            format!("COLMAP ({}, {})", if *binary { "binary" } else { "text" }, sparse_dir.display())
+        }
+        SceneFormat::NerfSynthetic => "NeRF-synthetic transforms_*.json".to_string(),
+        SceneFormat::Nerfstudio => "nerfstudio transforms.json".to_string(),
+    };
+    println!("scene {}", scene.root.display());
+    println!("  format: {format}");
+    println!("  views: {} ({} train, {} test)", scene.views.len(), scene.train.len(), scene.test.len());
+    let mut models: Vec<String> = scene.views.iter().map(|v| v.source_model.name().to_string()).collect();
+    models.sort();
+    models.dedup();
+    println!("  camera models: {}", models.join(", "));
+    let mut sizes: Vec<(u32, u32, u32, u32)> = scene
+        .views
+        .iter()
+        .map(|v| (v.source_width, v.source_height, v.camera.width, v.camera.height))
+        .collect();
+    sizes.sort();
+    sizes.dedup();
+    for (sw, sh, w, h) in sizes {
+        println!("  image size: {sw}x{sh} source -> {w}x{h} training");
+    }
+    if let Some(v) = scene.views.first() {
+        let c = &v.camera;
+        let (fx, fy) = c.fov();
+        println!(
+            "  first camera: fx {:.2} fy {:.2} cx {:.2} cy {:.2}, FoV {:.1}°x{:.1}°",
+            c.fx,
+            c.fy,
+            c.cx,
+            c.cy,
+            fx.to_degrees(),
+            fy.to_degrees()
+        );
+    }
+    let names = |ids: &[usize]| ids.iter().map(|&i| scene.views[i].name.as_str()).collect::<Vec<_>>();
+    let test = names(&scene.test);
+    if test.len() <= 12 {
+        println!("  test views: {}", test.join(" "));
+    }
+    match &scene.points {
+        Some(p) => {
+            let tracks: usize = p.tracks.iter().map(|t| t.len()).sum();
+            println!("  SfM points: {} (mean track length {:.2})", p.len(), tracks as f64 / p.len().max(1) as f64)
+        }
+        None => println!("  SfM points: none (random initialisation)"),
+    }
+    let kp: usize = scene.views.iter().filter_map(|v| v.keypoints.as_ref()).map(|k| k.xy.len()).sum();
+    if kp > 0 {
+        println!("  keypoints: {kp}");
+    }
+    println!(
+        "  centre ({:.3}, {:.3}, {:.3}), extent {:.4}",
+        scene.center[0], scene.center[1], scene.center[2], scene.extent
+    );
+    if let Some(b) = scene.background {
+        println!("  background: ({}, {}, {})", b[0], b[1], b[2]);
+    }
+}

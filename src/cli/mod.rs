@@ -1,0 +1,64 @@
+//! Subcommands. Each lives in its own file; this one parses and dispatches.
+
+mod info;
+
+use clap::{Args, Parser, Subcommand};
+use lpmsplat::gpu::GpuOptions;
+use lpmsplat::scene::{LoadOptions, NerfTestSplit};
+use std::path::PathBuf;
+
+#[derive(Parser, Debug)]
+#[command(name = "lpmsplat", version, about = "3D Gaussian Splatting with Localized Point Management, on Vulkan")]
+pub struct Cli {
+    /// Vulkan device: an index or a name substring (see `info`). Default: prefer a discrete GPU.
+    #[arg(long, global = true)]
+    pub device: Option<String>,
+    /// Enable the Khronos validation layer (also LPMSPLAT_VALIDATION=1).
+    #[arg(long, global = true)]
+    pub validation: bool,
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Print the Vulkan devices, the chosen device's limits and, given a scene, its summary.
+    Info(info::InfoArgs),
+}
+
+/// Scene-loading flags shared by the subcommands that read a scene.
+#[derive(Args, Debug, Clone)]
+pub struct SceneArgs {
+    /// Scene folder: a COLMAP model (sparse/0 or sparse, with images/) or transforms*.json.
+    pub scene: PathBuf,
+    /// Downscale images by this factor (e.g. 2, 4, 8). Default: keep, capped at 1600 px wide.
+    #[arg(short = 'r', long = "resolution")]
+    pub resolution: Option<u32>,
+    /// NeRF-synthetic: use `val` or `test` as the test split (default: test if present, else val).
+    #[arg(long, value_parser = ["val", "test"])]
+    pub test_split: Option<String>,
+}
+
+impl SceneArgs {
+    pub fn load_options(&self) -> anyhow::Result<LoadOptions> {
+        if self.resolution == Some(0) {
+            anyhow::bail!("-r 0: the resolution factor must be at least 1. Fix: pass -r 1, 2, 4 or 8");
+        }
+        Ok(LoadOptions {
+            resolution_factor: self.resolution,
+            nerf_test_split: match self.test_split.as_deref() {
+                Some("val") => NerfTestSplit::Val,
+                Some("test") => NerfTestSplit::Test,
+                _ => NerfTestSplit::TestOrVal,
+            },
+            ..LoadOptions::default()
+        })
+    }
+}
+
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    let gpu = GpuOptions { validation: cli.validation, device: cli.device.clone() };
+    match cli.command {
+        Command::Info(a) => info::run(&gpu, &a),
+    }
+}

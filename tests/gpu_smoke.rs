@@ -1,0 +1,132 @@
+//! GPU layer smoke tests, with the validation layer on and its errors required to be zero.
+
+use lpmsplat::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, GpuOptions, Recorder, TimestampPool};
+use lpmsplat::shaders;
+use rand::{Rng, SeedableRng};
+use std::sync::Arc;
+
+fn ctx() -> Arc<GpuContext> {
+    GpuContext::new(&GpuOptions::for_tests()).expect("a Vulkan device (lavapipe in CI) with the validation layer")
+}
+
+#[test]
+fn subgroup_scan_matches_host_and_reports_device_subgroup_size() {
+    let ctx = ctx();
+    let sg = ctx.info.subgroup_size;
+    assert!(sg.is_power_of_two() && sg >= 1, "subgroup size {sg}");
+    let wg = 64u32.max(sg);
+    let pipe = ComputePipeline::new(&ctx, "subgroup_probe", shaders::UTIL_SUBGROUP_PROBE, 3, 8, wg, &[]).unwrap();
+    let fill = ComputePipeline::new(&ctx, "fill", shaders::UTIL_FILL_U32, 1, 8, 64, &[]).unwrap();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
+    for &n in &[1usize, 7, 64, 1000, 4097] {
+        let xs: Vec<u32> = (0..n).map(|_| rng.gen_range(0..1000)).collect();
+        let input = GpuBuffer::from_slice(&ctx, "xs", &xs).unwrap();
+        let out = GpuBuffer::<u32>::new(&ctx, "ys", n, BufferKind::DeviceLocal).unwrap();
+        let info = GpuBuffer::<u32>::new(&ctx, "info", 1, BufferKind::DeviceLocal).unwrap();
+        let mut rec = Recorder::new(&ctx).unwrap();
+        // Poison the outputs so an element the kernel skips is caught.
+        rec.dispatch(&fill, &[&out], &[n as u32, 0xDEAD_BEEFu32], ctx.groups_1d(n as u64, 64));
+        rec.fill(&info, 0);
+        rec.barrier();
+        rec.dispatch(&pipe, &[&input, &out, &info], &[n as u32, 3u32], ctx.groups_1d(n as u64, wg));
+        rec.submit_and_wait().unwrap();
+        let ys = out.read().unwrap();
+        let ran_with = info.read().unwrap()[0];
+        assert!(ran_with.is_power_of_two() && ran_with <= ctx.info.max_subgroup_size && ran_with >= ctx.info.min_subgroup_size);
+        for (i, &y) in ys.iter().enumerate() {
+            let start = i / ran_with as usize * ran_with as usize;
+            let prefix: u32 = xs[start..=i].iter().sum();
+            assert_eq!(y, xs[i] * 3 + prefix, "element {i} of {n} (subgroup size {ran_with})");
+        }
+    }
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn host_visible_buffers_round_trip_and_timestamps_report_stages() {
+    let ctx = ctx();
+    let data: Vec<f32> = (0..1000).map(|i| i as f32 * 0.5 - 3.0).collect();
+    let up = GpuBuffer::<f32>::new(&ctx, "upload", data.len(), BufferKind::Upload).unwrap();
+    up.upload(&data).unwrap();
+    let dev = GpuBuffer::<f32>::new(&ctx, "device", data.len(), BufferKind::DeviceLocal).unwrap();
+    let back = GpuBuffer::<f32>::new(&ctx, "readback", data.len(), BufferKind::Readback).unwrap();
+    let mut pool = TimestampPool::new(&ctx, 8).unwrap();
+    let mut rec = Recorder::new(&ctx).unwrap();
+    rec.start_timestamps(&mut pool);
+    rec.copy(&up, &dev, data.len());
+    rec.timestamp(&mut pool, "upload");
+    rec.barrier();
+    rec.copy(&dev, &back, data.len());
+    rec.timestamp(&mut pool, "readback");
+    rec.submit_and_wait().unwrap();
+    assert_eq!(back.read().unwrap(), data);
+    assert_eq!(dev.read_range(10, 5).unwrap(), data[10..15].to_vec());
+    let times = pool.read().unwrap();
+    if ctx.info.timestamps_supported {
+        let names: Vec<_> = times.stages.iter().map(|s| s.0.as_str()).collect();
+        assert_eq!(names, ["upload", "readback"]);
+        assert!(times.stages.iter().all(|s| s.1 >= 0.0 && s.1.is_finite()));
+    }
+    // The recorder is reusable.
+    rec.begin().unwrap();
+    rec.fill(&dev, 0);
+    rec.submit_and_wait().unwrap();
+    assert!(dev.read().unwrap().iter().all(|&v| v == 0.0));
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn oversized_buffers_and_unknown_devices_are_clear_errors() {
+    let ctx = ctx();
+    let too_big = (ctx.info.max_storage_buffer_range / 4 + 1) as usize;
+    let err = GpuBuffer::<u32>::new(&ctx, "huge", too_big, BufferKind::DeviceLocal).err().expect("must refuse");
+    let msg = err.to_string();
+    assert!(msg.contains("huge") && msg.contains("maxStorageBufferRange"), "{msg}");
+    let empty = GpuBuffer::<u32>::new(&ctx, "empty", 0, BufferKind::DeviceLocal).unwrap();
+    assert!(empty.is_empty() && empty.read().unwrap().is_empty());
+    let err = GpuContext::new(&GpuOptions { validation: true, device: Some("no-such-device-xyz".into()) }).err().expect("must refuse");
+    assert!(err.to_string().contains("--device"), "{err}");
+    let err = GpuContext::new(&GpuOptions { validation: true, device: Some("99".into()) }).err().expect("must refuse");
+    assert!(err.to_string().contains("no such device"), "{err}");
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn large_dispatches_spill_into_y() {
+    let ctx = ctx();
+    let max_x = ctx.info.max_workgroup_count[0] as u64;
+    let g = ctx.groups_1d(max_x * 64 * 3 + 5, 64);
+    assert!(g[1] > 1 && (g[0] as u64) <= max_x);
+    assert!(g[0] as u64 * g[1] as u64 * 64 >= max_x * 64 * 3 + 5);
+    // And the fill kernel covers a count that is not a multiple of the workgroup.
+    let fill = ComputePipeline::new(&ctx, "fill", shaders::UTIL_FILL_U32, 1, 8, 32, &[]).unwrap();
+    let n = 100_003usize;
+    let buf = GpuBuffer::<u32>::new(&ctx, "buf", n, BufferKind::DeviceLocal).unwrap();
+    let mut rec = Recorder::new(&ctx).unwrap();
+    rec.fill(&buf, 1);
+    rec.barrier();
+    rec.dispatch(&fill, &[&buf], &[n as u32 - 1, 42u32], ctx.groups_1d(n as u64 - 1, 32));
+    rec.submit_and_wait().unwrap();
+    let v = buf.read().unwrap();
+    assert!(v[..n - 1].iter().all(|&x| x == 42));
+    assert_eq!(v[n - 1], 1);
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn validation_layer_is_active_and_counts_errors() {
+    // A deliberately invalid call (a zero-sized buffer) must be seen and counted, proving the
+    // other tests' "zero errors" means something.
+    let ctx = ctx();
+    assert!(ctx.validation().is_some(), "tests always run with validation");
+    assert_eq!(ctx.validation_errors(), 0);
+    use ash::vk;
+    let info = vk::BufferCreateInfo::default().size(0).usage(vk::BufferUsageFlags::STORAGE_BUFFER);
+    unsafe {
+        if let Ok(b) = ctx.device().create_buffer(&info, None) {
+            ctx.device().destroy_buffer(b, None);
+        }
+    }
+    assert!(ctx.validation_errors() >= 1, "the validation layer did not report an invalid call");
+    assert!(ctx.check_validation().is_err());
+}
