@@ -7,6 +7,7 @@ pub mod error;
 pub mod gpu;
 pub mod lpm;
 pub mod reference;
+pub mod render;
 pub mod scene;
 pub mod splats;
 

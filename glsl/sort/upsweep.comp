@@ -1,0 +1,33 @@
+#version 460
+#extension GL_KHR_shader_subgroup_basic : require
+// Radix sort pass, step 1 (reduce): per block of WG_SIZE * ITEMS keys, the histogram of the
+// 4-bit digit at `shift`, stored digit-major (hist[digit * blocks + block]) so that one exclusive
+// scan of the whole array yields every block's scatter offset for every digit.
+layout(constant_id = 0) const uint WG_SIZE = 256;
+layout(constant_id = 2) const uint ITEMS = 8;
+layout(local_size_x_id = 0) in;
+layout(std430, set = 0, binding = 0) readonly buffer Keys { uvec2 keys[]; };
+layout(std430, set = 0, binding = 1) writeonly buffer Hist { uint hist[]; };
+layout(std430, set = 0, binding = 2) buffer Count { uint counts[]; };
+layout(push_constant) uniform Push { uint count_index; uint hist_len_index; uint shift; };
+#include "radix_digit.glsl"
+shared uint block_hist[RADIX];
+
+void main() {
+    uint n = counts[count_index];
+    uint blocks = (n + WG_SIZE * ITEMS - 1u) / (WG_SIZE * ITEMS);
+    uint block = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
+    if (block == 0u && gl_LocalInvocationIndex == 0u) counts[hist_len_index] = RADIX * blocks;
+    if (block >= blocks) return;
+    if (gl_LocalInvocationIndex < RADIX) block_hist[gl_LocalInvocationIndex] = 0u;
+    barrier();
+    uint base = block * WG_SIZE * ITEMS;
+    for (uint k = 0u; k < ITEMS; k++) {
+        uint i = base + k * WG_SIZE + gl_LocalInvocationIndex;
+        if (i < n) atomicAdd(block_hist[radix_digit(keys[i], shift)], 1u);
+    }
+    barrier();
+    if (gl_LocalInvocationIndex < RADIX) {
+        hist[gl_LocalInvocationIndex * blocks + block] = block_hist[gl_LocalInvocationIndex];
+    }
+}

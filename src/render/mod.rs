@@ -1,0 +1,4 @@
+//! The forward pipeline's GPU building blocks: prefix sums and the key–value radix sort.
+
+pub mod scan;
+pub mod sort;

@@ -1,0 +1,108 @@
+//! Multi-level exclusive prefix sum of u32 on the GPU (reduce-then-scan, no inter-workgroup
+//! waiting, so it needs no forward-progress guarantee). The element count is read on the GPU
+//! from a counts buffer, so it can come from an earlier kernel without a host round trip.
+
+use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder};
+use crate::shaders;
+use std::sync::Arc;
+
+const WG: u32 = 256;
+const ITEMS: u32 = 8;
+/// Elements scanned by one workgroup.
+pub const SCAN_BLOCK: u64 = (WG * ITEMS) as u64;
+
+/// Reusable scan for arrays of up to `capacity` elements.
+pub struct PrefixScan {
+    reduce: ComputePipeline,
+    downsweep: ComputePipeline,
+    /// Partial sums per level above the data: level 1 has ceil(cap / B) entries, ...
+    levels: Vec<GpuBuffer<u32>>,
+    capacity: u64,
+    dummy: GpuBuffer<u32>,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct ReducePush {
+    count_index: u32,
+    divisor: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct DownPush {
+    count_index: u32,
+    divisor: u32,
+    has_partials: u32,
+    total_index: u32,
+}
+
+impl PrefixScan {
+    pub fn new(ctx: &Arc<GpuContext>, capacity: u64) -> anyhow::Result<Self> {
+        let reduce = ComputePipeline::new(ctx, "scan/reduce", shaders::SCAN_REDUCE, 3, 8, WG, &[ITEMS])?;
+        let downsweep = ComputePipeline::new(ctx, "scan/downsweep", shaders::SCAN_DOWNSWEEP, 3, 16, WG, &[ITEMS])?;
+        let mut levels = Vec::new();
+        let mut n = capacity.max(1);
+        while n > SCAN_BLOCK {
+            n = n.div_ceil(SCAN_BLOCK);
+            levels.push(GpuBuffer::new(ctx, "scan partials", n as usize, BufferKind::DeviceLocal)?);
+        }
+        let dummy = GpuBuffer::new(ctx, "scan dummy", 1, BufferKind::DeviceLocal)?;
+        Ok(Self { reduce, downsweep, levels, capacity: capacity.max(1), dummy })
+    }
+
+    pub fn capacity(&self) -> u64 {
+        self.capacity
+    }
+
+    /// Records an in-place exclusive scan of the first `counts[count_index]` elements of `data`
+    /// (at most `capacity`). When `total_index` is given, the sum of all elements is written to
+    /// `counts[total_index]`. Barriers are included before and after.
+    pub fn record(
+        &self,
+        ctx: &GpuContext,
+        rec: &mut Recorder,
+        data: &GpuBuffer<u32>,
+        counts: &GpuBuffer<u32>,
+        count_index: u32,
+        total_index: Option<u32>,
+    ) {
+        rec.barrier();
+        let total_index = total_index.unwrap_or(u32::MAX);
+        // Up: data -> level 1 -> level 2 ...; each level's length is ceil(count / B^level).
+        let mut divisor = 1u64;
+        let mut sizes = vec![self.capacity];
+        for (l, partials) in self.levels.iter().enumerate() {
+            let src: &GpuBuffer<u32> = if l == 0 { data } else { &self.levels[l - 1] };
+            let n = sizes[l];
+            rec.dispatch(
+                &self.reduce,
+                &[src, partials, counts],
+                &ReducePush { count_index, divisor: divisor as u32 },
+                ctx.groups_1d(n.div_ceil(SCAN_BLOCK), 1),
+            );
+            rec.barrier();
+            divisor *= SCAN_BLOCK;
+            sizes.push(n.div_ceil(SCAN_BLOCK));
+        }
+        // Down: scan the top level in one workgroup, then each level below with its offsets.
+        let top = self.levels.len();
+        for l in (0..=top).rev() {
+            let buf: &GpuBuffer<u32> = if l == 0 { data } else { &self.levels[l - 1] };
+            let partials: &GpuBuffer<u32> = if l == top { &self.dummy } else { &self.levels[l] };
+            let divisor = SCAN_BLOCK.pow(l as u32) as u32;
+            rec.dispatch(
+                &self.downsweep,
+                &[buf, partials, counts],
+                &DownPush {
+                    count_index,
+                    divisor,
+                    has_partials: (l != top) as u32,
+                    total_index: if l == top { total_index } else { u32::MAX },
+                },
+                ctx.groups_1d(sizes[l].div_ceil(SCAN_BLOCK), 1),
+            );
+            rec.barrier();
+        }
+    }
+}

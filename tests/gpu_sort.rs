@@ -1,0 +1,126 @@
+//! GPU prefix scan and radix sort against the host, on random data, with validation on.
+//! Also re-runs itself with lavapipe forced to subgroup size 16, so two subgroup sizes are
+//! covered on one machine.
+
+use lpmsplat::gpu::{BufferKind, GpuBuffer, GpuContext, GpuOptions, Recorder};
+use lpmsplat::render::scan::PrefixScan;
+use lpmsplat::render::sort::{RadixSort, SortedIn};
+use rand::{Rng, SeedableRng};
+use std::sync::Arc;
+
+fn ctx() -> Arc<GpuContext> {
+    GpuContext::new(&GpuOptions::for_tests()).expect("a Vulkan device with the validation layer")
+}
+
+const POISON: u32 = 0xDEAD_BEEF;
+
+#[test]
+fn exclusive_scan_matches_host() {
+    let ctx = ctx();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
+    let scan = PrefixScan::new(&ctx, 5_000_000).unwrap();
+    for &n in &[0usize, 1, 2047, 2048, 2049, 100_000, 4_200_000] {
+        let data: Vec<u32> = (0..n).map(|_| rng.gen_range(0..100)).collect();
+        // Extra poisoned tail: elements past the count must stay untouched.
+        let mut padded = data.clone();
+        padded.extend(std::iter::repeat(POISON).take(5));
+        let buf = GpuBuffer::from_slice(&ctx, "data", &padded).unwrap();
+        let counts = GpuBuffer::from_slice(&ctx, "counts", &[n as u32, POISON]).unwrap();
+        let mut rec = Recorder::new(&ctx).unwrap();
+        scan.record(&ctx, &mut rec, &buf, &counts, 0, Some(1));
+        rec.submit_and_wait().unwrap();
+        let out = buf.read().unwrap();
+        let mut acc = 0u32;
+        for i in 0..n {
+            assert_eq!(out[i], acc, "n={n} i={i}");
+            acc += data[i];
+        }
+        assert!(out[n..].iter().all(|&v| v == POISON), "scan wrote past the count");
+        assert_eq!(counts.read().unwrap()[1], acc, "total for n={n}");
+    }
+    ctx.check_validation().unwrap();
+}
+
+fn check_sort(ctx: &Arc<GpuContext>, sorter: &RadixSort, keys: &[u64], bits: u32) {
+    let n = keys.len();
+    let packed: Vec<[u32; 2]> = keys.iter().map(|&k| [k as u32, (k >> 32) as u32]).collect();
+    let values: Vec<u32> = (0..n as u32).collect();
+    let cap = sorter.capacity() as usize;
+    let kbuf = GpuBuffer::<[u32; 2]>::new(ctx, "keys", cap, BufferKind::DeviceLocal).unwrap();
+    let vbuf = GpuBuffer::<u32>::new(ctx, "values", cap, BufferKind::DeviceLocal).unwrap();
+    let sk = GpuBuffer::<[u32; 2]>::new(ctx, "scratch keys", cap, BufferKind::DeviceLocal).unwrap();
+    let sv = GpuBuffer::<u32>::new(ctx, "scratch values", cap, BufferKind::DeviceLocal).unwrap();
+    kbuf.upload(&packed).unwrap();
+    vbuf.upload(&values).unwrap();
+    let counts = GpuBuffer::from_slice(ctx, "counts", &[n as u32, 0]).unwrap();
+    let mut rec = Recorder::new(ctx).unwrap();
+    rec.fill(&sk, POISON);
+    rec.fill(&sv, POISON);
+    rec.barrier();
+    let where_ = sorter.record(ctx, &mut rec, &kbuf, &vbuf, &sk, &sv, &counts, 0, 1, bits);
+    rec.submit_and_wait().unwrap();
+    let (ko, vo) = match where_ {
+        SortedIn::Input => (kbuf.read_range(0, n).unwrap(), vbuf.read_range(0, n).unwrap()),
+        SortedIn::Scratch => (sk.read_range(0, n).unwrap(), sv.read_range(0, n).unwrap()),
+    };
+    // Host oracle: a stable sort on the same bits.
+    let mask = if bits >= 64 { u64::MAX } else { (1u64 << bits) - 1 };
+    let mut expect: Vec<(u64, u32)> = keys.iter().copied().zip(values.iter().copied()).collect();
+    expect.sort_by_key(|&(k, _)| k & mask);
+    for i in 0..n {
+        let got = ko[i][0] as u64 | ((ko[i][1] as u64) << 32);
+        assert_eq!((got, vo[i]), expect[i], "n={n} bits={bits} position {i}");
+    }
+}
+
+#[test]
+fn radix_sort_is_stable_and_matches_host_sort() {
+    let ctx = ctx();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
+    let sorter = RadixSort::new(&ctx, 300_000).unwrap();
+    for &(n, bits) in &[(0usize, 32u32), (1, 8), (5, 13), (2048, 45), (2049, 64), (70_001, 45), (300_000, 32), (50_000, 6)] {
+        let mask = if bits >= 64 { u64::MAX } else { (1u64 << bits) - 1 };
+        // Few distinct values in some runs so that stability is exercised.
+        let distinct = rng.gen_bool(0.5);
+        let keys: Vec<u64> = (0..n)
+            .map(|_| if distinct { rng.gen::<u64>() & mask } else { rng.gen_range(0..64u64) & mask })
+            .collect();
+        check_sort(&ctx, &sorter, &keys, bits);
+    }
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn splat_like_keys_tile_high_depth_low() {
+    // The renderer's key: tile id above 32 bits of depth (float bits of positive depths).
+    let ctx = ctx();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
+    let n = 120_000;
+    let tiles = 5_440u64; // 1352x1014 in 16x16 tiles
+    let tile_bits = 64 - tiles.leading_zeros();
+    let keys: Vec<u64> = (0..n)
+        .map(|_| (rng.gen_range(0..tiles) << 32) | (rng.gen_range(0.2f32..100.0).to_bits() as u64))
+        .collect();
+    let sorter = RadixSort::new(&ctx, n as u64).unwrap();
+    check_sort(&ctx, &sorter, &keys, 32 + tile_bits);
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn sort_and_scan_under_subgroup_size_16() {
+    // lavapipe runs with subgroup size 16 when LP_NATIVE_VECTOR_WIDTH=512 (set before the driver
+    // loads, hence a child process). Other drivers ignore the variable.
+    if std::env::var_os("LPMSPLAT_CHILD").is_some() {
+        return;
+    }
+    let exe = std::env::current_exe().unwrap();
+    let out = std::process::Command::new(exe)
+        .env("LP_NATIVE_VECTOR_WIDTH", "512")
+        .env("LPMSPLAT_CHILD", "1")
+        .args(["--test-threads=1", "radix_sort_is_stable", "exclusive_scan", "splat_like"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "child run failed:\n{text}");
+    assert!(text.contains("3 passed"), "child ran the wrong tests:\n{text}");
+}
