@@ -1,0 +1,65 @@
+//! Sort throughput: GPU radix sort (keys/s) against the host's `sort_unstable` on the same keys,
+//! 1k … 16M pairs (set LPMSPLAT_BENCH_MAX to cap the size; default 4M, lavapipe is slow).
+//! Run: `cargo bench --bench sort`. GPU time is from timestamps (sort only, no transfers).
+
+use lpmsplat::gpu::{BufferKind, GpuBuffer, GpuContext, GpuOptions, Recorder, TimestampPool};
+use lpmsplat::render::sort::RadixSort;
+use rand::{Rng, SeedableRng};
+use std::time::Instant;
+
+fn main() -> anyhow::Result<()> {
+    let ctx = GpuContext::new(&GpuOptions { validation: false, device: std::env::var("LPMSPLAT_DEVICE").ok() })?;
+    println!("{}", ctx.info.summary());
+    let max: usize = std::env::var("LPMSPLAT_BENCH_MAX").ok().and_then(|v| v.parse().ok()).unwrap_or(4 << 20);
+    let bits = 45; // 13 tile bits + 32 depth bits: a 1352x1014 frame
+    println!("{:>10} {:>6} {:>12} {:>14} {:>14} {:>8}", "pairs", "bits", "gpu ms", "gpu Mkeys/s", "host Mkeys/s", "ratio");
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(1);
+    let mut n = 1024usize;
+    while n <= max {
+        let keys: Vec<u64> = (0..n).map(|_| rng.gen::<u64>() & ((1u64 << bits) - 1)).collect();
+        let packed: Vec<[u32; 2]> = keys.iter().map(|&k| [k as u32, (k >> 32) as u32]).collect();
+        let vals: Vec<u32> = (0..n as u32).collect();
+        let sorter = RadixSort::new(&ctx, n as u64)?;
+        let kb = GpuBuffer::from_slice(&ctx, "keys", &packed)?;
+        let vb = GpuBuffer::from_slice(&ctx, "vals", &vals)?;
+        let sk = GpuBuffer::<[u32; 2]>::new(&ctx, "sk", n, BufferKind::DeviceLocal)?;
+        let sv = GpuBuffer::<u32>::new(&ctx, "sv", n, BufferKind::DeviceLocal)?;
+        let counts = GpuBuffer::from_slice(&ctx, "counts", &[n as u32, 0])?;
+        let mut pool = TimestampPool::new(&ctx, 4)?;
+        let reps = (4_000_000 / n).clamp(3, 50);
+        let mut gpu_ms = Vec::new();
+        for _ in 0..reps {
+            // Re-upload is outside the timed region: sorting sorted keys would flatter nobody,
+            // but keep the input identical every repetition.
+            kb.upload(&packed)?;
+            let mut rec = Recorder::new(&ctx)?;
+            rec.start_timestamps(&mut pool);
+            sorter.record(&ctx, &mut rec, &kb, &vb, &sk, &sv, &counts, 0, 1, bits);
+            rec.timestamp(&mut pool, "sort");
+            rec.submit_and_wait()?;
+            gpu_ms.push(pool.read()?.total_ms());
+        }
+        gpu_ms.sort_by(|a, b| a.partial_cmp(b).unwrap());
+        let gpu = gpu_ms[gpu_ms.len() / 2];
+        let mut host_ms = Vec::new();
+        for _ in 0..reps {
+            let mut pairs: Vec<(u64, u32)> = keys.iter().copied().zip(vals.iter().copied()).collect();
+            let t = Instant::now();
+            pairs.sort_unstable();
+            host_ms.push(t.elapsed().as_secs_f64() * 1e3);
+        }
+        host_ms.sort_by(|a, b| a.partial_cmp(b).unwrap());
+        let host = host_ms[host_ms.len() / 2];
+        println!(
+            "{:>10} {:>6} {:>12.3} {:>14.1} {:>14.1} {:>8.2}",
+            n,
+            bits,
+            gpu,
+            n as f64 / gpu / 1e3,
+            n as f64 / host / 1e3,
+            host / gpu
+        );
+        n *= 4;
+    }
+    Ok(())
+}
