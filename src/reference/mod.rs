@@ -57,6 +57,7 @@
 pub mod backward;
 pub mod linalg;
 pub mod project;
+pub mod scenes;
 pub mod raster;
 pub mod sh;
 
