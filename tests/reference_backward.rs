@@ -329,13 +329,13 @@ fn rasterizer_gradients_and_ndc_statistic_match_finite_differences() {
             .unwrap();
             dot_image(&r.image, &case.weights)
         };
-        let h = 1e-6;
+        let step = 1e-6;
         for i in 0..case.gaussians.len() {
             let fd = |set: &dyn Fn(&mut reference::Projected, f64)| {
                 let (mut p, mut m) = (base.projected.clone(), base.projected.clone());
-                set(&mut p[i], h);
-                set(&mut m[i], -h);
-                (loss(&p) - loss(&m)) / (2.0 * h)
+                set(&mut p[i], step);
+                set(&mut m[i], -step);
+                (loss(&p) - loss(&m)) / (2.0 * step)
             };
             let g = &grads.projected;
             let fd_u = fd(&|p, d| p.mean2d[0] += d);
@@ -353,7 +353,7 @@ fn rasterizer_gradients_and_ndc_statistic_match_finite_differences() {
                 // Density control's statistic from the finite-difference mean2d gradient.
                 (
                     grads.ndc_mean2d_norm[i],
-                    (fd_u * w as f64 / 2.0).hypot(fd_v * h_of(&camera) / 2.0),
+                    (fd_u * w as f64 / 2.0).hypot(fd_v * h as f64 / 2.0),
                 ),
             ];
             for (k, (a, f)) in pairs.into_iter().enumerate() {
@@ -370,10 +370,6 @@ fn rasterizer_gradients_and_ndc_statistic_match_finite_differences() {
         }
     }
     assert!(checked > 200, "only {checked} non-negligible comparisons");
-}
-
-fn h_of(camera: &PinholeCamera) -> f64 {
-    camera.height as f64
 }
 
 #[test]

@@ -86,21 +86,17 @@ fn sh_basis_is_orthonormal_on_the_sphere() {
             let phi = ip as f64 * 2.0 * PI / nphi as f64;
             let b = sh::basis(3, [r * phi.cos(), r * phi.sin(), z]);
             let w = (2.0 / nz as f64) * (2.0 * PI / nphi as f64);
-            for i in 0..16 {
-                for j in 0..16 {
-                    gram[i][j] += w * b[i] * b[j];
+            for (row, bi) in gram.iter_mut().zip(b) {
+                for (g, bj) in row.iter_mut().zip(b) {
+                    *g += w * bi * bj;
                 }
             }
         }
     }
-    for i in 0..16 {
-        for j in 0..16 {
+    for (i, row) in gram.iter().enumerate() {
+        for (j, &value) in row.iter().enumerate() {
             let want = if i == j { 1.0 } else { 0.0 };
-            assert!(
-                (gram[i][j] - want).abs() < 1e-5,
-                "<Y{i}, Y{j}> = {}",
-                gram[i][j]
-            );
+            assert!((value - want).abs() < 1e-5, "<Y{i}, Y{j}> = {value}");
         }
     }
     // Constants from their closed forms, and the degree-1 sign convention of the PLY files.
@@ -461,8 +457,8 @@ fn opacity_extremes() {
     let out =
         reference::render(&g, &cam, &Pose::IDENTITY, 0, bg, &RenderSettings::default()).unwrap();
     let rgb = sh::SH_C0 + 0.5;
-    for c in 0..3 {
-        assert!((out.raster.image[centre][c] - (0.99 * rgb + 0.01 * bg[c])).abs() < 1e-12);
+    for (got, b) in out.raster.image[centre].iter().zip(bg) {
+        assert!((got - (0.99 * rgb + 0.01 * b)).abs() < 1e-12);
     }
     assert!((out.raster.final_transmittance[centre] - 0.01).abs() < 1e-12);
 }

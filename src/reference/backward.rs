@@ -227,8 +227,7 @@ pub fn preprocess_backward(
     let w = pose.rotation;
     let wt = linalg::transpose(&w);
     let mut out = ParamGrads::zeros(n);
-    for i in 0..n {
-        let p = &projected[i];
+    for (i, p) in projected.iter().enumerate() {
         if p.culled {
             continue;
         }
@@ -291,9 +290,9 @@ fn color_backward(
 ) -> Vec3 {
     // The clamp at 0 kills the gradient of a clamped channel.
     let mut dl_draw = dl_drgb;
-    for ch in 0..3 {
-        if p.rgb_clamped[ch] {
-            dl_draw[ch] = 0.0;
+    for (d, &clamped) in dl_draw.iter_mut().zip(&p.rgb_clamped) {
+        if clamped {
+            *d = 0.0;
         }
     }
     let (dir, len) = view_direction(gaussians.positions[i], camera_center);

@@ -47,6 +47,16 @@
 //! Output `C + T·background`. Per pixel we keep the final `T` and `last_contributor`: the
 //! position in the tile's sorted list of the last splat that contributed, plus one (0 = none).
 //!
+//! # Backward ([`backward()`], module [`mod@backward`])
+//! Given `dL/d(image)`: the rasterizer backward walks each pixel's list back to front from
+//! `last_contributor`, recovering `T` in front of each splat by dividing by `1 − alpha`, and
+//! produces gradients of mean2d, conic, colour and opacity; the preprocess backward carries
+//! them to position (including through the SH view direction), log-scale, quaternion (through
+//! the normalisation), opacity logit and every SH coefficient. Clamps pass no gradient where
+//! they are active (alpha at `alpha_max`, colour at 0, the Jacobian's x/z and y/z, the
+//! determinant). It also returns density control's per-view statistic
+//! `|(dL/du · W/2, dL/dv · H/2)|`.
+//!
 //! # Smooth mode (tests only)
 //! [`RenderSettings::smooth`] removes the `alpha_min` skip, the `t_min` stop and the
 //! `alpha_max` clamp so the image is a smooth function of the parameters and central finite
@@ -57,8 +67,8 @@
 pub mod backward;
 pub mod linalg;
 pub mod project;
-pub mod scenes;
 pub mod raster;
+pub mod scenes;
 pub mod sh;
 
 use anyhow::{ensure, Result};

@@ -57,7 +57,7 @@ impl Projected {
 /// (or not finite): such a quaternion is read as the identity rotation.
 pub fn normalize_quat(q: [f64; 4]) -> Option<([f64; 4], f64)> {
     let n2 = q.iter().map(|v| v * v).sum::<f64>();
-    if !(n2 >= QUAT_NORM2_MIN) || !n2.is_finite() {
+    if !n2.is_finite() || n2 < QUAT_NORM2_MIN {
         return None;
     }
     let n = n2.sqrt();
@@ -198,8 +198,8 @@ fn project_one(
         depth: t[2],
         ..Projected::default()
     };
-    // Step 1: near plane (the negated test also culls a NaN depth).
-    if !(t[2] > settings.near) {
+    // Step 1: near plane; a NaN depth is culled too.
+    if t[2].is_nan() || t[2] <= settings.near {
         return culled;
     }
 
@@ -213,7 +213,7 @@ fn project_one(
     // Step 6: determinant, culling, clamp, inverse.
     let [a, b, c] = cov2d;
     let det_raw = a * c - b * b;
-    if !(det_raw > 0.0) {
+    if det_raw.is_nan() || det_raw <= 0.0 {
         return culled;
     }
     let det = det_raw.max(settings.det_min);

@@ -183,8 +183,8 @@ pub fn rasterize(
                 if !settings.smooth && next_t < settings.t_min {
                     break;
                 }
-                for ch in 0..3 {
-                    color[ch] += p.rgb[ch] * s.alpha * t;
+                for (c, rgb) in color.iter_mut().zip(p.rgb) {
+                    *c += rgb * s.alpha * t;
                 }
                 t = next_t;
                 out.last_contributor[pix] = k as u32 + 1;

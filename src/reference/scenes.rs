@@ -25,7 +25,8 @@ pub fn random_gaussians(rng: &mut impl Rng, n: usize) -> RefGaussians {
             }
         };
         g.positions.push(p);
-        g.log_scales.push([0; 3].map(|_| rng.gen_range(0.03f64.ln()..0.3f64.ln())));
+        g.log_scales
+            .push([0; 3].map(|_| rng.gen_range(0.03f64.ln()..0.3f64.ln())));
         let q: [f64; 4] = [0; 4].map(|_| rng.gen_range(-1.0..1.0));
         let n = q.iter().map(|v| v * v).sum::<f64>().sqrt().max(1e-3);
         let norm = rng.gen_range(0.5..2.0);
@@ -74,7 +75,11 @@ pub fn random_view(rng: &mut impl Rng, width: u32, height: u32) -> (PinholeCamer
 pub fn look_at(center: Vec3, target: Vec3, up: Vec3) -> Pose {
     let normalize = |v: Vec3| linalg::scale(v, 1.0 / linalg::dot(v, v).sqrt());
     let cross = |a: Vec3, b: Vec3| {
-        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+        [
+            a[1] * b[2] - a[2] * b[1],
+            a[2] * b[0] - a[0] * b[2],
+            a[0] * b[1] - a[1] * b[0],
+        ]
     };
     let z = normalize(linalg::sub(target, center));
     let mut x = cross(z, up);
@@ -85,5 +90,8 @@ pub fn look_at(center: Vec3, target: Vec3, up: Vec3) -> Pose {
     let y = cross(z, x);
     let rotation = [x, y, z];
     let t = linalg::mat_vec(&rotation, center);
-    Pose { rotation, translation: [-t[0], -t[1], -t[2]] }
+    Pose {
+        rotation,
+        translation: [-t[0], -t[1], -t[2]],
+    }
 }
