@@ -1,0 +1,283 @@
+//! Preprocess: one Gaussian in world space → its screen-space footprint (mean, conic, radius,
+//! tile rectangle), depth, opacity and view-dependent colour. See the module docs of
+//! [`crate::reference`] for the numbered steps this file follows.
+
+use anyhow::Result;
+
+use super::linalg::{self, Mat23, Mat3, Vec3};
+use super::{sh, RefGaussians, RenderSettings, QUAT_NORM2_MIN};
+use crate::scene::{PinholeCamera, Pose};
+
+/// The per-Gaussian result of preprocessing, field by field what a GPU preprocess kernel
+/// produces. For a culled Gaussian only `culled`, `cam_mean` and `depth` are meaningful;
+/// the rest is zero and the tile rectangle is empty.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Projected {
+    /// Culled: behind the near plane, degenerate 2D covariance, or non-finite projection.
+    pub culled: bool,
+    /// Mean in camera space.
+    pub cam_mean: [f64; 3],
+    /// Camera z: the sort key within a tile.
+    pub depth: f64,
+    /// Projected mean in pixels (pixel centres at +0.5).
+    pub mean2d: [f64; 2],
+    /// Dilated 2D covariance `[a, b, c]` = `[[a, b], [b, c]]`, px².
+    pub cov2d: [f64; 3],
+    /// Inverse of `cov2d`, `[a, b, c]` = `[[a, b], [b, c]]`.
+    pub conic: [f64; 3],
+    /// `ceil(3·sqrt(λmax))` in pixels (an integer value, kept as f64).
+    pub radius: f64,
+    /// sigmoid(opacity logit).
+    pub opacity: f64,
+    /// Colour after `+0.5` and the clamp at 0.
+    pub rgb: [f64; 3],
+    /// Per channel: the clamp at 0 was active (this channel passes no gradient).
+    pub rgb_clamped: [bool; 3],
+    /// Tile rectangle `[tile_min, tile_max)` in tile units, clamped to the grid.
+    pub tile_min: [u32; 2],
+    pub tile_max: [u32; 2],
+}
+
+impl Projected {
+    /// Number of tiles the rectangle covers (0 when culled or off-screen).
+    pub fn tiles_touched(&self) -> u64 {
+        let w = self.tile_max[0].saturating_sub(self.tile_min[0]) as u64;
+        let h = self.tile_max[1].saturating_sub(self.tile_min[1]) as u64;
+        w * h
+    }
+
+    /// True when tile (tx, ty) lies in the rectangle.
+    pub fn touches_tile(&self, tx: u32, ty: u32) -> bool {
+        (self.tile_min[0]..self.tile_max[0]).contains(&tx)
+            && (self.tile_min[1]..self.tile_max[1]).contains(&ty)
+    }
+}
+
+/// The unit quaternion and the norm it was divided by, or `None` when `|q|² < QUAT_NORM2_MIN`
+/// (or not finite): such a quaternion is read as the identity rotation.
+pub fn normalize_quat(q: [f64; 4]) -> Option<([f64; 4], f64)> {
+    let n2 = q.iter().map(|v| v * v).sum::<f64>();
+    if !n2.is_finite() || n2 < QUAT_NORM2_MIN {
+        return None;
+    }
+    let n = n2.sqrt();
+    Some(([q[0] / n, q[1] / n, q[2] / n, q[3] / n], n))
+}
+
+/// Rotation matrix of a unit quaternion (w, x, y, z).
+pub fn quat_to_rotation(q: [f64; 4]) -> Mat3 {
+    let [w, x, y, z] = q;
+    [
+        [
+            1.0 - 2.0 * (y * y + z * z),
+            2.0 * (x * y - w * z),
+            2.0 * (x * z + w * y),
+        ],
+        [
+            2.0 * (x * y + w * z),
+            1.0 - 2.0 * (x * x + z * z),
+            2.0 * (y * z - w * x),
+        ],
+        [
+            2.0 * (x * z - w * y),
+            2.0 * (y * z + w * x),
+            1.0 - 2.0 * (x * x + y * y),
+        ],
+    ]
+}
+
+/// The rotation a stored quaternion stands for (identity for a degenerate one).
+pub fn rotation_of(q: [f64; 4]) -> Mat3 {
+    match normalize_quat(q) {
+        Some((unit, _)) => quat_to_rotation(unit),
+        None => quat_to_rotation([1.0, 0.0, 0.0, 0.0]),
+    }
+}
+
+/// `M = R S` with `S = diag(exp(log_scale))`, so that `Σ = M Mᵀ`.
+pub fn scaled_rotation(log_scale: [f64; 3], q: [f64; 4]) -> Mat3 {
+    let r = rotation_of(q);
+    let s = log_scale.map(f64::exp);
+    let mut m = r;
+    for row in m.iter_mut() {
+        for (col, v) in row.iter_mut().enumerate() {
+            *v *= s[col];
+        }
+    }
+    m
+}
+
+/// World-space 3D covariance `Σ = R S Sᵀ Rᵀ`.
+pub fn covariance3d(log_scale: [f64; 3], q: [f64; 4]) -> Mat3 {
+    let m = scaled_rotation(log_scale, q);
+    linalg::mul(&m, &linalg::transpose(&m))
+}
+
+/// Clamp intervals `[lo, hi]` for x/z and y/z in the EWA Jacobian: `fov_clamp` times the
+/// tangent from the principal point to each image edge.
+pub fn jacobian_limits(camera: &PinholeCamera, settings: &RenderSettings) -> [[f64; 2]; 2] {
+    let k = settings.fov_clamp;
+    [
+        [
+            -k * camera.cx / camera.fx,
+            k * (camera.width as f64 - camera.cx) / camera.fx,
+        ],
+        [
+            -k * camera.cy / camera.fy,
+            k * (camera.height as f64 - camera.cy) / camera.fy,
+        ],
+    ]
+}
+
+/// `min(max(v, lo), hi)`: never panics, even when `lo > hi` (unlike `f64::clamp`), and says
+/// whether `v` was moved.
+pub fn clamp_flag(v: f64, lo: f64, hi: f64) -> (f64, bool) {
+    let c = v.max(lo).min(hi);
+    (c, c != v)
+}
+
+/// The EWA Jacobian of the projection at camera-space point `t`, with x/z and y/z clamped
+/// (step 4), and which of the two were clamped.
+pub fn ewa_jacobian(camera: &PinholeCamera, t: Vec3, limits: &[[f64; 2]; 2]) -> (Mat23, [bool; 2]) {
+    let z = t[2];
+    let (tx, cx) = clamp_flag(t[0] / z, limits[0][0], limits[0][1]);
+    let (ty, cy) = clamp_flag(t[1] / z, limits[1][0], limits[1][1]);
+    let j = [
+        [camera.fx / z, 0.0, -camera.fx * tx / z],
+        [0.0, camera.fy / z, -camera.fy * ty / z],
+    ];
+    (j, [cx, cy])
+}
+
+/// Unit view direction from the camera centre to `p`, and the distance it was divided by.
+pub fn view_direction(p: Vec3, camera_center: Vec3) -> (Vec3, f64) {
+    let v = linalg::sub(p, camera_center);
+    let len = linalg::dot(v, v).sqrt();
+    (linalg::scale(v, 1.0 / len), len)
+}
+
+pub fn sigmoid(x: f64) -> f64 {
+    1.0 / (1.0 + (-x).exp())
+}
+
+/// Preprocesses every Gaussian for one camera.
+pub fn preprocess(
+    gaussians: &RefGaussians,
+    camera: &PinholeCamera,
+    pose: &Pose,
+    sh_degree: usize,
+    settings: &RenderSettings,
+) -> Result<Vec<Projected>> {
+    super::check_inputs(gaussians, camera, sh_degree, settings)?;
+    let limits = jacobian_limits(camera, settings);
+    let center = pose.center();
+    Ok((0..gaussians.len())
+        .map(|i| {
+            project_one(
+                gaussians, i, camera, pose, center, &limits, sh_degree, settings,
+            )
+        })
+        .collect())
+}
+
+#[allow(clippy::too_many_arguments)]
+fn project_one(
+    g: &RefGaussians,
+    i: usize,
+    camera: &PinholeCamera,
+    pose: &Pose,
+    camera_center: Vec3,
+    limits: &[[f64; 2]; 2],
+    sh_degree: usize,
+    settings: &RenderSettings,
+) -> Projected {
+    let t = pose.transform(g.positions[i]);
+    let culled = Projected {
+        culled: true,
+        cam_mean: t,
+        depth: t[2],
+        ..Projected::default()
+    };
+    // Step 1: near plane; a NaN depth is culled too.
+    if t[2].is_nan() || t[2] <= settings.near {
+        return culled;
+    }
+
+    // Steps 2–5: 3D covariance, into the camera, EWA projection, dilation.
+    let sigma = covariance3d(g.log_scales[i], g.rotations[i]);
+    let (j, _) = ewa_jacobian(camera, t, limits);
+    let jw = linalg::mul23(&j, &pose.rotation);
+    let raw = linalg::project_sym(&jw, &sigma);
+    let cov2d = [raw[0] + settings.eps2d, raw[1], raw[2] + settings.eps2d];
+
+    // Step 6: determinant, culling, clamp, inverse.
+    let [a, b, c] = cov2d;
+    let det_raw = a * c - b * b;
+    if det_raw.is_nan() || det_raw <= 0.0 {
+        return culled;
+    }
+    let det = det_raw.max(settings.det_min);
+    let conic = [c / det, -b / det, a / det];
+
+    // Step 7: screen radius from the larger eigenvalue.
+    let mid = 0.5 * (a + c);
+    let lambda_max = mid + (mid * mid - det).max(0.0).sqrt();
+    let radius = (3.0 * lambda_max.sqrt()).ceil();
+
+    let mean2d = [
+        camera.fx * t[0] / t[2] + camera.cx,
+        camera.fy * t[1] / t[2] + camera.cy,
+    ];
+
+    // Step 9: colour from SH along the view direction.
+    let (dir, _) = view_direction(g.positions[i], camera_center);
+    let raw_rgb = sh::eval(sh_degree, &g.sh[i], dir);
+    let mut rgb = [0.0; 3];
+    let mut rgb_clamped = [false; 3];
+    for ch in 0..3 {
+        let v = raw_rgb[ch] + 0.5;
+        rgb_clamped[ch] = v < 0.0;
+        rgb[ch] = v.max(0.0);
+    }
+
+    // Step 10: never let a non-finite footprint or colour reach the rasterizer.
+    let opacity = sigmoid(g.opacity_logits[i]);
+    let finite = mean2d
+        .iter()
+        .chain(&conic)
+        .chain(&raw_rgb)
+        .all(|v| v.is_finite())
+        && radius.is_finite()
+        && opacity.is_finite();
+    if !finite {
+        return culled;
+    }
+
+    // Step 8: tile rectangle, clamped to the grid in f64 before converting.
+    let (tiles_x, tiles_y) = settings.tile_grid(camera.width, camera.height);
+    let ts = settings.tile_size as f64;
+    let to_tile = |v: f64, n: u32| v.max(0.0).min(n as f64) as u32;
+    let tile_min = [
+        to_tile(((mean2d[0] - radius) / ts).floor(), tiles_x),
+        to_tile(((mean2d[1] - radius) / ts).floor(), tiles_y),
+    ];
+    let tile_max = [
+        to_tile(((mean2d[0] + radius) / ts).ceil(), tiles_x),
+        to_tile(((mean2d[1] + radius) / ts).ceil(), tiles_y),
+    ];
+
+    Projected {
+        culled: false,
+        cam_mean: t,
+        depth: t[2],
+        mean2d,
+        cov2d,
+        conic,
+        radius,
+        opacity,
+        rgb,
+        rgb_clamped,
+        tile_min,
+        tile_max,
+    }
+}

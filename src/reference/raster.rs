@@ -1,0 +1,200 @@
+//! Tile binning, per-tile depth sort, and front-to-back alpha blending per pixel.
+
+use anyhow::{ensure, Result};
+
+use super::project::Projected;
+use super::RenderSettings;
+use crate::scene::PinholeCamera;
+
+/// Per tile, the Gaussians whose tile rectangle holds it, sorted by depth (ties by index):
+/// exactly the order a GPU sort of (tile | depth) keys with values emitted in Gaussian order
+/// and a stable sort produces.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TileBins {
+    pub tiles_x: u32,
+    pub tiles_y: u32,
+    pub tile_size: u32,
+    /// `lists[ty·tiles_x + tx]`: Gaussian indices, nearest first.
+    pub lists: Vec<Vec<u32>>,
+}
+
+impl TileBins {
+    /// The tile holding pixel (i, j).
+    pub fn tile_of_pixel(&self, i: u32, j: u32) -> usize {
+        (j / self.tile_size) as usize * self.tiles_x as usize + (i / self.tile_size) as usize
+    }
+
+    /// Total number of (Gaussian, tile) pairs.
+    pub fn intersections(&self) -> u64 {
+        self.lists.iter().map(|l| l.len() as u64).sum()
+    }
+}
+
+/// Bins the projected Gaussians into tiles and sorts each tile by depth.
+pub fn bin_gaussians(
+    projected: &[Projected],
+    camera: &PinholeCamera,
+    settings: &RenderSettings,
+) -> Result<TileBins> {
+    ensure!(
+        settings.tile_size > 0,
+        "reference binning: settings.tile_size is 0; use 16"
+    );
+    let (tiles_x, tiles_y) = settings.tile_grid(camera.width, camera.height);
+    let mut lists = vec![Vec::new(); tiles_x as usize * tiles_y as usize];
+    for (g, p) in projected.iter().enumerate() {
+        if p.culled {
+            continue;
+        }
+        for ty in p.tile_min[1]..p.tile_max[1].min(tiles_y) {
+            for tx in p.tile_min[0]..p.tile_max[0].min(tiles_x) {
+                lists[ty as usize * tiles_x as usize + tx as usize].push(g as u32);
+            }
+        }
+    }
+    for list in &mut lists {
+        list.sort_by(|&a, &b| {
+            projected[a as usize]
+                .depth
+                .total_cmp(&projected[b as usize].depth)
+                .then(a.cmp(&b))
+        });
+    }
+    Ok(TileBins {
+        tiles_x,
+        tiles_y,
+        tile_size: settings.tile_size,
+        lists,
+    })
+}
+
+/// The rendered image and, per pixel, what the backward pass needs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RasterOutput {
+    pub width: u32,
+    pub height: u32,
+    /// Row-major `[r, g, b]`, background included.
+    pub image: Vec<[f64; 3]>,
+    /// Transmittance left after the last contributing splat.
+    pub final_transmittance: Vec<f64>,
+    /// Position in the tile's sorted list of the last contributing splat, plus one (0 = none).
+    pub last_contributor: Vec<u32>,
+    /// Number of splats that contributed (not skipped) to the pixel.
+    pub contributors: Vec<u32>,
+}
+
+/// One splat evaluated at one pixel centre.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SplatSample {
+    /// `mean2d − pixel centre`.
+    pub d: [f64; 2],
+    /// `exp(power)`.
+    pub gauss: f64,
+    /// The alpha used for blending.
+    pub alpha: f64,
+    /// `opacity·exp(power)` exceeded `alpha_max` and was clamped (no gradient to it).
+    pub alpha_clamped: bool,
+}
+
+/// Evaluates splat `p` at the pixel centre `(px, py)`; `None` when the splat is skipped there
+/// (`power > 0`, or alpha below `alpha_min` outside smooth mode).
+pub fn sample_splat(
+    p: &Projected,
+    px: f64,
+    py: f64,
+    settings: &RenderSettings,
+) -> Option<SplatSample> {
+    let d = [p.mean2d[0] - px, p.mean2d[1] - py];
+    let [a, b, c] = p.conic;
+    let power = -0.5 * (a * d[0] * d[0] + c * d[1] * d[1]) - b * d[0] * d[1];
+    // power > 0 is impossible for a positive definite conic; it only guards rounding.
+    if power > 0.0 {
+        return None;
+    }
+    let gauss = power.exp();
+    let raw = p.opacity * gauss;
+    if settings.smooth {
+        return Some(SplatSample {
+            d,
+            gauss,
+            alpha: raw,
+            alpha_clamped: false,
+        });
+    }
+    let alpha_clamped = raw > settings.alpha_max;
+    let alpha = if alpha_clamped {
+        settings.alpha_max
+    } else {
+        raw
+    };
+    if alpha < settings.alpha_min {
+        return None;
+    }
+    Some(SplatSample {
+        d,
+        gauss,
+        alpha,
+        alpha_clamped,
+    })
+}
+
+/// Blends every pixel front to back over its tile's sorted list.
+pub fn rasterize(
+    projected: &[Projected],
+    bins: &TileBins,
+    camera: &PinholeCamera,
+    background: [f64; 3],
+    settings: &RenderSettings,
+) -> Result<RasterOutput> {
+    let (tiles_x, tiles_y) = settings.tile_grid(camera.width, camera.height);
+    ensure!(
+        bins.tiles_x == tiles_x && bins.tiles_y == tiles_y && bins.tile_size == settings.tile_size,
+        "reference rasterize: the tile bins ({}×{} tiles of {} px) were not made for this camera \
+         and settings ({tiles_x}×{tiles_y} tiles of {} px); bin with the same camera and settings",
+        bins.tiles_x,
+        bins.tiles_y,
+        bins.tile_size,
+        settings.tile_size
+    );
+    let n = camera.width as usize * camera.height as usize;
+    let mut out = RasterOutput {
+        width: camera.width,
+        height: camera.height,
+        image: vec![[0.0; 3]; n],
+        final_transmittance: vec![1.0; n],
+        last_contributor: vec![0; n],
+        contributors: vec![0; n],
+    };
+    for j in 0..camera.height {
+        for i in 0..camera.width {
+            let pix = j as usize * camera.width as usize + i as usize;
+            let (px, py) = (i as f64 + 0.5, j as f64 + 0.5);
+            let list = &bins.lists[bins.tile_of_pixel(i, j)];
+            let mut t = 1.0;
+            let mut color = [0.0; 3];
+            for (k, &g) in list.iter().enumerate() {
+                let p = &projected[g as usize];
+                let Some(s) = sample_splat(p, px, py, settings) else {
+                    continue;
+                };
+                let next_t = t * (1.0 - s.alpha);
+                // Stop before the splat that would make the pixel (almost) opaque: the
+                // backward divides by 1 − alpha to walk back, and this bounds that.
+                if !settings.smooth && next_t < settings.t_min {
+                    break;
+                }
+                for (c, rgb) in color.iter_mut().zip(p.rgb) {
+                    *c += rgb * s.alpha * t;
+                }
+                t = next_t;
+                out.last_contributor[pix] = k as u32 + 1;
+                out.contributors[pix] += 1;
+            }
+            for ch in 0..3 {
+                out.image[pix][ch] = color[ch] + t * background[ch];
+            }
+            out.final_transmittance[pix] = t;
+        }
+    }
+    Ok(out)
+}
