@@ -39,15 +39,33 @@ fn shrink_split(args: &Args, split: &str, count: usize) -> anyhow::Result<()> {
     let mut json = read_json(&src_json)?;
     let frames = match json.get("frames").and_then(|f| f.as_array()) {
         Some(f) if f.len() >= count && count > 0 => f.clone(),
-        _ => return bad_input(&src_json, "frames", format!("fewer than {count} frames"), "ask for fewer views"),
+        _ => {
+            return bad_input(
+                &src_json,
+                "frames",
+                format!("fewer than {count} frames"),
+                "ask for fewer views",
+            )
+        }
     };
     // Evenly spread over the file's order, which for NeRF-synthetic walks around the object.
-    let picked: Vec<serde_json::Value> = (0..count).map(|k| frames[k * frames.len() / count].clone()).collect();
+    let picked: Vec<serde_json::Value> = (0..count)
+        .map(|k| frames[k * frames.len() / count].clone())
+        .collect();
     for (k, frame) in picked.iter().enumerate() {
         let Some(file_path) = frame.get("file_path").and_then(|p| p.as_str()) else {
-            return bad_input(&src_json, format!("frames[{k}].file_path"), "missing", "add it");
+            return bad_input(
+                &src_json,
+                format!("frames[{k}].file_path"),
+                "missing",
+                "add it",
+            );
         };
-        let rel = if Path::new(file_path).extension().is_some() { file_path.to_string() } else { format!("{file_path}.png") };
+        let rel = if Path::new(file_path).extension().is_some() {
+            file_path.to_string()
+        } else {
+            format!("{file_path}.png")
+        };
         let img = decode_image(&args.src.join(&rel))?;
         let small = resize_area(&img, args.size, args.size);
         let out = args.dst.join(&rel);

@@ -25,7 +25,12 @@ pub struct Image {
 impl Image {
     /// A black, opaque (no alpha channel) image.
     pub fn new(width: u32, height: u32) -> Image {
-        Image { width, height, rgb: vec![0.0; 3 * width as usize * height as usize], alpha: None }
+        Image {
+            width,
+            height,
+            rgb: vec![0.0; 3 * width as usize * height as usize],
+            alpha: None,
+        }
     }
 
     /// Number of pixels.
@@ -45,7 +50,9 @@ impl Image {
 
     /// The alpha of pixel (x, y): 1 when the image has no alpha channel.
     pub fn alpha_at(&self, x: u32, y: u32) -> f32 {
-        self.alpha.as_ref().map_or(1.0, |a| a[y as usize * self.width as usize + x as usize])
+        self.alpha
+            .as_ref()
+            .map_or(1.0, |a| a[y as usize * self.width as usize + x as usize])
     }
 
     /// Sets the colour of pixel (x, y).
@@ -82,9 +89,19 @@ pub fn decode_image(path: &Path) -> anyhow::Result<Image> {
             rgb.extend_from_slice(&px[..3]);
             alpha.push(px[3]);
         }
-        Ok(Image { width, height, rgb, alpha: Some(alpha) })
+        Ok(Image {
+            width,
+            height,
+            rgb,
+            alpha: Some(alpha),
+        })
     } else {
-        Ok(Image { width, height, rgb: img.to_rgb32f().into_raw(), alpha: None })
+        Ok(Image {
+            width,
+            height,
+            rgb: img.to_rgb32f().into_raw(),
+            alpha: None,
+        })
     }
 }
 
@@ -103,18 +120,28 @@ pub fn load_view_image(view: &View) -> anyhow::Result<Image> {
             "use the images the scene was reconstructed from, or fix the camera's size",
         );
     }
-    let img = if view.source_model.is_distorted() { undistort::undistort_image(&view.source_model, &img) } else { img };
+    let img = if view.source_model.is_distorted() {
+        undistort::undistort_image(&view.source_model, &img)
+    } else {
+        img
+    };
     Ok(resize_area(&img, view.camera.width, view.camera.height))
 }
 
 /// Loads the images of `scene.views[i]` for each `i` in `indices`, in parallel, in that order.
 pub fn load_images(scene: &Scene, indices: &[usize]) -> anyhow::Result<Vec<Image>> {
     if let Some(&bad) = indices.iter().find(|&&i| i >= scene.views.len()) {
-        anyhow::bail!("view index {bad} is out of range: the scene has {} views", scene.views.len());
+        anyhow::bail!(
+            "view index {bad} is out of range: the scene has {} views",
+            scene.views.len()
+        );
     }
     indices
         .par_iter()
-        .map(|&i| load_view_image(&scene.views[i]).with_context(|| format!("loading view {}", scene.views[i].name)))
+        .map(|&i| {
+            load_view_image(&scene.views[i])
+                .with_context(|| format!("loading view {}", scene.views[i].name))
+        })
         .collect()
 }
 
@@ -138,8 +165,8 @@ pub fn resize_area(src: &Image, width: u32, height: u32) -> Image {
     let mut pre = vec![0.0f64; channels * sw * sh];
     for (p, px) in pre.chunks_exact_mut(channels).enumerate() {
         let a = src.alpha.as_ref().map_or(1.0, |a| a[p] as f64);
-        for c in 0..3 {
-            px[c] = src.rgb[3 * p + c] as f64 * a;
+        for (d, &s) in px.iter_mut().zip(&src.rgb[3 * p..3 * p + 3]) {
+            *d = s as f64 * a;
         }
         if channels == 4 {
             px[3] = a;
@@ -150,37 +177,41 @@ pub fn resize_area(src: &Image, width: u32, height: u32) -> Image {
     let ty = area_taps(sh, dh);
     // Horizontal pass: sh rows of dw pixels.
     let mut mid = vec![0.0f64; channels * dw * sh];
-    mid.par_chunks_mut(channels * dw).enumerate().for_each(|(y, row)| {
-        let src_row = &pre[channels * sw * y..channels * sw * (y + 1)];
-        for (x, (start, weights)) in tx.iter().enumerate() {
-            let out = &mut row[channels * x..channels * (x + 1)];
-            for (k, &w) in weights.iter().enumerate() {
-                let s = &src_row[channels * (start + k)..channels * (start + k + 1)];
-                for c in 0..channels {
-                    out[c] += w * s[c];
+    mid.par_chunks_mut(channels * dw)
+        .enumerate()
+        .for_each(|(y, row)| {
+            let src_row = &pre[channels * sw * y..channels * sw * (y + 1)];
+            for (x, (start, weights)) in tx.iter().enumerate() {
+                let out = &mut row[channels * x..channels * (x + 1)];
+                for (k, &w) in weights.iter().enumerate() {
+                    let s = &src_row[channels * (start + k)..channels * (start + k + 1)];
+                    for c in 0..channels {
+                        out[c] += w * s[c];
+                    }
                 }
             }
-        }
-    });
+        });
     // Vertical pass.
     let mut dst = vec![0.0f64; channels * dw * dh];
-    dst.par_chunks_mut(channels * dw).enumerate().for_each(|(y, row)| {
-        let (start, weights) = &ty[y];
-        for (k, &w) in weights.iter().enumerate() {
-            let m = &mid[channels * dw * (start + k)..channels * dw * (start + k + 1)];
-            for (o, s) in row.iter_mut().zip(m) {
-                *o += w * s;
+    dst.par_chunks_mut(channels * dw)
+        .enumerate()
+        .for_each(|(y, row)| {
+            let (start, weights) = &ty[y];
+            for (k, &w) in weights.iter().enumerate() {
+                let m = &mid[channels * dw * (start + k)..channels * dw * (start + k + 1)];
+                for (o, s) in row.iter_mut().zip(m) {
+                    *o += w * s;
+                }
             }
-        }
-    });
+        });
 
     let mut out = Image::new(width, height);
     let mut alpha = (channels == 4).then(|| vec![0.0f32; dw * dh]);
     for (p, px) in dst.chunks_exact(channels).enumerate() {
         let a = if channels == 4 { px[3] } else { 1.0 };
         let inv = if a > 0.0 { 1.0 / a } else { 0.0 };
-        for c in 0..3 {
-            out.rgb[3 * p + c] = (px[c] * inv).clamp(0.0, 1.0) as f32;
+        for (d, &s) in out.rgb[3 * p..3 * p + 3].iter_mut().zip(px) {
+            *d = (s * inv).clamp(0.0, 1.0) as f32;
         }
         if let Some(al) = alpha.as_mut() {
             al[p] = a.clamp(0.0, 1.0) as f32;
@@ -200,8 +231,9 @@ fn area_taps(src: usize, dst: usize) -> Vec<(usize, Vec<f64>)> {
             let hi = ((i + 1) as f64 * scale).min(src as f64);
             let first = (lo.floor() as usize).min(src - 1);
             let last = (hi.ceil() as usize).clamp(first + 1, src);
-            let mut weights: Vec<f64> =
-                (first..last).map(|j| (hi.min(j as f64 + 1.0) - lo.max(j as f64)).max(0.0)).collect();
+            let mut weights: Vec<f64> = (first..last)
+                .map(|j| (hi.min(j as f64 + 1.0) - lo.max(j as f64)).max(0.0))
+                .collect();
             // lo < hi, so the first tap has positive coverage and the sum is positive.
             let sum: f64 = weights.iter().sum();
             weights.iter_mut().for_each(|w| *w /= sum);
@@ -213,14 +245,21 @@ fn area_taps(src: usize, dst: usize) -> Vec<(usize, Vec<f64>)> {
 /// `rgb·a + bg·(1 − a)` per pixel: the image over a solid background, without alpha. An image
 /// without alpha is returned unchanged.
 pub fn composite_on_background(img: &Image, bg: [f32; 3]) -> Image {
-    let Some(alpha) = &img.alpha else { return img.clone() };
+    let Some(alpha) = &img.alpha else {
+        return img.clone();
+    };
     let mut rgb = img.rgb.clone();
     for (px, &a) in rgb.chunks_exact_mut(3).zip(alpha) {
         for c in 0..3 {
             px[c] = px[c] * a + bg[c] * (1.0 - a);
         }
     }
-    Image { width: img.width, height: img.height, rgb, alpha: None }
+    Image {
+        width: img.width,
+        height: img.height,
+        rgb,
+        alpha: None,
+    }
 }
 
 /// Writes an 8-bit PNG (RGBA when the image has alpha): values are clamped to [0, 1] and rounded
@@ -249,14 +288,25 @@ pub fn save_png(path: &Path, img: &Image) -> anyhow::Result<()> {
             }
             (b, image::ExtendedColorType::Rgba8)
         }
-        None => (img.rgb.iter().map(|&v| to_u8(v)).collect(), image::ExtendedColorType::Rgb8),
+        None => (
+            img.rgb.iter().map(|&v| to_u8(v)).collect(),
+            image::ExtendedColorType::Rgb8,
+        ),
     };
     let mut encoded = Vec::new();
     image::codecs::png::PngEncoder::new(&mut encoded)
         .write_image(&bytes, img.width, img.height, color)
-        .with_context(|| format!("{}: cannot encode a {}x{} PNG", path.display(), img.width, img.height))?;
+        .with_context(|| {
+            format!(
+                "{}: cannot encode a {}x{} PNG",
+                path.display(),
+                img.width,
+                img.height
+            )
+        })?;
     write_atomic(path, |f| {
         use std::io::Write;
-        f.write_all(&encoded).with_context(|| format!("{}: write failed (disk full?)", path.display()))
+        f.write_all(&encoded)
+            .with_context(|| format!("{}: write failed (disk full?)", path.display()))
     })
 }

@@ -13,7 +13,10 @@
 //! Not read: `ply_file_path` (nerfstudio's optional SfM point cloud); such scenes start from
 //! random points like NeRF-synthetic ones.
 
-use super::{split, target_size, CameraModel, LoadOptions, NerfTestSplit, PinholeCamera, Pose, Scene, SceneFormat, View};
+use super::{
+    split, target_size, CameraModel, LoadOptions, NerfTestSplit, PinholeCamera, Pose, Scene,
+    SceneFormat, View,
+};
 use crate::error::{bad_input, InputError};
 use anyhow::Context;
 use rayon::prelude::*;
@@ -42,8 +45,12 @@ pub fn load_scene(root: &Path, opts: &LoadOptions) -> anyhow::Result<Scene> {
 /// `Infinity` (which Python's json module writes) are read as the strings "NaN" / "Infinity" so
 /// that the field holding them can be named in the error.
 pub fn read_json(path: &Path) -> anyhow::Result<Value> {
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("{}: cannot read the file (does it exist and is it UTF-8 text?)", path.display()))?;
+    let text = std::fs::read_to_string(path).with_context(|| {
+        format!(
+            "{}: cannot read the file (does it exist and is it UTF-8 text?)",
+            path.display()
+        )
+    })?;
     serde_json::from_str(&text).or_else(|e| {
         if let Ok(v) = serde_json::from_str(&quote_non_finite(&text)) {
             return Ok(v);
@@ -74,7 +81,10 @@ fn quote_non_finite(text: &str) -> String {
             }
         } else if c == '"' {
             in_string = true;
-        } else if let Some(tok) = ["NaN", "Infinity", "-Infinity"].into_iter().find(|t| rest.starts_with(t)) {
+        } else if let Some(tok) = ["NaN", "Infinity", "-Infinity"]
+            .into_iter()
+            .find(|t| rest.starts_with(t))
+        {
             out.push('"');
             out.push_str(tok);
             out.push('"');
@@ -123,7 +133,9 @@ fn load_nerf_synthetic(root: &Path, opts: &LoadOptions) -> anyhow::Result<Scene>
     }
 
     let mut train_old = by_split.get("train").cloned().unwrap_or_default();
-    let mut test_old = test_split.and_then(|s| by_split.get(s).cloned()).unwrap_or_default();
+    let mut test_old = test_split
+        .and_then(|s| by_split.get(s).cloned())
+        .unwrap_or_default();
     if !opts.eval_split {
         // As in the Inria reference: without evaluation the test views are trained on too.
         train_old.append(&mut test_old);
@@ -134,7 +146,15 @@ fn load_nerf_synthetic(root: &Path, opts: &LoadOptions) -> anyhow::Result<Scene>
     let test: Vec<usize> = sorted_indices(&test_old, &remap);
     let has_alpha = views.iter().any(|v| v.has_alpha);
     let views: Vec<View> = views.into_iter().map(|p| p.view).collect();
-    finish(root, SceneFormat::NerfSynthetic, views, train, test, Some([1.0, 1.0, 1.0]), has_alpha)
+    finish(
+        root,
+        SceneFormat::NerfSynthetic,
+        views,
+        train,
+        test,
+        Some([1.0, 1.0, 1.0]),
+        has_alpha,
+    )
 }
 
 fn read_nerf_synthetic_file(
@@ -191,8 +211,23 @@ fn read_nerf_synthetic_file(
         // Square pixels: the vertical focal length equals the horizontal one, as the Inria
         // reference derives it; camera_angle_y, where present, is redundant with it.
         let f = 0.5 * w as f64 / (0.5 * angle).tan();
-        let model = CameraModel::Pinhole { fx: f, fy: f, cx: 0.5 * w as f64, cy: 0.5 * h as f64 };
-        out.push(make_view(name, stem, image_path, model, w, h, Pose::from_opengl_camera_to_world(m), alpha, opts));
+        let model = CameraModel::Pinhole {
+            fx: f,
+            fy: f,
+            cx: 0.5 * w as f64,
+            cy: 0.5 * h as f64,
+        };
+        out.push(make_view(
+            name,
+            stem,
+            image_path,
+            model,
+            w,
+            h,
+            Pose::from_opengl_camera_to_world(m),
+            alpha,
+            opts,
+        ));
     }
     Ok(out)
 }
@@ -240,14 +275,32 @@ fn load_nerfstudio(root: &Path, opts: &LoadOptions) -> anyhow::Result<Scene> {
             );
         }
         let stem = file_stem(&file_path);
-        views.push(make_view(name, stem, image_path, model, w, h, Pose::from_opengl_camera_to_world(m), alpha, opts));
+        views.push(make_view(
+            name,
+            stem,
+            image_path,
+            model,
+            w,
+            h,
+            Pose::from_opengl_camera_to_world(m),
+            alpha,
+            opts,
+        ));
     }
 
     let (views, _) = sort_views(views);
     let has_alpha = views.iter().any(|v| v.has_alpha);
     let views: Vec<View> = views.into_iter().map(|p| p.view).collect();
     let (train, test) = nerfstudio_split(root, top, &path, &views, opts)?;
-    finish(root, SceneFormat::Nerfstudio, views, train, test, None, has_alpha)
+    finish(
+        root,
+        SceneFormat::Nerfstudio,
+        views,
+        train,
+        test,
+        None,
+        has_alpha,
+    )
 }
 
 /// The lens model of frame `i` from its own keys, else the file's, in source pixels.
@@ -267,7 +320,13 @@ fn frame_model(
         }
         number(top, key, file, key)
     };
-    let where_is = |key: &str| if frame.contains_key(key) { format!("frames[{i}].{key}") } else { key.to_string() };
+    let where_is = |key: &str| {
+        if frame.contains_key(key) {
+            format!("frames[{i}].{key}")
+        } else {
+            key.to_string()
+        }
+    };
 
     for (key, size, axis) in [("w", w, "width"), ("h", h, "height")] {
         if let Some(declared) = lookup(key)? {
@@ -293,7 +352,10 @@ fn frame_model(
         }
     }
 
-    if let Some(name) = frame.get("camera_model").or_else(|| top.get("camera_model")) {
+    if let Some(name) = frame
+        .get("camera_model")
+        .or_else(|| top.get("camera_model"))
+    {
         let field = where_is("camera_model");
         match name.as_str() {
             Some("OPENCV") | Some("PINHOLE") | Some("SIMPLE_PINHOLE") => {}
@@ -307,7 +369,12 @@ fn frame_model(
             }
         }
     }
-    if frame.get("is_fisheye").or_else(|| top.get("is_fisheye")).and_then(Value::as_bool) == Some(true) {
+    if frame
+        .get("is_fisheye")
+        .or_else(|| top.get("is_fisheye"))
+        .and_then(Value::as_bool)
+        == Some(true)
+    {
         return bad_input(
             file,
             where_is("is_fisheye"),
@@ -365,7 +432,16 @@ fn frame_model(
         *slot = lookup(key)?.unwrap_or(0.0);
     }
     Ok(if k.iter().any(|&v| v != 0.0) {
-        CameraModel::OpenCv { fx, fy, cx, cy, k1: k[0], k2: k[1], p1: k[2], p2: k[3] }
+        CameraModel::OpenCv {
+            fx,
+            fy,
+            cx,
+            cy,
+            k1: k[0],
+            k2: k[1],
+            p1: k[2],
+            p2: k[3],
+        }
     } else {
         CameraModel::Pinhole { fx, fy, cx, cy }
     })
@@ -386,7 +462,11 @@ fn nerfstudio_split(
         None => filename_list(top, "val_filenames", file)?.map(|l| ("val_filenames", l)),
     };
     if train_list.is_none() && test_list.is_none() {
-        return Ok(split::holdout_split(views, opts.holdout_every, opts.eval_split));
+        return Ok(split::holdout_split(
+            views,
+            opts.holdout_every,
+            opts.eval_split,
+        ));
     }
 
     // A list entry may be written like file_path or relative to the scene folder.
@@ -415,8 +495,14 @@ fn nerfstudio_split(
         }
         Ok(out)
     };
-    let train = train_list.as_deref().map(|l| resolve("train_filenames", l)).transpose()?;
-    let test = test_list.as_ref().map(|(key, l)| resolve(key, l)).transpose()?;
+    let train = train_list
+        .as_deref()
+        .map(|l| resolve("train_filenames", l))
+        .transpose()?;
+    let test = test_list
+        .as_ref()
+        .map(|(key, l)| resolve(key, l))
+        .transpose()?;
     let rest = |taken: &[usize]| -> Vec<usize> {
         let taken: HashSet<usize> = taken.iter().copied().collect();
         (0..views.len()).filter(|k| !taken.contains(k)).collect()
@@ -446,16 +532,32 @@ fn nerfstudio_split(
     Ok((train, test))
 }
 
-fn filename_list(top: &serde_json::Map<String, Value>, key: &str, file: &Path) -> anyhow::Result<Option<Vec<String>>> {
-    let Some(v) = top.get(key) else { return Ok(None) };
+fn filename_list(
+    top: &serde_json::Map<String, Value>,
+    key: &str,
+    file: &Path,
+) -> anyhow::Result<Option<Vec<String>>> {
+    let Some(v) = top.get(key) else {
+        return Ok(None);
+    };
     let Some(arr) = v.as_array() else {
-        return bad_input(file, key, "is not a list of file names", format!("make \"{key}\" a list of strings"));
+        return bad_input(
+            file,
+            key,
+            "is not a list of file names",
+            format!("make \"{key}\" a list of strings"),
+        );
     };
     arr.iter()
         .enumerate()
         .map(|(j, e)| match e.as_str() {
             Some(s) => Ok(s.to_string()),
-            None => bad_input(file, format!("{key}[{j}]"), format!("{e} is not a string"), "list file paths as strings"),
+            None => bad_input(
+                file,
+                format!("{key}[{j}]"),
+                format!("{e} is not a string"),
+                "list file paths as strings",
+            ),
         })
         .collect::<anyhow::Result<Vec<_>>>()
         .map(Some)
@@ -491,7 +593,15 @@ fn make_view(
 ) -> ProbedView {
     let (fx, fy, cx, cy) = model.pinhole_part();
     let (tw, th) = target_size(w, h, opts);
-    let camera = PinholeCamera { fx, fy, cx, cy, width: w, height: h }.resized(tw, th);
+    let camera = PinholeCamera {
+        fx,
+        fy,
+        cx,
+        cy,
+        width: w,
+        height: h,
+    }
+    .resized(tw, th);
     ProbedView {
         view: View {
             name,
@@ -518,7 +628,10 @@ fn sort_views(views: Vec<ProbedView>) -> (Vec<ProbedView>, Vec<usize>) {
         remap[old] = new;
     }
     let mut slots: Vec<Option<ProbedView>> = views.into_iter().map(Some).collect();
-    let sorted = order.iter().map(|&old| slots[old].take().expect("each index once")).collect();
+    let sorted = order
+        .iter()
+        .map(|&old| slots[old].take().expect("each index once"))
+        .collect();
     (sorted, remap)
 }
 
@@ -546,34 +659,80 @@ fn finish(
         );
     }
     let (center, extent) = split::camera_extent(&views, &train);
-    Ok(Scene { root: root.to_path_buf(), format, views, train, test, points: None, center, extent, background, has_alpha })
+    Ok(Scene {
+        root: root.to_path_buf(),
+        format,
+        views,
+        train,
+        test,
+        points: None,
+        center,
+        extent,
+        background,
+        has_alpha,
+    })
 }
 
-fn as_object<'a>(v: &'a Value, file: &Path, field: &str) -> anyhow::Result<&'a serde_json::Map<String, Value>> {
+fn as_object<'a>(
+    v: &'a Value,
+    file: &Path,
+    field: &str,
+) -> anyhow::Result<&'a serde_json::Map<String, Value>> {
     match v.as_object() {
         Some(o) => Ok(o),
-        None => bad_input(file, field, format!("is {} where an object {{...}} was expected", kind(v)), "make it a JSON object"),
+        None => bad_input(
+            file,
+            field,
+            format!("is {} where an object {{...}} was expected", kind(v)),
+            "make it a JSON object",
+        ),
     }
 }
 
-fn frames_of<'a>(top: &'a serde_json::Map<String, Value>, file: &Path) -> anyhow::Result<&'a Vec<Value>> {
+fn frames_of<'a>(
+    top: &'a serde_json::Map<String, Value>,
+    file: &Path,
+) -> anyhow::Result<&'a Vec<Value>> {
     match top.get("frames") {
-        None => bad_input(file, "frames", "missing", "add a \"frames\" list with one entry per image"),
-        Some(Value::Array(a)) if a.is_empty() => {
-            bad_input(file, "frames", "is empty: the scene has no images", "add one entry per image")
-        }
+        None => bad_input(
+            file,
+            "frames",
+            "missing",
+            "add a \"frames\" list with one entry per image",
+        ),
+        Some(Value::Array(a)) if a.is_empty() => bad_input(
+            file,
+            "frames",
+            "is empty: the scene has no images",
+            "add one entry per image",
+        ),
         Some(Value::Array(a)) => Ok(a),
-        Some(v) => bad_input(file, "frames", format!("is {} where a list was expected", kind(v)), "make \"frames\" a list"),
+        Some(v) => bad_input(
+            file,
+            "frames",
+            format!("is {} where a list was expected", kind(v)),
+            "make \"frames\" a list",
+        ),
     }
 }
 
 /// A finite number under `key`, or `None` when absent (or JSON null).
-fn number(obj: &serde_json::Map<String, Value>, key: &str, file: &Path, field: &str) -> anyhow::Result<Option<f64>> {
+fn number(
+    obj: &serde_json::Map<String, Value>,
+    key: &str,
+    file: &Path,
+    field: &str,
+) -> anyhow::Result<Option<f64>> {
     match obj.get(key) {
         None | Some(Value::Null) => Ok(None),
         Some(v) => match v.as_f64() {
             Some(x) if x.is_finite() => Ok(Some(x)),
-            _ => bad_input(file, field, format!("{v} is not a finite number"), format!("give \"{key}\" as a number")),
+            _ => bad_input(
+                file,
+                field,
+                format!("{v} is not a finite number"),
+                format!("give \"{key}\" as a number"),
+            ),
         },
     }
 }
@@ -591,7 +750,11 @@ fn check_angle(a: f64, file: &Path, field: &str) -> anyhow::Result<()> {
     }
 }
 
-fn file_path_of(frame: &serde_json::Map<String, Value>, file: &Path, i: usize) -> anyhow::Result<String> {
+fn file_path_of(
+    frame: &serde_json::Map<String, Value>,
+    file: &Path,
+    i: usize,
+) -> anyhow::Result<String> {
     match frame.get("file_path") {
         Some(Value::String(s)) if !s.is_empty() => Ok(s.clone()),
         None => bad_input(
@@ -609,19 +772,33 @@ fn file_path_of(frame: &serde_json::Map<String, Value>, file: &Path, i: usize) -
     }
 }
 
-fn matrix_of(frame: &serde_json::Map<String, Value>, file: &Path, i: usize) -> anyhow::Result<[[f64; 4]; 4]> {
+fn matrix_of(
+    frame: &serde_json::Map<String, Value>,
+    file: &Path,
+    i: usize,
+) -> anyhow::Result<[[f64; 4]; 4]> {
     let field = format!("frames[{i}].transform_matrix");
     let Some(v) = frame.get("transform_matrix") else {
         return bad_input(file, field, "missing", "add the 4x4 camera-to-world matrix");
     };
-    let not_4x4 = |what: String| bad_input(file, &field, what, "give a 4x4 list of rows of finite numbers");
+    let not_4x4 = |what: String| {
+        bad_input(
+            file,
+            &field,
+            what,
+            "give a 4x4 list of rows of finite numbers",
+        )
+    };
     let Some(rows) = v.as_array().filter(|r| r.len() == 4) else {
         return not_4x4(format!("is not a list of 4 rows: {}", short(v)));
     };
     let mut m = [[0.0; 4]; 4];
     for (r, row) in rows.iter().enumerate() {
         let Some(cols) = row.as_array().filter(|c| c.len() == 4) else {
-            return not_4x4(format!("row {r} is not a list of 4 numbers: {}", short(row)));
+            return not_4x4(format!(
+                "row {r} is not a list of 4 numbers: {}",
+                short(row)
+            ));
         };
         for (c, x) in cols.iter().enumerate() {
             match x.as_f64() {
@@ -647,7 +824,11 @@ fn resolve_image(root: &Path, file_path: &str, file: &Path, i: usize) -> anyhow:
     bad_input(
         file,
         format!("frames[{i}].file_path"),
-        format!("image \"{file_path}\" not found (tried {} and {})", given.display(), with_png.display()),
+        format!(
+            "image \"{file_path}\" not found (tried {} and {})",
+            given.display(),
+            with_png.display()
+        ),
         "put the image there or correct file_path (relative to the scene folder)",
     )
 }
@@ -695,7 +876,10 @@ fn normalize(p: &str) -> String {
 }
 
 fn file_stem(p: &str) -> String {
-    Path::new(p).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| p.to_string())
+    Path::new(p)
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| p.to_string())
 }
 
 fn kind(v: &Value) -> &'static str {
@@ -712,7 +896,10 @@ fn kind(v: &Value) -> &'static str {
 fn short(v: &Value) -> String {
     let s = v.to_string();
     if s.len() > 80 {
-        format!("{}…", &s[..s.char_indices().nth(77).map_or(s.len(), |(k, _)| k)])
+        format!(
+            "{}…",
+            &s[..s.char_indices().nth(77).map_or(s.len(), |(k, _)| k)]
+        )
     } else {
         s
     }
