@@ -161,32 +161,23 @@ pub fn resize_area(src: &Image, width: u32, height: u32) -> Image {
     let (sw, sh) = (src.width as usize, src.height as usize);
     let (dw, dh) = (width as usize, height as usize);
 
-    // Interleaved, premultiplied source in f64.
-    let mut pre = vec![0.0f64; channels * sw * sh];
-    for (p, px) in pre.chunks_exact_mut(channels).enumerate() {
-        let a = src.alpha.as_ref().map_or(1.0, |a| a[p] as f64);
-        for (d, &s) in px.iter_mut().zip(&src.rgb[3 * p..3 * p + 3]) {
-            *d = s as f64 * a;
-        }
-        if channels == 4 {
-            px[3] = a;
-        }
-    }
-
     let tx = area_taps(sw, dw);
     let ty = area_taps(sh, dh);
-    // Horizontal pass: sh rows of dw pixels.
+    // Horizontal pass, premultiplying as it reads: sh rows of dw pixels, interleaved, in f64.
     let mut mid = vec![0.0f64; channels * dw * sh];
     mid.par_chunks_mut(channels * dw)
         .enumerate()
         .for_each(|(y, row)| {
-            let src_row = &pre[channels * sw * y..channels * sw * (y + 1)];
             for (x, (start, weights)) in tx.iter().enumerate() {
                 let out = &mut row[channels * x..channels * (x + 1)];
                 for (k, &w) in weights.iter().enumerate() {
-                    let s = &src_row[channels * (start + k)..channels * (start + k + 1)];
-                    for c in 0..channels {
-                        out[c] += w * s[c];
+                    let p = y * sw + start + k;
+                    let a = src.alpha.as_ref().map_or(1.0, |a| a[p] as f64);
+                    for (o, &c) in out.iter_mut().zip(&src.rgb[3 * p..3 * p + 3]) {
+                        *o += w * a * c as f64;
+                    }
+                    if channels == 4 {
+                        out[3] += w * a;
                     }
                 }
             }
