@@ -5,7 +5,7 @@
 //! permuted point array, split at the median of the widest axis), built and queried in parallel
 //! with rayon, and queried in tree order so that neighbouring queries touch the same memory.
 
-use std::sync::atomic::{AtomicU8, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicU8, Ordering};
 
 use rayon::prelude::*;
 
@@ -20,6 +20,9 @@ pub struct KdTree {
     items: Vec<([f64; 3], u32)>,
     /// Split axis of each internal node, heap-indexed (children of `k` are `2k+1`, `2k+2`).
     axes: Vec<u8>,
+    /// Split coordinate of each internal node: the left child's points are <= it, the right
+    /// child's >= it. (Kept apart from the points, which the children's builds reorder.)
+    splits: Vec<f64>,
 }
 
 impl KdTree {
@@ -36,11 +39,17 @@ impl KdTree {
         while items.len().div_ceil(1usize << depth) > LEAF {
             depth += 1;
         }
-        let axes: Vec<AtomicU8> = (0..(1usize << depth)).map(|_| AtomicU8::new(0)).collect();
-        build_node(&mut items, 0, &axes);
+        let nodes = 1usize << depth;
+        let axes: Vec<AtomicU8> = (0..nodes).map(|_| AtomicU8::new(0)).collect();
+        let splits: Vec<AtomicU64> = (0..nodes).map(|_| AtomicU64::new(0)).collect();
+        build_node(&mut items, 0, &axes, &splits);
         KdTree {
             items,
             axes: axes.into_iter().map(AtomicU8::into_inner).collect(),
+            splits: splits
+                .into_iter()
+                .map(|s| f64::from_bits(s.into_inner()))
+                .collect(),
         }
     }
 
@@ -101,7 +110,7 @@ impl KdTree {
         }
         let mid = lo + (hi - lo) / 2;
         let axis = self.axes[node] as usize;
-        let diff = q[axis] - self.items[mid].0[axis];
+        let diff = q[axis] - self.splits[node];
         // Left holds coordinates <= the split value, right >= it, so the far side is at least
         // |diff| away along this axis.
         let (near, far) = if diff < 0.0 {
@@ -121,7 +130,7 @@ fn sq_dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
     d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
 }
 
-fn build_node(items: &mut [([f64; 3], u32)], node: usize, axes: &[AtomicU8]) {
+fn build_node(items: &mut [([f64; 3], u32)], node: usize, axes: &[AtomicU8], splits: &[AtomicU64]) {
     let n = items.len();
     if n <= LEAF {
         return;
@@ -140,15 +149,16 @@ fn build_node(items: &mut [([f64; 3], u32)], node: usize, axes: &[AtomicU8]) {
     axes[node].store(axis as u8, Ordering::Relaxed);
     let mid = n / 2;
     items.select_nth_unstable_by(mid, |a, b| a.0[axis].total_cmp(&b.0[axis]));
+    splits[node].store(items[mid].0[axis].to_bits(), Ordering::Relaxed);
     let (left, right) = items.split_at_mut(mid);
     if n > PARALLEL_BUILD {
         rayon::join(
-            || build_node(left, 2 * node + 1, axes),
-            || build_node(right, 2 * node + 2, axes),
+            || build_node(left, 2 * node + 1, axes, splits),
+            || build_node(right, 2 * node + 2, axes, splits),
         );
     } else {
-        build_node(left, 2 * node + 1, axes);
-        build_node(right, 2 * node + 2, axes);
+        build_node(left, 2 * node + 1, axes, splits);
+        build_node(right, 2 * node + 2, axes, splits);
     }
 }
 

@@ -614,7 +614,7 @@ fn parse_ply(path: &Path, bytes: &[u8], max_degree: u32) -> anyhow::Result<Gauss
                 .collect();
             layout = layout_from_slots(&slots, file_degree);
             let data = &body[start..];
-            let needed = n.checked_mul(stride).unwrap_or(usize::MAX);
+            let needed = n.saturating_mul(stride);
             if data.len() < needed {
                 let k = data.len() / stride;
                 return bad_input(
