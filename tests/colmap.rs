@@ -35,11 +35,26 @@ fn check_track_consistency(scene: &Scene) {
     let mut observations = 0;
     for (id, track) in points.ids.iter().zip(&points.tracks) {
         for &(v, k) in track {
-            assert_eq!(scene.views[v as usize].keypoints.as_ref().unwrap().point3d[k as usize], *id as i64);
+            assert_eq!(
+                scene.views[v as usize].keypoints.as_ref().unwrap().point3d[k as usize],
+                *id as i64
+            );
             observations += 1;
         }
     }
-    let with_point: usize = scene.views.iter().map(|v| v.keypoints.as_ref().unwrap().point3d.iter().filter(|&&i| i >= 0).count()).sum();
+    let with_point: usize = scene
+        .views
+        .iter()
+        .map(|v| {
+            v.keypoints
+                .as_ref()
+                .unwrap()
+                .point3d
+                .iter()
+                .filter(|&&i| i >= 0)
+                .count()
+        })
+        .sum();
     assert_eq!(observations, with_point);
 }
 
@@ -59,7 +74,10 @@ fn lund_door_small_binary_and_text_give_identical_scenes() {
         assert_eq!((v.source_width, v.source_height), (324, 484));
         assert_eq!((v.camera.width, v.camera.height), (324, 484));
         let (fx, fy, cx, cy) = v.source_model.pinhole_part();
-        assert_eq!((v.camera.fx, v.camera.fy, v.camera.cx, v.camera.cy), (fx, fy, cx, cy));
+        assert_eq!(
+            (v.camera.fx, v.camera.fy, v.camera.cx, v.camera.cy),
+            (fx, fy, cx, cy)
+        );
     }
     check_track_consistency(&bin);
 }
@@ -76,7 +94,11 @@ fn lund_door_small_keypoints_match_the_projected_points() {
     let mut raw = scene.clone();
     let model = colmap::read_model(&Path::new(SMALL).join("sparse/0"), true).unwrap();
     for v in &mut raw.views {
-        let im = model.images.iter().find(|i| Some(i.id) == v.colmap_image_id).unwrap();
+        let im = model
+            .images
+            .iter()
+            .find(|i| Some(i.id) == v.colmap_image_id)
+            .unwrap();
         v.keypoints.as_mut().unwrap().xy = im.points2d.clone();
     }
     let points = scene.points.as_ref().unwrap();
@@ -100,12 +122,18 @@ fn lund_door_small_keypoints_match_the_projected_points() {
     };
     let (undistorted, distorted) = (far(&scene), far(&raw));
     eprintln!("far-field error: {undistorted:.3} px undistorted, {distorted:.3} px raw; median {median:.3}");
-    assert!(undistorted < 0.3 * distorted, "far-field error {undistorted} px undistorted vs {distorted} px raw");
+    assert!(
+        undistorted < 0.3 * distorted,
+        "far-field error {undistorted} px undistorted vs {distorted} px raw"
+    );
 }
 
 #[test]
 fn lund_door_small_downscaled_by_factor() {
-    let opts = LoadOptions { resolution_factor: Some(2), ..LoadOptions::default() };
+    let opts = LoadOptions {
+        resolution_factor: Some(2),
+        ..LoadOptions::default()
+    };
     let (bin, txt) = load_both(Path::new(SMALL), &opts);
     assert_eq!(bin, txt);
     let v = &bin.views[0];
@@ -126,8 +154,14 @@ fn shared_lund_door_when_present() {
     assert_eq!(bin, txt);
     assert_eq!(bin.views.len(), 12);
     assert_eq!(bin.points.as_ref().unwrap().len(), 11_384);
-    assert!(bin.views.iter().all(|v| matches!(v.source_model, CameraModel::SimpleRadial { .. })));
-    assert_eq!((bin.views[0].source_width, bin.views[0].source_height), (1296, 1936));
+    assert!(bin
+        .views
+        .iter()
+        .all(|v| matches!(v.source_model, CameraModel::SimpleRadial { .. })));
+    assert_eq!(
+        (bin.views[0].source_width, bin.views[0].source_height),
+        (1296, 1936)
+    );
     assert_eq!((bin.test.len(), bin.train.len()), (2, 10));
     assert!(bin.extent > 0.0 && bin.extent.is_finite());
     check_track_consistency(&bin);
@@ -144,17 +178,36 @@ fn every_camera_model_gives_identical_scenes_from_binary_and_text() {
         let dir = tempfile::tempdir().unwrap();
         let synth = synth_model(&mut rng, &[(model, w, h)], 6, 12);
         write_scene(dir.path(), &synth);
-        assert_eq!(colmap::read_model(&dir.path().join("sparse/0"), true).unwrap(), synth);
-        assert_eq!(colmap::read_model(&dir.path().join("sparse/0"), false).unwrap(), synth);
+        assert_eq!(
+            colmap::read_model(&dir.path().join("sparse/0"), true).unwrap(),
+            synth
+        );
+        assert_eq!(
+            colmap::read_model(&dir.path().join("sparse/0"), false).unwrap(),
+            synth
+        );
         let (bin, txt) = load_both(dir.path(), &LoadOptions::default());
         assert_eq!(bin, txt, "{}", model.name());
         assert_eq!(bin.views.len(), 6);
-        assert!(bin.views.windows(2).all(|p| p[0].name < p[1].name), "views sorted by name");
+        assert!(
+            bin.views.windows(2).all(|p| p[0].name < p[1].name),
+            "views sorted by name"
+        );
         assert!(bin.views.iter().all(|v| v.source_model == model));
-        assert_eq!(bin.format, SceneFormat::Colmap { sparse_dir: dir.path().join("sparse/0"), binary: true });
+        assert_eq!(
+            bin.format,
+            SceneFormat::Colmap {
+                sparse_dir: dir.path().join("sparse/0"),
+                binary: true
+            }
+        );
         check_track_consistency(&bin);
         let (max, _) = reprojection_errors(&bin);
-        assert!(max < 1e-6, "{}: keypoints off their points by up to {max} px", model.name());
+        assert!(
+            max < 1e-6,
+            "{}: keypoints off their points by up to {max} px",
+            model.name()
+        );
     }
 }
 
@@ -167,16 +220,28 @@ fn mixed_cameras_downscaled_keypoints_follow_the_resize() {
     let dir = tempfile::tempdir().unwrap();
     write_scene(dir.path(), &synth);
     for opts in [
-        LoadOptions { resolution_factor: Some(4), ..LoadOptions::default() },
-        LoadOptions { max_width: 50, ..LoadOptions::default() },
-        LoadOptions { eval_split: false, ..LoadOptions::default() },
+        LoadOptions {
+            resolution_factor: Some(4),
+            ..LoadOptions::default()
+        },
+        LoadOptions {
+            max_width: 50,
+            ..LoadOptions::default()
+        },
+        LoadOptions {
+            eval_split: false,
+            ..LoadOptions::default()
+        },
     ] {
         let (bin, txt) = load_both(dir.path(), &opts);
         assert_eq!(bin, txt);
         let (max, _) = reprojection_errors(&bin);
         assert!(max < 1e-6, "{opts:?}: max error {max} px");
         let (tw, th) = lpmsplat::scene::target_size(80, 60, &opts);
-        assert!(bin.views.iter().all(|v| (v.camera.width, v.camera.height) == (tw, th)));
+        assert!(bin
+            .views
+            .iter()
+            .all(|v| (v.camera.width, v.camera.height) == (tw, th)));
         assert_eq!(bin.train.len() + bin.test.len(), 10);
         assert_eq!(bin.test.is_empty(), !opts.eval_split);
     }
@@ -190,10 +255,16 @@ fn auto_form_prefers_binary_and_falls_back_to_text() {
     let dir = tempfile::tempdir().unwrap();
     let sparse = write_scene(dir.path(), &synth);
     let auto = Scene::load(dir.path(), &opts(ColmapForm::Auto)).unwrap();
-    assert!(matches!(auto.format, SceneFormat::Colmap { binary: true, .. }));
+    assert!(matches!(
+        auto.format,
+        SceneFormat::Colmap { binary: true, .. }
+    ));
     for f in ["cameras.bin", "images.bin", "points3D.bin"] {
         std::fs::remove_file(sparse.join(f)).unwrap();
     }
     let auto = Scene::load(dir.path(), &opts(ColmapForm::Auto)).unwrap();
-    assert!(matches!(auto.format, SceneFormat::Colmap { binary: false, .. }));
+    assert!(matches!(
+        auto.format,
+        SceneFormat::Colmap { binary: false, .. }
+    ));
 }

@@ -3,7 +3,9 @@
 mod colmap_support;
 
 use colmap_support::{all_models, project_distorted, rng};
-use lpmsplat::scene::undistort::{distort_pixel, undistort_image, undistort_normalized, undistort_pixel};
+use lpmsplat::scene::undistort::{
+    distort_pixel, undistort_image, undistort_normalized, undistort_pixel,
+};
 use lpmsplat::scene::{CameraModel, Image};
 use rand::Rng;
 
@@ -11,13 +13,31 @@ use rand::Rng;
 /// model, plus the random realistic ones.
 fn distorted_models(w: u32, h: u32) -> Vec<CameraModel> {
     let mut r = rng(10);
-    let mut models: Vec<CameraModel> = all_models(&mut r, w, h).into_iter().filter(|m| m.is_distorted()).collect();
+    let mut models: Vec<CameraModel> = all_models(&mut r, w, h)
+        .into_iter()
+        .filter(|m| m.is_distorted())
+        .collect();
     let (f, cx, cy) = (w as f64, w as f64 * 0.5, h as f64 * 0.5);
     models.extend([
         CameraModel::SimpleRadial { f, cx, cy, k: -0.2 },
         CameraModel::SimpleRadial { f, cx, cy, k: 0.25 },
-        CameraModel::Radial { f, cx, cy, k1: -0.25, k2: 0.05 },
-        CameraModel::OpenCv { fx: f, fy: 1.1 * f, cx: cx + 7.0, cy: cy - 5.0, k1: 0.2, k2: -0.05, p1: 0.01, p2: -0.015 },
+        CameraModel::Radial {
+            f,
+            cx,
+            cy,
+            k1: -0.25,
+            k2: 0.05,
+        },
+        CameraModel::OpenCv {
+            fx: f,
+            fy: 1.1 * f,
+            cx: cx + 7.0,
+            cy: cy - 5.0,
+            k1: 0.2,
+            k2: -0.05,
+            p1: 0.01,
+            p2: -0.015,
+        },
     ]);
     models
 }
@@ -25,7 +45,12 @@ fn distorted_models(w: u32, h: u32) -> Vec<CameraModel> {
 #[test]
 fn undistorted_pixels_match_the_pinhole_projection_of_3d_points() {
     let mut r = rng(11);
-    let mut lund = vec![CameraModel::SimpleRadial { f: 2435.38, cx: 648.0, cy: 968.0, k: -0.0336422 }];
+    let mut lund = vec![CameraModel::SimpleRadial {
+        f: 2435.38,
+        cx: 648.0,
+        cy: 968.0,
+        k: -0.0336422,
+    }];
     lund.extend(distorted_models(1296, 1936));
     let mut checked = 0;
     for model in lund {
@@ -40,16 +65,23 @@ fn undistorted_pixels_match_the_pinhole_projection_of_3d_points() {
                 continue;
             }
             let pinhole = [fx * p[0] / p[2] + cx, fy * p[1] / p[2] + cy];
-            let got = undistort_pixel(&model, src[0], src[1]).unwrap_or_else(|| panic!("{model:?}: no undistortion at {src:?}"));
+            let got = undistort_pixel(&model, src[0], src[1])
+                .unwrap_or_else(|| panic!("{model:?}: no undistortion at {src:?}"));
             worst = worst.max((got[0] - pinhole[0]).hypot(got[1] - pinhole[1]));
             let back = distort_pixel(&model, pinhole[0], pinhole[1]);
             assert!((back[0] - src[0]).hypot(back[1] - src[1]) < 1e-9);
             checked += 1;
         }
-        assert!(worst < 0.1, "{model:?}: reprojection error {worst} px after undistortion");
+        assert!(
+            worst < 0.1,
+            "{model:?}: reprojection error {worst} px after undistortion"
+        );
         // Without undistortion the same pixels would be off by far more: the check has teeth.
         let corner = distort_pixel(&model, 0.0, 0.0);
-        assert!(corner[0].hypot(corner[1]) > 0.5, "{model:?}: no visible distortion");
+        assert!(
+            corner[0].hypot(corner[1]) > 0.5,
+            "{model:?}: no visible distortion"
+        );
     }
     assert!(checked > 10_000);
 }
@@ -57,10 +89,18 @@ fn undistorted_pixels_match_the_pinhole_projection_of_3d_points() {
 #[test]
 fn pinhole_models_pass_through() {
     let mut r = rng(12);
-    for model in all_models(&mut r, 64, 48).into_iter().filter(|m| !m.is_distorted()) {
+    for model in all_models(&mut r, 64, 48)
+        .into_iter()
+        .filter(|m| !m.is_distorted())
+    {
         let (u, v) = (r.gen_range(0.0..64.0), r.gen_range(0.0..48.0));
         assert_eq!(undistort_pixel(&model, u, v), Some([u, v]));
-        let img = Image { width: 4, height: 3, rgb: (0..36).map(|i| i as f32 / 36.0).collect(), alpha: None };
+        let img = Image {
+            width: 4,
+            height: 3,
+            rgb: (0..36).map(|i| i as f32 / 36.0).collect(),
+            alpha: None,
+        };
         assert_eq!(undistort_image(&model, &img), img);
     }
 }
@@ -69,7 +109,12 @@ fn pinhole_models_pass_through() {
 fn no_answer_past_the_fold_of_a_strong_barrel_distortion() {
     // r_d = r (1 + k r²) peaks at r_d = 2/3 · 1/sqrt(3|k|) ≈ 0.70 for k = -0.3: nothing maps
     // beyond that, and the pixels there must not get a made-up answer.
-    let model = CameraModel::SimpleRadial { f: 100.0, cx: 50.0, cy: 50.0, k: -0.3 };
+    let model = CameraModel::SimpleRadial {
+        f: 100.0,
+        cx: 50.0,
+        cy: 50.0,
+        k: -0.3,
+    };
     assert!(undistort_normalized(&model, 0.8, 0.0).is_none());
     assert!(undistort_pixel(&model, 50.0 + 80.0, 50.0).is_none());
     assert!(undistort_pixel(&model, f64::NAN, 1.0).is_none());
@@ -96,7 +141,10 @@ fn reference_undistort(model: &CameraModel, u: f64, v: f64) -> [f64; 2] {
         y += yd - dy;
     }
     let (dx, dy) = model.distort_normalized(x, y);
-    assert!((dx - xd).hypot(dy - yd) < 1e-12, "reference inversion did not converge");
+    assert!(
+        (dx - xd).hypot(dy - yd) < 1e-12,
+        "reference inversion did not converge"
+    );
     [fx * x + cx, fy * y + cy]
 }
 
@@ -105,9 +153,29 @@ fn undistorted_pattern_lands_on_the_pinhole_grid() {
     let (w, h) = (96u32, 80u32);
     let (f, cx, cy) = (90.0, 47.0, 41.5);
     for model in [
-        CameraModel::SimpleRadial { f, cx, cy, k: -0.12 },
-        CameraModel::Radial { f, cx, cy, k1: 0.1, k2: -0.03 },
-        CameraModel::OpenCv { fx: f, fy: 0.95 * f, cx, cy, k1: -0.1, k2: 0.02, p1: 0.004, p2: -0.003 },
+        CameraModel::SimpleRadial {
+            f,
+            cx,
+            cy,
+            k: -0.12,
+        },
+        CameraModel::Radial {
+            f,
+            cx,
+            cy,
+            k1: 0.1,
+            k2: -0.03,
+        },
+        CameraModel::OpenCv {
+            fx: f,
+            fy: 0.95 * f,
+            cx,
+            cy,
+            k1: -0.1,
+            k2: 0.02,
+            p1: 0.004,
+            p2: -0.003,
+        },
     ] {
         // The distorted photo of the pattern: each source pixel shows the pattern at its
         // undistorted position. Alpha carries a pattern too.
@@ -120,7 +188,12 @@ fn undistorted_pattern_lands_on_the_pinhole_grid() {
                 alpha.push(pattern(v, u, 0));
             }
         }
-        let src = Image { width: w, height: h, rgb, alpha: Some(alpha) };
+        let src = Image {
+            width: w,
+            height: h,
+            rgb,
+            alpha: Some(alpha),
+        };
         let out = undistort_image(&model, &src);
         assert_eq!((out.width, out.height), (w, h));
         let out_alpha = out.alpha.as_ref().unwrap();
@@ -131,7 +204,8 @@ fn undistorted_pattern_lands_on_the_pinhole_grid() {
                 let s = distort_pixel(&model, u, v);
                 let k = j * w as usize + i;
                 // Only where the source covers the pixel with a full bilinear footprint.
-                if !(s[0] >= 1.0 && s[1] >= 1.0 && s[0] <= w as f64 - 1.0 && s[1] <= h as f64 - 1.0) {
+                if !(s[0] >= 1.0 && s[1] >= 1.0 && s[0] <= w as f64 - 1.0 && s[1] <= h as f64 - 1.0)
+                {
                     if !(s[0] >= 0.0 && s[1] >= 0.0 && s[0] <= w as f64 && s[1] <= h as f64) {
                         assert_eq!(&out.rgb[3 * k..3 * k + 3], &[0.0; 3]);
                         assert_eq!(out_alpha[k], 0.0);
@@ -150,9 +224,15 @@ fn undistorted_pattern_lands_on_the_pinhole_grid() {
         assert!(n > (w * h) as usize / 2);
         // Bilinear sampling of a 12 px period costs a few percent of the amplitude at most.
         assert!(err < 0.05, "{model:?}: max error {err}");
-        assert!(raw_err > 0.3, "{model:?}: the distortion is too weak to test ({raw_err})");
+        assert!(
+            raw_err > 0.3,
+            "{model:?}: the distortion is too weak to test ({raw_err})"
+        );
         if matches!(model, CameraModel::Radial { .. }) {
-            assert!(outside > 0, "pincushion corners should fall outside the source");
+            assert!(
+                outside > 0,
+                "pincushion corners should fall outside the source"
+            );
         }
     }
 }

@@ -61,7 +61,7 @@ pub fn undistort_normalized(model: &CameraModel, xd: f64, yd: f64) -> Option<[f6
         }
         let j = distortion_jacobian(model, x, y);
         let d = det(&j);
-        if !(d.abs() > 1e-12) {
+        if d.is_nan() || d.abs() <= 1e-12 {
             return None;
         }
         x -= (j[1][1] * rx - j[0][1] * ry) / d;

@@ -10,7 +10,10 @@ use rand::Rng;
 use rand_pcg::Pcg64;
 
 pub fn rng(seed: u64) -> Pcg64 {
-    Pcg64::new(0xcafe_f00d_d15e_a5e5 ^ seed as u128, 0xa02b_dbf7_bb3c_0a7a_c28f_a64a_5d32_2a5d)
+    Pcg64::new(
+        0xcafe_f00d_d15e_a5e5 ^ seed as u128,
+        0xa02b_dbf7_bb3c_0a7a_c28f_a64a_5d32_2a5d,
+    )
 }
 
 /// One camera of each supported model, with realistic random parameters for a `w` × `h` image.
@@ -22,8 +25,19 @@ pub fn all_models(rng: &mut Pcg64, w: u32, h: u32) -> Vec<CameraModel> {
     vec![
         CameraModel::SimplePinhole { f, cx, cy },
         CameraModel::Pinhole { fx: f, fy, cx, cy },
-        CameraModel::SimpleRadial { f, cx, cy, k: rng.gen_range(-0.08..0.08) },
-        CameraModel::Radial { f, cx, cy, k1: rng.gen_range(-0.08..0.08), k2: rng.gen_range(-0.02..0.02) },
+        CameraModel::SimpleRadial {
+            f,
+            cx,
+            cy,
+            k: rng.gen_range(-0.08..0.08),
+        },
+        CameraModel::Radial {
+            f,
+            cx,
+            cy,
+            k1: rng.gen_range(-0.08..0.08),
+            k2: rng.gen_range(-0.02..0.02),
+        },
         CameraModel::OpenCv {
             fx: f,
             fy,
@@ -57,7 +71,12 @@ fn random_unit_quaternion(rng: &mut Pcg64) -> [f64; 4] {
 /// A model with `n_images` images of `cameras` (assigned round-robin), `points_per_image`
 /// points created in front of each camera and observed by every camera that sees them, and a
 /// few keypoints without a 3D point. Ids are deliberately not in name order.
-pub fn synth_model(rng: &mut Pcg64, cameras: &[(CameraModel, u32, u32)], n_images: usize, points_per_image: usize) -> ColmapModel {
+pub fn synth_model(
+    rng: &mut Pcg64,
+    cameras: &[(CameraModel, u32, u32)],
+    n_images: usize,
+    points_per_image: usize,
+) -> ColmapModel {
     let cams: Vec<ColmapCamera> = cameras
         .iter()
         .enumerate()
@@ -78,7 +97,10 @@ pub fn synth_model(rng: &mut Pcg64, cameras: &[(CameraModel, u32, u32)], n_image
             }
         })
         .collect();
-    let poses: Vec<Pose> = images.iter().map(|im| Pose::from_qvec_tvec(im.qvec, im.tvec)).collect();
+    let poses: Vec<Pose> = images
+        .iter()
+        .map(|im| Pose::from_qvec_tvec(im.qvec, im.tvec))
+        .collect();
     let model_of = |im: &ColmapImage| {
         let k = cams.iter().position(|c| c.id == im.camera_id).unwrap();
         cameras[k]
@@ -113,14 +135,23 @@ pub fn synth_model(rng: &mut Pcg64, cameras: &[(CameraModel, u32, u32)], n_image
                 im.point3d_ids.push(id as i64);
             }
             let rgb = std::array::from_fn(|_| rng.gen());
-            points.push(ColmapPoint { id, xyz, rgb, error: rng.gen_range(0.1..2.0), track });
+            points.push(ColmapPoint {
+                id,
+                xyz,
+                rgb,
+                error: rng.gen_range(0.1..2.0),
+                track,
+            });
         }
     }
     for im in &mut images {
         let (_, w, h) = model_of(im);
         for _ in 0..5 {
             let at = rng.gen_range(0..=im.points2d.len());
-            im.points2d.insert(at, [rng.gen_range(0.0..w as f64), rng.gen_range(0.0..h as f64)]);
+            im.points2d.insert(
+                at,
+                [rng.gen_range(0.0..w as f64), rng.gen_range(0.0..h as f64)],
+            );
             im.point3d_ids.insert(at, -1);
             // Inserting shifts later keypoints: move their track references along.
             for p in &mut points {
@@ -132,12 +163,20 @@ pub fn synth_model(rng: &mut Pcg64, cameras: &[(CameraModel, u32, u32)], n_image
             }
         }
     }
-    ColmapModel { cameras: cams, images, points }
+    ColmapModel {
+        cameras: cams,
+        images,
+        points,
+    }
 }
 
 pub fn camera_to_world(pose: &Pose, pc: [f64; 3]) -> [f64; 3] {
     let r = &pose.rotation;
-    let d = [pc[0] - pose.translation[0], pc[1] - pose.translation[1], pc[2] - pose.translation[2]];
+    let d = [
+        pc[0] - pose.translation[0],
+        pc[1] - pose.translation[1],
+        pc[2] - pose.translation[2],
+    ];
     [
         r[0][0] * d[0] + r[1][0] * d[1] + r[2][0] * d[2],
         r[0][1] * d[0] + r[1][1] * d[1] + r[2][1] * d[2],
@@ -152,28 +191,63 @@ pub fn write_scene(root: &Path, model: &ColmapModel) -> PathBuf {
     colmap::write_text(&sparse, model).unwrap();
     std::fs::create_dir_all(root.join("images")).unwrap();
     for im in &model.images {
-        let Some(cam) = model.cameras.iter().find(|c| c.id == im.camera_id) else { continue };
-        write_png(&root.join("images").join(&im.name), cam.width as u32, cam.height as u32);
+        let Some(cam) = model
+            .cameras
+            .iter()
+            .find(|c| c.id == im.camera_id && c.width > 0 && c.height > 0)
+        else {
+            continue;
+        };
+        write_png(
+            &root.join("images").join(&im.name),
+            cam.width as u32,
+            cam.height as u32,
+        );
     }
     sparse
 }
 
 pub fn write_png(path: &Path, w: u32, h: u32) {
-    image::RgbImage::from_fn(w, h, |x, y| image::Rgb([(x * 7) as u8, (y * 5) as u8, 90])).save(path).unwrap();
+    image::RgbImage::from_fn(w, h, |x, y| image::Rgb([(x * 7) as u8, (y * 5) as u8, 90]))
+        .save(path)
+        .unwrap();
 }
 
 pub fn opts(form: ColmapForm) -> LoadOptions {
-    LoadOptions { colmap_form: form, ..LoadOptions::default() }
+    LoadOptions {
+        colmap_form: form,
+        ..LoadOptions::default()
+    }
 }
 
 /// Loads `root` in both forms, returning (binary, text) with the format field made equal.
 pub fn load_both(root: &Path, base: &LoadOptions) -> (Scene, Scene) {
-    let bin = Scene::load(root, &LoadOptions { colmap_form: ColmapForm::Binary, ..base.clone() }).unwrap();
-    let mut txt = Scene::load(root, &LoadOptions { colmap_form: ColmapForm::Text, ..base.clone() }).unwrap();
+    let bin = Scene::load(
+        root,
+        &LoadOptions {
+            colmap_form: ColmapForm::Binary,
+            ..base.clone()
+        },
+    )
+    .unwrap();
+    let mut txt = Scene::load(
+        root,
+        &LoadOptions {
+            colmap_form: ColmapForm::Text,
+            ..base.clone()
+        },
+    )
+    .unwrap();
     match (&bin.format, &txt.format) {
         (
-            lpmsplat::scene::SceneFormat::Colmap { binary: true, sparse_dir: a },
-            lpmsplat::scene::SceneFormat::Colmap { binary: false, sparse_dir: b },
+            lpmsplat::scene::SceneFormat::Colmap {
+                binary: true,
+                sparse_dir: a,
+            },
+            lpmsplat::scene::SceneFormat::Colmap {
+                binary: false,
+                sparse_dir: b,
+            },
         ) => assert_eq!(a, b),
         other => panic!("unexpected formats {other:?}"),
     }

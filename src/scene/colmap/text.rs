@@ -152,7 +152,7 @@ pub fn read_images(path: &Path) -> anyhow::Result<Vec<ColmapImage>> {
         // The keypoint line; a file that ends right after the pose line has no keypoints.
         let (kline, kl) = lines.next().unwrap_or((line + 1, ""));
         let tokens: Vec<&str> = kl.split_whitespace().collect();
-        if tokens.len() % 3 != 0 {
+        if !tokens.len().is_multiple_of(3) {
             return Err(InputError::new(
                 path,
                 format!("line {kline}: POINTS2D of image {id}"),
@@ -192,7 +192,7 @@ pub fn read_points(path: &Path) -> anyhow::Result<Vec<ColmapPoint>> {
         let rgb = f.array("R G B")?;
         let error = f.next("ERROR")?;
         let rest = f.rest();
-        if rest.len() % 2 != 0 {
+        if !rest.len().is_multiple_of(2) {
             return Err(InputError::new(
                 path,
                 format!("line {line}: TRACK of point3D {id}"),
