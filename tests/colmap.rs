@@ -268,3 +268,39 @@ fn auto_form_prefers_binary_and_falls_back_to_text() {
         SceneFormat::Colmap { binary: false, .. }
     ));
 }
+
+/// The shipped copy is the shared scene scaled by 1/4: same poses and points, keypoints and
+/// intrinsics divided by 4 (up to the rounding documented in its README).
+#[test]
+fn lund_door_small_is_the_shared_scene_scaled_down() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/lund_door");
+    if !root.exists() {
+        eprintln!("skipping: {} is absent", root.display());
+        return;
+    }
+    let full = Scene::load(&root, &LoadOptions::default()).unwrap();
+    let small = Scene::load(Path::new(SMALL), &LoadOptions::default()).unwrap();
+    assert_eq!(full.views.len(), small.views.len());
+    for (a, b) in full.views.iter().zip(&small.views) {
+        assert_eq!((a.name.as_str(), a.pose), (b.name.as_str(), b.pose));
+        assert_eq!(a.source_model.scaled(0.25, 0.25), b.source_model);
+        let (ka, kb) = (a.keypoints.as_ref().unwrap(), b.keypoints.as_ref().unwrap());
+        let kept: Vec<usize> = (0..ka.xy.len()).filter(|&k| ka.point3d[k] != -1).collect();
+        assert_eq!(kept.len(), kb.xy.len());
+        for (&k, (xy, id)) in kept.iter().zip(kb.xy.iter().zip(&kb.point3d)) {
+            assert_eq!(ka.point3d[k], *id);
+            assert!(
+                (ka.xy[k][0] / 4.0 - xy[0]).abs() < 1e-3
+                    && (ka.xy[k][1] / 4.0 - xy[1]).abs() < 1e-3
+            );
+        }
+    }
+    let (pa, pb) = (
+        full.points.as_ref().unwrap(),
+        small.points.as_ref().unwrap(),
+    );
+    assert_eq!((&pa.ids, &pa.colors), (&pb.ids, &pb.colors));
+    for (a, b) in pa.positions.iter().zip(&pb.positions) {
+        assert!((0..3).all(|i| (a[i] - b[i]).abs() <= 5e-7));
+    }
+}
