@@ -29,6 +29,10 @@ pub fn fundamental(
     cam_b: &PinholeCamera,
     pose_b: &Pose,
 ) -> [[f64; 3]; 3] {
+    let (ca, cb) = (DVec3::from(pose_a.center()), DVec3::from(pose_b.center()));
+    if ca.distance(cb) <= 1e-12 * ca.length().max(cb.length()).max(1.0) {
+        return [[0.0; 3]; 3];
+    }
     let ra = rotation(pose_a);
     let rb = rotation(pose_b);
     // Relative pose A → B: x_b = R x_a + t.
