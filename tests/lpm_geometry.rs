@@ -933,3 +933,62 @@ fn regions_with_padding() {
     let tiny = map_with(5, 3, |_, _| true);
     assert!(regions_from_blocks(&block_mask(&tiny, 5, 3, 0.4, 16, 0.85).unwrap()).is_empty());
 }
+
+#[test]
+fn zone_step_time_is_small() {
+    // Measurement, printed for the report; the bound is loose (shared 2-core test machine).
+    let mut rng = Pcg64::seed_from_u64(9);
+    let r = rig(&mut rng, 30.0);
+    let v0 = view("a", r.cams[0].0, r.cams[0].1);
+    let v1 = view("b", r.cams[1].0, r.cams[1].1);
+    let surf: Vec<DVec3> = (0..2000)
+        .map(|_| r.centre + r.rho * random_unit(&mut rng))
+        .collect();
+    let xy0: Vec<[f32; 2]> = surf
+        .iter()
+        .map(|p| project(&v0.camera, &v0.pose, *p).unwrap().map(|x| x as f32))
+        .collect();
+    let xy1: Vec<[f32; 2]> = surf
+        .iter()
+        .map(|p| project(&v1.camera, &v1.pose, *p).unwrap().map(|x| x as f32))
+        .collect();
+    let gt = Image {
+        width: 640,
+        height: 480,
+        rgb: vec![0.5; 640 * 480 * 3],
+        alpha: None,
+    };
+    // 12 regions tiling the image: most hold matches.
+    let regions: Vec<Region> = (0..12)
+        .map(|k| Region {
+            x0: (k % 4) * 160,
+            y0: (k / 4) * 160,
+            x1: (k % 4 + 1) * 160,
+            y1: ((k / 4 + 1) * 160).min(480),
+        })
+        .collect();
+    let t = std::time::Instant::now();
+    let reps = 20;
+    let mut zones = 0;
+    for _ in 0..reps {
+        zones += zones_for_step(
+            &v0,
+            &v1,
+            &regions,
+            &xy0,
+            &xy1,
+            &gt,
+            &ZoneSettings::default(),
+        )
+        .records
+        .len();
+    }
+    let per_step = t.elapsed().as_secs_f64() / reps as f64;
+    println!(
+        "zones_for_step: {:.3} ms per step, {} zones per step",
+        1e3 * per_step,
+        zones / reps
+    );
+    assert!(zones > 0);
+    assert!(per_step < 0.05, "{per_step} s per step");
+}
