@@ -1,0 +1,124 @@
+//! Neighbour views (LPM.md step 3): for each training view, up to `max_neighbours` training views
+//! whose optical axis makes an angle in (0, max_angle] with its own, picked once with a seeded
+//! RNG; the nearest camera centre when none qualifies.
+
+use crate::scene::View;
+use glam::DVec3;
+use rand::seq::SliceRandom;
+use rand::{Rng, SeedableRng};
+
+/// How neighbours are chosen.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NeighbourSettings {
+    /// Largest optical-axis angle in degrees (45 by default; 90 is suggested indoors).
+    pub max_angle_deg: f64,
+    /// How many neighbours to keep per view (3 in the paper).
+    pub max_neighbours: usize,
+    pub seed: u64,
+}
+
+impl Default for NeighbourSettings {
+    fn default() -> Self {
+        Self {
+            max_angle_deg: 45.0,
+            max_neighbours: 3,
+            seed: 0,
+        }
+    }
+}
+
+/// How a view's neighbours were found.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NeighbourKind {
+    /// Views within the angle.
+    ByAngle,
+    /// None within the angle: the nearest camera centre.
+    NearestCentre,
+    /// No other training view exists.
+    None,
+}
+
+/// The neighbours of every view (indices into `Scene::views`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Neighbours {
+    /// Per view index; empty for views that are not training views.
+    pub of: Vec<Vec<usize>>,
+    pub kind: Vec<NeighbourKind>,
+}
+
+impl Neighbours {
+    /// One neighbour of `view`, at random (one LPM step); `None` when it has none.
+    pub fn pick(&self, view: usize, rng: &mut impl Rng) -> Option<usize> {
+        self.of.get(view)?.choose(rng).copied()
+    }
+
+    /// All unordered neighbour pairs (a < b), sorted, without repeats.
+    pub fn pairs(&self) -> Vec<(usize, usize)> {
+        let mut p: Vec<(usize, usize)> = self
+            .of
+            .iter()
+            .enumerate()
+            .flat_map(|(v, ns)| ns.iter().map(move |&n| (v.min(n), v.max(n))))
+            .collect();
+        p.sort_unstable();
+        p.dedup();
+        p
+    }
+}
+
+/// Angle in radians between the optical axes of two poses.
+pub fn optical_axis_angle(a: &crate::scene::Pose, b: &crate::scene::Pose) -> f64 {
+    let da = DVec3::from(a.optical_axis()).normalize_or_zero();
+    let db = DVec3::from(b.optical_axis()).normalize_or_zero();
+    da.dot(db).clamp(-1.0, 1.0).acos()
+}
+
+/// Chooses neighbours among the views listed in `candidates` (the training views), for each of
+/// them. A view never neighbours itself; an angle of exactly 0 (same direction) does not qualify,
+/// as the paper's interval is open there. Views are visited in `candidates` order with one RNG, so
+/// the choice depends only on the scene and the seed.
+pub fn select_neighbours(
+    views: &[View],
+    candidates: &[usize],
+    s: &NeighbourSettings,
+) -> Neighbours {
+    let mut of = vec![Vec::new(); views.len()];
+    let mut kind = vec![NeighbourKind::None; views.len()];
+    let max_angle = s.max_angle_deg.to_radians();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(s.seed ^ 0x6e65_6967_6862_6f75);
+    for &v in candidates {
+        let pose = &views[v].pose;
+        let mut within: Vec<usize> = candidates
+            .iter()
+            .copied()
+            .filter(|&o| o != v)
+            .filter(|&o| {
+                let a = optical_axis_angle(pose, &views[o].pose);
+                a > 0.0 && a <= max_angle
+            })
+            .collect();
+        if !within.is_empty() {
+            within.shuffle(&mut rng);
+            within.truncate(s.max_neighbours.max(1));
+            within.sort_unstable();
+            of[v] = within;
+            kind[v] = NeighbourKind::ByAngle;
+            continue;
+        }
+        let c = DVec3::from(pose.center());
+        let nearest = candidates
+            .iter()
+            .copied()
+            .filter(|&o| o != v)
+            .min_by(|&x, &y| {
+                let dx = DVec3::from(views[x].pose.center()).distance_squared(c);
+                let dy = DVec3::from(views[y].pose.center()).distance_squared(c);
+                dx.total_cmp(&dy).then(x.cmp(&y))
+            });
+        if let Some(n) = nearest {
+            of[v] = vec![n];
+            kind[v] = NeighbourKind::NearestCentre;
+        }
+    }
+    Neighbours { of, kind }
+}

@@ -1,0 +1,103 @@
+//! Region pairing (LPM.md step 5): an error box in V → the box of its matched keypoints in V
+//! (R_e) and the box of their matches in the referred view V' (R_e').
+
+use super::regions::Region;
+
+/// A continuous pixel box `[x0, x1] × [y0, y1]`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PixelBox {
+    pub x0: f64,
+    pub y0: f64,
+    pub x1: f64,
+    pub y1: f64,
+}
+
+impl PixelBox {
+    pub fn center(&self) -> [f64; 2] {
+        [0.5 * (self.x0 + self.x1), 0.5 * (self.y0 + self.y1)]
+    }
+    /// Radius of the circumscribed circle (half the diagonal).
+    pub fn circumradius(&self) -> f64 {
+        0.5 * (self.x1 - self.x0).hypot(self.y1 - self.y0)
+    }
+    pub fn area(&self) -> f64 {
+        (self.x1 - self.x0) * (self.y1 - self.y0)
+    }
+    /// The bounding box of `pts`; `None` when empty or not finite.
+    pub fn bounding(pts: impl IntoIterator<Item = [f64; 2]>) -> Option<PixelBox> {
+        let mut b = PixelBox {
+            x0: f64::INFINITY,
+            y0: f64::INFINITY,
+            x1: f64::NEG_INFINITY,
+            y1: f64::NEG_INFINITY,
+        };
+        for p in pts {
+            b.x0 = b.x0.min(p[0]);
+            b.y0 = b.y0.min(p[1]);
+            b.x1 = b.x1.max(p[0]);
+            b.y1 = b.y1.max(p[1]);
+        }
+        (b.x0.is_finite() && b.x1.is_finite() && b.y0.is_finite() && b.y1.is_finite()).then_some(b)
+    }
+}
+
+/// An error region with its paired boxes.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RegionPair {
+    /// The error box in V.
+    pub region: Region,
+    /// R_e: bounding box of the matched keypoints inside `region`, in V.
+    pub in_view: PixelBox,
+    /// R_e': bounding box of their matches, in V'.
+    pub in_reference: PixelBox,
+    pub matches: usize,
+}
+
+/// What happened to the regions of one step (for the summary).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct PairingStats {
+    pub regions: usize,
+    pub paired: usize,
+    /// Regions holding no matched keypoint.
+    pub no_matches: usize,
+    /// Regions whose R_e or R_e' has zero area (e.g. one match, or matches on a line).
+    pub zero_area: usize,
+}
+
+/// Pairs every region with its matches. `xy_view[i]` (in V) matches `xy_ref[i]` (in V').
+pub fn pair_regions(
+    regions: &[Region],
+    xy_view: &[[f32; 2]],
+    xy_ref: &[[f32; 2]],
+) -> (Vec<RegionPair>, PairingStats) {
+    let mut stats = PairingStats {
+        regions: regions.len(),
+        ..Default::default()
+    };
+    let mut out = Vec::new();
+    for r in regions {
+        let inside: Vec<usize> = (0..xy_view.len().min(xy_ref.len()))
+            .filter(|&i| r.contains(xy_view[i][0] as f64, xy_view[i][1] as f64))
+            .collect();
+        if inside.is_empty() {
+            stats.no_matches += 1;
+            continue;
+        }
+        let to64 = |p: [f32; 2]| [p[0] as f64, p[1] as f64];
+        let bv = PixelBox::bounding(inside.iter().map(|&i| to64(xy_view[i])));
+        let br = PixelBox::bounding(inside.iter().map(|&i| to64(xy_ref[i])));
+        match (bv, br) {
+            (Some(bv), Some(br)) if bv.area() > 0.0 && br.area() > 0.0 => {
+                stats.paired += 1;
+                out.push(RegionPair {
+                    region: *r,
+                    in_view: bv,
+                    in_reference: br,
+                    matches: inside.len(),
+                });
+            }
+            _ => stats.zero_area += 1,
+        }
+    }
+    (out, stats)
+}

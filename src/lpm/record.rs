@@ -1,0 +1,152 @@
+//! Zone records for the GPU, and one LPM step's CPU work (regions → pairs → zones → records).
+
+use super::pairing::{pair_regions, PairingStats, PixelBox};
+use super::regions::Region;
+use super::zones::{zone_from_boxes, CameraView, Zone, ZoneSettings};
+use crate::scene::{Image, View};
+
+/// Shape code in [`ZoneRecord::shape`].
+pub const ZONE_SPHERE: u32 = 0;
+pub const ZONE_BOX: u32 = 1;
+
+/// One error zone as the membership shaders read it. 64 bytes, std430-compatible:
+///
+/// ```glsl
+/// struct Zone {            // offset
+///     vec3  center;        //  0
+///     float radius;        // 12  sphere radius; for a box, its circumscribed radius
+///     vec3  camera_center; // 16  centre of the view the zone was seen from (the "in front" cone apex)
+///     uint  shape;         // 28  0 = sphere, 1 = axis-aligned box (centre ± half_extents)
+///     vec3  color;         // 32  mean ground-truth colour of R_e, linear [0, 1]
+///     float _pad0;         // 44
+///     vec3  half_extents;  // 48  box only (zero for spheres)
+///     float _pad1;         // 60
+/// };
+/// ```
+/// In std430 a `vec3` is 16-byte aligned and a following scalar fills its fourth slot, so the
+/// Rust and GLSL layouts agree field for field.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct ZoneRecord {
+    pub center: [f32; 3],
+    pub radius: f32,
+    pub camera_center: [f32; 3],
+    pub shape: u32,
+    pub color: [f32; 3],
+    pub _pad0: f32,
+    pub half_extents: [f32; 3],
+    pub _pad1: f32,
+}
+
+impl ZoneRecord {
+    pub fn new(zone: &Zone, camera_center: [f64; 3], color: [f32; 3]) -> ZoneRecord {
+        let f = |v: [f64; 3]| [v[0] as f32, v[1] as f32, v[2] as f32];
+        let s = zone.bounding_sphere();
+        let (shape, half) = match *zone {
+            Zone::Sphere(_) => (ZONE_SPHERE, [0.0; 3]),
+            Zone::Box { min, max } => (
+                ZONE_BOX,
+                [
+                    0.5 * (max[0] - min[0]),
+                    0.5 * (max[1] - min[1]),
+                    0.5 * (max[2] - min[2]),
+                ],
+            ),
+        };
+        ZoneRecord {
+            center: f(s.center),
+            radius: s.radius as f32,
+            camera_center: f(camera_center),
+            shape,
+            color,
+            _pad0: 0.0,
+            half_extents: f(half),
+            _pad1: 0.0,
+        }
+    }
+}
+
+/// Mean colour of the pixels whose centres lie in `b` (the nearest pixel to its centre when none
+/// does). Black for an empty image.
+pub fn mean_color(img: &Image, b: &PixelBox) -> [f32; 3] {
+    if img.width == 0 || img.height == 0 || img.rgb.len() < 3 * (img.width * img.height) as usize {
+        return [0.0; 3];
+    }
+    let clampi = |v: f64, hi: u32| (v.max(0.0) as u32).min(hi);
+    // Pixel i has its centre at i + 0.5: inside when x0 ≤ i + 0.5 ≤ x1.
+    let x0 = clampi((b.x0 - 0.5).ceil(), img.width);
+    let x1 = clampi((b.x1 - 0.5).floor() + 1.0, img.width);
+    let y0 = clampi((b.y0 - 0.5).ceil(), img.height);
+    let y1 = clampi((b.y1 - 0.5).floor() + 1.0, img.height);
+    let mut sum = [0.0f64; 3];
+    let mut n = 0usize;
+    for y in y0..y1 {
+        for x in x0..x1 {
+            let i = 3 * (y * img.width + x) as usize;
+            for (c, s) in sum.iter_mut().enumerate() {
+                *s += img.rgb[i + c] as f64;
+            }
+            n += 1;
+        }
+    }
+    if n == 0 {
+        let [cx, cy] = b.center();
+        let x = clampi(cx.floor(), img.width - 1);
+        let y = clampi(cy.floor(), img.height - 1);
+        let i = 3 * (y * img.width + x) as usize;
+        return [img.rgb[i], img.rgb[i + 1], img.rgb[i + 2]];
+    }
+    [
+        (sum[0] / n as f64) as f32,
+        (sum[1] / n as f64) as f32,
+        (sum[2] / n as f64) as f32,
+    ]
+}
+
+/// What one LPM step found.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct StepZones {
+    pub records: Vec<ZoneRecord>,
+    pub zones: Vec<Zone>,
+    pub pairing: PairingStats,
+    /// Paired regions for which no intersection point survived.
+    pub no_zone: usize,
+}
+
+/// Steps 5–6 and the records for one (V, V') pair. `xy_view[i]` in `view` matches `xy_ref[i]` in
+/// `reference`; `gt` is V's ground truth (for the zone colour).
+pub fn zones_for_step(
+    view: &View,
+    reference: &View,
+    regions: &[Region],
+    xy_view: &[[f32; 2]],
+    xy_ref: &[[f32; 2]],
+    gt: &Image,
+    s: &ZoneSettings,
+) -> StepZones {
+    let (pairs, pairing) = pair_regions(regions, xy_view, xy_ref);
+    let v = CameraView {
+        camera: &view.camera,
+        pose: &view.pose,
+    };
+    let r = CameraView {
+        camera: &reference.camera,
+        pose: &reference.pose,
+    };
+    let mut out = StepZones {
+        pairing,
+        ..Default::default()
+    };
+    let apex = view.pose.center();
+    for p in &pairs {
+        match zone_from_boxes(v, &p.in_view, r, &p.in_reference, s).zone {
+            Some(z) => {
+                out.records
+                    .push(ZoneRecord::new(&z, apex, mean_color(gt, &p.in_view)));
+                out.zones.push(z);
+            }
+            None => out.no_zone += 1,
+        }
+    }
+    out
+}

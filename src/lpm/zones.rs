@@ -1,0 +1,377 @@
+//! Cones and error zones (LPM.md step 6).
+//!
+//! A *cone* is the set of points seen by a camera inside a circle on its image plane: apex at the
+//! camera centre, through the circumscribed circle of the region's pixel box. In pixels, a point
+//! with camera coordinates (x, y, z) is inside the cone of circle (cu, cv, ρ) iff z > 0 and
+//! `(fx x + (cx − cu) z)² + (fy y + (cy − cv) z)² ≤ ρ² z²` — a quadric cone, exact also for
+//! fx ≠ fy and for off-centre regions (where the 3D cone is oblique, not circular).
+//!
+//! Three geometries:
+//!
+//! * [`ZoneGeometry::Sphere`] (default, the paper's): the zone is the minimum enclosing sphere of
+//!   the intersection of the two cones. The intersection is convex and its extreme points lie on
+//!   both cone surfaces, so we sample `circle_rays` rays on each cone's surface (plus its axis
+//!   ray), clip every ray of one cone exactly against the other cone (a quadratic in the ray
+//!   parameter t, restricted to t > 0 and to the forward nappe) and keep the entry and exit
+//!   points. Those points lie exactly on the intersection's boundary, so their enclosing sphere
+//!   converges to the true one from inside as `circle_rays` grows (32 rays: within about 1 %).
+//!   A ray that stays inside the other cone to infinity (the cones do not close: rays nearly
+//!   parallel) contributes only its finite entry point; such rays are counted in
+//!   [`ZoneOutcome::unbounded_rays`]. Non-finite points are dropped.
+//! * [`ZoneGeometry::SphereRayPairs`]: the literal reading "intersect the rays of the two cones":
+//!   every sampled ray of V against every sampled ray of V', the midpoint of their common
+//!   perpendicular, kept when both ray parameters are > 0, the rays are not near-parallel and the
+//!   point is finite; zone = minimum enclosing sphere. Skew ray pairs far from the intersection
+//!   also give points, so this sphere is larger than the exact one.
+//! * [`ZoneGeometry::AuthorsBox`]: the authors' code: rays through the perimeter pixels of both
+//!   boxes, the k-th ray of V paired with the k-th of V' (as Python's `zip`, up to the shorter
+//!   perimeter), both closest points of each pair kept, negative t allowed; zone = axis-aligned
+//!   box. The one change: non-finite points (exactly parallel rays) are dropped, as one NaN would
+//!   poison the box.
+
+use super::enclosing_sphere::{minimum_enclosing_sphere, Sphere};
+use super::epipolar::rotation;
+use super::pairing::PixelBox;
+use crate::scene::{PinholeCamera, Pose};
+use glam::DVec3;
+
+/// Which zone geometry to compute (see the module documentation).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Hash)]
+pub enum ZoneGeometry {
+    #[default]
+    Sphere,
+    SphereRayPairs,
+    AuthorsBox,
+}
+
+/// Settings of step 6.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ZoneSettings {
+    pub geometry: ZoneGeometry,
+    /// Rays sampled on each circumscribed circle (the axis ray is added).
+    pub circle_rays: usize,
+    /// Ray pairs closer to parallel than this angle (degrees) are skipped (`SphereRayPairs`).
+    pub min_ray_angle_deg: f64,
+}
+
+impl Default for ZoneSettings {
+    fn default() -> Self {
+        Self {
+            geometry: ZoneGeometry::Sphere,
+            circle_rays: 32,
+            min_ray_angle_deg: 0.5,
+        }
+    }
+}
+
+/// An error zone in world units.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Zone {
+    Sphere(Sphere),
+    Box { min: [f64; 3], max: [f64; 3] },
+}
+
+impl Zone {
+    /// The zone's enclosing sphere (the box's circumscribed sphere for a box).
+    pub fn bounding_sphere(&self) -> Sphere {
+        match *self {
+            Zone::Sphere(s) => s,
+            Zone::Box { min, max } => {
+                let (a, b) = (DVec3::from(min), DVec3::from(max));
+                Sphere {
+                    center: ((a + b) * 0.5).to_array(),
+                    radius: 0.5 * a.distance(b),
+                }
+            }
+        }
+    }
+    pub fn contains(&self, p: [f64; 3], tol: f64) -> bool {
+        match *self {
+            Zone::Sphere(s) => s.contains(p, tol),
+            Zone::Box { min, max } => (0..3).all(|i| p[i] >= min[i] - tol && p[i] <= max[i] + tol),
+        }
+    }
+}
+
+/// The result of one zone computation.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ZoneOutcome {
+    /// `None` when no intersection point survived.
+    pub zone: Option<Zone>,
+    /// Points the zone was built from.
+    pub points: usize,
+    /// Candidate points rejected (t ≤ 0, near-parallel, non-finite).
+    pub rejected: usize,
+    /// `Sphere` only: rays that stayed inside the other cone to infinity.
+    pub unbounded_rays: usize,
+}
+
+/// A camera with its pose, as the zone code sees it.
+#[derive(Debug, Clone, Copy)]
+pub struct CameraView<'a> {
+    pub camera: &'a PinholeCamera,
+    pub pose: &'a Pose,
+}
+
+impl CameraView<'_> {
+    fn center(&self) -> DVec3 {
+        DVec3::from(self.pose.center())
+    }
+    /// World direction of the ray through pixel (u, v) (not normalised; camera z component 1).
+    fn ray(&self, u: f64, v: f64) -> DVec3 {
+        let c = self.camera;
+        let d = DVec3::new((u - c.cx) / c.fx, (v - c.cy) / c.fy, 1.0);
+        rotation(self.pose).transpose() * d
+    }
+}
+
+/// Pixel positions: the circle's centre, then `n` points on the circle.
+fn circle_samples(b: &PixelBox, n: usize) -> Vec<[f64; 2]> {
+    let [cu, cv] = b.center();
+    let r = b.circumradius();
+    let mut out = vec![[cu, cv]];
+    out.extend((0..n).map(|k| {
+        let a = std::f64::consts::TAU * k as f64 / n as f64;
+        [cu + r * a.cos(), cv + r * a.sin()]
+    }));
+    out
+}
+
+/// The zone of one region pair: `box_v` (R_e) in view `v`, `box_r` (R_e') in view `r`.
+pub fn zone_from_boxes(
+    v: CameraView,
+    box_v: &PixelBox,
+    r: CameraView,
+    box_r: &PixelBox,
+    s: &ZoneSettings,
+) -> ZoneOutcome {
+    match s.geometry {
+        ZoneGeometry::Sphere => cone_clip_zone(v, box_v, r, box_r, s),
+        ZoneGeometry::SphereRayPairs => ray_pair_zone(v, box_v, r, box_r, s),
+        ZoneGeometry::AuthorsBox => authors_box_zone(v, box_v, r, box_r),
+    }
+}
+
+/// The parameter intervals (t > 0) where `origin + t dir` lies inside the cone of `cam` through
+/// the circle (cu, cv, rho). The last interval may end at +∞.
+fn clip_ray_to_cone(
+    origin: DVec3,
+    dir: DVec3,
+    cam: CameraView,
+    circle: ([f64; 2], f64),
+) -> Vec<(f64, f64)> {
+    let rot = rotation(cam.pose);
+    let y0 = rot * origin + DVec3::from(cam.pose.translation);
+    let y1 = rot * dir;
+    let c = cam.camera;
+    let ([cu, cv], rho) = circle;
+    // a(t), b(t), c(t) are linear in t; inside ⇔ a² + b² ≤ c² and z > 0.
+    let lin = |p: DVec3| {
+        (
+            c.fx * p.x + (c.cx - cu) * p.z,
+            c.fy * p.y + (c.cy - cv) * p.z,
+            rho * p.z,
+        )
+    };
+    let (a0, b0, c0) = lin(y0);
+    let (a1, b1, c1) = lin(y1);
+    let qa = a1 * a1 + b1 * b1 - c1 * c1;
+    let qb = 2.0 * (a0 * a1 + b0 * b1 - c0 * c1);
+    let qc = a0 * a0 + b0 * b0 - c0 * c0;
+    let g = |t: f64| {
+        let (a, b, cc) = (a0 + a1 * t, b0 + b1 * t, c0 + c1 * t);
+        a * a + b * b - cc * cc
+    };
+    let inside = |t: f64| t > 0.0 && y0.z + y1.z * t > 0.0 && g(t) <= 0.0;
+
+    let mut breaks = vec![0.0];
+    let scale = qa.abs().max(qb.abs()).max(qc.abs());
+    if qa.abs() > 1e-14 * scale {
+        let disc = qb * qb - 4.0 * qa * qc;
+        if disc >= 0.0 {
+            // Numerically stable roots.
+            let q = -0.5 * (qb + qb.signum() * disc.sqrt());
+            if q != 0.0 {
+                breaks.push(q / qa);
+                breaks.push(qc / q);
+            } else {
+                breaks.push(0.0);
+            }
+        }
+    } else if qb != 0.0 {
+        breaks.push(-qc / qb);
+    }
+    if y1.z != 0.0 {
+        breaks.push(-y0.z / y1.z);
+    }
+    breaks.retain(|t| t.is_finite() && *t >= 0.0);
+    breaks.sort_by(|a, b| a.total_cmp(b));
+    breaks.dedup();
+
+    let mut out: Vec<(f64, f64)> = Vec::new();
+    for (i, &t0) in breaks.iter().enumerate() {
+        let (t1, probe) = match breaks.get(i + 1) {
+            Some(&t1) => (t1, 0.5 * (t0 + t1)),
+            None => (f64::INFINITY, t0 + t0.abs().max(1.0)),
+        };
+        if inside(probe) {
+            match out.last_mut() {
+                Some(last) if last.1 == t0 => last.1 = t1,
+                _ => out.push((t0, t1)),
+            }
+        }
+    }
+    out
+}
+
+fn cone_clip_zone(
+    v: CameraView,
+    box_v: &PixelBox,
+    r: CameraView,
+    box_r: &PixelBox,
+    s: &ZoneSettings,
+) -> ZoneOutcome {
+    let n = s.circle_rays.max(3);
+    let mut points = Vec::new();
+    let (mut rejected, mut unbounded) = (0, 0);
+    for (from, bfrom, to, bto) in [(v, box_v, r, box_r), (r, box_r, v, box_v)] {
+        let o = from.center();
+        let circle = (bto.center(), bto.circumradius());
+        for [u, w] in circle_samples(bfrom, n) {
+            let d = from.ray(u, w);
+            for (t0, t1) in clip_ray_to_cone(o, d, to, circle) {
+                for t in [t0, t1] {
+                    if t.is_infinite() {
+                        unbounded += 1;
+                        continue;
+                    }
+                    let p = o + t * d;
+                    if t > 0.0 && p.is_finite() {
+                        points.push(p.to_array());
+                    } else {
+                        // t = 0 is the ray's own apex: the cone starts inside the other cone only
+                        // when the apexes coincide, which is no intersection point.
+                        rejected += 1;
+                    }
+                }
+            }
+        }
+    }
+    let zone = minimum_enclosing_sphere(&points).map(Zone::Sphere);
+    ZoneOutcome {
+        zone,
+        points: points.len(),
+        rejected,
+        unbounded_rays: unbounded,
+    }
+}
+
+/// Closest points of two rays: `(t, s)` with `o1 + t d1` nearest to `o2 + s d2`; `None` when the
+/// rays are closer to parallel than `sin_min`.
+fn closest_params(o1: DVec3, d1: DVec3, o2: DVec3, d2: DVec3, sin_min: f64) -> Option<(f64, f64)> {
+    let w = o1 - o2;
+    let (a, b, c) = (d1.dot(d1), d1.dot(d2), d2.dot(d2));
+    let (d, e) = (d1.dot(w), d2.dot(w));
+    let den = a * c - b * b;
+    if den.is_nan() || den <= sin_min * sin_min * a * c {
+        return None;
+    }
+    Some(((b * e - c * d) / den, (a * e - b * d) / den))
+}
+
+fn ray_pair_zone(
+    v: CameraView,
+    box_v: &PixelBox,
+    r: CameraView,
+    box_r: &PixelBox,
+    s: &ZoneSettings,
+) -> ZoneOutcome {
+    let n = s.circle_rays.max(3);
+    let sin_min = s.min_ray_angle_deg.to_radians().sin();
+    let (ov, or) = (v.center(), r.center());
+    let rays_v: Vec<DVec3> = circle_samples(box_v, n)
+        .into_iter()
+        .map(|[a, b]| v.ray(a, b))
+        .collect();
+    let rays_r: Vec<DVec3> = circle_samples(box_r, n)
+        .into_iter()
+        .map(|[a, b]| r.ray(a, b))
+        .collect();
+    let mut points = Vec::new();
+    let mut rejected = 0;
+    for dv in &rays_v {
+        for dr in &rays_r {
+            let Some((t, u)) = closest_params(ov, *dv, or, *dr, sin_min) else {
+                rejected += 1;
+                continue;
+            };
+            let p = 0.5 * ((ov + t * *dv) + (or + u * *dr));
+            if t > 0.0 && u > 0.0 && p.is_finite() {
+                points.push(p.to_array());
+            } else {
+                rejected += 1;
+            }
+        }
+    }
+    let zone = minimum_enclosing_sphere(&points).map(Zone::Sphere);
+    ZoneOutcome {
+        zone,
+        points: points.len(),
+        rejected,
+        unbounded_rays: 0,
+    }
+}
+
+/// Pixel centres along a box's border, clockwise from the top-left, one per pixel step.
+fn perimeter_samples(b: &PixelBox) -> Vec<[f64; 2]> {
+    let nx = ((b.x1 - b.x0).ceil() as usize).max(1);
+    let ny = ((b.y1 - b.y0).ceil() as usize).max(1);
+    let mut out = Vec::with_capacity(2 * (nx + ny));
+    let lerp = |a: f64, b: f64, k: usize, n: usize| a + (b - a) * k as f64 / n as f64;
+    out.extend((0..nx).map(|k| [lerp(b.x0, b.x1, k, nx), b.y0]));
+    out.extend((0..ny).map(|k| [b.x1, lerp(b.y0, b.y1, k, ny)]));
+    out.extend((0..nx).map(|k| [lerp(b.x1, b.x0, k, nx), b.y1]));
+    out.extend((0..ny).map(|k| [b.x0, lerp(b.y1, b.y0, k, ny)]));
+    out
+}
+
+fn authors_box_zone(
+    v: CameraView,
+    box_v: &PixelBox,
+    r: CameraView,
+    box_r: &PixelBox,
+) -> ZoneOutcome {
+    let (ov, or) = (v.center(), r.center());
+    let mut lo = DVec3::splat(f64::INFINITY);
+    let mut hi = DVec3::splat(f64::NEG_INFINITY);
+    let (mut points, mut rejected) = (0, 0);
+    for (pv, pr) in perimeter_samples(box_v)
+        .into_iter()
+        .zip(perimeter_samples(box_r))
+    {
+        let (dv, dr) = (v.ray(pv[0], pv[1]), r.ray(pr[0], pr[1]));
+        let Some((t, u)) = closest_params(ov, dv, or, dr, 0.0) else {
+            rejected += 2;
+            continue;
+        };
+        for p in [ov + t * dv, or + u * dr] {
+            if p.is_finite() {
+                lo = lo.min(p);
+                hi = hi.max(p);
+                points += 1;
+            } else {
+                rejected += 1;
+            }
+        }
+    }
+    let zone = (points > 0).then(|| Zone::Box {
+        min: lo.to_array(),
+        max: hi.to_array(),
+    });
+    ZoneOutcome {
+        zone,
+        points,
+        rejected,
+        unbounded_rays: 0,
+    }
+}

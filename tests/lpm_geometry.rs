@@ -1,0 +1,994 @@
+//! LPM geometry on synthetic inputs: minimum enclosing sphere, cone zones, epipolar distance,
+//! neighbour views, error regions.
+
+use glam::DVec3;
+use lpmsplat::lpm::enclosing_sphere::minimum_enclosing_sphere;
+use lpmsplat::lpm::epipolar::{fundamental, symmetric_epipolar_distance};
+use lpmsplat::lpm::neighbours::{
+    optical_axis_angle, select_neighbours, NeighbourKind, NeighbourSettings,
+};
+use lpmsplat::lpm::pairing::{pair_regions, PixelBox};
+use lpmsplat::lpm::regions::{
+    block_mask, error_map, quantile, regions_from_blocks, BlockMask, Region,
+};
+use lpmsplat::lpm::zones::{zone_from_boxes, CameraView, Zone, ZoneGeometry, ZoneSettings};
+use lpmsplat::lpm::{zones_for_step, ZoneRecord};
+use lpmsplat::scene::{CameraModel, Image, PinholeCamera, Pose, View};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+
+// ---------------------------------------------------------------- helpers
+
+fn look_at(eye: DVec3, target: DVec3) -> Pose {
+    let z = (target - eye).normalize();
+    let up = if z.z.abs() > 0.99 { DVec3::Y } else { DVec3::Z };
+    let x = z.cross(up).normalize();
+    let y = z.cross(x);
+    let rotation = [x.to_array(), y.to_array(), z.to_array()];
+    let r = glam::DMat3::from_cols(x, y, z).transpose();
+    Pose {
+        rotation,
+        translation: (-(r * eye)).to_array(),
+    }
+}
+
+fn camera(w: u32, h: u32, f: f64) -> PinholeCamera {
+    PinholeCamera {
+        fx: f,
+        fy: f * 1.05,
+        cx: w as f64 / 2.0 + 3.0,
+        cy: h as f64 / 2.0 - 2.0,
+        width: w,
+        height: h,
+    }
+}
+
+fn view(name: &str, cam: PinholeCamera, pose: Pose) -> View {
+    View {
+        name: name.into(),
+        stem: name.into(),
+        image_path: format!("{name}.png").into(),
+        source_model: CameraModel::Pinhole {
+            fx: cam.fx,
+            fy: cam.fy,
+            cx: cam.cx,
+            cy: cam.cy,
+        },
+        source_width: cam.width,
+        source_height: cam.height,
+        camera: cam,
+        pose,
+        colmap_image_id: None,
+        keypoints: None,
+    }
+}
+
+fn project(cam: &PinholeCamera, pose: &Pose, p: DVec3) -> Option<[f64; 2]> {
+    let c = pose.transform(p.to_array());
+    (c[2] > 1e-9).then(|| cam.project(c))
+}
+
+fn random_unit(rng: &mut Pcg64) -> DVec3 {
+    loop {
+        let v = DVec3::new(
+            rng.gen_range(-1.0..1.0),
+            rng.gen_range(-1.0..1.0),
+            rng.gen_range(-1.0..1.0),
+        );
+        if v.length_squared() > 1e-3 && v.length_squared() <= 1.0 {
+            return v.normalize();
+        }
+    }
+}
+
+// ---------------------------------------------------------------- minimum enclosing sphere
+
+/// Smallest sphere through 1–4 points within their affine hull (independent of the library:
+/// closed forms for 2 and 3 points, Cramer's rule for 4).
+fn sphere_through(s: &[DVec3]) -> Option<(DVec3, f64)> {
+    match s.len() {
+        1 => Some((s[0], 0.0)),
+        2 => Some(((s[0] + s[1]) * 0.5, 0.5 * s[0].distance(s[1]))),
+        3 => {
+            let (u, v) = (s[1] - s[0], s[2] - s[0]);
+            let n = u.cross(v);
+            let n2 = n.length_squared();
+            if n2 <= 1e-20 * u.length_squared() * v.length_squared() {
+                return None;
+            }
+            let c = s[0]
+                + (v.length_squared() * n.cross(u) + u.length_squared() * v.cross(n)) / (2.0 * n2);
+            Some((c, c.distance(s[0])))
+        }
+        4 => {
+            let (a, b, c) = (s[1] - s[0], s[2] - s[0], s[3] - s[0]);
+            let det = a.dot(b.cross(c));
+            if det.abs() <= 1e-12 * a.length() * b.length() * c.length() {
+                return None;
+            }
+            let rhs = DVec3::new(a.length_squared(), b.length_squared(), c.length_squared()) * 0.5;
+            // Solve [a; b; c] x = rhs by Cramer's rule.
+            let x = (rhs.x * b.cross(c) + rhs.y * c.cross(a) + rhs.z * a.cross(b)) / det;
+            Some((s[0] + x, x.length()))
+        }
+        _ => None,
+    }
+}
+
+fn brute_force_radius(p: &[DVec3]) -> f64 {
+    let n = p.len();
+    let scale = p
+        .iter()
+        .map(|q| q.distance(p[0]))
+        .fold(0.0, f64::max)
+        .max(1e-300);
+    let mut best = f64::INFINITY;
+    let mut consider = |s: &[DVec3]| {
+        if let Some((c, r)) = sphere_through(s) {
+            if r < best && p.iter().all(|q| q.distance(c) <= r + 1e-9 * scale) {
+                best = r;
+            }
+        }
+    };
+    for i in 0..n {
+        consider(&[p[i]]);
+        for j in i + 1..n {
+            consider(&[p[i], p[j]]);
+            for k in j + 1..n {
+                consider(&[p[i], p[j], p[k]]);
+                for l in k + 1..n {
+                    consider(&[p[i], p[j], p[k], p[l]]);
+                }
+            }
+        }
+    }
+    best
+}
+
+/// Optimality certificate: the centre lies in the convex hull of the points on the sphere
+/// (Frank–Wolfe on min |Σ λ_i p_i − c| over the simplex).
+fn centre_in_hull_of_boundary(p: &[DVec3], c: DVec3, r: f64) -> f64 {
+    let s: Vec<DVec3> = p
+        .iter()
+        .copied()
+        .filter(|q| q.distance(c) >= r * (1.0 - 1e-7) - 1e-12)
+        .collect();
+    assert!(!s.is_empty());
+    let mut x = s[0];
+    for k in 0..20000 {
+        let g = x - c;
+        let best = s
+            .iter()
+            .copied()
+            .min_by(|a, b| a.dot(g).total_cmp(&b.dot(g)))
+            .unwrap();
+        let step = 2.0 / (k as f64 + 2.0);
+        x += step * (best - x);
+    }
+    x.distance(c)
+}
+
+fn check_mes(points: &[DVec3], brute: bool) {
+    let arr: Vec<[f64; 3]> = points.iter().map(|p| p.to_array()).collect();
+    let s = minimum_enclosing_sphere(&arr).expect("non-empty");
+    let c = DVec3::from(s.center);
+    assert!(s.radius.is_finite() && c.is_finite());
+    let scale = points
+        .iter()
+        .map(|q| q.distance(points[0]))
+        .fold(0.0, f64::max);
+    for p in points {
+        assert!(
+            p.distance(c) <= s.radius + 1e-9 * scale.max(1.0),
+            "point outside"
+        );
+    }
+    if s.radius > 0.0 {
+        let gap = centre_in_hull_of_boundary(points, c, s.radius);
+        assert!(
+            gap <= 2e-3 * s.radius,
+            "centre not in the hull of the boundary points: gap {gap} r {}",
+            s.radius
+        );
+    }
+    if brute {
+        let b = brute_force_radius(points);
+        assert!(
+            (s.radius - b).abs() <= 1e-7 * b.max(1e-12),
+            "radius {} vs brute force {}",
+            s.radius,
+            b
+        );
+    }
+}
+
+#[test]
+fn enclosing_sphere_matches_brute_force_on_random_sets() {
+    let mut rng = Pcg64::seed_from_u64(1);
+    for n in 1..=22 {
+        for _ in 0..3 {
+            let pts: Vec<DVec3> = (0..n)
+                .map(|_| {
+                    DVec3::new(
+                        rng.gen_range(-5.0..5.0),
+                        rng.gen_range(-1.0..3.0),
+                        rng.gen_range(10.0..11.0),
+                    )
+                })
+                .collect();
+            check_mes(&pts, true);
+        }
+    }
+    for n in [30, 50, 100, 150, 200] {
+        let pts: Vec<DVec3> = (0..n)
+            .map(|_| random_unit(&mut rng) * rng.gen_range(0.0..2.0f64).sqrt())
+            .collect();
+        check_mes(&pts, false);
+        // Points on a sphere: many near-boundary points.
+        let pts: Vec<DVec3> = (0..n)
+            .map(|_| DVec3::new(1.0, -2.0, 0.5) + 3.0 * random_unit(&mut rng))
+            .collect();
+        check_mes(&pts, false);
+    }
+    assert!(minimum_enclosing_sphere(&[]).is_none());
+    assert!(minimum_enclosing_sphere(&[[f64::NAN, 0.0, 0.0]]).is_none());
+}
+
+#[test]
+fn enclosing_sphere_degenerate_sets() {
+    let mut rng = Pcg64::seed_from_u64(2);
+    // Duplicates: every point repeated, plus one point repeated many times.
+    let base: Vec<DVec3> = (0..8).map(|_| random_unit(&mut rng) * 2.0).collect();
+    let mut dup: Vec<DVec3> = base.iter().chain(base.iter()).copied().collect();
+    dup.extend(std::iter::repeat_n(base[3], 10));
+    check_mes(&dup, dup.len() <= 22);
+    check_mes(
+        &base.iter().chain(base.iter()).copied().collect::<Vec<_>>(),
+        true,
+    );
+    let same = vec![DVec3::new(1.0, 2.0, 3.0); 17];
+    let s =
+        minimum_enclosing_sphere(&same.iter().map(|p| p.to_array()).collect::<Vec<_>>()).unwrap();
+    assert_eq!(s.radius, 0.0);
+
+    for trial in 0..10 {
+        // Collinear.
+        let o = DVec3::new(rng.gen_range(-3.0..3.0), 1.0, 2.0);
+        let d = random_unit(&mut rng);
+        let n = 5 + trial * 20;
+        let line: Vec<DVec3> = (0..n).map(|_| o + rng.gen_range(-4.0..4.0) * d).collect();
+        check_mes(&line, n <= 22);
+        let ts: Vec<f64> = line.iter().map(|p| (*p - o).dot(d)).collect();
+        let want = 0.5
+            * (ts.iter().copied().fold(f64::MIN, f64::max)
+                - ts.iter().copied().fold(f64::MAX, f64::min));
+        let got = minimum_enclosing_sphere(&line.iter().map(|p| p.to_array()).collect::<Vec<_>>())
+            .unwrap();
+        assert!((got.radius - want).abs() <= 1e-9 * want);
+
+        // Coplanar (in a tilted plane), including grid-aligned points with many cocircular ones.
+        let (u, v) = (random_unit(&mut rng), random_unit(&mut rng));
+        let plane: Vec<DVec3> = (0..n)
+            .map(|_| {
+                o + rng.gen_range(-2.0..2.0) * u + rng.gen_range(-2.0..2.0) * (v - v.dot(u) * u)
+            })
+            .collect();
+        check_mes(&plane, n <= 22);
+    }
+    // Cocircular and cospherical configurations (many support candidates).
+    let square: Vec<DVec3> = [(-1., -1.), (1., -1.), (1., 1.), (-1., 1.), (0., 0.)]
+        .iter()
+        .map(|&(x, y)| DVec3::new(x, y, 5.0))
+        .collect();
+    check_mes(&square, true);
+    let cube: Vec<DVec3> = (0..8)
+        .map(|i| DVec3::new((i & 1) as f64, ((i >> 1) & 1) as f64, ((i >> 2) & 1) as f64))
+        .collect();
+    check_mes(&cube, true);
+}
+
+// ---------------------------------------------------------------- zones
+
+/// A random scene: a ball of radius `rho` near the origin and two cameras looking at it, their
+/// viewing directions `sep_deg` apart.
+struct Rig {
+    centre: DVec3,
+    rho: f64,
+    cams: [(PinholeCamera, Pose); 2],
+}
+
+fn rig(rng: &mut Pcg64, sep_deg: f64) -> Rig {
+    let centre = DVec3::new(
+        rng.gen_range(-0.3..0.3),
+        rng.gen_range(-0.3..0.3),
+        rng.gen_range(-0.3..0.3),
+    );
+    let rho = rng.gen_range(0.1..0.3);
+    let d0 = random_unit(rng);
+    let axis = d0.any_orthonormal_vector();
+    let d1 = glam::DQuat::from_axis_angle(axis, sep_deg.to_radians()) * d0;
+    let mk = |d: DVec3, dist: f64, rng: &mut Pcg64| {
+        // Aim slightly off the ball so regions are off-centre in the image.
+        let jitter = DVec3::new(
+            rng.gen_range(-0.2..0.2),
+            rng.gen_range(-0.2..0.2),
+            rng.gen_range(-0.2..0.2),
+        );
+        (
+            camera(640, 480, 500.0),
+            look_at(centre + d * dist, centre + jitter),
+        )
+    };
+    let c0 = mk(d0, rng.gen_range(3.0..5.0), rng);
+    let c1 = mk(d1, rng.gen_range(3.0..5.0), rng);
+    Rig {
+        centre,
+        rho,
+        cams: [c0, c1],
+    }
+}
+
+fn silhouette_box(
+    cam: &PinholeCamera,
+    pose: &Pose,
+    centre: DVec3,
+    rho: f64,
+    rng: &mut Pcg64,
+) -> PixelBox {
+    let pts: Vec<[f64; 2]> = (0..4000)
+        .map(|_| project(cam, pose, centre + rho * random_unit(rng)).unwrap())
+        .collect();
+    PixelBox::bounding(pts).unwrap()
+}
+
+/// Inside the cone of `cam` through the circumscribed circle of `b` (independent formulation:
+/// project, then compare the pixel distance with the circle radius).
+fn in_cone(cam: &PinholeCamera, pose: &Pose, b: &PixelBox, p: DVec3) -> bool {
+    match project(cam, pose, p) {
+        Some(uv) => {
+            let c = b.center();
+            (uv[0] - c[0]).hypot(uv[1] - c[1]) <= b.circumradius()
+        }
+        None => false,
+    }
+}
+
+/// Oracle for the exact zone: grid points inside both cones, their enclosing sphere.
+fn grid_zone_radius(r: &Rig, boxes: &[PixelBox; 2], half: f64, n: usize) -> Option<f64> {
+    let mut pts = Vec::new();
+    let h = 2.0 * half / n as f64;
+    for i in 0..=n {
+        for j in 0..=n {
+            for k in 0..=n {
+                let p = r.centre
+                    + DVec3::new(
+                        -half + i as f64 * h,
+                        -half + j as f64 * h,
+                        -half + k as f64 * h,
+                    );
+                if (0..2).all(|v| in_cone(&r.cams[v].0, &r.cams[v].1, &boxes[v], p)) {
+                    if i == 0 || j == 0 || k == 0 || i == n || j == n || k == n {
+                        return None; // the grid does not hold the whole intersection
+                    }
+                    pts.push(p.to_array());
+                }
+            }
+        }
+    }
+    Some(minimum_enclosing_sphere(&pts)?.radius)
+}
+
+#[test]
+fn sphere_zone_contains_the_ball_and_matches_the_exact_cone_intersection() {
+    let mut rng = Pcg64::seed_from_u64(3);
+    let s = ZoneSettings::default();
+    let mut checked = 0;
+    for trial in 0..12 {
+        let sep = [25.0, 40.0, 60.0, 90.0][trial % 4];
+        let r = rig(&mut rng, sep);
+        let boxes =
+            [0, 1].map(|v| silhouette_box(&r.cams[v].0, &r.cams[v].1, r.centre, r.rho, &mut rng));
+        let cv = |v: usize| CameraView {
+            camera: &r.cams[v].0,
+            pose: &r.cams[v].1,
+        };
+        let out = zone_from_boxes(cv(0), &boxes[0], cv(1), &boxes[1], &s);
+        let Some(Zone::Sphere(z)) = out.zone else {
+            panic!("no zone: {out:?}")
+        };
+        assert_eq!(out.unbounded_rays, 0, "cones close at {sep}°");
+        // Contains the ball (the cones circumscribe its silhouettes), to 1 % of the radius.
+        let c = DVec3::from(z.center);
+        assert!(
+            c.distance(r.centre) + r.rho <= z.radius * 1.01,
+            "ball not inside zone: |c - s| = {}, rho {}, R {}",
+            c.distance(r.centre),
+            r.rho,
+            z.radius
+        );
+        // Radius against the grid oracle of the exact intersection: within 3 % + 2 grid cells.
+        let half = 1.6 * z.radius;
+        let n = 70;
+        if let Some(oracle) = grid_zone_radius(&r, &boxes, half, n) {
+            let cell = 2.0 * half / n as f64 * 3f64.sqrt();
+            assert!(
+                (z.radius - oracle).abs() <= 0.03 * oracle + cell,
+                "sep {sep}: radius {} vs oracle {oracle} (cell {cell})",
+                z.radius
+            );
+            checked += 1;
+        }
+        // The ray-pair reading encloses the exact zone's sample points' sphere only loosely, but
+        // must still be finite and contain the ball.
+        let rp = zone_from_boxes(
+            cv(0),
+            &boxes[0],
+            cv(1),
+            &boxes[1],
+            &ZoneSettings {
+                geometry: ZoneGeometry::SphereRayPairs,
+                ..s
+            },
+        );
+        let Some(Zone::Sphere(zp)) = rp.zone else {
+            panic!("no ray-pair zone")
+        };
+        assert!(DVec3::from(zp.center).distance(r.centre) + r.rho <= zp.radius * 1.01);
+        // The authors' box holds the ball's centre.
+        let ab = zone_from_boxes(
+            cv(0),
+            &boxes[0],
+            cv(1),
+            &boxes[1],
+            &ZoneSettings {
+                geometry: ZoneGeometry::AuthorsBox,
+                ..s
+            },
+        );
+        let zb = ab.zone.expect("box zone");
+        assert!(
+            zb.contains(r.centre.to_array(), 1e-9),
+            "authors' box misses the centre: {zb:?}"
+        );
+    }
+    assert!(
+        checked >= 8,
+        "oracle grid too small too often ({checked} checked)"
+    );
+}
+
+#[test]
+fn sphere_zone_degrades_gracefully_with_match_noise() {
+    let mut rng = Pcg64::seed_from_u64(4);
+    for _ in 0..4 {
+        let r = rig(&mut rng, 35.0);
+        // Matches: projections of random surface points seen by both cameras.
+        let surf: Vec<DVec3> = (0..300)
+            .map(|_| r.centre + r.rho * random_unit(&mut rng))
+            .collect();
+        let clean: Vec<[[f64; 2]; 2]> = surf
+            .iter()
+            .map(|p| [0, 1].map(|v| project(&r.cams[v].0, &r.cams[v].1, *p).unwrap()))
+            .collect();
+        let region = Region {
+            x0: 0,
+            y0: 0,
+            x1: 640,
+            y1: 480,
+        };
+        let cv = |v: usize| CameraView {
+            camera: &r.cams[v].0,
+            pose: &r.cams[v].1,
+        };
+        let mut radii = Vec::new();
+        let sigmas = [0.0, 0.25, 0.5, 1.0, 2.0, 4.0];
+        let box_px = {
+            let b = PixelBox::bounding(clean.iter().map(|m| m[0])).unwrap();
+            b.circumradius()
+        };
+        for &sigma in &sigmas {
+            let mut noisy_rng = Pcg64::seed_from_u64(99);
+            let mut noise = || {
+                let (a, b): (f64, f64) = (noisy_rng.gen_range(1e-12..1.0), noisy_rng.gen());
+                sigma * (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
+            };
+            let xy_v: Vec<[f32; 2]> = clean
+                .iter()
+                .map(|m| [(m[0][0] + noise()) as f32, (m[0][1] + noise()) as f32])
+                .collect();
+            let xy_r: Vec<[f32; 2]> = clean
+                .iter()
+                .map(|m| [(m[1][0] + noise()) as f32, (m[1][1] + noise()) as f32])
+                .collect();
+            let (pairs, stats) = pair_regions(&[region], &xy_v, &xy_r);
+            assert_eq!(stats.paired, 1);
+            let out = zone_from_boxes(
+                cv(0),
+                &pairs[0].in_view,
+                cv(1),
+                &pairs[0].in_reference,
+                &ZoneSettings::default(),
+            );
+            let Some(Zone::Sphere(z)) = out.zone else {
+                panic!("no zone at sigma {sigma}")
+            };
+            assert!(z.radius.is_finite() && z.center.iter().all(|c| c.is_finite()));
+            radii.push(z.radius);
+        }
+        // Stated tolerance: the radius moves by at most 3·σ/ρ_px of itself (ρ_px: the region's
+        // circumradius in pixels; the extreme matches move by about 2σ), plus 1 % for sampling.
+        for (k, &sigma) in sigmas.iter().enumerate() {
+            let rel = (radii[k] - radii[0]).abs() / radii[0];
+            assert!(
+                rel <= 3.0 * sigma / box_px + 0.01,
+                "sigma {sigma}: radius {} vs {} (rel {rel})",
+                radii[k],
+                radii[0]
+            );
+        }
+    }
+}
+
+#[test]
+fn zones_reject_degenerate_pairs_without_nan() {
+    let mut rng = Pcg64::seed_from_u64(5);
+    let cam = camera(320, 240, 300.0);
+    let pose = look_at(DVec3::new(0.0, -4.0, 0.0), DVec3::ZERO);
+    let b = PixelBox {
+        x0: 100.0,
+        y0: 80.0,
+        x1: 140.0,
+        y1: 120.0,
+    };
+    let cv = CameraView {
+        camera: &cam,
+        pose: &pose,
+    };
+    for geometry in [
+        ZoneGeometry::Sphere,
+        ZoneGeometry::SphereRayPairs,
+        ZoneGeometry::AuthorsBox,
+    ] {
+        let s = ZoneSettings {
+            geometry,
+            ..Default::default()
+        };
+        // Same camera twice: every ray pair is parallel or identical.
+        let out = zone_from_boxes(cv, &b, cv, &b, &s);
+        if let Some(z) = out.zone {
+            let sp = z.bounding_sphere();
+            assert!(
+                sp.radius.is_finite() && sp.center.iter().all(|c| c.is_finite()),
+                "{geometry:?}: {z:?}"
+            );
+        }
+        // Tiny baseline, same direction: cones do not close.
+        let pose2 = look_at(DVec3::new(0.01, -4.0, 0.0), DVec3::new(0.01, 0.0, 0.0));
+        let out = zone_from_boxes(
+            cv,
+            &b,
+            CameraView {
+                camera: &cam,
+                pose: &pose2,
+            },
+            &b,
+            &s,
+        );
+        if geometry == ZoneGeometry::Sphere {
+            assert!(out.unbounded_rays > 0);
+        }
+        if let Some(z) = out.zone {
+            let sp = z.bounding_sphere();
+            assert!(
+                sp.radius.is_finite() && sp.center.iter().all(|c| c.is_finite()),
+                "{geometry:?}: {z:?}"
+            );
+        }
+        // Cameras facing away from each other: no point in front of both.
+        let pose3 = look_at(DVec3::new(0.0, -8.0, 0.0), DVec3::new(0.0, -12.0, 0.0));
+        let out = zone_from_boxes(
+            cv,
+            &b,
+            CameraView {
+                camera: &cam,
+                pose: &pose3,
+            },
+            &b,
+            &s,
+        );
+        if geometry != ZoneGeometry::AuthorsBox {
+            assert!(out.zone.is_none(), "{geometry:?}: {out:?}");
+        }
+    }
+    let _ = rng.gen::<u8>();
+}
+
+#[test]
+fn zone_records_layout_and_step() {
+    assert_eq!(std::mem::size_of::<ZoneRecord>(), 64);
+    assert_eq!(std::mem::align_of::<ZoneRecord>(), 4);
+    let mut rng = Pcg64::seed_from_u64(6);
+    let r = rig(&mut rng, 40.0);
+    let v0 = view("a", r.cams[0].0, r.cams[0].1);
+    let v1 = view("b", r.cams[1].0, r.cams[1].1);
+    let surf: Vec<DVec3> = (0..200)
+        .map(|_| r.centre + r.rho * random_unit(&mut rng))
+        .collect();
+    let xy0: Vec<[f32; 2]> = surf
+        .iter()
+        .map(|p| project(&v0.camera, &v0.pose, *p).unwrap().map(|x| x as f32))
+        .collect();
+    let xy1: Vec<[f32; 2]> = surf
+        .iter()
+        .map(|p| project(&v1.camera, &v1.pose, *p).unwrap().map(|x| x as f32))
+        .collect();
+    let (w, h) = (640u32, 480u32);
+    let rgb: Vec<f32> = (0..w * h)
+        .flat_map(|i| [(i % w) as f32 / w as f32, 0.25, 0.75])
+        .collect();
+    let gt = Image {
+        width: w,
+        height: h,
+        rgb,
+        alpha: None,
+    };
+    let regions = [
+        Region {
+            x0: 0,
+            y0: 0,
+            x1: 640,
+            y1: 480,
+        }, // holds every match
+        Region {
+            x0: 0,
+            y0: 0,
+            x1: 16,
+            y1: 16,
+        }, // corner: no matches (ball is near the centre)
+    ];
+    let out = zones_for_step(
+        &v0,
+        &v1,
+        &regions,
+        &xy0,
+        &xy1,
+        &gt,
+        &ZoneSettings::default(),
+    );
+    assert_eq!(out.pairing.regions, 2);
+    assert_eq!(out.pairing.no_matches, 1);
+    assert_eq!(out.records.len(), 1);
+    let rec = out.records[0];
+    let bytes: &[u8] = bytemuck::bytes_of(&rec);
+    assert_eq!(bytes.len(), 64);
+    assert!(
+        (DVec3::from(rec.camera_center.map(|x| x as f64)) - DVec3::from(v0.pose.center())).length()
+            < 1e-4
+    );
+    assert_eq!(rec.shape, 0);
+    assert!(
+        DVec3::from(rec.center.map(|x| x as f64)).distance(r.centre) + r.rho
+            <= rec.radius as f64 * 1.01
+    );
+    // Colour: mean over the keypoints' box; red channel = mean x / w over its pixel columns.
+    let b = PixelBox::bounding(xy0.iter().map(|p| [p[0] as f64, p[1] as f64])).unwrap();
+    let (x0, x1) = ((b.x0 - 0.5).ceil(), (b.x1 - 0.5).floor());
+    let want_r = (0.5 * (x0 + x1)) / w as f64;
+    assert!(
+        (rec.color[0] as f64 - want_r).abs() < 1e-4,
+        "{} vs {want_r}",
+        rec.color[0]
+    );
+    assert!((rec.color[1] - 0.25).abs() < 1e-6 && (rec.color[2] - 0.75).abs() < 1e-6);
+}
+
+// ---------------------------------------------------------------- epipolar
+
+#[test]
+fn epipolar_distance_zero_for_true_matches_and_grows_with_corruption() {
+    let mut rng = Pcg64::seed_from_u64(7);
+    for _ in 0..20 {
+        let sep = rng.gen_range(10.0..80.0);
+        let r = rig(&mut rng, sep);
+        let [(ca, pa), (cb, pb)] = r.cams;
+        let f = fundamental(&ca, &pa, &cb, &pb);
+        for _ in 0..50 {
+            let p = r.centre + random_unit(&mut rng) * rng.gen_range(0.0..1.0);
+            let (xa, xb) = (project(&ca, &pa, p).unwrap(), project(&cb, &pb, p).unwrap());
+            assert!(symmetric_epipolar_distance(&f, xa, xb) < 1e-6);
+            // Move xb off its epipolar line by d pixels along the line's normal.
+            let l = [
+                f[0][0] * xa[0] + f[0][1] * xa[1] + f[0][2],
+                f[1][0] * xa[0] + f[1][1] * xa[1] + f[1][2],
+                f[2][0] * xa[0] + f[2][1] * xa[1] + f[2][2],
+            ];
+            let n = l[0].hypot(l[1]);
+            let d = rng.gen_range(5.0..50.0);
+            let moved = [xb[0] + d * l[0] / n, xb[1] + d * l[1] / n];
+            let e = symmetric_epipolar_distance(&f, xa, moved);
+            assert!(e >= d * (1.0 - 1e-6), "corrupted by {d} px, distance {e}");
+        }
+    }
+    // Zero baseline: undefined lines are infinitely far (so a filter rejects, never NaN).
+    let cam = camera(100, 100, 80.0);
+    let p = look_at(DVec3::new(1.0, 2.0, 3.0), DVec3::ZERO);
+    let f = fundamental(&cam, &p, &cam, &p);
+    assert!(symmetric_epipolar_distance(&f, [10.0, 10.0], [10.0, 10.0]).is_infinite());
+}
+
+// ---------------------------------------------------------------- neighbours
+
+#[test]
+fn neighbours_on_a_ring_rig() {
+    // 36 cameras on a ring, every 10°, all looking at the centre: axis angle = ring angle.
+    let cam = camera(100, 100, 80.0);
+    let mut views: Vec<View> = (0..36)
+        .map(|i| {
+            let a = (i as f64 * 10.0).to_radians();
+            view(
+                &format!("r{i}"),
+                cam,
+                look_at(DVec3::new(5.0 * a.cos(), 5.0 * a.sin(), 0.0), DVec3::ZERO),
+            )
+        })
+        .collect();
+    // A camera with the same axis as r0 (further back): angle 0, never a neighbour of r0.
+    views.push(view(
+        "twin",
+        cam,
+        look_at(DVec3::new(9.0, 0.0, 0.0), DVec3::ZERO),
+    ));
+    // A camera looking straight up from far away: no axis within 45° → nearest centre.
+    views.push(view(
+        "up",
+        cam,
+        look_at(DVec3::new(5.3, 0.2, 0.0), DVec3::new(5.3, 0.2, 10.0)),
+    ));
+    let train: Vec<usize> = (0..views.len()).collect();
+    let s = NeighbourSettings::default();
+    let n = select_neighbours(&views, &train, &s);
+    for v in 0..36 {
+        assert_eq!(n.kind[v], NeighbourKind::ByAngle);
+        assert_eq!(n.of[v].len(), 3);
+        for &o in &n.of[v] {
+            assert_ne!(o, v);
+            let a = optical_axis_angle(&views[v].pose, &views[o].pose).to_degrees();
+            assert!(
+                a > 0.0 && a <= 45.0 + 1e-9,
+                "view {v} neighbour {o} at {a}°"
+            );
+        }
+    }
+    assert!(!n.of[0].contains(&36), "angle 0 must not qualify");
+    assert_eq!(n.kind[37], NeighbourKind::NearestCentre);
+    assert_eq!(n.of[37], vec![0], "r0 at (5,0,0) is nearest to (5.3,0.2,0)");
+    // Deterministic for a seed; the pick is always among the neighbours.
+    assert_eq!(n, select_neighbours(&views, &train, &s));
+    let other = select_neighbours(&views, &train, &NeighbourSettings { seed: 1234, ..s });
+    assert_ne!(
+        n.of, other.of,
+        "another seed should pick differently somewhere"
+    );
+    let mut rng = Pcg64::seed_from_u64(0);
+    for _ in 0..20 {
+        assert!(n.of[5].contains(&n.pick(5, &mut rng).unwrap()));
+    }
+    // A 90° limit lets more views qualify; a tiny one falls back everywhere.
+    let wide = select_neighbours(
+        &views,
+        &train,
+        &NeighbourSettings {
+            max_angle_deg: 90.0,
+            ..s
+        },
+    );
+    assert!(wide.of[0]
+        .iter()
+        .all(|&o| optical_axis_angle(&views[0].pose, &views[o].pose).to_degrees() <= 90.0 + 1e-9));
+    let narrow = select_neighbours(
+        &views,
+        &train,
+        &NeighbourSettings {
+            max_angle_deg: 5.0,
+            ..s
+        },
+    );
+    assert_eq!(narrow.kind[3], NeighbourKind::NearestCentre);
+    // Only training views count; one training view has no neighbour.
+    let one = select_neighbours(&views, &[4], &s);
+    assert_eq!(one.kind[4], NeighbourKind::None);
+    assert!(one.of.iter().all(|o| o.is_empty()));
+    assert!(one.pairs().is_empty());
+    // Pairs are unordered and unique.
+    let pairs = n.pairs();
+    assert!(pairs.windows(2).all(|w| w[0] < w[1]) && pairs.iter().all(|p| p.0 < p.1));
+}
+
+// ---------------------------------------------------------------- regions
+
+#[test]
+fn error_map_and_quantile_match_their_definitions() {
+    let mut rng = Pcg64::seed_from_u64(8);
+    let (w, h) = (37u32, 23u32);
+    let n = (w * h) as usize;
+    let render: Vec<f32> = (0..3 * n).map(|_| rng.gen()).collect();
+    let gt: Vec<f32> = (0..3 * n).map(|_| rng.gen::<f32>() * 0.5).collect();
+    let e = error_map(&render, &gt, w, h).unwrap();
+    let mr = render.iter().map(|&x| x as f64).sum::<f64>() / (3 * n) as f64;
+    let mg = gt.iter().map(|&x| x as f64).sum::<f64>() / (3 * n) as f64;
+    for i in 0..n {
+        let want: f64 = (0..3)
+            .map(|c| {
+                (render[3 * i + c] as f64 / (mr + 0.01) - gt[3 * i + c] as f64 / (mg + 0.01)).abs()
+            })
+            .sum();
+        assert!((e[i] as f64 - want).abs() < 1e-5);
+    }
+    let mut sorted = e.clone();
+    sorted.sort_by(|a, b| a.total_cmp(b));
+    for q in [0.0f32, 0.1, 0.4, 0.5, 0.77, 1.0] {
+        let pos = q as f64 * (n - 1) as f64;
+        let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
+        let want = sorted[lo] as f64 + (pos - lo as f64) * (sorted[hi] as f64 - sorted[lo] as f64);
+        assert!((quantile(&e, q) as f64 - want).abs() < 1e-6, "q {q}");
+    }
+    assert!(error_map(&render, &gt[..10], w, h).is_err());
+    assert!(block_mask(&e, w + 1, h, 0.4, 16, 0.85).is_err());
+}
+
+fn map_with(w: u32, h: u32, on: impl Fn(u32, u32) -> bool) -> Vec<f32> {
+    (0..h)
+        .flat_map(|y| (0..w).map(move |x| (x, y)))
+        .map(|(x, y)| if on(x, y) { 1.0 } else { 0.0 })
+        .collect()
+}
+
+#[test]
+fn regions_on_constructed_error_maps() {
+    // 128×96 image (8×6 blocks). Blocks (1,1) and (2,2) touch diagonally → one region;
+    // block (6,1) alone; block (4,4) has exactly 218 error pixels (kept: > 217.6), block (0,4)
+    // has 217 (dropped).
+    let (w, h) = (128u32, 96u32);
+    let full = |bx: u32, by: u32, x: u32, y: u32| x / 16 == bx && y / 16 == by;
+    let count_in =
+        |bx: u32, by: u32, k: u32, x: u32, y: u32| full(bx, by, x, y) && (y % 16) * 16 + x % 16 < k;
+    let e = map_with(w, h, |x, y| {
+        full(1, 1, x, y)
+            || full(2, 2, x, y)
+            || full(6, 1, x, y)
+            || count_in(4, 4, 218, x, y)
+            || count_in(0, 4, 217, x, y)
+    });
+    let m = block_mask(&e, w, h, 0.4, 16, 0.85).unwrap();
+    let kept: Vec<(u32, u32)> = (0..6)
+        .flat_map(|y| (0..8).map(move |x| (x, y)))
+        .filter(|&(x, y)| m.is_kept(x, y))
+        .collect();
+    assert_eq!(kept, vec![(1, 1), (6, 1), (2, 2), (4, 4)]);
+    let mut regions = regions_from_blocks(&m);
+    regions.sort_by_key(|r| (r.y0, r.x0));
+    assert_eq!(
+        regions,
+        vec![
+            Region {
+                x0: 16,
+                y0: 16,
+                x1: 48,
+                y1: 48
+            },
+            Region {
+                x0: 96,
+                y0: 16,
+                x1: 112,
+                y1: 32
+            },
+            Region {
+                x0: 64,
+                y0: 64,
+                x1: 80,
+                y1: 80
+            },
+        ]
+    );
+    // The same through precomputed counts (as from a GPU pass).
+    let mut counts = vec![0u32; 48];
+    for y in 0..h {
+        for x in 0..w {
+            if e[(y * w + x) as usize] > 0.0 {
+                counts[((y / 16) * 8 + x / 16) as usize] += 1;
+            }
+        }
+    }
+    assert_eq!(
+        BlockMask::from_error_counts(w, h, 16, &counts, 0.85).unwrap(),
+        m
+    );
+    assert!(BlockMask::from_error_counts(w, h, 16, &counts[1..], 0.85).is_err());
+}
+
+#[test]
+fn regions_with_padding() {
+    // 40×30: blocks 3×2, the last column 8 px wide, the last row 14 px high. Padding pixels count
+    // as non-error, so the 8-wide column can never be kept (128 < 217.6), while a 14-row block
+    // can (224 > 217.6) and its box is clipped to the image.
+    let (w, h) = (40u32, 30u32);
+    let e = map_with(w, h, |x, y| (x >= 32) || (x < 16 && y >= 16));
+    let m = block_mask(&e, w, h, 0.4, 16, 0.85).unwrap();
+    assert_eq!((m.blocks_x, m.blocks_y), (3, 2));
+    assert!(!m.is_kept(2, 0) && !m.is_kept(2, 1));
+    assert!(m.is_kept(0, 1));
+    assert_eq!(
+        regions_from_blocks(&m),
+        vec![Region {
+            x0: 0,
+            y0: 16,
+            x1: 16,
+            y1: 30
+        }]
+    );
+    // Uniform error: nothing is above the 0.4 quantile, so no region.
+    let flat = vec![0.5f32; (w * h) as usize];
+    assert!(regions_from_blocks(&block_mask(&flat, w, h, 0.4, 16, 0.85).unwrap()).is_empty());
+    // Tiny images (smaller than a block) work.
+    let tiny = map_with(5, 3, |_, _| true);
+    assert!(regions_from_blocks(&block_mask(&tiny, 5, 3, 0.4, 16, 0.85).unwrap()).is_empty());
+}
+
+#[test]
+fn zone_step_time_is_small() {
+    // Measurement, printed for the report; the bound is loose (shared 2-core test machine).
+    let mut rng = Pcg64::seed_from_u64(9);
+    let r = rig(&mut rng, 30.0);
+    let v0 = view("a", r.cams[0].0, r.cams[0].1);
+    let v1 = view("b", r.cams[1].0, r.cams[1].1);
+    let surf: Vec<DVec3> = (0..2000)
+        .map(|_| r.centre + r.rho * random_unit(&mut rng))
+        .collect();
+    let xy0: Vec<[f32; 2]> = surf
+        .iter()
+        .map(|p| project(&v0.camera, &v0.pose, *p).unwrap().map(|x| x as f32))
+        .collect();
+    let xy1: Vec<[f32; 2]> = surf
+        .iter()
+        .map(|p| project(&v1.camera, &v1.pose, *p).unwrap().map(|x| x as f32))
+        .collect();
+    let gt = Image {
+        width: 640,
+        height: 480,
+        rgb: vec![0.5; 640 * 480 * 3],
+        alpha: None,
+    };
+    // 12 regions tiling the image: most hold matches.
+    let regions: Vec<Region> = (0..12)
+        .map(|k| Region {
+            x0: (k % 4) * 160,
+            y0: (k / 4) * 160,
+            x1: (k % 4 + 1) * 160,
+            y1: ((k / 4 + 1) * 160).min(480),
+        })
+        .collect();
+    let t = std::time::Instant::now();
+    let reps = 20;
+    let mut zones = 0;
+    for _ in 0..reps {
+        zones += zones_for_step(
+            &v0,
+            &v1,
+            &regions,
+            &xy0,
+            &xy1,
+            &gt,
+            &ZoneSettings::default(),
+        )
+        .records
+        .len();
+    }
+    let per_step = t.elapsed().as_secs_f64() / reps as f64;
+    println!(
+        "zones_for_step: {:.3} ms per step, {} zones per step",
+        1e3 * per_step,
+        zones / reps
+    );
+    assert!(zones > 0);
+    assert!(per_step < 0.05, "{per_step} s per step");
+}
