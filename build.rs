@@ -26,7 +26,13 @@ fn collect(dir: &Path, ext: &str, out: &mut Vec<PathBuf>) {
 fn const_name(rel: &Path) -> String {
     let s = rel.with_extension("").to_string_lossy().to_string();
     s.chars()
-        .map(|c| if c.is_ascii_alphanumeric() { c.to_ascii_uppercase() } else { '_' })
+        .map(|c| {
+            if c.is_ascii_alphanumeric() {
+                c.to_ascii_uppercase()
+            } else {
+                '_'
+            }
+        })
         .collect()
 }
 
@@ -54,13 +60,19 @@ fn main() {
         let rel = path.strip_prefix(&glsl).unwrap().to_path_buf();
         let source = fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
         let mut opts = shaderc::CompileOptions::new().unwrap();
-        opts.set_target_env(shaderc::TargetEnv::Vulkan, shaderc::EnvVersion::Vulkan1_2 as u32);
+        opts.set_target_env(
+            shaderc::TargetEnv::Vulkan,
+            shaderc::EnvVersion::Vulkan1_2 as u32,
+        );
         opts.set_target_spirv(shaderc::SpirvVersion::V1_5);
         opts.set_optimization_level(shaderc::OptimizationLevel::Performance);
         opts.set_generate_debug_info();
         let common_dir = common.clone();
         opts.set_include_callback(move |name, _ty, includer, _depth| {
-            let includer_dir = Path::new(includer).parent().map(Path::to_path_buf).unwrap_or_default();
+            let includer_dir = Path::new(includer)
+                .parent()
+                .map(Path::to_path_buf)
+                .unwrap_or_default();
             for dir in [includer_dir, common_dir.clone()] {
                 let candidate = dir.join(name);
                 if let Ok(content) = fs::read_to_string(&candidate) {
@@ -70,10 +82,18 @@ fn main() {
                     });
                 }
             }
-            Err(format!("cannot find include \"{name}\" (looked in glsl/common and beside {includer})"))
+            Err(format!(
+                "cannot find include \"{name}\" (looked in glsl/common and beside {includer})"
+            ))
         });
         let display = path.to_string_lossy().to_string();
-        match compiler.compile_into_spirv(&source, shaderc::ShaderKind::Compute, &display, "main", Some(&opts)) {
+        match compiler.compile_into_spirv(
+            &source,
+            shaderc::ShaderKind::Compute,
+            &display,
+            "main",
+            Some(&opts),
+        ) {
             Ok(artifact) => {
                 let spv = out_dir.join(rel.with_extension("spv"));
                 fs::create_dir_all(spv.parent().unwrap()).unwrap();

@@ -8,15 +8,26 @@ use rand::{Rng, SeedableRng};
 use std::time::Instant;
 
 fn main() -> anyhow::Result<()> {
-    let ctx = GpuContext::new(&GpuOptions { validation: false, device: std::env::var("LPMSPLAT_DEVICE").ok() })?;
+    let ctx = GpuContext::new(&GpuOptions {
+        validation: false,
+        device: std::env::var("LPMSPLAT_DEVICE").ok(),
+    })?;
     println!("{}", ctx.info.summary());
-    let max: usize = std::env::var("LPMSPLAT_BENCH_MAX").ok().and_then(|v| v.parse().ok()).unwrap_or(4 << 20);
+    let max: usize = std::env::var("LPMSPLAT_BENCH_MAX")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(4 << 20);
     let bits = 45; // 13 tile bits + 32 depth bits: a 1352x1014 frame
-    println!("{:>10} {:>6} {:>12} {:>14} {:>14} {:>8}", "pairs", "bits", "gpu ms", "gpu Mkeys/s", "host Mkeys/s", "ratio");
+    println!(
+        "{:>10} {:>6} {:>12} {:>14} {:>14} {:>8}",
+        "pairs", "bits", "gpu ms", "gpu Mkeys/s", "host Mkeys/s", "ratio"
+    );
     let mut rng = rand_pcg::Pcg64::seed_from_u64(1);
     let mut n = 1024usize;
     while n <= max {
-        let keys: Vec<u64> = (0..n).map(|_| rng.gen::<u64>() & ((1u64 << bits) - 1)).collect();
+        let keys: Vec<u64> = (0..n)
+            .map(|_| rng.gen::<u64>() & ((1u64 << bits) - 1))
+            .collect();
         let packed: Vec<[u32; 2]> = keys.iter().map(|&k| [k as u32, (k >> 32) as u32]).collect();
         let vals: Vec<u32> = (0..n as u32).collect();
         let sorter = RadixSort::new(&ctx, n as u64)?;
@@ -43,7 +54,8 @@ fn main() -> anyhow::Result<()> {
         let gpu = gpu_ms[gpu_ms.len() / 2];
         let mut host_ms = Vec::new();
         for _ in 0..reps {
-            let mut pairs: Vec<(u64, u32)> = keys.iter().copied().zip(vals.iter().copied()).collect();
+            let mut pairs: Vec<(u64, u32)> =
+                keys.iter().copied().zip(vals.iter().copied()).collect();
             let t = Instant::now();
             pairs.sort_unstable();
             host_ms.push(t.elapsed().as_secs_f64() * 1e3);

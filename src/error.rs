@@ -59,21 +59,36 @@ pub fn bad_input<T>(
 
 /// Writes a file atomically: to a temporary sibling first, then renamed over the target, so a
 /// failed run never leaves a half-written file or destroys an existing one.
-pub fn write_atomic(path: &Path, write: impl FnOnce(&mut std::fs::File) -> anyhow::Result<()>) -> anyhow::Result<()> {
+pub fn write_atomic(
+    path: &Path,
+    write: impl FnOnce(&mut std::fs::File) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
     use anyhow::Context;
-    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let name = path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().to_string())
+        .unwrap_or_default();
     let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
     let result = (|| {
-        let mut f = std::fs::File::create(&tmp)
-            .with_context(|| format!("{}: cannot create (is the folder writable?)", tmp.display()))?;
+        let mut f = std::fs::File::create(&tmp).with_context(|| {
+            format!("{}: cannot create (is the folder writable?)", tmp.display())
+        })?;
         write(&mut f)?;
         f.sync_all().ok();
         Ok(())
     })();
     match result {
-        Ok(()) => std::fs::rename(&tmp, path)
-            .with_context(|| format!("{}: cannot rename {} over it", path.display(), tmp.display())),
+        Ok(()) => std::fs::rename(&tmp, path).with_context(|| {
+            format!(
+                "{}: cannot rename {} over it",
+                path.display(),
+                tmp.display()
+            )
+        }),
         Err(e) => {
             let _ = std::fs::remove_file(&tmp);
             Err(e)

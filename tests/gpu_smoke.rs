@@ -1,12 +1,15 @@
 //! GPU layer smoke tests, with the validation layer on and its errors required to be zero.
 
-use lpmsplat::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, GpuOptions, Recorder, TimestampPool};
+use lpmsplat::gpu::{
+    BufferKind, ComputePipeline, GpuBuffer, GpuContext, GpuOptions, Recorder, TimestampPool,
+};
 use lpmsplat::shaders;
 use rand::{Rng, SeedableRng};
 use std::sync::Arc;
 
 fn ctx() -> Arc<GpuContext> {
-    GpuContext::new(&GpuOptions::for_tests()).expect("a Vulkan device (lavapipe in CI) with the validation layer")
+    GpuContext::new(&GpuOptions::for_tests())
+        .expect("a Vulkan device (lavapipe in CI) with the validation layer")
 }
 
 #[test]
@@ -15,7 +18,16 @@ fn subgroup_scan_matches_host_and_reports_device_subgroup_size() {
     let sg = ctx.info.subgroup_size;
     assert!(sg.is_power_of_two() && sg >= 1, "subgroup size {sg}");
     let wg = 64u32.max(sg);
-    let pipe = ComputePipeline::new(&ctx, "subgroup_probe", shaders::UTIL_SUBGROUP_PROBE, 3, 8, wg, &[]).unwrap();
+    let pipe = ComputePipeline::new(
+        &ctx,
+        "subgroup_probe",
+        shaders::UTIL_SUBGROUP_PROBE,
+        3,
+        8,
+        wg,
+        &[],
+    )
+    .unwrap();
     let fill = ComputePipeline::new(&ctx, "fill", shaders::UTIL_FILL_U32, 1, 8, 64, &[]).unwrap();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
     for &n in &[1usize, 7, 64, 1000, 4097] {
@@ -25,18 +37,36 @@ fn subgroup_scan_matches_host_and_reports_device_subgroup_size() {
         let info = GpuBuffer::<u32>::new(&ctx, "info", 1, BufferKind::DeviceLocal).unwrap();
         let mut rec = Recorder::new(&ctx).unwrap();
         // Poison the outputs so an element the kernel skips is caught.
-        rec.dispatch(&fill, &[&out], &[n as u32, 0xDEAD_BEEFu32], ctx.groups_1d(n as u64, 64));
+        rec.dispatch(
+            &fill,
+            &[&out],
+            &[n as u32, 0xDEAD_BEEFu32],
+            ctx.groups_1d(n as u64, 64),
+        );
         rec.fill(&info, 0);
         rec.barrier();
-        rec.dispatch(&pipe, &[&input, &out, &info], &[n as u32, 3u32], ctx.groups_1d(n as u64, wg));
+        rec.dispatch(
+            &pipe,
+            &[&input, &out, &info],
+            &[n as u32, 3u32],
+            ctx.groups_1d(n as u64, wg),
+        );
         rec.submit_and_wait().unwrap();
         let ys = out.read().unwrap();
         let ran_with = info.read().unwrap()[0];
-        assert!(ran_with.is_power_of_two() && ran_with <= ctx.info.max_subgroup_size && ran_with >= ctx.info.min_subgroup_size);
+        assert!(
+            ran_with.is_power_of_two()
+                && ran_with <= ctx.info.max_subgroup_size
+                && ran_with >= ctx.info.min_subgroup_size
+        );
         for (i, &y) in ys.iter().enumerate() {
             let start = i / ran_with as usize * ran_with as usize;
             let prefix: u32 = xs[start..=i].iter().sum();
-            assert_eq!(y, xs[i] * 3 + prefix, "element {i} of {n} (subgroup size {ran_with})");
+            assert_eq!(
+                y,
+                xs[i] * 3 + prefix,
+                "element {i} of {n} (subgroup size {ran_with})"
+            );
         }
     }
     ctx.check_validation().unwrap();
@@ -79,14 +109,29 @@ fn host_visible_buffers_round_trip_and_timestamps_report_stages() {
 fn oversized_buffers_and_unknown_devices_are_clear_errors() {
     let ctx = ctx();
     let too_big = (ctx.info.max_storage_buffer_range / 4 + 1) as usize;
-    let err = GpuBuffer::<u32>::new(&ctx, "huge", too_big, BufferKind::DeviceLocal).err().expect("must refuse");
+    let err = GpuBuffer::<u32>::new(&ctx, "huge", too_big, BufferKind::DeviceLocal)
+        .err()
+        .expect("must refuse");
     let msg = err.to_string();
-    assert!(msg.contains("huge") && msg.contains("maxStorageBufferRange"), "{msg}");
+    assert!(
+        msg.contains("huge") && msg.contains("maxStorageBufferRange"),
+        "{msg}"
+    );
     let empty = GpuBuffer::<u32>::new(&ctx, "empty", 0, BufferKind::DeviceLocal).unwrap();
     assert!(empty.is_empty() && empty.read().unwrap().is_empty());
-    let err = GpuContext::new(&GpuOptions { validation: true, device: Some("no-such-device-xyz".into()) }).err().expect("must refuse");
+    let err = GpuContext::new(&GpuOptions {
+        validation: true,
+        device: Some("no-such-device-xyz".into()),
+    })
+    .err()
+    .expect("must refuse");
     assert!(err.to_string().contains("--device"), "{err}");
-    let err = GpuContext::new(&GpuOptions { validation: true, device: Some("99".into()) }).err().expect("must refuse");
+    let err = GpuContext::new(&GpuOptions {
+        validation: true,
+        device: Some("99".into()),
+    })
+    .err()
+    .expect("must refuse");
     assert!(err.to_string().contains("no such device"), "{err}");
     ctx.check_validation().unwrap();
 }
@@ -105,7 +150,12 @@ fn large_dispatches_spill_into_y() {
     let mut rec = Recorder::new(&ctx).unwrap();
     rec.fill(&buf, 1);
     rec.barrier();
-    rec.dispatch(&fill, &[&buf], &[n as u32 - 1, 42u32], ctx.groups_1d(n as u64 - 1, 32));
+    rec.dispatch(
+        &fill,
+        &[&buf],
+        &[n as u32 - 1, 42u32],
+        ctx.groups_1d(n as u64 - 1, 32),
+    );
     rec.submit_and_wait().unwrap();
     let v = buf.read().unwrap();
     assert!(v[..n - 1].iter().all(|&x| x == 42));
@@ -118,15 +168,23 @@ fn validation_layer_is_active_and_counts_errors() {
     // A deliberately invalid call (a zero-sized buffer) must be seen and counted, proving the
     // other tests' "zero errors" means something.
     let ctx = ctx();
-    assert!(ctx.validation().is_some(), "tests always run with validation");
+    assert!(
+        ctx.validation().is_some(),
+        "tests always run with validation"
+    );
     assert_eq!(ctx.validation_errors(), 0);
     use ash::vk;
-    let info = vk::BufferCreateInfo::default().size(0).usage(vk::BufferUsageFlags::STORAGE_BUFFER);
+    let info = vk::BufferCreateInfo::default()
+        .size(0)
+        .usage(vk::BufferUsageFlags::STORAGE_BUFFER);
     unsafe {
         if let Ok(b) = ctx.device().create_buffer(&info, None) {
             ctx.device().destroy_buffer(b, None);
         }
     }
-    assert!(ctx.validation_errors() >= 1, "the validation layer did not report an invalid call");
+    assert!(
+        ctx.validation_errors() >= 1,
+        "the validation layer did not report an invalid call"
+    );
     assert!(ctx.check_validation().is_err());
 }

@@ -23,7 +23,7 @@ fn exclusive_scan_matches_host() {
         let data: Vec<u32> = (0..n).map(|_| rng.gen_range(0..100)).collect();
         // Extra poisoned tail: elements past the count must stay untouched.
         let mut padded = data.clone();
-        padded.extend(std::iter::repeat(POISON).take(5));
+        padded.extend(std::iter::repeat_n(POISON, 5));
         let buf = GpuBuffer::from_slice(&ctx, "data", &padded).unwrap();
         let counts = GpuBuffer::from_slice(&ctx, "counts", &[n as u32, POISON]).unwrap();
         let mut rec = Recorder::new(&ctx).unwrap();
@@ -35,7 +35,10 @@ fn exclusive_scan_matches_host() {
             assert_eq!(out[i], acc, "n={n} i={i}");
             acc += data[i];
         }
-        assert!(out[n..].iter().all(|&v| v == POISON), "scan wrote past the count");
+        assert!(
+            out[n..].iter().all(|&v| v == POISON),
+            "scan wrote past the count"
+        );
         assert_eq!(counts.read().unwrap()[1], acc, "total for n={n}");
     }
     ctx.check_validation().unwrap();
@@ -60,11 +63,18 @@ fn check_sort(ctx: &Arc<GpuContext>, sorter: &RadixSort, keys: &[u64], bits: u32
     let where_ = sorter.record(ctx, &mut rec, &kbuf, &vbuf, &sk, &sv, &counts, 0, 1, bits);
     rec.submit_and_wait().unwrap();
     let (ko, vo) = match where_ {
-        SortedIn::Input => (kbuf.read_range(0, n).unwrap(), vbuf.read_range(0, n).unwrap()),
+        SortedIn::Input => (
+            kbuf.read_range(0, n).unwrap(),
+            vbuf.read_range(0, n).unwrap(),
+        ),
         SortedIn::Scratch => (sk.read_range(0, n).unwrap(), sv.read_range(0, n).unwrap()),
     };
     // Host oracle: a stable sort on the same bits.
-    let mask = if bits >= 64 { u64::MAX } else { (1u64 << bits) - 1 };
+    let mask = if bits >= 64 {
+        u64::MAX
+    } else {
+        (1u64 << bits) - 1
+    };
     let mut expect: Vec<(u64, u32)> = keys.iter().copied().zip(values.iter().copied()).collect();
     expect.sort_by_key(|&(k, _)| k & mask);
     for i in 0..n {
@@ -78,12 +88,31 @@ fn radix_sort_is_stable_and_matches_host_sort() {
     let ctx = ctx();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
     let sorter = RadixSort::new(&ctx, 300_000).unwrap();
-    for &(n, bits) in &[(0usize, 32u32), (1, 8), (5, 13), (2048, 45), (2049, 64), (70_001, 45), (300_000, 32), (50_000, 6)] {
-        let mask = if bits >= 64 { u64::MAX } else { (1u64 << bits) - 1 };
+    for &(n, bits) in &[
+        (0usize, 32u32),
+        (1, 8),
+        (5, 13),
+        (2048, 45),
+        (2049, 64),
+        (70_001, 45),
+        (300_000, 32),
+        (50_000, 6),
+    ] {
+        let mask = if bits >= 64 {
+            u64::MAX
+        } else {
+            (1u64 << bits) - 1
+        };
         // Few distinct values in some runs so that stability is exercised.
         let distinct = rng.gen_bool(0.5);
         let keys: Vec<u64> = (0..n)
-            .map(|_| if distinct { rng.gen::<u64>() & mask } else { rng.gen_range(0..64u64) & mask })
+            .map(|_| {
+                if distinct {
+                    rng.gen::<u64>() & mask
+                } else {
+                    rng.gen_range(0..64u64) & mask
+                }
+            })
             .collect();
         check_sort(&ctx, &sorter, &keys, bits);
     }
@@ -117,10 +146,19 @@ fn sort_and_scan_under_subgroup_size_16() {
     let out = std::process::Command::new(exe)
         .env("LP_NATIVE_VECTOR_WIDTH", "512")
         .env("LPMSPLAT_CHILD", "1")
-        .args(["--test-threads=1", "radix_sort_is_stable", "exclusive_scan", "splat_like"])
+        .args([
+            "--test-threads=1",
+            "radix_sort_is_stable",
+            "exclusive_scan",
+            "splat_like",
+        ])
         .output()
         .unwrap();
-    let text = String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    let text =
+        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "child run failed:\n{text}");
-    assert!(text.contains("3 passed"), "child ran the wrong tests:\n{text}");
+    assert!(
+        text.contains("3 passed"),
+        "child ran the wrong tests:\n{text}"
+    );
 }

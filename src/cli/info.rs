@@ -21,7 +21,11 @@ pub fn run(gpu: &GpuOptions, args: &InfoArgs) -> anyhow::Result<()> {
     // A scene summary is useful even without a GPU, so scene errors come first.
     let scene = match &args.scene {
         Some(path) => {
-            let s = SceneArgs { scene: path.clone(), resolution: args.resolution, test_split: args.test_split.clone() };
+            let s = SceneArgs {
+                scene: path.clone(),
+                resolution: args.resolution,
+                test_split: args.test_split.clone(),
+            };
             Some(Scene::load(path, &s.load_options()?)?)
         }
         None => None,
@@ -47,22 +51,42 @@ pub fn run(gpu: &GpuOptions, args: &InfoArgs) -> anyhow::Result<()> {
 fn print_scene(scene: &Scene) {
     let format = match &scene.format {
         SceneFormat::Colmap { sparse_dir, binary } => {
-            format!("COLMAP ({}, {})", if *binary { "binary" } else { "text" }, sparse_dir.display())
+            format!(
+                "COLMAP ({}, {})",
+                if *binary { "binary" } else { "text" },
+                sparse_dir.display()
+            )
         }
         SceneFormat::NerfSynthetic => "NeRF-synthetic transforms_*.json".to_string(),
         SceneFormat::Nerfstudio => "nerfstudio transforms.json".to_string(),
     };
     println!("scene {}", scene.root.display());
     println!("  format: {format}");
-    println!("  views: {} ({} train, {} test)", scene.views.len(), scene.train.len(), scene.test.len());
-    let mut models: Vec<String> = scene.views.iter().map(|v| v.source_model.name().to_string()).collect();
+    println!(
+        "  views: {} ({} train, {} test)",
+        scene.views.len(),
+        scene.train.len(),
+        scene.test.len()
+    );
+    let mut models: Vec<String> = scene
+        .views
+        .iter()
+        .map(|v| v.source_model.name().to_string())
+        .collect();
     models.sort();
     models.dedup();
     println!("  camera models: {}", models.join(", "));
     let mut sizes: Vec<(u32, u32, u32, u32)> = scene
         .views
         .iter()
-        .map(|v| (v.source_width, v.source_height, v.camera.width, v.camera.height))
+        .map(|v| {
+            (
+                v.source_width,
+                v.source_height,
+                v.camera.width,
+                v.camera.height,
+            )
+        })
         .collect();
     sizes.sort();
     sizes.dedup();
@@ -82,7 +106,11 @@ fn print_scene(scene: &Scene) {
             fy.to_degrees()
         );
     }
-    let names = |ids: &[usize]| ids.iter().map(|&i| scene.views[i].name.as_str()).collect::<Vec<_>>();
+    let names = |ids: &[usize]| {
+        ids.iter()
+            .map(|&i| scene.views[i].name.as_str())
+            .collect::<Vec<_>>()
+    };
     let test = names(&scene.test);
     if test.len() <= 12 {
         println!("  test views: {}", test.join(" "));
@@ -90,11 +118,20 @@ fn print_scene(scene: &Scene) {
     match &scene.points {
         Some(p) => {
             let tracks: usize = p.tracks.iter().map(|t| t.len()).sum();
-            println!("  SfM points: {} (mean track length {:.2})", p.len(), tracks as f64 / p.len().max(1) as f64)
+            println!(
+                "  SfM points: {} (mean track length {:.2})",
+                p.len(),
+                tracks as f64 / p.len().max(1) as f64
+            )
         }
         None => println!("  SfM points: none (random initialisation)"),
     }
-    let kp: usize = scene.views.iter().filter_map(|v| v.keypoints.as_ref()).map(|k| k.xy.len()).sum();
+    let kp: usize = scene
+        .views
+        .iter()
+        .filter_map(|v| v.keypoints.as_ref())
+        .map(|k| k.xy.len())
+        .sum();
     if kp > 0 {
         println!("  keypoints: {kp}");
     }

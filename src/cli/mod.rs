@@ -1,6 +1,7 @@
 //! Subcommands. Each lives in its own file; this one parses and dispatches.
 
 mod info;
+mod matching;
 
 use clap::{Args, Parser, Subcommand};
 use lpmsplat::gpu::GpuOptions;
@@ -8,7 +9,11 @@ use lpmsplat::scene::{LoadOptions, NerfTestSplit};
 use std::path::PathBuf;
 
 #[derive(Parser, Debug)]
-#[command(name = "lpmsplat", version, about = "3D Gaussian Splatting with Localized Point Management, on Vulkan")]
+#[command(
+    name = "lpmsplat",
+    version,
+    about = "3D Gaussian Splatting with Localized Point Management, on Vulkan"
+)]
 pub struct Cli {
     /// Vulkan device: an index or a name substring (see `info`). Default: prefer a discrete GPU.
     #[arg(long, global = true)]
@@ -24,6 +29,8 @@ pub struct Cli {
 pub enum Command {
     /// Print the Vulkan devices, the chosen device's limits and, given a scene, its summary.
     Info(info::InfoArgs),
+    /// Extract and cache LPM correspondences for all neighbour view pairs.
+    Match(matching::MatchArgs),
 }
 
 /// Scene-loading flags shared by the subcommands that read a scene.
@@ -42,7 +49,9 @@ pub struct SceneArgs {
 impl SceneArgs {
     pub fn load_options(&self) -> anyhow::Result<LoadOptions> {
         if self.resolution == Some(0) {
-            anyhow::bail!("-r 0: the resolution factor must be at least 1. Fix: pass -r 1, 2, 4 or 8");
+            anyhow::bail!(
+                "-r 0: the resolution factor must be at least 1. Fix: pass -r 1, 2, 4 or 8"
+            );
         }
         Ok(LoadOptions {
             resolution_factor: self.resolution,
@@ -57,8 +66,12 @@ impl SceneArgs {
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
-    let gpu = GpuOptions { validation: cli.validation, device: cli.device.clone() };
+    let gpu = GpuOptions {
+        validation: cli.validation,
+        device: cli.device.clone(),
+    };
     match cli.command {
         Command::Info(a) => info::run(&gpu, &a),
+        Command::Match(a) => matching::run(&a),
     }
 }

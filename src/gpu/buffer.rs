@@ -35,9 +35,16 @@ pub struct GpuBuffer<T: Pod> {
 impl<T: Pod> GpuBuffer<T> {
     /// Allocates a buffer of `len` elements. Storage buffers larger than the device's
     /// `maxStorageBufferRange` cannot be bound whole, so they are refused here with the limit.
-    pub fn new(ctx: &Arc<GpuContext>, name: &str, len: usize, kind: BufferKind) -> anyhow::Result<Self> {
+    pub fn new(
+        ctx: &Arc<GpuContext>,
+        name: &str,
+        len: usize,
+        kind: BufferKind,
+    ) -> anyhow::Result<Self> {
         let elem = std::mem::size_of::<T>() as u64;
-        let bytes = (len.max(1) as u64).checked_mul(elem).context("buffer size overflows u64")?;
+        let bytes = (len.max(1) as u64)
+            .checked_mul(elem)
+            .context("buffer size overflows u64")?;
         if bytes > ctx.info.max_storage_buffer_range {
             bail!(
                 "buffer '{name}' needs {} MiB but this device binds at most {} MiB per storage buffer (maxStorageBufferRange). Fix: lower the Gaussian count or image size, or use a device with a larger limit",
@@ -52,7 +59,10 @@ impl<T: Pod> GpuBuffer<T> {
         let device = &ctx.device;
         let buffer = unsafe {
             device.create_buffer(
-                &vk::BufferCreateInfo::default().size(bytes).usage(usage).sharing_mode(vk::SharingMode::EXCLUSIVE),
+                &vk::BufferCreateInfo::default()
+                    .size(bytes)
+                    .usage(usage)
+                    .sharing_mode(vk::SharingMode::EXCLUSIVE),
                 None,
             )
         }
@@ -63,13 +73,17 @@ impl<T: Pod> GpuBuffer<T> {
             BufferKind::Upload => MemoryLocation::CpuToGpu,
             BufferKind::Readback => MemoryLocation::GpuToCpu,
         };
-        let allocation = ctx.allocator.lock().unwrap().allocate(&AllocationCreateDesc {
-            name,
-            requirements,
-            location,
-            linear: true,
-            allocation_scheme: AllocationScheme::GpuAllocatorManaged,
-        });
+        let allocation = ctx
+            .allocator
+            .lock()
+            .unwrap()
+            .allocate(&AllocationCreateDesc {
+                name,
+                requirements,
+                location,
+                linear: true,
+                allocation_scheme: AllocationScheme::GpuAllocatorManaged,
+            });
         let allocation = match allocation {
             Ok(a) => a,
             Err(e) => {
@@ -79,7 +93,15 @@ impl<T: Pod> GpuBuffer<T> {
         };
         unsafe { device.bind_buffer_memory(buffer, allocation.memory(), allocation.offset()) }
             .with_context(|| format!("binding memory of '{name}'"))?;
-        Ok(Self { ctx: ctx.clone(), buffer, allocation: Some(allocation), len, kind, name: name.to_string(), _t: PhantomData })
+        Ok(Self {
+            ctx: ctx.clone(),
+            buffer,
+            allocation: Some(allocation),
+            len,
+            kind,
+            name: name.to_string(),
+            _t: PhantomData,
+        })
     }
 
     /// A device-local buffer holding `data` (uploaded through a staging buffer).
@@ -118,17 +140,29 @@ impl<T: Pod> GpuBuffer<T> {
     /// per-iteration path).
     pub fn upload(&self, data: &[T]) -> anyhow::Result<()> {
         if data.len() > self.len {
-            bail!("upload of {} elements into '{}' of {} elements", data.len(), self.name, self.len);
+            bail!(
+                "upload of {} elements into '{}' of {} elements",
+                data.len(),
+                self.name,
+                self.len
+            );
         }
         if data.is_empty() {
             return Ok(());
         }
         if let Some(mapped) = self.allocation.as_ref().and_then(|a| a.mapped_ptr()) {
             let bytes: &[u8] = bytemuck::cast_slice(data);
-            unsafe { std::ptr::copy_nonoverlapping(bytes.as_ptr(), mapped.as_ptr() as *mut u8, bytes.len()) };
+            unsafe {
+                std::ptr::copy_nonoverlapping(
+                    bytes.as_ptr(),
+                    mapped.as_ptr() as *mut u8,
+                    bytes.len(),
+                )
+            };
             return Ok(());
         }
-        let staging = GpuBuffer::<T>::new(&self.ctx, "staging upload", data.len(), BufferKind::Upload)?;
+        let staging =
+            GpuBuffer::<T>::new(&self.ctx, "staging upload", data.len(), BufferKind::Upload)?;
         staging.upload(data)?;
         let mut rec = super::Recorder::new(&self.ctx)?;
         rec.copy(&staging, self, data.len());
@@ -145,7 +179,13 @@ impl<T: Pod> GpuBuffer<T> {
     /// Reads `count` elements starting at `first`.
     pub fn read_range(&self, first: usize, count: usize) -> anyhow::Result<Vec<T>> {
         if first + count > self.len {
-            bail!("read of {}..{} from '{}' of {} elements", first, first + count, self.name, self.len);
+            bail!(
+                "read of {}..{} from '{}' of {} elements",
+                first,
+                first + count,
+                self.name,
+                self.len
+            );
         }
         let mut out = vec![T::zeroed(); count];
         if count == 0 {
@@ -153,11 +193,13 @@ impl<T: Pod> GpuBuffer<T> {
         }
         if let Some(mapped) = self.allocation.as_ref().and_then(|a| a.mapped_ptr()) {
             let bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut out);
-            let src = unsafe { (mapped.as_ptr() as *const u8).add(first * std::mem::size_of::<T>()) };
+            let src =
+                unsafe { (mapped.as_ptr() as *const u8).add(first * std::mem::size_of::<T>()) };
             unsafe { std::ptr::copy_nonoverlapping(src, bytes.as_mut_ptr(), bytes.len()) };
             return Ok(out);
         }
-        let staging = GpuBuffer::<T>::new(&self.ctx, "staging readback", count, BufferKind::Readback)?;
+        let staging =
+            GpuBuffer::<T>::new(&self.ctx, "staging readback", count, BufferKind::Readback)?;
         let mut rec = super::Recorder::new(&self.ctx)?;
         rec.copy_region(self, first, &staging, 0, count);
         rec.submit_and_wait()?;

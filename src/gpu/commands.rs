@@ -41,8 +41,17 @@ impl Recorder {
             )
         }
         .context("allocating command buffer")?[0];
-        let fence = unsafe { device.create_fence(&vk::FenceCreateInfo::default(), None) }.context("creating fence")?;
-        let mut r = Self { ctx: ctx.clone(), pool, cmd, fence, recording: false, in_flight: false, dispatches: 0 };
+        let fence = unsafe { device.create_fence(&vk::FenceCreateInfo::default(), None) }
+            .context("creating fence")?;
+        let mut r = Self {
+            ctx: ctx.clone(),
+            pool,
+            cmd,
+            fence,
+            recording: false,
+            in_flight: false,
+            dispatches: 0,
+        };
         r.begin()?;
         Ok(r)
     }
@@ -53,10 +62,13 @@ impl Recorder {
             self.wait()?;
         }
         unsafe {
-            self.ctx.device.reset_command_pool(self.pool, vk::CommandPoolResetFlags::empty())?;
+            self.ctx
+                .device
+                .reset_command_pool(self.pool, vk::CommandPoolResetFlags::empty())?;
             self.ctx.device.begin_command_buffer(
                 self.cmd,
-                &vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
+                &vk::CommandBufferBeginInfo::default()
+                    .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
             )?;
         }
         self.recording = true;
@@ -65,7 +77,10 @@ impl Recorder {
     }
 
     fn check_recording(&self) {
-        assert!(self.recording, "Recorder used while not recording: call begin() first");
+        assert!(
+            self.recording,
+            "Recorder used while not recording: call begin() first"
+        );
     }
 
     /// Number of dispatches recorded since `begin`.
@@ -83,10 +98,21 @@ impl Recorder {
             p.num_buffers,
             buffers.len()
         );
-        assert_eq!(push.len() as u32, p.push_size, "kernel {}: push constant size mismatch", p.name);
+        assert_eq!(
+            push.len() as u32,
+            p.push_size,
+            "kernel {}: push constant size mismatch",
+            p.name
+        );
         let infos: Vec<[vk::DescriptorBufferInfo; 1]> = buffers
             .iter()
-            .map(|b| [vk::DescriptorBufferInfo { buffer: b.vk_buffer(), offset: 0, range: b.range() }])
+            .map(|b| {
+                [vk::DescriptorBufferInfo {
+                    buffer: b.vk_buffer(),
+                    offset: 0,
+                    range: b.range(),
+                }]
+            })
             .collect();
         let writes: Vec<vk::WriteDescriptorSet> = infos
             .iter()
@@ -102,7 +128,13 @@ impl Recorder {
             let d = &self.ctx.device;
             d.cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::COMPUTE, p.pipeline);
             if !writes.is_empty() {
-                self.ctx.push_descriptor.cmd_push_descriptor_set(self.cmd, vk::PipelineBindPoint::COMPUTE, p.layout, 0, &writes);
+                self.ctx.push_descriptor.cmd_push_descriptor_set(
+                    self.cmd,
+                    vk::PipelineBindPoint::COMPUTE,
+                    p.layout,
+                    0,
+                    &writes,
+                );
             }
             if !push.is_empty() {
                 d.cmd_push_constants(self.cmd, p.layout, vk::ShaderStageFlags::COMPUTE, 0, push);
@@ -111,10 +143,20 @@ impl Recorder {
     }
 
     /// Records a dispatch of `groups` workgroups.
-    pub fn dispatch<P: Pod>(&mut self, p: &ComputePipeline, buffers: &[&dyn Bindable], push: &P, groups: [u32; 3]) {
+    pub fn dispatch<P: Pod>(
+        &mut self,
+        p: &ComputePipeline,
+        buffers: &[&dyn Bindable],
+        push: &P,
+        groups: [u32; 3],
+    ) {
         self.bind(p, buffers, bytemuck::bytes_of(push));
         if groups.iter().all(|&g| g > 0) {
-            unsafe { self.ctx.device.cmd_dispatch(self.cmd, groups[0], groups[1], groups[2]) };
+            unsafe {
+                self.ctx
+                    .device
+                    .cmd_dispatch(self.cmd, groups[0], groups[1], groups[2])
+            };
             self.dispatches += 1;
         }
     }
@@ -129,7 +171,11 @@ impl Recorder {
         offset_elems: usize,
     ) {
         self.bind(p, buffers, bytemuck::bytes_of(push));
-        unsafe { self.ctx.device.cmd_dispatch_indirect(self.cmd, args.buffer, (offset_elems * 4) as u64) };
+        unsafe {
+            self.ctx
+                .device
+                .cmd_dispatch_indirect(self.cmd, args.buffer, (offset_elems * 4) as u64)
+        };
         self.dispatches += 1;
     }
 
@@ -139,7 +185,12 @@ impl Recorder {
     pub fn barrier(&mut self) {
         self.check_recording();
         let mb = vk::MemoryBarrier::default()
-            .src_access_mask(vk::AccessFlags::SHADER_WRITE | vk::AccessFlags::TRANSFER_WRITE | vk::AccessFlags::SHADER_READ | vk::AccessFlags::TRANSFER_READ)
+            .src_access_mask(
+                vk::AccessFlags::SHADER_WRITE
+                    | vk::AccessFlags::TRANSFER_WRITE
+                    | vk::AccessFlags::SHADER_READ
+                    | vk::AccessFlags::TRANSFER_READ,
+            )
             .dst_access_mask(
                 vk::AccessFlags::SHADER_READ
                     | vk::AccessFlags::SHADER_WRITE
@@ -164,8 +215,16 @@ impl Recorder {
     /// Fills a buffer of 32-bit elements with `value` (a transfer command).
     pub fn fill<T: Pod>(&mut self, buf: &GpuBuffer<T>, value: u32) {
         self.check_recording();
-        assert_eq!(std::mem::size_of::<T>() % 4, 0, "fill needs 4-byte elements");
-        unsafe { self.ctx.device.cmd_fill_buffer(self.cmd, buf.buffer, 0, vk::WHOLE_SIZE, value) };
+        assert_eq!(
+            std::mem::size_of::<T>() % 4,
+            0,
+            "fill needs 4-byte elements"
+        );
+        unsafe {
+            self.ctx
+                .device
+                .cmd_fill_buffer(self.cmd, buf.buffer, 0, vk::WHOLE_SIZE, value)
+        };
     }
 
     /// Copies the first `count` elements of `src` into `dst`.
@@ -173,22 +232,44 @@ impl Recorder {
         self.copy_region(src, 0, dst, 0, count);
     }
 
-    pub fn copy_region<T: Pod>(&mut self, src: &GpuBuffer<T>, src_first: usize, dst: &GpuBuffer<T>, dst_first: usize, count: usize) {
+    pub fn copy_region<T: Pod>(
+        &mut self,
+        src: &GpuBuffer<T>,
+        src_first: usize,
+        dst: &GpuBuffer<T>,
+        dst_first: usize,
+        count: usize,
+    ) {
         self.check_recording();
         if count == 0 {
             return;
         }
-        assert!(src_first + count <= src.len() && dst_first + count <= dst.len(), "copy out of range");
+        assert!(
+            src_first + count <= src.len() && dst_first + count <= dst.len(),
+            "copy out of range"
+        );
         let e = std::mem::size_of::<T>() as u64;
-        let region = vk::BufferCopy { src_offset: src_first as u64 * e, dst_offset: dst_first as u64 * e, size: count as u64 * e };
-        unsafe { self.ctx.device.cmd_copy_buffer(self.cmd, src.buffer, dst.buffer, &[region]) };
+        let region = vk::BufferCopy {
+            src_offset: src_first as u64 * e,
+            dst_offset: dst_first as u64 * e,
+            size: count as u64 * e,
+        };
+        unsafe {
+            self.ctx
+                .device
+                .cmd_copy_buffer(self.cmd, src.buffer, dst.buffer, &[region])
+        };
     }
 
     /// Starts timing: resets the pool inside the command buffer and writes the first timestamp.
     pub fn start_timestamps(&mut self, pool: &mut TimestampPool) {
         self.check_recording();
         pool.labels.clear();
-        unsafe { self.ctx.device.cmd_reset_query_pool(self.cmd, pool.pool, 0, pool.capacity()) };
+        unsafe {
+            self.ctx
+                .device
+                .cmd_reset_query_pool(self.cmd, pool.pool, 0, pool.capacity())
+        };
         self.timestamp(pool, "start");
     }
 
@@ -200,7 +281,14 @@ impl Recorder {
             return;
         }
         let q = pool.labels.len() as u32;
-        unsafe { self.ctx.device.cmd_write_timestamp(self.cmd, vk::PipelineStageFlags::BOTTOM_OF_PIPE, pool.pool, q) };
+        unsafe {
+            self.ctx.device.cmd_write_timestamp(
+                self.cmd,
+                vk::PipelineStageFlags::BOTTOM_OF_PIPE,
+                pool.pool,
+                q,
+            )
+        };
         pool.labels.push(label.to_string());
     }
 
@@ -229,7 +317,8 @@ impl Recorder {
             let cmds = [self.cmd];
             let submit = vk::SubmitInfo::default().command_buffers(&cmds);
             let _guard = self.ctx.queue_lock.lock().unwrap();
-            d.queue_submit(self.ctx.queue, &[submit], self.fence).context("vkQueueSubmit failed (device lost?)")?;
+            d.queue_submit(self.ctx.queue, &[submit], self.fence)
+                .context("vkQueueSubmit failed (device lost?)")?;
         }
         self.recording = false;
         self.in_flight = true;
@@ -239,7 +328,12 @@ impl Recorder {
     /// Waits for the last submission.
     pub fn wait(&mut self) -> anyhow::Result<()> {
         if self.in_flight {
-            unsafe { self.ctx.device.wait_for_fences(&[self.fence], true, u64::MAX) }.context("waiting for the GPU (device lost?)")?;
+            unsafe {
+                self.ctx
+                    .device
+                    .wait_for_fences(&[self.fence], true, u64::MAX)
+            }
+            .context("waiting for the GPU (device lost?)")?;
             self.in_flight = false;
         }
         Ok(())
@@ -255,7 +349,10 @@ impl Drop for Recorder {
     fn drop(&mut self) {
         unsafe {
             if self.in_flight {
-                let _ = self.ctx.device.wait_for_fences(&[self.fence], true, u64::MAX);
+                let _ = self
+                    .ctx
+                    .device
+                    .wait_for_fences(&[self.fence], true, u64::MAX);
             }
             self.ctx.device.destroy_fence(self.fence, None);
             self.ctx.device.destroy_command_pool(self.pool, None);

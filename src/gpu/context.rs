@@ -22,7 +22,10 @@ pub struct GpuOptions {
 impl GpuOptions {
     /// Options for tests: validation always on; `LPMSPLAT_DEVICE` picks the device.
     pub fn for_tests() -> Self {
-        Self { validation: true, device: std::env::var("LPMSPLAT_DEVICE").ok() }
+        Self {
+            validation: true,
+            device: std::env::var("LPMSPLAT_DEVICE").ok(),
+        }
     }
 }
 
@@ -116,15 +119,25 @@ fn type_rank(t: vk::PhysicalDeviceType) -> u32 {
 }
 
 fn version_string(v: u32) -> String {
-    format!("{}.{}.{}", vk::api_version_major(v), vk::api_version_minor(v), vk::api_version_patch(v))
+    format!(
+        "{}.{}.{}",
+        vk::api_version_major(v),
+        vk::api_version_minor(v),
+        vk::api_version_patch(v)
+    )
 }
 
 /// One line per Vulkan device: (index, name, type, api version).
 pub fn list_devices() -> anyhow::Result<Vec<(usize, String, String, String)>> {
     let entry = load_entry()?;
     let app = vk::ApplicationInfo::default().api_version(vk::API_VERSION_1_3);
-    let instance = unsafe { entry.create_instance(&vk::InstanceCreateInfo::default().application_info(&app), None) }
-        .map_err(|e| no_vulkan(format!("vkCreateInstance failed: {e}")))?;
+    let instance = unsafe {
+        entry.create_instance(
+            &vk::InstanceCreateInfo::default().application_info(&app),
+            None,
+        )
+    }
+    .map_err(|e| no_vulkan(format!("vkCreateInstance failed: {e}")))?;
     let out = unsafe {
         let devices = instance.enumerate_physical_devices().unwrap_or_default();
         let out = devices
@@ -132,8 +145,15 @@ pub fn list_devices() -> anyhow::Result<Vec<(usize, String, String, String)>> {
             .enumerate()
             .map(|(i, &d)| {
                 let p = instance.get_physical_device_properties(d);
-                let name = CStr::from_ptr(p.device_name.as_ptr()).to_string_lossy().into_owned();
-                (i, name, device_type_name(p.device_type).to_string(), version_string(p.api_version))
+                let name = CStr::from_ptr(p.device_name.as_ptr())
+                    .to_string_lossy()
+                    .into_owned();
+                (
+                    i,
+                    name,
+                    device_type_name(p.device_type).to_string(),
+                    version_string(p.api_version),
+                )
             })
             .collect();
         instance.destroy_instance(None);
@@ -149,19 +169,29 @@ fn no_vulkan(detail: String) -> anyhow::Error {
 }
 
 fn load_entry() -> anyhow::Result<ash::Entry> {
-    unsafe { ash::Entry::load() }.map_err(|e| no_vulkan(format!("cannot load the Vulkan loader (libvulkan.so.1): {e}")))
+    unsafe { ash::Entry::load() }.map_err(|e| {
+        no_vulkan(format!(
+            "cannot load the Vulkan loader (libvulkan.so.1): {e}"
+        ))
+    })
 }
 
 impl GpuContext {
     /// Opens the device chosen by `opts` (see [`GpuOptions`]).
     pub fn new(opts: &GpuOptions) -> anyhow::Result<Arc<GpuContext>> {
-        let validation =
-            opts.validation || std::env::var("LPMSPLAT_VALIDATION").map(|v| v != "0" && !v.is_empty()).unwrap_or(false);
+        let validation = opts.validation
+            || std::env::var("LPMSPLAT_VALIDATION")
+                .map(|v| v != "0" && !v.is_empty())
+                .unwrap_or(false);
         let entry = load_entry()?;
         unsafe { Self::create(entry, validation, opts.device.as_deref()) }
     }
 
-    unsafe fn create(entry: ash::Entry, validation: bool, choose: Option<&str>) -> anyhow::Result<Arc<GpuContext>> {
+    unsafe fn create(
+        entry: ash::Entry,
+        validation: bool,
+        choose: Option<&str>,
+    ) -> anyhow::Result<Arc<GpuContext>> {
         let app_name = CString::new("lpmsplat").unwrap();
         let app = vk::ApplicationInfo::default()
             .application_name(&app_name)
@@ -170,7 +200,9 @@ impl GpuContext {
         let mut layers: Vec<*const i8> = Vec::new();
         let mut extensions: Vec<*const i8> = Vec::new();
         let stats = if validation {
-            let available = entry.enumerate_instance_layer_properties().unwrap_or_default();
+            let available = entry
+                .enumerate_instance_layer_properties()
+                .unwrap_or_default();
             let found = available
                 .iter()
                 .any(|l| CStr::from_ptr(l.layer_name.as_ptr()) == VALIDATION_LAYER);
@@ -187,7 +219,8 @@ impl GpuContext {
         };
         // Synchronisation validation catches missing barriers: the bugs a compute engine makes.
         let enables = [vk::ValidationFeatureEnableEXT::SYNCHRONIZATION_VALIDATION];
-        let mut features = vk::ValidationFeaturesEXT::default().enabled_validation_features(&enables);
+        let mut features =
+            vk::ValidationFeaturesEXT::default().enabled_validation_features(&enables);
         let mut create = vk::InstanceCreateInfo::default()
             .application_info(&app)
             .enabled_layer_names(&layers)
@@ -203,7 +236,8 @@ impl GpuContext {
             let loader = ash::ext::debug_utils::Instance::new(&entry, &instance);
             let info = vk::DebugUtilsMessengerCreateInfoEXT::default()
                 .message_severity(
-                    vk::DebugUtilsMessageSeverityFlagsEXT::ERROR | vk::DebugUtilsMessageSeverityFlagsEXT::WARNING,
+                    vk::DebugUtilsMessageSeverityFlagsEXT::ERROR
+                        | vk::DebugUtilsMessageSeverityFlagsEXT::WARNING,
                 )
                 .message_type(
                     vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
@@ -212,7 +246,9 @@ impl GpuContext {
                 )
                 .pfn_user_callback(Some(debug_callback))
                 .user_data(Arc::as_ptr(stats) as *mut std::ffi::c_void);
-            let messenger = loader.create_debug_utils_messenger(&info, None).context("creating debug messenger")?;
+            let messenger = loader
+                .create_debug_utils_messenger(&info, None)
+                .context("creating debug messenger")?;
             Some((loader, messenger))
         } else {
             None
@@ -235,23 +271,34 @@ impl GpuContext {
         let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
         let mut f13 = vk::PhysicalDeviceVulkan13Features::default();
         let mut fatomic = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default();
-        let dev_exts = instance.enumerate_device_extension_properties(physical).unwrap_or_default();
-        let has_ext = |n: &CStr| dev_exts.iter().any(|e| CStr::from_ptr(e.extension_name.as_ptr()) == n);
+        let dev_exts = instance
+            .enumerate_device_extension_properties(physical)
+            .unwrap_or_default();
+        let has_ext = |n: &CStr| {
+            dev_exts
+                .iter()
+                .any(|e| CStr::from_ptr(e.extension_name.as_ptr()) == n)
+        };
         if !has_ext(ash::khr::push_descriptor::NAME) {
             instance.destroy_instance(None);
             bail!("the Vulkan device lacks VK_KHR_push_descriptor, which this engine needs. Fix: choose another device with --device");
         }
         let has_atomic_float = has_ext(ash::ext::shader_atomic_float::NAME);
         {
-            let mut q = vk::PhysicalDeviceFeatures2::default().push_next(&mut f11).push_next(&mut f12).push_next(&mut f13);
+            let mut q = vk::PhysicalDeviceFeatures2::default()
+                .push_next(&mut f11)
+                .push_next(&mut f12)
+                .push_next(&mut f13);
             if has_atomic_float {
                 q = q.push_next(&mut fatomic);
             }
             instance.get_physical_device_features2(physical, &mut q);
         }
         let base_features = instance.get_physical_device_features(physical);
-        let float_atomic_add = has_atomic_float && fatomic.shader_buffer_float32_atomic_add == vk::TRUE;
-        let full_subgroups = f13.subgroup_size_control == vk::TRUE && f13.compute_full_subgroups == vk::TRUE;
+        let float_atomic_add =
+            has_atomic_float && fatomic.shader_buffer_float32_atomic_add == vk::TRUE;
+        let full_subgroups =
+            f13.subgroup_size_control == vk::TRUE && f13.compute_full_subgroups == vk::TRUE;
 
         let mut en12 = vk::PhysicalDeviceVulkan12Features::default()
             .shader_int8(f12.shader_int8 == vk::TRUE)
@@ -270,13 +317,16 @@ impl GpuContext {
             .shader_buffer_float32_atomic_add(float_atomic_add)
             .shader_shared_float32_atomics(fatomic.shader_shared_float32_atomics == vk::TRUE)
             .shader_shared_float32_atomic_add(fatomic.shader_shared_float32_atomic_add == vk::TRUE);
-        let en_base = vk::PhysicalDeviceFeatures::default().shader_int64(base_features.shader_int64 == vk::TRUE);
+        let en_base = vk::PhysicalDeviceFeatures::default()
+            .shader_int64(base_features.shader_int64 == vk::TRUE);
         let mut ext_names = vec![ash::khr::push_descriptor::NAME.as_ptr()];
         if has_atomic_float {
             ext_names.push(ash::ext::shader_atomic_float::NAME.as_ptr());
         }
         let priorities = [1.0f32];
-        let queue_infos = [vk::DeviceQueueCreateInfo::default().queue_family_index(queue_family).queue_priorities(&priorities)];
+        let queue_infos = [vk::DeviceQueueCreateInfo::default()
+            .queue_family_index(queue_family)
+            .queue_priorities(&priorities)];
         let mut dci = vk::DeviceCreateInfo::default()
             .queue_create_infos(&queue_infos)
             .enabled_extension_names(&ext_names)
@@ -314,7 +364,14 @@ impl GpuContext {
         })
         .context("creating the GPU memory allocator")?;
 
-        let info = Self::query_info(&instance, physical, index, queue_family, float_atomic_add, full_subgroups);
+        let info = Self::query_info(
+            &instance,
+            physical,
+            index,
+            queue_family,
+            float_atomic_add,
+            full_subgroups,
+        );
         Ok(Arc::new(GpuContext {
             entry,
             instance,
@@ -343,10 +400,24 @@ impl GpuContext {
         if devices.is_empty() {
             return Err(no_vulkan("the loader found no Vulkan device".into()));
         }
-        let props: Vec<_> = devices.iter().map(|&d| instance.get_physical_device_properties(d)).collect();
-        let names: Vec<String> =
-            props.iter().map(|p| CStr::from_ptr(p.device_name.as_ptr()).to_string_lossy().into_owned()).collect();
-        let listing = names.iter().enumerate().map(|(i, n)| format!("[{i}] {n}")).collect::<Vec<_>>().join(", ");
+        let props: Vec<_> = devices
+            .iter()
+            .map(|&d| instance.get_physical_device_properties(d))
+            .collect();
+        let names: Vec<String> = props
+            .iter()
+            .map(|p| {
+                CStr::from_ptr(p.device_name.as_ptr())
+                    .to_string_lossy()
+                    .into_owned()
+            })
+            .collect();
+        let listing = names
+            .iter()
+            .enumerate()
+            .map(|(i, n)| format!("[{i}] {n}"))
+            .collect::<Vec<_>>()
+            .join(", ");
         let compute_family = |d: vk::PhysicalDevice| -> Option<u32> {
             instance
                 .get_physical_device_queue_family_properties(d)
@@ -370,11 +441,21 @@ impl GpuContext {
             }
             _ => {
                 let mut order: Vec<usize> = (0..devices.len()).collect();
-                order.sort_by_key(|&i| (props[i].api_version < vk::API_VERSION_1_3, type_rank(props[i].device_type), i));
+                order.sort_by_key(|&i| {
+                    (
+                        props[i].api_version < vk::API_VERSION_1_3,
+                        type_rank(props[i].device_type),
+                        i,
+                    )
+                });
                 order
                     .into_iter()
                     .find(|&i| compute_family(devices[i]).is_some())
-                    .ok_or_else(|| no_vulkan(format!("no device has a compute queue (devices: {listing})")))?
+                    .ok_or_else(|| {
+                        no_vulkan(format!(
+                            "no device has a compute queue (devices: {listing})"
+                        ))
+                    })?
             }
         };
         if props[index].api_version < vk::API_VERSION_1_3 {
@@ -384,8 +465,12 @@ impl GpuContext {
                 version_string(props[index].api_version)
             );
         }
-        let family = compute_family(devices[index])
-            .ok_or_else(|| anyhow!("device [{index}] {} has no compute queue. Fix: choose another with --device", names[index]))?;
+        let family = compute_family(devices[index]).ok_or_else(|| {
+            anyhow!(
+                "device [{index}] {} has no compute queue. Fix: choose another with --device",
+                names[index]
+            )
+        })?;
         Ok((devices[index], index, family))
     }
 
@@ -410,7 +495,10 @@ impl GpuContext {
         let p = props2.properties;
         let limits = p.limits;
         let families = instance.get_physical_device_queue_family_properties(physical);
-        let ts_bits = families.get(queue_family as usize).map(|f| f.timestamp_valid_bits).unwrap_or(0);
+        let ts_bits = families
+            .get(queue_family as usize)
+            .map(|f| f.timestamp_valid_bits)
+            .unwrap_or(0);
         let mem = instance.get_physical_device_memory_properties(physical);
         let device_local_bytes = mem.memory_heaps[..mem.memory_heap_count as usize]
             .iter()
@@ -420,7 +508,9 @@ impl GpuContext {
             .unwrap_or(0);
         DeviceInfo {
             index,
-            name: CStr::from_ptr(p.device_name.as_ptr()).to_string_lossy().into_owned(),
+            name: CStr::from_ptr(p.device_name.as_ptr())
+                .to_string_lossy()
+                .into_owned(),
             device_type: device_type_name(p.device_type).to_string(),
             api_version: version_string(p.api_version),
             driver: format!(
@@ -438,8 +528,8 @@ impl GpuContext {
             max_workgroup_count: limits.max_compute_work_group_count,
             max_push_constants: limits.max_push_constants_size,
             timestamp_period_ns: limits.timestamp_period as f64,
-            timestamps_supported: ts_bits > 0
-                && (limits.timestamp_compute_and_graphics == vk::TRUE || ts_bits > 0),
+            // The compute queue's timestampValidBits is what matters for a compute-only engine.
+            timestamps_supported: ts_bits > 0,
             float_atomic_add,
             full_subgroups,
             device_local_bytes,
@@ -460,7 +550,11 @@ impl GpuContext {
     pub fn check_validation(&self) -> anyhow::Result<()> {
         if let Some(v) = &self.validation {
             if v.errors() > 0 {
-                bail!("{} Vulkan validation error(s):\n{}", v.errors(), v.messages().join("\n"));
+                bail!(
+                    "{} Vulkan validation error(s):\n{}",
+                    v.errors(),
+                    v.messages().join("\n")
+                );
             }
         }
         Ok(())

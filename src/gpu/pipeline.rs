@@ -32,15 +32,24 @@ impl ComputePipeline {
         extra_constants: &[u32],
     ) -> anyhow::Result<Self> {
         if push_size > ctx.info.max_push_constants {
-            bail!("kernel {name}: {push_size} bytes of push constants exceed the device limit {}", ctx.info.max_push_constants);
+            bail!(
+                "kernel {name}: {push_size} bytes of push constants exceed the device limit {}",
+                ctx.info.max_push_constants
+            );
         }
         if workgroup_size == 0 || workgroup_size > ctx.info.max_workgroup_invocations {
-            bail!("kernel {name}: workgroup size {workgroup_size} is outside 1..={}", ctx.info.max_workgroup_invocations);
+            bail!(
+                "kernel {name}: workgroup size {workgroup_size} is outside 1..={}",
+                ctx.info.max_workgroup_invocations
+            );
         }
         let device = &ctx.device;
-        let code = ash::util::read_spv(&mut std::io::Cursor::new(spirv)).with_context(|| format!("kernel {name}: bad SPIR-V"))?;
-        let module = unsafe { device.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&code), None) }
-            .with_context(|| format!("kernel {name}: creating shader module"))?;
+        let code = ash::util::read_spv(&mut std::io::Cursor::new(spirv))
+            .with_context(|| format!("kernel {name}: bad SPIR-V"))?;
+        let module = unsafe {
+            device.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&code), None)
+        }
+        .with_context(|| format!("kernel {name}: creating shader module"))?;
 
         let bindings: Vec<_> = (0..num_buffers)
             .map(|b| {
@@ -59,7 +68,10 @@ impl ComputePipeline {
                 None,
             )
         }?;
-        let ranges = [vk::PushConstantRange::default().stage_flags(vk::ShaderStageFlags::COMPUTE).offset(0).size(push_size)];
+        let ranges = [vk::PushConstantRange::default()
+            .stage_flags(vk::ShaderStageFlags::COMPUTE)
+            .offset(0)
+            .size(push_size)];
         let set_layouts = [set_layout];
         let mut layout_info = vk::PipelineLayoutCreateInfo::default().set_layouts(&set_layouts);
         if push_size > 0 {
@@ -70,18 +82,27 @@ impl ComputePipeline {
         let mut values = vec![workgroup_size, ctx.info.subgroup_size];
         values.extend_from_slice(extra_constants);
         let entries: Vec<_> = (0..values.len() as u32)
-            .map(|i| vk::SpecializationMapEntry { constant_id: i, offset: i * 4, size: 4 })
+            .map(|i| vk::SpecializationMapEntry {
+                constant_id: i,
+                offset: i * 4,
+                size: 4,
+            })
             .collect();
         let data: &[u8] = bytemuck::cast_slice(&values);
-        let spec = vk::SpecializationInfo::default().map_entries(&entries).data(data);
+        let spec = vk::SpecializationInfo::default()
+            .map_entries(&entries)
+            .data(data);
         let entry = c"main";
         let stage = vk::PipelineShaderStageCreateInfo::default()
             .stage(vk::ShaderStageFlags::COMPUTE)
             .module(module)
             .name(entry)
             .specialization_info(&spec);
-        let info = vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout);
-        let result = unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &[info], None) };
+        let info = vk::ComputePipelineCreateInfo::default()
+            .stage(stage)
+            .layout(layout);
+        let result =
+            unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &[info], None) };
         unsafe { device.destroy_shader_module(module, None) };
         let pipeline = match result {
             Ok(p) => p[0],
@@ -111,7 +132,9 @@ impl Drop for ComputePipeline {
         unsafe {
             self.ctx.device.destroy_pipeline(self.pipeline, None);
             self.ctx.device.destroy_pipeline_layout(self.layout, None);
-            self.ctx.device.destroy_descriptor_set_layout(self.set_layout, None);
+            self.ctx
+                .device
+                .destroy_descriptor_set_layout(self.set_layout, None);
         }
     }
 }

@@ -39,12 +39,19 @@ impl TimestampPool {
     pub fn new(ctx: &Arc<GpuContext>, capacity: u32) -> anyhow::Result<Self> {
         let pool = unsafe {
             ctx.device.create_query_pool(
-                &vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(capacity),
+                &vk::QueryPoolCreateInfo::default()
+                    .query_type(vk::QueryType::TIMESTAMP)
+                    .query_count(capacity),
                 None,
             )
         }
         .context("creating timestamp query pool")?;
-        Ok(Self { ctx: ctx.clone(), pool, capacity, labels: Vec::new() })
+        Ok(Self {
+            ctx: ctx.clone(),
+            pool,
+            capacity,
+            labels: Vec::new(),
+        })
     }
 
     pub fn capacity(&self) -> u32 {
@@ -71,7 +78,12 @@ impl TimestampPool {
         .context("reading timestamps")?;
         let period = self.ctx.info.timestamp_period_ns;
         let stages = (1..n)
-            .map(|i| (self.labels[i].clone(), ticks[i].saturating_sub(ticks[i - 1]) as f64 * period * 1e-6))
+            .map(|i| {
+                (
+                    self.labels[i].clone(),
+                    ticks[i].saturating_sub(ticks[i - 1]) as f64 * period * 1e-6,
+                )
+            })
             .collect();
         Ok(StageTimes { stages })
     }

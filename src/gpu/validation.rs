@@ -45,7 +45,9 @@ pub(crate) unsafe extern "system" fn debug_callback(
     let id = if data.p_message_id_name.is_null() {
         String::new()
     } else {
-        CStr::from_ptr(data.p_message_id_name).to_string_lossy().into_owned()
+        CStr::from_ptr(data.p_message_id_name)
+            .to_string_lossy()
+            .into_owned()
     };
     if IGNORED_IDS.iter().any(|i| id.contains(i)) {
         return vk::FALSE;
@@ -53,7 +55,9 @@ pub(crate) unsafe extern "system" fn debug_callback(
     let text = if data.p_message.is_null() {
         String::new()
     } else {
-        CStr::from_ptr(data.p_message).to_string_lossy().into_owned()
+        CStr::from_ptr(data.p_message)
+            .to_string_lossy()
+            .into_owned()
     };
     let is_error = severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::ERROR);
     let is_warning = severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::WARNING);
@@ -64,7 +68,10 @@ pub(crate) unsafe extern "system" fn debug_callback(
     } else {
         return vk::FALSE;
     }
-    let line = format!("[{}] {id}: {text}", if is_error { "error" } else { "warning" });
+    let line = format!(
+        "[{}] {id}: {text}",
+        if is_error { "error" } else { "warning" }
+    );
     if is_error || std::env::var_os("LPMSPLAT_VALIDATION_VERBOSE").is_some() {
         eprintln!("vulkan validation {line}");
     }

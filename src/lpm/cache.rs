@@ -57,7 +57,7 @@ impl Fnv {
 
 /// Hash of everything in the scene the correspondences depend on: view names, image paths,
 /// cameras, poses, the train list, and (for track matches) keypoints and tracks. Pixel contents
-/// are not hashed: replacing an image file under the same name and pose needs `--rematch` (or
+/// are not hashed: replacing an image file under the same name and pose needs `match --rematch` (or
 /// deleting the cache).
 pub fn scene_hash(scene: &Scene) -> u64 {
     let mut h = Fnv::default();

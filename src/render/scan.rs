@@ -39,16 +39,36 @@ struct DownPush {
 
 impl PrefixScan {
     pub fn new(ctx: &Arc<GpuContext>, capacity: u64) -> anyhow::Result<Self> {
-        let reduce = ComputePipeline::new(ctx, "scan/reduce", shaders::SCAN_REDUCE, 3, 8, WG, &[ITEMS])?;
-        let downsweep = ComputePipeline::new(ctx, "scan/downsweep", shaders::SCAN_DOWNSWEEP, 3, 16, WG, &[ITEMS])?;
+        let reduce =
+            ComputePipeline::new(ctx, "scan/reduce", shaders::SCAN_REDUCE, 3, 8, WG, &[ITEMS])?;
+        let downsweep = ComputePipeline::new(
+            ctx,
+            "scan/downsweep",
+            shaders::SCAN_DOWNSWEEP,
+            3,
+            16,
+            WG,
+            &[ITEMS],
+        )?;
         let mut levels = Vec::new();
         let mut n = capacity.max(1);
         while n > SCAN_BLOCK {
             n = n.div_ceil(SCAN_BLOCK);
-            levels.push(GpuBuffer::new(ctx, "scan partials", n as usize, BufferKind::DeviceLocal)?);
+            levels.push(GpuBuffer::new(
+                ctx,
+                "scan partials",
+                n as usize,
+                BufferKind::DeviceLocal,
+            )?);
         }
         let dummy = GpuBuffer::new(ctx, "scan dummy", 1, BufferKind::DeviceLocal)?;
-        Ok(Self { reduce, downsweep, levels, capacity: capacity.max(1), dummy })
+        Ok(Self {
+            reduce,
+            downsweep,
+            levels,
+            capacity: capacity.max(1),
+            dummy,
+        })
     }
 
     pub fn capacity(&self) -> u64 {
@@ -78,7 +98,10 @@ impl PrefixScan {
             rec.dispatch(
                 &self.reduce,
                 &[src, partials, counts],
-                &ReducePush { count_index, divisor: divisor as u32 },
+                &ReducePush {
+                    count_index,
+                    divisor: divisor as u32,
+                },
                 ctx.groups_1d(n.div_ceil(SCAN_BLOCK), 1),
             );
             rec.barrier();
@@ -89,7 +112,11 @@ impl PrefixScan {
         let top = self.levels.len();
         for l in (0..=top).rev() {
             let buf: &GpuBuffer<u32> = if l == 0 { data } else { &self.levels[l - 1] };
-            let partials: &GpuBuffer<u32> = if l == top { &self.dummy } else { &self.levels[l] };
+            let partials: &GpuBuffer<u32> = if l == top {
+                &self.dummy
+            } else {
+                &self.levels[l]
+            };
             let divisor = SCAN_BLOCK.pow(l as u32) as u32;
             rec.dispatch(
                 &self.downsweep,

@@ -51,12 +51,39 @@ pub struct RadixSort {
 impl RadixSort {
     pub fn new(ctx: &Arc<GpuContext>, capacity: u64) -> anyhow::Result<Self> {
         let capacity = capacity.max(1);
-        let upsweep = ComputePipeline::new(ctx, "sort/upsweep", shaders::SORT_UPSWEEP, 3, 12, WG, &[ITEMS])?;
-        let scatter = ComputePipeline::new(ctx, "sort/scatter", shaders::SORT_SCATTER, 6, 8, WG, &[ITEMS])?;
+        let upsweep = ComputePipeline::new(
+            ctx,
+            "sort/upsweep",
+            shaders::SORT_UPSWEEP,
+            3,
+            12,
+            WG,
+            &[ITEMS],
+        )?;
+        let scatter = ComputePipeline::new(
+            ctx,
+            "sort/scatter",
+            shaders::SORT_SCATTER,
+            6,
+            8,
+            WG,
+            &[ITEMS],
+        )?;
         let hist_len = RADIX * capacity.div_ceil(SORT_BLOCK);
         let scan = PrefixScan::new(ctx, hist_len)?;
-        let hist = GpuBuffer::new(ctx, "sort histograms", hist_len as usize, BufferKind::DeviceLocal)?;
-        Ok(Self { upsweep, scatter, scan, hist, capacity })
+        let hist = GpuBuffer::new(
+            ctx,
+            "sort histograms",
+            hist_len as usize,
+            BufferKind::DeviceLocal,
+        )?;
+        Ok(Self {
+            upsweep,
+            scatter,
+            scan,
+            hist,
+            capacity,
+        })
     }
 
     pub fn capacity(&self) -> u64 {
@@ -95,9 +122,24 @@ impl RadixSort {
                 (scratch_keys, scratch_values, keys, values)
             };
             rec.barrier();
-            rec.dispatch(&self.upsweep, &[ki, &self.hist, counts], &UpPush { count_index, hist_len_index, shift }, groups);
-            self.scan.record(ctx, rec, &self.hist, counts, hist_len_index, None);
-            rec.dispatch(&self.scatter, &[ki, vi, ko, vo, &self.hist, counts], &ScatterPush { count_index, shift }, groups);
+            rec.dispatch(
+                &self.upsweep,
+                &[ki, &self.hist, counts],
+                &UpPush {
+                    count_index,
+                    hist_len_index,
+                    shift,
+                },
+                groups,
+            );
+            self.scan
+                .record(ctx, rec, &self.hist, counts, hist_len_index, None);
+            rec.dispatch(
+                &self.scatter,
+                &[ki, vi, ko, vo, &self.hist, counts],
+                &ScatterPush { count_index, shift },
+                groups,
+            );
             from_input = !from_input;
         }
         rec.barrier();

@@ -8,11 +8,40 @@
 /// source image. Parameters follow COLMAP's order.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum CameraModel {
-    SimplePinhole { f: f64, cx: f64, cy: f64 },
-    Pinhole { fx: f64, fy: f64, cx: f64, cy: f64 },
-    SimpleRadial { f: f64, cx: f64, cy: f64, k: f64 },
-    Radial { f: f64, cx: f64, cy: f64, k1: f64, k2: f64 },
-    OpenCv { fx: f64, fy: f64, cx: f64, cy: f64, k1: f64, k2: f64, p1: f64, p2: f64 },
+    SimplePinhole {
+        f: f64,
+        cx: f64,
+        cy: f64,
+    },
+    Pinhole {
+        fx: f64,
+        fy: f64,
+        cx: f64,
+        cy: f64,
+    },
+    SimpleRadial {
+        f: f64,
+        cx: f64,
+        cy: f64,
+        k: f64,
+    },
+    Radial {
+        f: f64,
+        cx: f64,
+        cy: f64,
+        k1: f64,
+        k2: f64,
+    },
+    OpenCv {
+        fx: f64,
+        fy: f64,
+        cx: f64,
+        cy: f64,
+        k1: f64,
+        k2: f64,
+        p1: f64,
+        p2: f64,
+    },
 }
 
 impl CameraModel {
@@ -33,9 +62,8 @@ impl CameraModel {
             CameraModel::SimplePinhole { f, cx, cy }
             | CameraModel::SimpleRadial { f, cx, cy, .. }
             | CameraModel::Radial { f, cx, cy, .. } => (f, f, cx, cy),
-            CameraModel::Pinhole { fx, fy, cx, cy } | CameraModel::OpenCv { fx, fy, cx, cy, .. } => {
-                (fx, fy, cx, cy)
-            }
+            CameraModel::Pinhole { fx, fy, cx, cy }
+            | CameraModel::OpenCv { fx, fy, cx, cy, .. } => (fx, fy, cx, cy),
         }
     }
 
@@ -45,7 +73,9 @@ impl CameraModel {
             CameraModel::SimplePinhole { .. } | CameraModel::Pinhole { .. } => false,
             CameraModel::SimpleRadial { k, .. } => k != 0.0,
             CameraModel::Radial { k1, k2, .. } => k1 != 0.0 || k2 != 0.0,
-            CameraModel::OpenCv { k1, k2, p1, p2, .. } => k1 != 0.0 || k2 != 0.0 || p1 != 0.0 || p2 != 0.0,
+            CameraModel::OpenCv { k1, k2, p1, p2, .. } => {
+                k1 != 0.0 || k2 != 0.0 || p1 != 0.0 || p2 != 0.0
+            }
         }
     }
 
@@ -87,7 +117,8 @@ impl CameraModel {
                 *cx *= sx;
                 *cy *= sy;
             }
-            CameraModel::Pinhole { fx, fy, cx, cy } | CameraModel::OpenCv { fx, fy, cx, cy, .. } => {
+            CameraModel::Pinhole { fx, fy, cx, cy }
+            | CameraModel::OpenCv { fx, fy, cx, cy, .. } => {
                 *fx *= sx;
                 *fy *= sy;
                 *cx *= sx;
@@ -114,7 +145,14 @@ impl PinholeCamera {
     pub fn resized(&self, width: u32, height: u32) -> PinholeCamera {
         let sx = width as f64 / self.width as f64;
         let sy = height as f64 / self.height as f64;
-        PinholeCamera { fx: self.fx * sx, fy: self.fy * sy, cx: self.cx * sx, cy: self.cy * sy, width, height }
+        PinholeCamera {
+            fx: self.fx * sx,
+            fy: self.fy * sy,
+            cx: self.cx * sx,
+            cy: self.cy * sy,
+            width,
+            height,
+        }
     }
 
     /// Horizontal and vertical field of view in radians (for a centred principal point).
@@ -127,7 +165,10 @@ impl PinholeCamera {
 
     /// Projects a camera-space point to pixel coordinates.
     pub fn project(&self, p: [f64; 3]) -> [f64; 2] {
-        [self.fx * p[0] / p[2] + self.cx, self.fy * p[1] / p[2] + self.cy]
+        [
+            self.fx * p[0] / p[2] + self.cx,
+            self.fy * p[1] / p[2] + self.cy,
+        ]
     }
 }
 
@@ -140,17 +181,36 @@ pub struct Pose {
 }
 
 impl Pose {
-    pub const IDENTITY: Pose = Pose { rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], translation: [0.0; 3] };
+    pub const IDENTITY: Pose = Pose {
+        rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        translation: [0.0; 3],
+    };
 
     /// From COLMAP's quaternion (w, x, y, z) and translation. The quaternion is normalised.
     pub fn from_qvec_tvec(q: [f64; 4], t: [f64; 3]) -> Pose {
         let n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
-        let (w, x, y, z) = if n > 0.0 { (q[0] / n, q[1] / n, q[2] / n, q[3] / n) } else { (1.0, 0.0, 0.0, 0.0) };
+        let (w, x, y, z) = if n > 0.0 {
+            (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
+        } else {
+            (1.0, 0.0, 0.0, 0.0)
+        };
         Pose {
             rotation: [
-                [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
-                [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
-                [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
+                [
+                    1.0 - 2.0 * (y * y + z * z),
+                    2.0 * (x * y - w * z),
+                    2.0 * (x * z + w * y),
+                ],
+                [
+                    2.0 * (x * y + w * z),
+                    1.0 - 2.0 * (x * x + z * z),
+                    2.0 * (y * z - w * x),
+                ],
+                [
+                    2.0 * (x * z - w * y),
+                    2.0 * (y * z + w * x),
+                    1.0 - 2.0 * (x * x + y * y),
+                ],
             ],
             translation: t,
         }
@@ -204,6 +264,9 @@ impl Pose {
             -(rotation[1][0] * c[0] + rotation[1][1] * c[1] + rotation[1][2] * c[2]),
             -(rotation[2][0] * c[0] + rotation[2][1] * c[1] + rotation[2][2] * c[2]),
         ];
-        Pose { rotation, translation }
+        Pose {
+            rotation,
+            translation,
+        }
     }
 }

@@ -36,7 +36,9 @@ pub fn camera_extent(views: &[View], indices: &[usize]) -> ([f64; 3], f64) {
     }
     let max_dist = centers
         .iter()
-        .map(|c| ((c[0] - mean[0]).powi(2) + (c[1] - mean[1]).powi(2) + (c[2] - mean[2]).powi(2)).sqrt())
+        .map(|c| {
+            ((c[0] - mean[0]).powi(2) + (c[1] - mean[1]).powi(2) + (c[2] - mean[2]).powi(2)).sqrt()
+        })
         .fold(0.0f64, f64::max);
     let extent = 1.1 * max_dist;
     (mean, if extent > 0.0 { extent } else { 1e-6 })
