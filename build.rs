@@ -113,7 +113,9 @@ fn main() {
     }
     if !failures.is_empty() {
         for f in &failures {
-            println!("cargo:warning={}", f.lines().next().unwrap_or(""));
+            for line in f.lines() {
+                println!("cargo:warning={line}");
+            }
         }
         panic!("GLSL compilation failed:\n{}", failures.join("\n"));
     }
