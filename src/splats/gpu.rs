@@ -61,6 +61,54 @@ impl GpuSplats {
         })
     }
 
+    /// Buffers of the same layout filled with zeros on the host side (for gradients and Adam
+    /// moments: they mirror the parameters group by group). Names get `prefix`.
+    pub fn zeroed(
+        ctx: &Arc<GpuContext>,
+        prefix: &str,
+        sh_degree: u32,
+        count: usize,
+        capacity: usize,
+    ) -> anyhow::Result<Self> {
+        let rest = GaussianParams::empty(sh_degree).rest_stride();
+        let make = |name: &str, stride: usize| -> anyhow::Result<GpuBuffer<f32>> {
+            let len = (capacity * stride).max(1);
+            let b = GpuBuffer::new(
+                ctx,
+                &format!("{prefix}{name}"),
+                len,
+                BufferKind::DeviceLocal,
+            )?;
+            b.upload(&vec![0.0; len])?;
+            Ok(b)
+        };
+        Ok(Self {
+            count,
+            capacity,
+            sh_degree,
+            positions: make("positions", 3)?,
+            log_scales: make("log_scales", 3)?,
+            rotations: make("rotations", 4)?,
+            opacity_logits: make("opacity_logits", 1)?,
+            sh_dc: make("sh_dc", 3)?,
+            sh_rest: make("sh_rest", rest)?,
+        })
+    }
+
+    /// The parameter groups in Adam's order with their per-Gaussian stride (floats):
+    /// positions, log-scales, rotations, opacity logits, SH DC, SH rest.
+    pub fn groups(&self) -> [(&GpuBuffer<f32>, usize); 6] {
+        let rest = GaussianParams::empty(self.sh_degree).rest_stride();
+        [
+            (&self.positions, 3),
+            (&self.log_scales, 3),
+            (&self.rotations, 4),
+            (&self.opacity_logits, 1),
+            (&self.sh_dc, 3),
+            (&self.sh_rest, rest),
+        ]
+    }
+
     /// Reads the first `count` Gaussians back.
     pub fn download(&self) -> anyhow::Result<GaussianParams> {
         let n = self.count;
