@@ -242,3 +242,48 @@ pub fn render(
         raster,
     })
 }
+
+impl RefGaussians {
+    /// The engine's f32 parameters widened to f64 (every value exactly representable), so the
+    /// reference renders exactly the model the GPU sees.
+    pub fn from_params(p: &crate::splats::GaussianParams) -> Self {
+        let w3 = |v: &[f32; 3]| v.map(|x| x as f64);
+        let rc = p.rest_coeffs();
+        Self {
+            positions: p.positions.iter().map(w3).collect(),
+            log_scales: p.log_scales.iter().map(w3).collect(),
+            rotations: p.rotations.iter().map(|q| q.map(|x| x as f64)).collect(),
+            opacity_logits: p.opacity_logits.iter().map(|&x| x as f64).collect(),
+            sh: (0..p.len())
+                .map(|i| {
+                    let mut sh = [[0.0; 3]; 16];
+                    sh[0] = w3(&p.sh_dc[i]);
+                    for k in 0..rc {
+                        for c in 0..3 {
+                            sh[k + 1][c] = p.sh_rest[(i * rc + k) * 3 + c] as f64;
+                        }
+                    }
+                    sh
+                })
+                .collect(),
+        }
+    }
+
+    /// Rounds to the engine's f32 parameters, keeping SH coefficients up to `sh_degree`.
+    pub fn to_params(&self, sh_degree: u32) -> crate::splats::GaussianParams {
+        let n3 = |v: &[f64; 3]| v.map(|x| x as f32);
+        let mut p = crate::splats::GaussianParams::empty(sh_degree);
+        let rc = p.rest_coeffs();
+        p.positions = self.positions.iter().map(n3).collect();
+        p.log_scales = self.log_scales.iter().map(n3).collect();
+        p.rotations = self.rotations.iter().map(|q| q.map(|x| x as f32)).collect();
+        p.opacity_logits = self.opacity_logits.iter().map(|&x| x as f32).collect();
+        p.sh_dc = self.sh.iter().map(|s| n3(&s[0])).collect();
+        p.sh_rest = self
+            .sh
+            .iter()
+            .flat_map(|s| (1..=rc).flat_map(move |k| s[k].map(|x| x as f32)))
+            .collect();
+        p
+    }
+}

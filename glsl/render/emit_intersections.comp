@@ -1,0 +1,34 @@
+#version 460
+// Forward step 2b: one (tile, Gaussian) pair per touched tile, written in depth order at the
+// Gaussian's scanned offset. The key holds only the tile id: a later stable sort by tile keeps
+// the depth order inside each tile. Writes past `capacity` are dropped and the host regrows the
+// buffers from the total the scan left in counts[1] (no overflow: the total is a uint and a
+// binding this size could not exist past 2^32 pairs anyway).
+layout(constant_id = 0) const uint WG_SIZE = 256;
+layout(local_size_x_id = 0) in;
+#include "projected.glsl"
+layout(std430, set = 0, binding = 0) readonly buffer Proj { Projected projected[]; };
+layout(std430, set = 0, binding = 1) readonly buffer Ids { uint depth_sorted_ids[]; };
+layout(std430, set = 0, binding = 2) readonly buffer Offsets { uint offsets[]; };
+layout(std430, set = 0, binding = 3) writeonly buffer Keys { uvec2 keys[]; };
+layout(std430, set = 0, binding = 4) writeonly buffer Vals { uint vals[]; };
+layout(std430, set = 0, binding = 5) buffer Counts { uint counts[]; };
+layout(push_constant) uniform Push { uint capacity; uint tiles_x; };
+
+void main() {
+    uint s = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * WG_SIZE;
+    // counts[2] = the number of pairs actually stored: what the tile sort and ranges read.
+    if (s == 0u) counts[2] = min(counts[1], capacity);
+    if (s >= counts[0]) return;
+    uint g = depth_sorted_ids[s];
+    Projected p = projected[g];
+    uint slot = offsets[s];
+    for (uint ty = p.tile_min_y; ty < p.tile_max_y; ty++) {
+        for (uint tx = p.tile_min_x; tx < p.tile_max_x; tx++) {
+            if (slot >= capacity) return;
+            keys[slot] = uvec2(ty * tiles_x + tx, 0u);
+            vals[slot] = g;
+            slot++;
+        }
+    }
+}

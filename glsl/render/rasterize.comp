@@ -1,0 +1,85 @@
+#version 460
+// Forward step 4: one 16×16 workgroup per tile. The tile's Gaussians (front to back) are
+// loaded into shared memory a batch at a time; every pixel blends them in order and stops
+// before its transmittance would fall under t_min. Mirrors src/reference/raster.rs.
+layout(constant_id = 0) const uint WG_SIZE = 256;  // must be 256 = 16 × 16
+layout(local_size_x_id = 0) in;
+#include "camera.glsl"
+#include "projected.glsl"
+layout(std430, set = 0, binding = 0) readonly buffer Proj { Projected projected[]; };
+layout(std430, set = 0, binding = 1) readonly buffer Ids { uint sorted_ids[]; };
+layout(std430, set = 0, binding = 2) readonly buffer Ranges { uvec2 ranges[]; };
+layout(std430, set = 0, binding = 3) readonly buffer Cameras { Camera cameras[]; };
+layout(std430, set = 0, binding = 4) writeonly buffer Image { float image[]; };
+layout(std430, set = 0, binding = 5) writeonly buffer FinalT { float final_t[]; };
+layout(std430, set = 0, binding = 6) writeonly buffer LastIndex { uint last_index[]; };
+layout(push_constant) uniform Push {
+    RenderConstants rc;
+    uint camera_index;
+    float bg_r, bg_g, bg_b;
+};
+
+shared vec4 s_mean_opacity[WG_SIZE];  // mean x, mean y, opacity, unused
+shared vec4 s_conic[WG_SIZE];         // a, b, c, unused
+shared vec4 s_rgb[WG_SIZE];
+shared uint s_done;
+
+void main() {
+    Camera cam = cameras[camera_index];
+    uint tiles_x = cam.size.z;
+    uint tile = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
+    if (tile >= tiles_x * cam.size.w) return;  // uniform over the workgroup
+    uint lx = gl_LocalInvocationIndex % 16u, ly = gl_LocalInvocationIndex / 16u;
+    uint px = (tile % tiles_x) * 16u + lx, py = (tile / tiles_x) * 16u + ly;
+    bool inside = px < cam.size.x && py < cam.size.y;
+    vec2 centre = vec2(float(px) + 0.5, float(py) + 0.5);
+
+    uvec2 range = ranges[tile];
+    float T = 1.0;
+    vec3 color = vec3(0.0);
+    uint last = 0u;
+    bool done = !inside;
+    for (uint base = range.x; base < range.y; base += WG_SIZE) {
+        // Stop loading once every pixel of the tile is done (the count is workgroup-uniform).
+        if (gl_LocalInvocationIndex == 0u) s_done = 0u;
+        barrier();
+        if (done) atomicAdd(s_done, 1u);
+        uint k = base + gl_LocalInvocationIndex;
+        if (k < range.y) {
+            Projected p = projected[sorted_ids[k]];
+            s_mean_opacity[gl_LocalInvocationIndex] = vec4(p.mean_x, p.mean_y, p.opacity, 0.0);
+            s_conic[gl_LocalInvocationIndex] = vec4(p.conic_a, p.conic_b, p.conic_c, 0.0);
+            s_rgb[gl_LocalInvocationIndex] = vec4(p.r, p.g, p.b, 0.0);
+        }
+        barrier();
+        if (s_done == WG_SIZE) break;
+        uint batch = min(WG_SIZE, range.y - base);
+        for (uint j = 0u; !done && j < batch; j++) {
+            vec4 mo = s_mean_opacity[j];
+            vec3 cn = s_conic[j].xyz;
+            vec2 d = mo.xy - centre;
+            float power = -0.5 * (cn.x * d.x * d.x + cn.z * d.y * d.y) - cn.y * d.x * d.y;
+            // power > 0 only happens through rounding for a positive definite conic.
+            if (power > 0.0) continue;
+            float alpha = mo.z * exp(power);
+            if (rc.smooth_mode == 0u) {
+                alpha = min(alpha, rc.alpha_max);  // bounds 1/(1 − alpha) in the backward
+                if (alpha < rc.alpha_min) continue;
+            }
+            float next_t = T * (1.0 - alpha);
+            if (rc.smooth_mode == 0u && next_t < rc.t_min) { done = true; break; }
+            color += s_rgb[j].rgb * (alpha * T);
+            T = next_t;
+            last = base - range.x + j + 1u;
+        }
+        barrier();
+    }
+    if (inside) {
+        uint pix = py * cam.size.x + px;
+        image[3u * pix] = color.r + T * bg_r;
+        image[3u * pix + 1u] = color.g + T * bg_g;
+        image[3u * pix + 2u] = color.b + T * bg_b;
+        final_t[pix] = T;
+        last_index[pix] = last;
+    }
+}

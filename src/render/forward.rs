@@ -1,0 +1,516 @@
+//! The forward renderer on the GPU: preprocess → depth sort → tile counts, scan and emit →
+//! stable sort by tile → tile ranges → rasterize, all recorded into the caller's command buffer.
+//!
+//! Sorting strategy: instead of one radix sort of (tile | depth) keys over every intersection
+//! (32 + tile bits, 11–12 passes over M pairs), the Gaussians are sorted once by depth (8 passes
+//! over N), the pairs are emitted in that order, and a stable sort by tile id alone (only the
+//! tile bits the image needs, 3–4 passes over M) keeps depth order inside each tile. Ties in depth
+//! break by Gaussian index, as in the CPU reference.
+//!
+//! Sizes: buffers are allocated for a Gaussian capacity, an intersection capacity, a pixel and a
+//! tile capacity, and grow geometrically through [`Renderer::ensure_capacity`]. The number of
+//! intersections is only known on the GPU: pairs past the capacity are dropped by the emit kernel
+//! and [`Renderer::last_intersections`] (after the frame's fence) tells the caller to grow and
+//! render again; `counts` is copied to a host-visible buffer at the end of every frame so this
+//! costs no extra wait.
+
+use std::sync::Arc;
+
+use super::layout::{CameraGpu, ProjectedGpu, RenderConstants};
+use super::scan::PrefixScan;
+use super::sort::{RadixSort, SortedIn};
+use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder, TimestampPool};
+use crate::shaders;
+use crate::splats::gpu::GpuSplats;
+
+const WG: u32 = 256;
+/// Slots of the `counts` buffer.
+pub const COUNT_GAUSSIANS: u32 = 0;
+pub const COUNT_INTERSECTIONS: u32 = 1;
+pub const COUNT_STORED_PAIRS: u32 = 2;
+const COUNT_SCRATCH: u32 = 3;
+const COUNT_SLOTS: usize = 4;
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct PreprocessPush {
+    count: u32,
+    camera_index: u32,
+    sh_degree: u32,
+    rest_coeffs: u32,
+    rc: RenderConstants,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct EmitPush {
+    capacity: u32,
+    tiles_x: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct RasterPush {
+    rc: RenderConstants,
+    camera_index: u32,
+    background: [f32; 3],
+}
+
+/// What a frame needs besides the splats and the camera buffer.
+#[derive(Debug, Clone, Copy)]
+pub struct FrameSettings {
+    pub sh_degree: u32,
+    pub background: [f32; 3],
+    pub constants: RenderConstants,
+}
+
+/// Capacities the renderer's buffers are sized for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Capacity {
+    pub gaussians: usize,
+    pub intersections: usize,
+    pub pixels: usize,
+    pub tiles: usize,
+}
+
+/// The per-frame buffers (kept after the frame: the backward pass reads them).
+pub struct FrameBuffers {
+    pub projected: GpuBuffer<ProjectedGpu>,
+    depth_keys: GpuBuffer<[u32; 2]>,
+    depth_vals: GpuBuffer<u32>,
+    depth_keys_tmp: GpuBuffer<[u32; 2]>,
+    depth_vals_tmp: GpuBuffer<u32>,
+    touched: GpuBuffer<u32>,
+    tile_keys: GpuBuffer<[u32; 2]>,
+    tile_vals: GpuBuffer<u32>,
+    tile_keys_tmp: GpuBuffer<[u32; 2]>,
+    tile_vals_tmp: GpuBuffer<u32>,
+    pub tile_ranges: GpuBuffer<[u32; 2]>,
+    pub image: GpuBuffer<f32>,
+    pub final_t: GpuBuffer<f32>,
+    pub last_index: GpuBuffer<u32>,
+    /// `COUNT_*` slots.
+    pub counts: GpuBuffer<u32>,
+    counts_host: GpuBuffer<u32>,
+}
+
+pub struct Renderer {
+    ctx: Arc<GpuContext>,
+    preprocess: ComputePipeline,
+    gather: ComputePipeline,
+    emit: ComputePipeline,
+    ranges: ComputePipeline,
+    raster: ComputePipeline,
+    depth_sort: RadixSort,
+    tile_sort: RadixSort,
+    scan: PrefixScan,
+    capacity: Capacity,
+    pub frame: FrameBuffers,
+    tile_sorted_in: SortedIn,
+    depth_sorted_in: SortedIn,
+    last_camera: Option<CameraGpu>,
+}
+
+/// Bits needed to hold every tile id of a grid with `tiles` tiles.
+pub fn tile_bits(tiles: u32) -> u32 {
+    32 - tiles.saturating_sub(1).leading_zeros()
+}
+
+impl FrameBuffers {
+    fn new(ctx: &Arc<GpuContext>, cap: &Capacity) -> anyhow::Result<Self> {
+        let dl = BufferKind::DeviceLocal;
+        let n = cap.gaussians.max(1);
+        let m = cap.intersections.max(1);
+        Ok(Self {
+            projected: GpuBuffer::new(ctx, "projected", n, dl)?,
+            depth_keys: GpuBuffer::new(ctx, "depth keys", n, dl)?,
+            depth_vals: GpuBuffer::new(ctx, "depth ids", n, dl)?,
+            depth_keys_tmp: GpuBuffer::new(ctx, "depth keys (scratch)", n, dl)?,
+            depth_vals_tmp: GpuBuffer::new(ctx, "depth ids (scratch)", n, dl)?,
+            touched: GpuBuffer::new(ctx, "tiles touched", n, dl)?,
+            tile_keys: GpuBuffer::new(ctx, "tile keys", m, dl)?,
+            tile_vals: GpuBuffer::new(ctx, "tile ids", m, dl)?,
+            tile_keys_tmp: GpuBuffer::new(ctx, "tile keys (scratch)", m, dl)?,
+            tile_vals_tmp: GpuBuffer::new(ctx, "tile ids (scratch)", m, dl)?,
+            tile_ranges: GpuBuffer::new(ctx, "tile ranges", cap.tiles.max(1), dl)?,
+            image: GpuBuffer::new(ctx, "image", cap.pixels.max(1) * 3, dl)?,
+            final_t: GpuBuffer::new(ctx, "final T", cap.pixels.max(1), dl)?,
+            last_index: GpuBuffer::new(ctx, "last index", cap.pixels.max(1), dl)?,
+            counts: GpuBuffer::new(ctx, "render counts", COUNT_SLOTS, dl)?,
+            counts_host: GpuBuffer::new(
+                ctx,
+                "render counts (host)",
+                COUNT_SLOTS,
+                BufferKind::Readback,
+            )?,
+        })
+    }
+
+    /// Total bytes of the frame buffers (for memory reports).
+    pub fn bytes(&self) -> u64 {
+        self.projected.byte_len()
+            + 4 * self.depth_keys.byte_len()
+            + self.touched.byte_len()
+            + 2 * (self.tile_keys.byte_len() + self.tile_vals.byte_len())
+            + self.tile_ranges.byte_len()
+            + self.image.byte_len()
+            + self.final_t.byte_len()
+            + self.last_index.byte_len()
+    }
+}
+
+impl Renderer {
+    pub fn new(ctx: &Arc<GpuContext>, capacity: Capacity) -> anyhow::Result<Self> {
+        let pipe = |name: &str, spirv: &[u8], buffers: u32, push: usize| {
+            ComputePipeline::new(ctx, name, spirv, buffers, push as u32, WG, &[])
+        };
+        Ok(Self {
+            ctx: ctx.clone(),
+            preprocess: pipe(
+                "render/preprocess",
+                shaders::RENDER_PREPROCESS,
+                11,
+                std::mem::size_of::<PreprocessPush>(),
+            )?,
+            gather: pipe(
+                "render/gather_tile_counts",
+                shaders::RENDER_GATHER_TILE_COUNTS,
+                4,
+                0,
+            )?,
+            emit: pipe(
+                "render/emit_intersections",
+                shaders::RENDER_EMIT_INTERSECTIONS,
+                6,
+                std::mem::size_of::<EmitPush>(),
+            )?,
+            ranges: pipe("render/tile_ranges", shaders::RENDER_TILE_RANGES, 3, 0)?,
+            raster: pipe(
+                "render/rasterize",
+                shaders::RENDER_RASTERIZE,
+                7,
+                std::mem::size_of::<RasterPush>(),
+            )?,
+            depth_sort: RadixSort::new(ctx, capacity.gaussians as u64)?,
+            tile_sort: RadixSort::new(ctx, capacity.intersections as u64)?,
+            scan: PrefixScan::new(ctx, capacity.gaussians as u64)?,
+            frame: FrameBuffers::new(ctx, &capacity)?,
+            capacity,
+            tile_sorted_in: SortedIn::Input,
+            depth_sorted_in: SortedIn::Input,
+            last_camera: None,
+        })
+    }
+
+    /// A renderer sized for `gaussians` and one camera, with a first guess of 8 intersections
+    /// per Gaussian (regrown on demand).
+    pub fn for_camera(
+        ctx: &Arc<GpuContext>,
+        gaussians: usize,
+        camera: &CameraGpu,
+    ) -> anyhow::Result<Self> {
+        Self::new(
+            ctx,
+            Capacity {
+                gaussians,
+                intersections: (gaussians * 8).max(1 << 16),
+                pixels: (camera.width() * camera.height()) as usize,
+                tiles: camera.tile_count() as usize,
+            },
+        )
+    }
+
+    pub fn capacity(&self) -> Capacity {
+        self.capacity
+    }
+
+    /// Grows the buffers (geometrically: 1.5× what is asked) when `need` exceeds the current
+    /// capacity in any dimension. Returns true when it reallocated (recorded frames that used
+    /// the old buffers must have completed).
+    pub fn ensure_capacity(&mut self, need: Capacity) -> anyhow::Result<bool> {
+        let cur = self.capacity;
+        let grow = |have: usize, want: usize| {
+            if want > have {
+                want + want / 2
+            } else {
+                have
+            }
+        };
+        let next = Capacity {
+            gaussians: grow(cur.gaussians, need.gaussians),
+            intersections: grow(cur.intersections, need.intersections),
+            pixels: grow(cur.pixels, need.pixels),
+            tiles: grow(cur.tiles, need.tiles),
+        };
+        if next == cur {
+            return Ok(false);
+        }
+        // Free the old buffers first so peak memory does not double.
+        self.frame = FrameBuffers::new(
+            &self.ctx,
+            &Capacity {
+                gaussians: 1,
+                intersections: 1,
+                pixels: 1,
+                tiles: 1,
+            },
+        )?;
+        if next.gaussians != cur.gaussians {
+            self.depth_sort = RadixSort::new(&self.ctx, next.gaussians as u64)?;
+            self.scan = PrefixScan::new(&self.ctx, next.gaussians as u64)?;
+        }
+        if next.intersections != cur.intersections {
+            self.tile_sort = RadixSort::new(&self.ctx, next.intersections as u64)?;
+        }
+        self.frame = FrameBuffers::new(&self.ctx, &next)?;
+        self.capacity = next;
+        Ok(true)
+    }
+
+    /// Records one frame of `splats` seen from `cameras[camera_index]` (whose host copy is
+    /// `camera`). With a timestamp pool, writes one timestamp per stage (the caller starts the
+    /// pool). The frame's outputs stay in [`Renderer::frame`] until the next record.
+    #[allow(clippy::too_many_arguments)]
+    pub fn record(
+        &mut self,
+        rec: &mut Recorder,
+        splats: &GpuSplats,
+        cameras: &GpuBuffer<CameraGpu>,
+        camera_index: u32,
+        camera: &CameraGpu,
+        settings: &FrameSettings,
+        mut timestamps: Option<&mut TimestampPool>,
+    ) -> anyhow::Result<()> {
+        let need = Capacity {
+            gaussians: splats.count,
+            intersections: 0,
+            pixels: (camera.width() as usize) * (camera.height() as usize),
+            tiles: camera.tile_count() as usize,
+        };
+        anyhow::ensure!(
+            need.gaussians <= self.capacity.gaussians
+                && need.pixels <= self.capacity.pixels
+                && need.tiles <= self.capacity.tiles,
+            "renderer sized for {:?} cannot draw {} Gaussians at {}×{}; call ensure_capacity first",
+            self.capacity,
+            splats.count,
+            camera.width(),
+            camera.height()
+        );
+        let ctx = self.ctx.clone();
+        let f = &self.frame;
+        let n = splats.count as u64;
+        let mut stamp = |rec: &mut Recorder, label: &str| {
+            if let Some(p) = timestamps.as_deref_mut() {
+                rec.timestamp(p, label);
+            }
+        };
+
+        // 1. Preprocess.
+        rec.fill(&f.tile_ranges, 0);
+        rec.dispatch(
+            &self.preprocess,
+            &[
+                &splats.positions,
+                &splats.log_scales,
+                &splats.rotations,
+                &splats.opacity_logits,
+                &splats.sh_dc,
+                &splats.sh_rest,
+                cameras,
+                &f.projected,
+                &f.depth_keys,
+                &f.depth_vals,
+                &f.counts,
+            ],
+            &PreprocessPush {
+                count: splats.count as u32,
+                camera_index,
+                sh_degree: settings.sh_degree.min(splats.sh_degree),
+                rest_coeffs: ((splats.sh_degree + 1) * (splats.sh_degree + 1) - 1),
+                rc: settings.constants,
+            },
+            // At least one invocation so counts[0] is written for an empty scene.
+            ctx.groups_1d(n.max(1), WG),
+        );
+        rec.barrier();
+        stamp(rec, "preprocess");
+
+        // 2. Depth sort of all Gaussians (culled ones carry the largest key).
+        let depth_in = self.depth_sort.record(
+            &ctx,
+            rec,
+            &f.depth_keys,
+            &f.depth_vals,
+            &f.depth_keys_tmp,
+            &f.depth_vals_tmp,
+            &f.counts,
+            COUNT_GAUSSIANS,
+            COUNT_SCRATCH,
+            32,
+        );
+        self.depth_sorted_in = depth_in;
+        let depth_ids = match depth_in {
+            SortedIn::Input => &f.depth_vals,
+            SortedIn::Scratch => &f.depth_vals_tmp,
+        };
+        stamp(rec, "depth sort");
+
+        // 3. Tile counts in depth order, scan, emit pairs.
+        rec.dispatch(
+            &self.gather,
+            &[&f.projected, depth_ids, &f.touched, &f.counts],
+            &(),
+            ctx.groups_1d(n, WG),
+        );
+        self.scan.record(
+            &ctx,
+            rec,
+            &f.touched,
+            &f.counts,
+            COUNT_GAUSSIANS,
+            Some(COUNT_INTERSECTIONS),
+        );
+        rec.dispatch(
+            &self.emit,
+            &[
+                &f.projected,
+                depth_ids,
+                &f.touched,
+                &f.tile_keys,
+                &f.tile_vals,
+                &f.counts,
+            ],
+            &EmitPush {
+                capacity: self.capacity.intersections.min(u32::MAX as usize) as u32,
+                tiles_x: camera.size[2],
+            },
+            ctx.groups_1d(n.max(1), WG),
+        );
+        rec.barrier();
+        stamp(rec, "binning");
+
+        // 4. Stable sort by tile id (only the bits this image needs).
+        let bits = tile_bits(camera.tile_count());
+        self.tile_sorted_in = self.tile_sort.record(
+            &ctx,
+            rec,
+            &f.tile_keys,
+            &f.tile_vals,
+            &f.tile_keys_tmp,
+            &f.tile_vals_tmp,
+            &f.counts,
+            COUNT_STORED_PAIRS,
+            COUNT_SCRATCH,
+            bits,
+        );
+        let (keys, ids) = self.sorted_pairs();
+        stamp(rec, "tile sort");
+
+        // 5. Tile ranges, then rasterize one workgroup per tile.
+        rec.dispatch(
+            &self.ranges,
+            &[keys, &f.tile_ranges, &f.counts],
+            &(),
+            ctx.groups_1d(self.capacity.intersections as u64, WG),
+        );
+        rec.barrier();
+        rec.dispatch(
+            &self.raster,
+            &[
+                &f.projected,
+                ids,
+                &f.tile_ranges,
+                cameras,
+                &f.image,
+                &f.final_t,
+                &f.last_index,
+            ],
+            &RasterPush {
+                rc: settings.constants,
+                camera_index,
+                background: settings.background,
+            },
+            ctx.groups_1d(camera.tile_count() as u64, 1),
+        );
+        rec.barrier();
+        stamp(rec, "rasterize");
+        rec.copy(&f.counts, &f.counts_host, COUNT_SLOTS);
+        self.last_camera = Some(*camera);
+        Ok(())
+    }
+
+    fn sorted_pairs(&self) -> (&GpuBuffer<[u32; 2]>, &GpuBuffer<u32>) {
+        let f = &self.frame;
+        match self.tile_sorted_in {
+            SortedIn::Input => (&f.tile_keys, &f.tile_vals),
+            SortedIn::Scratch => (&f.tile_keys_tmp, &f.tile_vals_tmp),
+        }
+    }
+
+    /// The Gaussian index of every intersection, tile-major, front to back within a tile (the
+    /// contract's `sorted_ids`) of the last recorded frame.
+    pub fn sorted_ids(&self) -> &GpuBuffer<u32> {
+        self.sorted_pairs().1
+    }
+
+    /// The intersection count of the last completed frame (call after its fence). When it is
+    /// above the capacity the frame dropped pairs: grow and render again.
+    pub fn last_intersections(&self) -> anyhow::Result<u64> {
+        Ok(self.frame.counts_host.read()?[COUNT_INTERSECTIONS as usize] as u64)
+    }
+
+    /// True when the last completed frame had room for every intersection.
+    pub fn last_frame_complete(&self) -> anyhow::Result<bool> {
+        Ok(self.last_intersections()? <= self.capacity.intersections as u64)
+    }
+
+    /// Renders one frame and waits, regrowing and re-rendering when the intersections did not
+    /// fit. For tools and tests; the trainer records frames into its own command buffers.
+    pub fn render_blocking(
+        &mut self,
+        splats: &GpuSplats,
+        cameras: &GpuBuffer<CameraGpu>,
+        camera_index: u32,
+        camera: &CameraGpu,
+        settings: &FrameSettings,
+    ) -> anyhow::Result<()> {
+        self.ensure_capacity(Capacity {
+            gaussians: splats.count,
+            intersections: 0,
+            pixels: (camera.width() * camera.height()) as usize,
+            tiles: camera.tile_count() as usize,
+        })?;
+        loop {
+            let mut rec = Recorder::new(&self.ctx)?;
+            self.record(
+                &mut rec,
+                splats,
+                cameras,
+                camera_index,
+                camera,
+                settings,
+                None,
+            )?;
+            rec.submit_and_wait()?;
+            let m = self.last_intersections()?;
+            if m <= self.capacity.intersections as u64 {
+                return Ok(());
+            }
+            self.ensure_capacity(Capacity {
+                intersections: m as usize,
+                ..self.capacity
+            })?;
+        }
+    }
+
+    /// Reads the last frame's image (RGB interleaved, `width × height × 3`).
+    pub fn read_image(&self) -> anyhow::Result<Vec<f32>> {
+        let cam = self
+            .last_camera
+            .ok_or_else(|| anyhow::anyhow!("no frame rendered yet"))?;
+        self.frame
+            .image
+            .read_range(0, (cam.width() * cam.height()) as usize * 3)
+    }
+}

@@ -1,0 +1,435 @@
+//! The GPU forward renderer against the CPU f64 reference: random scenes (hundreds of seeds,
+//! image sizes that are not multiples of 16, SH degrees 0–3, random backgrounds), the sorted
+//! tile lists, the per-pixel state the backward needs, and the extremes. Validation layer on.
+
+use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions};
+use lpmsplat::reference::{self, scenes, RefGaussians, RenderSettings};
+use lpmsplat::render::forward::{Capacity, FrameSettings, Renderer};
+use lpmsplat::render::layout::{CameraGpu, ProjectedGpu, RenderConstants};
+use lpmsplat::scene::{PinholeCamera, Pose};
+use lpmsplat::splats::gpu::GpuSplats;
+use rand::{Rng, SeedableRng};
+use std::sync::Arc;
+
+fn ctx() -> Arc<GpuContext> {
+    GpuContext::new(&GpuOptions::for_tests()).expect("a Vulkan device with the validation layer")
+}
+
+struct Frame {
+    image: Vec<f32>,
+    final_t: Vec<f32>,
+    last_index: Vec<u32>,
+    projected: Vec<ProjectedGpu>,
+    tile_lists: Vec<Vec<u32>>,
+}
+
+/// Renders `g` (rounded to f32) on the GPU; returns the frame and the f32-exact reference input.
+fn render_gpu(
+    ctx: &Arc<GpuContext>,
+    renderer: &mut Renderer,
+    g: &RefGaussians,
+    sh_degree: u32,
+    camera: &PinholeCamera,
+    pose: &Pose,
+    background: [f32; 3],
+    settings: &RenderSettings,
+) -> (Frame, RefGaussians) {
+    let params = g.to_params(3);
+    let exact = RefGaussians::from_params(&params);
+    let splats = GpuSplats::upload(ctx, &params, params.len().max(1)).unwrap();
+    let cam = CameraGpu::new(camera, pose);
+    // A decoy camera at index 0 checks that the kernels use the index they are given.
+    let mut decoy = cam;
+    decoy.r0[3] += 1.0;
+    let cameras = GpuBuffer::from_slice(ctx, "cameras", &[decoy, cam]).unwrap();
+    // Poison the per-pixel outputs: every pixel must be written.
+    let f = &renderer.frame;
+    f.image.upload(&vec![f32::NAN; f.image.len()]).unwrap();
+    f.final_t.upload(&vec![f32::NAN; f.final_t.len()]).unwrap();
+    f.last_index
+        .upload(&vec![u32::MAX; f.last_index.len()])
+        .unwrap();
+    renderer
+        .render_blocking(
+            &splats,
+            &cameras,
+            1,
+            &cam,
+            &FrameSettings {
+                sh_degree,
+                background,
+                constants: RenderConstants::from_settings(settings),
+            },
+        )
+        .unwrap();
+    let px = (camera.width * camera.height) as usize;
+    let f = &renderer.frame;
+    let ranges = f
+        .tile_ranges
+        .read_range(0, cam.tile_count() as usize)
+        .unwrap();
+    let ids = renderer.sorted_ids().read().unwrap();
+    let tile_lists = ranges
+        .iter()
+        .map(|r| ids[r[0] as usize..r[1] as usize].to_vec())
+        .collect();
+    let frame = Frame {
+        image: renderer.read_image().unwrap(),
+        final_t: f.final_t.read_range(0, px).unwrap(),
+        last_index: f.last_index.read_range(0, px).unwrap(),
+        projected: f.projected.read_range(0, params.len()).unwrap(),
+        tile_lists,
+    };
+    (frame, exact)
+}
+
+fn renderer(ctx: &Arc<GpuContext>) -> Renderer {
+    Renderer::new(
+        ctx,
+        Capacity {
+            gaussians: 16,
+            intersections: 16,
+            pixels: 16,
+            tiles: 1,
+        },
+    )
+    .unwrap()
+}
+
+/// Compares one GPU frame with the reference; returns the max abs image difference.
+fn compare(
+    frame: &Frame,
+    exact: &RefGaussians,
+    sh_degree: u32,
+    camera: &PinholeCamera,
+    pose: &Pose,
+    background: [f32; 3],
+    settings: &RenderSettings,
+    label: &str,
+) -> f64 {
+    let bg = background.map(|v| v as f64);
+    let r = reference::render(exact, camera, pose, sh_degree as usize, bg, settings).unwrap();
+    assert!(
+        frame.image.iter().all(|v| v.is_finite()),
+        "{label}: non-finite pixel"
+    );
+    // Tile rectangles decide which lists a Gaussian joins; a rectangle can only differ where
+    // 3·sqrt(λmax) sits within f32 rounding of an integer. Those seeds are reported, not hidden.
+    let mut rect_mismatch = 0;
+    for (i, (p, q)) in frame.projected.iter().zip(&r.projected).enumerate() {
+        let gpu_rect = (p.tile_min, p.tile_max);
+        let ref_rect = if q.culled || q.tiles_touched() == 0 {
+            None
+        } else {
+            Some((q.tile_min, q.tile_max))
+        };
+        if p.is_visible() != ref_rect.is_some() || (p.is_visible() && Some(gpu_rect) != ref_rect) {
+            rect_mismatch += 1;
+            continue;
+        }
+        if p.is_visible() {
+            let close = |a: f32, b: f64, tol: f64| (a as f64 - b).abs() <= tol * (1.0 + b.abs());
+            assert!(
+                close(p.mean_x, q.mean2d[0], 1e-4) && close(p.mean_y, q.mean2d[1], 1e-4),
+                "{label}: Gaussian {i} mean2d"
+            );
+            assert!(close(p.depth, q.depth, 1e-5), "{label}: Gaussian {i} depth");
+            for (a, b) in [p.conic_a, p.conic_b, p.conic_c].iter().zip(q.conic) {
+                let scale = q.conic.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+                assert!(
+                    (*a as f64 - b).abs() <= 1e-3 * scale + 1e-7,
+                    "{label}: Gaussian {i} conic {a} vs {b}"
+                );
+            }
+            for c in 0..3 {
+                assert!(
+                    close(p.rgb[c], q.rgb[c], 1e-4),
+                    "{label}: Gaussian {i} rgb {:?} vs {:?}",
+                    p.rgb,
+                    q.rgb
+                );
+            }
+        }
+    }
+    if rect_mismatch > 0 {
+        eprintln!(
+            "{label}: {rect_mismatch} tile rectangles differ by rounding; image not compared"
+        );
+        return 0.0;
+    }
+    assert_eq!(frame.tile_lists, r.bins.lists, "{label}: sorted tile lists");
+    let mut max_diff = 0.0f64;
+    for (pix, rgb) in r.raster.image.iter().enumerate() {
+        for c in 0..3 {
+            let d = (frame.image[pix * 3 + c] as f64 - rgb[c]).abs();
+            max_diff = max_diff.max(d);
+        }
+        let t = r.raster.final_transmittance[pix];
+        assert!(
+            (frame.final_t[pix] as f64 - t).abs() <= 1e-3,
+            "{label}: pixel {pix} final T {} vs {t}",
+            frame.final_t[pix]
+        );
+    }
+    // The stop rule compares T against 1e-4 in f32 vs f64: a pixel whose transmittance lands
+    // right on it may stop one splat earlier or later; anything else must match exactly.
+    let last_mismatch = frame
+        .last_index
+        .iter()
+        .zip(&r.raster.last_contributor)
+        .filter(|(a, b)| a != b)
+        .count();
+    assert!(
+        last_mismatch <= frame.last_index.len() / 500 + 1,
+        "{label}: {last_mismatch} pixels disagree on the last contributor"
+    );
+    assert!(
+        max_diff < 1e-3,
+        "{label}: max abs pixel difference {max_diff}"
+    );
+    max_diff
+}
+
+#[test]
+fn random_scenes_match_the_reference() {
+    let ctx = ctx();
+    let mut renderer = renderer(&ctx);
+    let settings = RenderSettings::default();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(2024);
+    let mut worst = 0.0f64;
+    let seeds = 200;
+    for seed in 0..seeds {
+        let n = rng.gen_range(1..160);
+        let g = scenes::random_gaussians(&mut rng, n);
+        let w = rng.gen_range(1..90);
+        let h = rng.gen_range(1..90);
+        let (camera, pose) = scenes::random_view(&mut rng, w, h);
+        let sh_degree = rng.gen_range(0..=3);
+        let bg = [rng.gen(), rng.gen(), rng.gen()];
+        let (frame, exact) = render_gpu(
+            &ctx,
+            &mut renderer,
+            &g,
+            sh_degree,
+            &camera,
+            &pose,
+            bg,
+            &settings,
+        );
+        let label = format!("seed {seed} ({n} Gaussians, {w}×{h}, SH {sh_degree})");
+        worst = worst.max(compare(
+            &frame, &exact, sh_degree, &camera, &pose, bg, &settings, &label,
+        ));
+    }
+    eprintln!("worst max abs difference over {seeds} scenes: {worst:.2e}");
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn smooth_mode_and_larger_images_match() {
+    let ctx = ctx();
+    let mut renderer = renderer(&ctx);
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(99);
+    for (seed, (w, h)) in [(300u32, 200u32), (161, 243), (17, 300)]
+        .into_iter()
+        .enumerate()
+    {
+        for settings in [RenderSettings::default(), RenderSettings::smooth()] {
+            let mut g = scenes::random_gaussians(&mut rng, 800);
+            if settings.smooth {
+                // Smooth mode needs alpha < 1 (no clamp): keep opacities moderate.
+                g.opacity_logits.iter_mut().for_each(|o| *o = o.min(1.5));
+            }
+            let (camera, pose) = scenes::random_view(&mut rng, w, h);
+            let bg = [0.0, 1.0, 0.5];
+            let (frame, exact) =
+                render_gpu(&ctx, &mut renderer, &g, 3, &camera, &pose, bg, &settings);
+            compare(
+                &frame,
+                &exact,
+                3,
+                &camera,
+                &pose,
+                bg,
+                &settings,
+                &format!("image {seed} {w}×{h} smooth={}", settings.smooth),
+            );
+        }
+    }
+    ctx.check_validation().unwrap();
+}
+
+fn one(pos: [f64; 3], log_scale: [f64; 3], quat: [f64; 4], logit: f64) -> RefGaussians {
+    let mut sh = [[0.0; 3]; 16];
+    sh[0] = [0.8, -0.3, 0.1];
+    sh[1] = [0.05, 0.02, -0.04];
+    RefGaussians {
+        positions: vec![pos],
+        log_scales: vec![log_scale],
+        rotations: vec![quat],
+        opacity_logits: vec![logit],
+        sh: vec![sh],
+    }
+}
+
+fn concat(parts: &[RefGaussians]) -> RefGaussians {
+    let mut g = RefGaussians::default();
+    for p in parts {
+        g.positions.extend(&p.positions);
+        g.log_scales.extend(&p.log_scales);
+        g.rotations.extend(&p.rotations);
+        g.opacity_logits.extend(&p.opacity_logits);
+        g.sh.extend(&p.sh);
+    }
+    g
+}
+
+#[test]
+fn extremes_stay_finite_and_match() {
+    let ctx = ctx();
+    let mut renderer = renderer(&ctx);
+    let settings = RenderSettings::default();
+    let camera = PinholeCamera {
+        fx: 60.0,
+        fy: 60.0,
+        cx: 31.0,
+        cy: 22.0,
+        width: 61,
+        height: 45,
+    };
+    let pose = Pose::IDENTITY;
+    let id = [1.0, 0.0, 0.0, 0.0];
+    let mut parts = Vec::new();
+    for ls in [1e-8f64, 1e-4, 1.0, 1e2, 1e4] {
+        parts.push(one([0.1, -0.05, 3.0], [ls.ln(); 3], id, 0.5));
+    }
+    parts.push(one([0.2, 0.1, 2.0], [-3.0, -1.0, -4.0], id, 50.0));
+    parts.push(one([-0.2, 0.1, 2.0], [-3.0, -1.0, -4.0], id, -50.0));
+    parts.push(one([0.0, 0.2, 2.5], [-2.0; 3], [0.0; 4], 1.0));
+    parts.push(one(
+        [0.0, -0.2, 2.5],
+        [-2.0; 3],
+        [1e-30, 0.0, 1e-30, 0.0],
+        1.0,
+    ));
+    parts.push(one([0.3, 0.0, settings.near], [-2.0; 3], id, 1.0));
+    parts.push(one([0.3, 0.0, -1.0], [-2.0; 3], id, 1.0));
+    parts.push(one([0.0, 0.0, 1e6], [5.0; 3], id, 1.0));
+    parts.push(one([1e6, 0.0, 1.0], [-2.0; 3], id, 1.0));
+    let g = concat(&parts);
+    for bg in [[0.0; 3], [1.0; 3]] {
+        let (frame, exact) = render_gpu(&ctx, &mut renderer, &g, 1, &camera, &pose, bg, &settings);
+        compare(&frame, &exact, 1, &camera, &pose, bg, &settings, "extremes");
+        // Gaussians on or behind the near plane are culled.
+        assert_eq!(frame.projected[9].radius, 0.0, "on the near plane");
+        assert_eq!(frame.projected[10].radius, 0.0, "behind the camera");
+    }
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn a_thousand_splats_on_one_pixel_stop_at_the_transmittance_floor() {
+    let ctx = ctx();
+    let mut renderer = renderer(&ctx);
+    let settings = RenderSettings::default();
+    let camera = PinholeCamera {
+        fx: 50.0,
+        fy: 50.0,
+        cx: 8.0,
+        cy: 8.0,
+        width: 16,
+        height: 16,
+    };
+    let parts: Vec<_> = (0..1000)
+        .map(|k| {
+            one(
+                [0.0, 0.0, 2.0 + k as f64 * 1e-3],
+                [-6.0; 3],
+                [1.0, 0.0, 0.0, 0.0],
+                0.0,
+            )
+        })
+        .collect();
+    let g = concat(&parts);
+    let (frame, exact) = render_gpu(
+        &ctx,
+        &mut renderer,
+        &g,
+        0,
+        &camera,
+        &Pose::IDENTITY,
+        [0.2; 3],
+        &settings,
+    );
+    compare(
+        &frame,
+        &exact,
+        0,
+        &camera,
+        &Pose::IDENTITY,
+        [0.2; 3],
+        &settings,
+        "stacked",
+    );
+    let centre = 8 * 16 + 8;
+    assert!(frame.final_t[centre] >= settings.t_min as f32);
+    assert!(frame.last_index[centre] > 5 && frame.last_index[centre] < 1000);
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn empty_scene_and_one_pixel_image_show_the_background() {
+    let ctx = ctx();
+    let mut renderer = renderer(&ctx);
+    let settings = RenderSettings::default();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
+    let (camera, pose) = scenes::random_view(&mut rng, 33, 17);
+    let (frame, _) = render_gpu(
+        &ctx,
+        &mut renderer,
+        &RefGaussians::default(),
+        0,
+        &camera,
+        &pose,
+        [0.25, 0.5, 0.75],
+        &settings,
+    );
+    for px in frame.image.chunks(3) {
+        assert_eq!(px, [0.25, 0.5, 0.75]);
+    }
+    assert!(frame.final_t.iter().all(|&t| t == 1.0));
+    assert!(frame.last_index.iter().all(|&l| l == 0));
+    let g = scenes::random_gaussians(&mut rng, 50);
+    let (camera, pose) = scenes::random_view(&mut rng, 1, 1);
+    let (frame, exact) = render_gpu(
+        &ctx,
+        &mut renderer,
+        &g,
+        2,
+        &camera,
+        &pose,
+        [0.0; 3],
+        &settings,
+    );
+    compare(
+        &frame, &exact, 2, &camera, &pose, [0.0; 3], &settings, "1×1",
+    );
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn intersections_beyond_capacity_regrow_and_render_the_same() {
+    let ctx = ctx();
+    let settings = RenderSettings::default();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(77);
+    let g = scenes::random_gaussians(&mut rng, 400);
+    let (camera, pose) = scenes::random_view(&mut rng, 120, 90);
+    // Start with room for 16 pairs: the first frame overflows and must be redone.
+    let mut small = renderer(&ctx);
+    let (frame, exact) = render_gpu(&ctx, &mut small, &g, 3, &camera, &pose, [0.0; 3], &settings);
+    assert!(small.capacity().intersections > 16);
+    compare(
+        &frame, &exact, 3, &camera, &pose, [0.0; 3], &settings, "regrown",
+    );
+    ctx.check_validation().unwrap();
+}
