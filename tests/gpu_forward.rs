@@ -1,6 +1,7 @@
 //! The GPU forward renderer against the CPU f64 reference: random scenes (hundreds of seeds,
 //! image sizes that are not multiples of 16, SH degrees 0–3, random backgrounds), the sorted
 //! tile lists, the per-pixel state the backward needs, and the extremes. Validation layer on.
+#![allow(clippy::too_many_arguments, clippy::needless_range_loop)]
 
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions};
 use lpmsplat::reference::{self, scenes, RefGaussians, RenderSettings};

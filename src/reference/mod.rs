@@ -258,9 +258,9 @@ impl RefGaussians {
                 .map(|i| {
                     let mut sh = [[0.0; 3]; 16];
                     sh[0] = w3(&p.sh_dc[i]);
-                    for k in 0..rc {
-                        for c in 0..3 {
-                            sh[k + 1][c] = p.sh_rest[(i * rc + k) * 3 + c] as f64;
+                    for (k, coeff) in sh.iter_mut().skip(1).take(rc).enumerate() {
+                        for (c, v) in coeff.iter_mut().enumerate() {
+                            *v = p.sh_rest[(i * rc + k) * 3 + c] as f64;
                         }
                     }
                     sh
