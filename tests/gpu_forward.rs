@@ -118,13 +118,15 @@ fn compare(
     // 3·sqrt(λmax) sits within f32 rounding of an integer. Those seeds are reported, not hidden.
     let mut rect_mismatch = 0;
     for (i, (p, q)) in frame.projected.iter().zip(&r.projected).enumerate() {
+        // Visible (radius > 0) means on screen by the 3σ square; the tile rectangle may
+        // still be empty for a splat too faint to reach alpha_min anywhere.
         let gpu_rect = (p.tile_min, p.tile_max);
-        let ref_rect = if q.culled || q.tiles_touched() == 0 {
-            None
-        } else {
-            Some((q.tile_min, q.tile_max))
-        };
-        if p.is_visible() != ref_rect.is_some() || (p.is_visible() && Some(gpu_rect) != ref_rect) {
+        let ref_rect = (q.tile_min, q.tile_max);
+        let ref_touches = !q.culled && q.tiles_touched() > 0;
+        if (p.is_visible() && q.culled)
+            || (ref_touches && !p.is_visible())
+            || ((p.tiles_touched() > 0 || ref_touches) && gpu_rect != ref_rect)
+        {
             rect_mismatch += 1;
             continue;
         }

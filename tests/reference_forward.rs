@@ -630,14 +630,16 @@ fn tiles_touched_are_consistent_with_the_radius() {
                         (tx * 16..((tx + 1) * 16).min(w)).any(|i| {
                             let (dx, dy) =
                                 (p.mean2d[0] - i as f64 - 0.5, p.mean2d[1] - j as f64 - 0.5);
-                            (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det <= 9.0
+                            let m2 = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det;
+                            // Within 3σ and bright enough not to be skipped by alpha_min.
+                            m2 <= 9.0 && p.opacity * (-0.5 * m2).exp() >= settings.alpha_min
                         })
                     });
                     let touched = p.touches_tile(tx, ty);
                     if within {
                         assert!(
                             touched,
-                            "tile ({tx},{ty}) holds a pixel within 3σ but is not touched"
+                            "tile ({tx},{ty}) holds a pixel the splat reaches but is not touched"
                         );
                     }
                     if touched {

@@ -127,11 +127,23 @@ void main() {
     if (!ok) { write_culled(i, t.z); return; }
 
     // Step 8: tile rectangle [min, max), clamped to the grid in float before converting so a
-    // huge or far off-screen footprint cannot overflow an integer.
+    // huge or far off-screen footprint cannot overflow an integer. Its half-size is the 3σ
+    // radius or, when smaller, the distance past which opacity·exp(power) < alpha_min in every
+    // direction (the splat is skipped there anyway: same image, fewer pairs to sort and blend).
     float ts = 16.0;
     vec2 grid = vec2(cam.size.zw);
-    vec2 lo = clamp(floor((mean2d - radius) / ts), vec2(0.0), grid);
-    vec2 hi = clamp(ceil((mean2d + radius) / ts), vec2(0.0), grid);
+    // Off-screen test on the 3σ square: Inria's "visible" (radius > 0) ignores opacity.
+    vec2 lo3 = clamp(floor((mean2d - radius) / ts), vec2(0.0), grid);
+    vec2 hi3 = clamp(ceil((mean2d + radius) / ts), vec2(0.0), grid);
+    bool on_screen = hi3.x > lo3.x && hi3.y > lo3.y;
+    float extent = radius;
+    if (rc.smooth_mode == 0u) {
+        float p_max = log(opacity / rc.alpha_min);
+        extent = p_max > 0.0 ? min(radius, ceil(sqrt(2.0 * p_max * lambda_max))) : 0.0;
+    }
+    vec2 lo = clamp(floor((mean2d - extent) / ts), vec2(0.0), grid);
+    vec2 hi = clamp(ceil((mean2d + extent) / ts), vec2(0.0), grid);
+    if (!(extent > 0.0)) { lo = vec2(0.0); hi = vec2(0.0); }
     Projected p;
     p.mean_x = mean2d.x; p.mean_y = mean2d.y; p.depth = t.z; p.opacity = opacity;
     p.conic_a = conic.x; p.conic_b = conic.y; p.conic_c = conic.z; p.radius = radius;
@@ -139,7 +151,7 @@ void main() {
     p.tile_min_x = uint(lo.x); p.tile_min_y = uint(lo.y);
     p.tile_max_x = uint(hi.x); p.tile_max_y = uint(hi.y);
     bool touches = p.tile_max_x > p.tile_min_x && p.tile_max_y > p.tile_min_y;
-    if (!touches) p.radius = 0.0;  // off-screen: treated as culled downstream
+    if (!on_screen) p.radius = 0.0;  // off-screen: treated as culled downstream
     projected[i] = p;
     depth_keys[i] = uvec2(touches ? floatBitsToUint(t.z) : 0xFFFFFFFFu, 0u);
     depth_vals[i] = i;

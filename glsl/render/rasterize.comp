@@ -20,7 +20,7 @@ layout(push_constant) uniform Push {
 };
 
 shared vec4 s_mean_opacity[WG_SIZE];  // mean x, mean y, opacity, unused
-shared vec4 s_conic[WG_SIZE];         // a, b, c, unused
+shared vec4 s_conic[WG_SIZE];         // a, b, c, power below which alpha < alpha_min
 shared vec4 s_rgb[WG_SIZE];
 shared uint s_done;
 
@@ -48,7 +48,10 @@ void main() {
         if (k < range.y) {
             Projected p = projected[sorted_ids[k]];
             s_mean_opacity[gl_LocalInvocationIndex] = vec4(p.mean_x, p.mean_y, p.opacity, 0.0);
-            s_conic[gl_LocalInvocationIndex] = vec4(p.conic_a, p.conic_b, p.conic_c, 0.0);
+            // A power this far below ln(alpha_min / opacity) gives alpha < alpha_min with room
+            // for rounding, so the pixel can skip exp(); the exact test still follows.
+            float cutoff = rc.smooth_mode == 0u ? log(rc.alpha_min / p.opacity) - 1e-3 : -1e30;
+            s_conic[gl_LocalInvocationIndex] = vec4(p.conic_a, p.conic_b, p.conic_c, cutoff);
             s_rgb[gl_LocalInvocationIndex] = vec4(p.r, p.g, p.b, 0.0);
         }
         barrier();
@@ -56,11 +59,11 @@ void main() {
         uint batch = min(WG_SIZE, range.y - base);
         for (uint j = 0u; !done && j < batch; j++) {
             vec4 mo = s_mean_opacity[j];
-            vec3 cn = s_conic[j].xyz;
+            vec4 cn = s_conic[j];
             vec2 d = mo.xy - centre;
             float power = -0.5 * (cn.x * d.x * d.x + cn.z * d.y * d.y) - cn.y * d.x * d.y;
             // power > 0 only happens through rounding for a positive definite conic.
-            if (power > 0.0) continue;
+            if (power > 0.0 || power < cn.w) continue;
             float alpha = mo.z * exp(power);
             if (rc.smooth_mode == 0u) {
                 alpha = min(alpha, rc.alpha_max);  // bounds 1/(1 − alpha) in the backward

@@ -1,7 +1,9 @@
 //! Subcommands. Each lives in its own file; this one parses and dispatches.
 
+mod bench;
 mod info;
 mod matching;
+mod render;
 
 use clap::{Args, Parser, Subcommand};
 use lpmsplat::gpu::GpuOptions;
@@ -31,6 +33,10 @@ pub enum Command {
     Info(info::InfoArgs),
     /// Extract and cache LPM correspondences for all neighbour view pairs.
     Match(matching::MatchArgs),
+    /// Render chosen cameras of a scene from a trained PLY into PNGs.
+    Render(render::RenderArgs),
+    /// Benchmarks: `bench fps` (rendering speed and per-stage GPU time).
+    Bench(bench::BenchArgs),
 }
 
 /// Scene-loading flags shared by the subcommands that read a scene.
@@ -73,5 +79,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Info(a) => info::run(&gpu, &a),
         Command::Match(a) => matching::run(&a),
+        Command::Render(a) => render::run(&gpu, &a),
+        Command::Bench(a) => bench::run(&gpu, &a),
     }
 }

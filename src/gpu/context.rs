@@ -574,6 +574,13 @@ impl GpuContext {
     }
 
     /// Waits until the device is idle (used at teardown and at explicit sync points only).
+    /// GPU memory held by the allocator: (bytes in live allocations, bytes of device memory
+    /// blocks). The second is what the device is actually charged.
+    pub fn memory_in_use(&self) -> (u64, u64) {
+        let r = self.allocator.lock().unwrap().generate_report();
+        (r.total_allocated_bytes, r.total_capacity_bytes)
+    }
+
     pub fn wait_idle(&self) {
         unsafe {
             let _ = self.device.device_wait_idle();

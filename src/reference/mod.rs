@@ -30,9 +30,13 @@
 //!    only catches rounding in low precision). Conic = inverse = `[c, −b, a] / det`.
 //! 7. Radius (px) = `ceil(3·sqrt(λmax))`, `λmax = m + sqrt(max(m² − det, 0))`, `m = (a + c)/2`,
 //!    kept as an f64 so huge Gaussians do not overflow an integer before the tile clamp.
-//! 8. Tile rectangle `[min, max)`: `min = floor((mean2d − r) / tile)`,
-//!    `max = ceil((mean2d + r) / tile)`, both clamped to `[0, tiles]` before any integer
-//!    conversion. Culled or zero-area rectangles touch no tile.
+//! 8. Tile rectangle `[min, max)`: `min = floor((mean2d − e) / tile)`,
+//!    `max = ceil((mean2d + e) / tile)`, both clamped to `[0, tiles]` before any integer
+//!    conversion, with the extent `e = min(r, ceil(sqrt(2·ln(opacity/alpha_min)·λmax)))`:
+//!    beyond that distance alpha < alpha_min in every direction, so the image is the same as
+//!    with the 3σ square, faint Gaussians just touch fewer tiles (`e = r` in smooth mode; a
+//!    Gaussian with opacity ≤ alpha_min touches none). Culled or zero-area rectangles touch
+//!    no tile.
 //! 9. Colour: SH at `dir = normalise(p − camera centre)`, `+ 0.5`, clamped at 0 per channel;
 //!    a clamped channel passes no gradient.
 //! 10. Any non-finite mean2d, conic, radius, SH colour or opacity culls the Gaussian (it is

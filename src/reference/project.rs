@@ -160,6 +160,22 @@ pub fn sigmoid(x: f64) -> f64 {
     1.0 / (1.0 + (-x).exp())
 }
 
+/// Half-size in pixels of the square a Gaussian's tiles are taken from: the 3σ `radius`, or,
+/// when smaller, `ceil(sqrt(2·ln(opacity / alpha_min)·λmax))`, the distance beyond which
+/// `opacity·exp(power)` is below `alpha_min` in every direction, so the splat is skipped there
+/// anyway. The image is unchanged; faint Gaussians just join fewer tile lists. 0 means the
+/// Gaussian is too faint to show anywhere. Smooth mode has no `alpha_min` skip: 3σ only.
+pub fn footprint_extent(radius: f64, lambda_max: f64, opacity: f64, s: &RenderSettings) -> f64 {
+    if s.smooth {
+        return radius;
+    }
+    let p = (opacity / s.alpha_min).ln();
+    if p.is_nan() || p <= 0.0 {
+        return 0.0;
+    }
+    radius.min((2.0 * p * lambda_max).sqrt().ceil())
+}
+
 /// Preprocesses every Gaussian for one camera.
 pub fn preprocess(
     gaussians: &RefGaussians,
@@ -253,18 +269,26 @@ fn project_one(
         return culled;
     }
 
-    // Step 8: tile rectangle, clamped to the grid in f64 before converting.
+    // Step 8: tile rectangle, clamped to the grid in f64 before converting. Its half-size is
+    // the footprint extent (see `footprint_extent`), not always the 3σ radius.
+    let extent = footprint_extent(radius, lambda_max, opacity, settings);
     let (tiles_x, tiles_y) = settings.tile_grid(camera.width, camera.height);
     let ts = settings.tile_size as f64;
     let to_tile = |v: f64, n: u32| v.max(0.0).min(n as f64) as u32;
-    let tile_min = [
-        to_tile(((mean2d[0] - radius) / ts).floor(), tiles_x),
-        to_tile(((mean2d[1] - radius) / ts).floor(), tiles_y),
-    ];
-    let tile_max = [
-        to_tile(((mean2d[0] + radius) / ts).ceil(), tiles_x),
-        to_tile(((mean2d[1] + radius) / ts).ceil(), tiles_y),
-    ];
+    let (tile_min, tile_max) = if extent > 0.0 {
+        (
+            [
+                to_tile(((mean2d[0] - extent) / ts).floor(), tiles_x),
+                to_tile(((mean2d[1] - extent) / ts).floor(), tiles_y),
+            ],
+            [
+                to_tile(((mean2d[0] + extent) / ts).ceil(), tiles_x),
+                to_tile(((mean2d[1] + extent) / ts).ceil(), tiles_y),
+            ],
+        )
+    } else {
+        ([0, 0], [0, 0])
+    };
 
     Projected {
         culled: false,

@@ -4,3 +4,4 @@ pub mod forward;
 pub mod layout;
 pub mod scan;
 pub mod sort;
+pub mod synthetic;

@@ -1,0 +1,235 @@
+//! `bench`: measurements users quote. `bench fps` times the forward renderer at a chosen size
+//! (1352×1014 by default) for a PLY or a generated scene: warm-up, many frames, median and
+//! spread of the wall time, and per-stage GPU timestamps. Table on stdout, JSON on request.
+
+use anyhow::Context;
+use clap::{Args, Subcommand};
+use lpmsplat::error::write_atomic;
+use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder, StageTimes, TimestampPool};
+use lpmsplat::render::forward::{FrameSettings, Renderer};
+use lpmsplat::render::layout::{CameraGpu, RenderConstants};
+use lpmsplat::render::synthetic;
+use lpmsplat::splats::{gpu::GpuSplats, read_ply};
+use serde::Serialize;
+use std::io::Write;
+use std::path::PathBuf;
+use std::time::Instant;
+
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    #[command(subcommand)]
+    pub what: BenchKind,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum BenchKind {
+    /// Rendering frames per second and per-stage GPU time.
+    Fps(FpsArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct FpsArgs {
+    /// Gaussians from this PLY (the camera looks at its centroid from outside its bulk).
+    #[arg(long, conflicts_with = "gaussians")]
+    pub ply: Option<PathBuf>,
+    /// A generated scene of this many Gaussians; several counts may be given, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "100000")]
+    pub gaussians: Vec<usize>,
+    #[arg(long, default_value_t = 1352)]
+    pub width: u32,
+    #[arg(long, default_value_t = 1014)]
+    pub height: u32,
+    /// Frames timed (after the warm-up).
+    #[arg(long, default_value_t = 50)]
+    pub frames: usize,
+    #[arg(long, default_value_t = 5)]
+    pub warmup: usize,
+    /// Write the results as JSON here as well.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+}
+
+#[derive(Serialize, Debug)]
+pub struct FpsResult {
+    pub source: String,
+    pub gaussians: usize,
+    pub width: u32,
+    pub height: u32,
+    pub frames: usize,
+    pub intersections: u64,
+    pub fps_median: f64,
+    pub frame_ms_median: f64,
+    pub frame_ms_p10: f64,
+    pub frame_ms_p90: f64,
+    pub frame_ms_min: f64,
+    pub frame_ms_max: f64,
+    /// Median GPU time per stage, ms.
+    pub stages_ms: Vec<(String, f64)>,
+    pub gpu_memory_mib: f64,
+    pub device: String,
+}
+
+pub fn run(gpu: &GpuOptions, args: &BenchArgs) -> anyhow::Result<()> {
+    match &args.what {
+        BenchKind::Fps(a) => fps(gpu, a),
+    }
+}
+
+fn percentile(sorted: &[f64], q: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let i = ((sorted.len() - 1) as f64 * q).round() as usize;
+    sorted[i]
+}
+
+fn fps(gpu: &GpuOptions, args: &FpsArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        args.width > 0 && args.height > 0,
+        "bench fps: --width {} --height {} is an empty image. Fix: give both at least 1",
+        args.width,
+        args.height
+    );
+    anyhow::ensure!(
+        args.frames > 0,
+        "bench fps: --frames 0. Fix: time at least 1 frame"
+    );
+    let ctx = GpuContext::new(gpu)?;
+    let mut results = Vec::new();
+    let sources: Vec<(String, lpmsplat::splats::GaussianParams)> = match &args.ply {
+        Some(path) => vec![(path.display().to_string(), read_ply(path)?)],
+        None => args
+            .gaussians
+            .iter()
+            .map(|&n| {
+                (
+                    format!("generated({n})"),
+                    synthetic::random_scene(n, args.seed),
+                )
+            })
+            .collect(),
+    };
+    for (source, params) in sources {
+        let r = fps_one(&ctx, &source, &params, args)?;
+        print_result(&r);
+        results.push(r);
+    }
+    if let Some(path) = &args.json {
+        let text = serde_json::to_string_pretty(&results)?;
+        write_atomic(path, |f| Ok(f.write_all(text.as_bytes())?))
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    ctx.check_validation()?;
+    Ok(())
+}
+
+fn fps_one(
+    ctx: &std::sync::Arc<GpuContext>,
+    source: &str,
+    params: &lpmsplat::splats::GaussianParams,
+    args: &FpsArgs,
+) -> anyhow::Result<FpsResult> {
+    let (camera, pose) = if args.ply.is_some() {
+        synthetic::camera_for_model(params, args.width, args.height)
+    } else {
+        synthetic::bench_camera(args.width, args.height)
+    };
+    let cam = CameraGpu::new(&camera, &pose);
+    let splats = GpuSplats::upload(ctx, params, params.len().max(1))?;
+    let cameras = GpuBuffer::from_slice(ctx, "cameras", &[cam])?;
+    let settings = FrameSettings {
+        sh_degree: params.sh_degree,
+        background: [0.0; 3],
+        constants: RenderConstants::default(),
+    };
+    let mut renderer = Renderer::for_camera(ctx, params.len(), &cam)?;
+    // First frame sizes the intersection buffers.
+    renderer.render_blocking(&splats, &cameras, 0, &cam, &settings)?;
+    let intersections = renderer.last_intersections()?;
+    let mut pool = TimestampPool::new(ctx, 16)?;
+    let mut rec = Recorder::new(ctx)?;
+    let mut wall = Vec::new();
+    let mut stages: Vec<StageTimes> = Vec::new();
+    for k in 0..args.warmup + args.frames {
+        rec.begin()?;
+        rec.start_timestamps(&mut pool);
+        let t0 = Instant::now();
+        renderer.record(
+            &mut rec,
+            &splats,
+            &cameras,
+            0,
+            &cam,
+            &settings,
+            Some(&mut pool),
+        )?;
+        rec.submit_and_wait()?;
+        let ms = t0.elapsed().as_secs_f64() * 1e3;
+        if k >= args.warmup {
+            wall.push(ms);
+            stages.push(pool.read()?);
+        }
+    }
+    wall.sort_by(|a, b| a.total_cmp(b));
+    let median = percentile(&wall, 0.5);
+    let stage_names: Vec<String> = stages
+        .first()
+        .map(|s| s.stages.iter().map(|x| x.0.clone()).collect())
+        .unwrap_or_default();
+    let stages_ms = stage_names
+        .iter()
+        .enumerate()
+        .map(|(i, name)| {
+            let mut v: Vec<f64> = stages.iter().map(|s| s.stages[i].1).collect();
+            v.sort_by(|a, b| a.total_cmp(b));
+            (name.clone(), percentile(&v, 0.5))
+        })
+        .collect();
+    Ok(FpsResult {
+        source: source.to_string(),
+        gaussians: params.len(),
+        width: args.width,
+        height: args.height,
+        frames: args.frames,
+        intersections,
+        fps_median: 1e3 / median,
+        frame_ms_median: median,
+        frame_ms_p10: percentile(&wall, 0.1),
+        frame_ms_p90: percentile(&wall, 0.9),
+        frame_ms_min: wall[0],
+        frame_ms_max: wall[wall.len() - 1],
+        stages_ms,
+        gpu_memory_mib: ctx.memory_in_use().1 as f64 / (1u64 << 20) as f64,
+        device: ctx.info.name.clone(),
+    })
+}
+
+fn print_result(r: &FpsResult) {
+    println!(
+        "{} — {} Gaussians at {}×{} on {} ({} intersections)",
+        r.source, r.gaussians, r.width, r.height, r.device, r.intersections
+    );
+    println!(
+        "  {:.2} FPS (median frame {:.2} ms; p10 {:.2}, p90 {:.2}, min {:.2}, max {:.2}; {} frames)",
+        r.fps_median,
+        r.frame_ms_median,
+        r.frame_ms_p10,
+        r.frame_ms_p90,
+        r.frame_ms_min,
+        r.frame_ms_max,
+        r.frames
+    );
+    let total: f64 = r.stages_ms.iter().map(|s| s.1).sum();
+    println!("  {:<12} {:>10} {:>7}", "stage", "GPU ms", "share");
+    for (name, ms) in &r.stages_ms {
+        println!(
+            "  {:<12} {:>10.3} {:>6.1}%",
+            name,
+            ms,
+            100.0 * ms / total.max(1e-12)
+        );
+    }
+    println!("  GPU memory held: {:.1} MiB", r.gpu_memory_mib);
+}
