@@ -1,0 +1,532 @@
+//! The GPU backward pass (rasterizer backward + preprocess backward) against the f64 CPU
+//! reference backward, on random small scenes fed with the reference forward pass in the GPU
+//! contract layout. The scenes are rounded to f32 first so both sides see the same values.
+//! Both atomic paths (float atomicAdd where the device has it, compare-and-swap forced) run on
+//! every scene. Output buffers are poisoned with NaN before each run, so anything left unwritten
+//! (or written past `count`) is caught.
+
+use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder};
+use lpmsplat::reference::gpu_layout::{
+    gaussian_params, gpu_forward_fixture, round_gaussians_to_f32, round_view_to_f32,
+};
+use lpmsplat::reference::scenes::{random_gaussians, random_view};
+use lpmsplat::reference::{self, Gradients, RefGaussians, RenderSettings};
+use lpmsplat::render::backward::{AtomicMode, Backward, BackwardArgs, GRAD2D_STRIDE};
+use lpmsplat::render::layout::{CameraGpu, RenderConstants};
+use lpmsplat::scene::{PinholeCamera, Pose};
+use lpmsplat::splats::gpu::GpuSplats;
+use lpmsplat::splats::model::sh_rest_coeffs;
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+use std::sync::Arc;
+
+const NAN_BITS: u32 = 0x7FC0_0000;
+/// Extra Gaussians of room in the gradient buffers: they must stay poisoned.
+const SPARE: usize = 5;
+
+fn ctx() -> Arc<GpuContext> {
+    GpuContext::new(&GpuOptions::for_tests()).expect("a Vulkan device with the validation layer")
+}
+
+struct Scene {
+    gaussians: RefGaussians,
+    camera: PinholeCamera,
+    pose: Pose,
+    /// Active degree of the render.
+    degree: usize,
+    /// Degree of the parameter buffers (≥ `degree`).
+    stored_degree: u32,
+    background: [f64; 3],
+    settings: RenderSettings,
+    dl_dimage: Vec<[f64; 3]>,
+}
+
+impl Scene {
+    fn random(rng: &mut Pcg64, n: usize, width: u32, height: u32, degree: usize) -> Scene {
+        let gaussians = random_gaussians(rng, n);
+        let (camera, pose) = random_view(rng, width, height);
+        Scene::new(rng, gaussians, camera, pose, degree)
+    }
+
+    fn new(
+        rng: &mut Pcg64,
+        gaussians: RefGaussians,
+        camera: PinholeCamera,
+        pose: Pose,
+        degree: usize,
+    ) -> Scene {
+        let (camera, pose) = round_view_to_f32(&camera, &pose);
+        let pixels = (camera.width * camera.height) as usize;
+        Scene {
+            gaussians: round_gaussians_to_f32(&gaussians),
+            camera,
+            pose,
+            degree,
+            stored_degree: rng.gen_range(degree as u32..=3),
+            background: [0.0; 3],
+            settings: RenderSettings::default(),
+            dl_dimage: (0..pixels)
+                .map(|_| [0; 3].map(|_| rng.gen_range(-1.0f32..1.0) as f64))
+                .collect(),
+        }
+    }
+}
+
+/// What the GPU produced, read back.
+struct GpuResult {
+    grad2d: Vec<f32>,
+    positions: Vec<f32>,
+    log_scales: Vec<f32>,
+    rotations: Vec<f32>,
+    opacity_logits: Vec<f32>,
+    sh_dc: Vec<f32>,
+    sh_rest: Vec<f32>,
+    view_grad_norm: Vec<f32>,
+    float_atomics: bool,
+}
+
+fn run_gpu(ctx: &Arc<GpuContext>, mode: AtomicMode, s: &Scene) -> (GpuResult, Gradients) {
+    let forward = reference::render(
+        &s.gaussians,
+        &s.camera,
+        &s.pose,
+        s.degree,
+        s.background,
+        &s.settings,
+    )
+    .unwrap();
+    let want = reference::backward(
+        &s.gaussians,
+        &s.camera,
+        &s.pose,
+        s.degree,
+        s.background,
+        &s.settings,
+        &forward,
+        &s.dl_dimage,
+    )
+    .unwrap();
+    let fx = gpu_forward_fixture(&forward, &s.camera, &s.pose);
+    let n = s.gaussians.len();
+
+    // The camera sits at index 1 behind a decoy, so the kernels must use the index.
+    let decoy = CameraGpu::new(
+        &PinholeCamera {
+            fx: 3.0,
+            fy: 3.0,
+            cx: 1.0,
+            cy: 1.0,
+            width: 3,
+            height: 2,
+        },
+        &Pose::IDENTITY,
+    );
+    let cameras = GpuBuffer::from_slice(ctx, "cameras", &[decoy, fx.camera]).unwrap();
+    let projected = GpuBuffer::from_slice(ctx, "projected", &fx.projected).unwrap();
+    let tile_ranges = GpuBuffer::from_slice(ctx, "tile_ranges", &fx.tile_ranges).unwrap();
+    let sorted_ids = GpuBuffer::from_slice(ctx, "sorted_ids", &fx.sorted_ids).unwrap();
+    let final_t = GpuBuffer::from_slice(ctx, "final_t", &fx.final_t).unwrap();
+    let last_index = GpuBuffer::from_slice(ctx, "last_index", &fx.last_index).unwrap();
+    let dl: Vec<f32> = s.dl_dimage.iter().flatten().map(|&v| v as f32).collect();
+    let dl_dimage = GpuBuffer::from_slice(ctx, "dl_dimage", &dl).unwrap();
+    let params = gaussian_params(&s.gaussians, s.stored_degree);
+    let splats = GpuSplats::upload(ctx, &params, n + SPARE).unwrap();
+    let grads = GpuSplats::zeroed(ctx, "grad_", s.stored_degree, n, n + SPARE).unwrap();
+    let view_grad_norm = GpuBuffer::<f32>::from_slice(ctx, "vgn", &vec![0.0; n + SPARE]).unwrap();
+
+    let mut bwd = Backward::with_atomics(ctx, 1, mode).unwrap();
+    bwd.reserve(ctx, n).unwrap();
+    let mut rec = Recorder::new(ctx).unwrap();
+    for (buf, _) in grads.groups() {
+        rec.fill(buf, NAN_BITS);
+    }
+    rec.fill(&view_grad_norm, NAN_BITS);
+    rec.fill(bwd.grad2d(), NAN_BITS);
+    let mut constants = RenderConstants::from_settings(&s.settings);
+    constants.smooth = s.settings.smooth as u32;
+    bwd.record(
+        ctx,
+        &mut rec,
+        &BackwardArgs {
+            cameras: &cameras,
+            camera_index: 1,
+            camera: &fx.camera,
+            projected: &projected,
+            tile_ranges: &tile_ranges,
+            sorted_ids: &sorted_ids,
+            final_t: &final_t,
+            last_index: &last_index,
+            dl_dimage: &dl_dimage,
+            splats: &splats,
+            grads: &grads,
+            view_grad_norm: &view_grad_norm,
+            count: n,
+            sh_degree: s.degree as u32,
+            constants,
+            background: s.background.map(|v| v as f32),
+        },
+    )
+    .unwrap();
+    rec.barrier();
+    rec.submit_and_wait().unwrap();
+
+    let all = |b: &GpuBuffer<f32>| b.read().unwrap();
+    let result = GpuResult {
+        grad2d: all(bwd.grad2d()),
+        positions: all(&grads.positions),
+        log_scales: all(&grads.log_scales),
+        rotations: all(&grads.rotations),
+        opacity_logits: all(&grads.opacity_logits),
+        sh_dc: all(&grads.sh_dc),
+        sh_rest: all(&grads.sh_rest),
+        view_grad_norm: all(&view_grad_norm),
+        float_atomics: bwd.uses_float_atomics(),
+    };
+    // Past `count`: untouched (still NaN).
+    let rest = 3 * sh_rest_coeffs(s.stored_degree);
+    for (name, buf, stride) in [
+        ("positions", &result.positions, 3),
+        ("log_scales", &result.log_scales, 3),
+        ("rotations", &result.rotations, 4),
+        ("opacity_logits", &result.opacity_logits, 1),
+        ("sh_dc", &result.sh_dc, 3),
+        ("sh_rest", &result.sh_rest, rest),
+        ("view_grad_norm", &result.view_grad_norm, 1),
+    ] {
+        assert!(
+            buf[n * stride..(n + SPARE) * stride]
+                .iter()
+                .all(|v| v.is_nan()),
+            "{name}: written past count"
+        );
+    }
+    (result, want)
+}
+
+/// `|g − r| ≤ rel·|r| + floor·max|r|` over one group of values (the floor is relative to the
+/// largest reference value of the group, so gradients negligible for the group are compared
+/// against that scale), and no NaN or infinity anywhere.
+fn compare(what: &str, gpu: &[f32], want: &[f64], rel: f64, floor: f64) {
+    assert_eq!(gpu.len(), want.len(), "{what}: length");
+    let scale = want.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    for (i, (&g, &r)) in gpu.iter().zip(want).enumerate() {
+        assert!(g.is_finite(), "{what}[{i}] = {g} (reference {r})");
+        let err = (g as f64 - r).abs();
+        let tol = rel * r.abs() + floor * scale;
+        if err > tol {
+            panic!(
+                "{what}[{i}]: GPU {g:e} vs reference {r:e} (error {err:e}, tolerance {tol:e}, \
+                 group max {scale:e})"
+            );
+        }
+    }
+}
+
+fn check_against_reference(label: &str, s: &Scene, got: &GpuResult, want: &Gradients) {
+    let n = s.gaussians.len();
+    let (rel, floor) = (1e-2, 1e-4);
+    let pg = &want.projected;
+    let g2 = |k: usize| -> Vec<f32> { (0..n).map(|i| got.grad2d[i * GRAD2D_STRIDE + k]).collect() };
+    compare(
+        &format!("{label} grad mean2d.x"),
+        &g2(0),
+        &pg.mean2d.iter().map(|v| v[0]).collect::<Vec<_>>(),
+        rel,
+        floor,
+    );
+    compare(
+        &format!("{label} grad mean2d.y"),
+        &g2(1),
+        &pg.mean2d.iter().map(|v| v[1]).collect::<Vec<_>>(),
+        rel,
+        floor,
+    );
+    for k in 0..3 {
+        compare(
+            &format!("{label} grad conic[{k}]"),
+            &g2(2 + k),
+            &pg.conic.iter().map(|v| v[k]).collect::<Vec<_>>(),
+            rel,
+            floor,
+        );
+        compare(
+            &format!("{label} grad rgb[{k}]"),
+            &g2(5 + k),
+            &pg.rgb.iter().map(|v| v[k]).collect::<Vec<_>>(),
+            rel,
+            floor,
+        );
+    }
+    compare(
+        &format!("{label} grad opacity"),
+        &g2(8),
+        &pg.opacity,
+        rel,
+        floor,
+    );
+
+    let p = &want.params;
+    let flat3 = |v: &[[f64; 3]]| v.iter().flatten().copied().collect::<Vec<_>>();
+    compare(
+        &format!("{label} positions"),
+        &got.positions[..3 * n],
+        &flat3(&p.positions),
+        rel,
+        floor,
+    );
+    compare(
+        &format!("{label} log_scales"),
+        &got.log_scales[..3 * n],
+        &flat3(&p.log_scales),
+        rel,
+        floor,
+    );
+    compare(
+        &format!("{label} rotations"),
+        &got.rotations[..4 * n],
+        &p.rotations.iter().flatten().copied().collect::<Vec<_>>(),
+        rel,
+        floor,
+    );
+    compare(
+        &format!("{label} opacity_logits"),
+        &got.opacity_logits[..n],
+        &p.opacity_logits,
+        rel,
+        floor,
+    );
+    compare(
+        &format!("{label} sh_dc"),
+        &got.sh_dc[..3 * n],
+        &p.sh.iter().flat_map(|c| c[0]).collect::<Vec<_>>(),
+        rel,
+        floor,
+    );
+    let rest = sh_rest_coeffs(s.stored_degree) + 1;
+    compare(
+        &format!("{label} sh_rest"),
+        &got.sh_rest[..3 * (rest - 1) * n],
+        &p.sh
+            .iter()
+            .flat_map(|c| c[1..rest].iter().flatten().copied())
+            .collect::<Vec<_>>(),
+        rel,
+        floor,
+    );
+    compare(
+        &format!("{label} view_grad_norm"),
+        &got.view_grad_norm[..n],
+        &want.ndc_mean2d_norm,
+        rel,
+        floor,
+    );
+}
+
+/// The same scene through both atomic paths.
+fn check_scene(ctx: &Arc<GpuContext>, label: &str, s: &Scene) {
+    for mode in [AtomicMode::Auto, AtomicMode::CompareSwap] {
+        let (got, want) = run_gpu(ctx, mode, s);
+        if mode == AtomicMode::CompareSwap {
+            assert!(!got.float_atomics);
+        } else {
+            assert_eq!(got.float_atomics, ctx.info.float_atomic_add);
+        }
+        check_against_reference(&format!("{label} ({mode:?})"), s, &got, &want);
+    }
+}
+
+#[test]
+fn random_scenes_match_reference() {
+    let ctx = ctx();
+    let mut rng = Pcg64::seed_from_u64(0xB4C4);
+    let sizes = [(37, 23), (50, 41), (16, 16), (29, 57)];
+    for (case, &(w, h)) in sizes.iter().cycle().take(8).enumerate() {
+        let degree = case % 4;
+        let n = rng.gen_range(40..160);
+        let mut s = Scene::random(&mut rng, n, w, h, degree);
+        s.background = match case % 3 {
+            0 => [1.0; 3],
+            1 => [0.0; 3],
+            _ => [0; 3].map(|_| rng.gen_range(0.0f32..1.0) as f64),
+        };
+        check_scene(&ctx, &format!("case {case} {w}×{h} deg {degree} n {n}"), &s);
+    }
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn dense_opaque_scene_matches_reference() {
+    // Opaque, overlapping splats: the alpha_max clamp and the t_min stop are active.
+    let ctx = ctx();
+    let mut rng = Pcg64::seed_from_u64(77);
+    let mut s = Scene::random(&mut rng, 300, 45, 38, 2);
+    for (l, ls) in s
+        .gaussians
+        .opacity_logits
+        .iter_mut()
+        .zip(&mut s.gaussians.log_scales)
+    {
+        *l = rng.gen_range(2.0f32..8.0) as f64;
+        *ls = ls.map(|v| (v + 0.7) as f32 as f64);
+    }
+    s.background = [1.0; 3];
+    let forward = reference::render(
+        &s.gaussians,
+        &s.camera,
+        &s.pose,
+        s.degree,
+        s.background,
+        &s.settings,
+    )
+    .unwrap();
+    let stopped = forward
+        .raster
+        .final_transmittance
+        .iter()
+        .filter(|&&t| t < 0.01)
+        .count();
+    assert!(
+        stopped > 100,
+        "scene is not dense enough ({stopped} opaque pixels)"
+    );
+    check_scene(&ctx, "dense", &s);
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn smooth_mode_matches_reference() {
+    let ctx = ctx();
+    let mut rng = Pcg64::seed_from_u64(5);
+    let mut s = Scene::random(&mut rng, 120, 40, 33, 3);
+    s.settings = RenderSettings::smooth();
+    s.background = [0.3, 0.6, 0.9];
+    check_scene(&ctx, "smooth", &s);
+    ctx.check_validation().unwrap();
+}
+
+/// Every gradient of the first `count` Gaussians finite.
+fn assert_all_finite(label: &str, got: &GpuResult, n: usize, stored_degree: u32) {
+    let rest = 3 * sh_rest_coeffs(stored_degree);
+    for (name, buf, stride) in [
+        ("grad2d", &got.grad2d, GRAD2D_STRIDE),
+        ("positions", &got.positions, 3),
+        ("log_scales", &got.log_scales, 3),
+        ("rotations", &got.rotations, 4),
+        ("opacity_logits", &got.opacity_logits, 1),
+        ("sh_dc", &got.sh_dc, 3),
+        ("sh_rest", &got.sh_rest, rest),
+        ("view_grad_norm", &got.view_grad_norm, 1),
+    ] {
+        if let Some(i) = buf[..n * stride].iter().position(|v| !v.is_finite()) {
+            panic!(
+                "{label}: {name}[{i}] (Gaussian {}) = {}",
+                i / stride.max(1),
+                buf[i]
+            );
+        }
+    }
+}
+
+#[test]
+fn extreme_parameters_give_finite_gradients() {
+    let ctx = ctx();
+    let mut rng = Pcg64::seed_from_u64(99);
+    let n = 200;
+    let mut g = random_gaussians(&mut rng, n);
+    let (camera, pose) = random_view(&mut rng, 47, 31);
+    let center = pose.center();
+    for i in 0..n {
+        match i % 8 {
+            // Scales from 1e-8 to 1e4, log-uniform, per axis.
+            0 | 1 => {
+                g.log_scales[i] = [0; 3].map(|_| rng.gen_range(1e-8f64.ln()..1e4f64.ln()));
+            }
+            2 => g.opacity_logits[i] = if rng.gen() { 50.0 } else { -50.0 },
+            3 => {
+                g.rotations[i] = if rng.gen() {
+                    [0.0; 4]
+                } else {
+                    [0; 4].map(|_| rng.gen_range(-1.0..1.0) * 1e-40)
+                }
+            }
+            // On, just in front of, and behind the near plane (and at the camera centre).
+            4 => {
+                let near = 0.01;
+                let z = [0.0, near, near * 1.0001, near * 1.5, -0.5][rng.gen_range(0..5)];
+                let xy: [f64; 2] = [rng.gen_range(-0.02..0.02), rng.gen_range(-0.02..0.02)];
+                let cam = [xy[0] * z, xy[1] * z, z];
+                // world = Rᵀ (cam − t)
+                let d = [
+                    cam[0] - pose.translation[0],
+                    cam[1] - pose.translation[1],
+                    cam[2] - pose.translation[2],
+                ];
+                let r = pose.rotation;
+                g.positions[i] =
+                    [0, 1, 2].map(|k| r[0][k] * d[0] + r[1][k] * d[1] + r[2][k] * d[2]);
+                if z == 0.0 && rng.gen() {
+                    g.positions[i] = center;
+                }
+            }
+            5 => {
+                g.log_scales[i] = [rng.gen_range(-18.0..-12.0), 5.0, 9.0];
+                g.opacity_logits[i] = 50.0;
+            }
+            _ => {}
+        }
+    }
+    let mut s = Scene::new(&mut rng, g, camera, pose, 3);
+    s.background = [1.0; 3];
+    for mode in [AtomicMode::Auto, AtomicMode::CompareSwap] {
+        let (got, _) = run_gpu(&ctx, mode, &s);
+        assert_all_finite("extremes", &got, n, s.stored_degree);
+        // Culled Gaussians: all zeros.
+        let forward = reference::render(
+            &s.gaussians,
+            &s.camera,
+            &s.pose,
+            s.degree,
+            s.background,
+            &s.settings,
+        )
+        .unwrap();
+        for (i, p) in forward.projected.iter().enumerate() {
+            if p.culled {
+                assert_eq!(&got.positions[3 * i..3 * i + 3], &[0.0; 3], "culled {i}");
+                assert_eq!(&got.rotations[4 * i..4 * i + 4], &[0.0; 4], "culled {i}");
+                assert_eq!(got.view_grad_norm[i], 0.0, "culled {i}");
+            }
+        }
+        // Degenerate quaternions get no gradient.
+        for i in (3..n).step_by(8) {
+            assert_eq!(
+                &got.rotations[4 * i..4 * i + 4],
+                &[0.0; 4],
+                "quaternion {i}"
+            );
+        }
+    }
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn thousand_gaussians_on_one_pixel() {
+    let ctx = ctx();
+    let mut rng = Pcg64::seed_from_u64(1000);
+    let n = 1000;
+    let mut g = random_gaussians(&mut rng, n);
+    let (camera, pose) = random_view(&mut rng, 37, 23);
+    for i in 0..n {
+        g.positions[i] = [0.01, -0.02, 0.03];
+        g.log_scales[i] = [0; 3].map(|_| rng.gen_range(-4.0..-2.5));
+        g.opacity_logits[i] = rng.gen_range(-3.0..6.0);
+    }
+    let mut s = Scene::new(&mut rng, g, camera, pose, 1);
+    s.background = [0.0; 3];
+    for mode in [AtomicMode::Auto, AtomicMode::CompareSwap] {
+        let (got, want) = run_gpu(&ctx, mode, &s);
+        assert_all_finite("stacked", &got, n, s.stored_degree);
+        check_against_reference(&format!("stacked ({mode:?})"), &s, &got, &want);
+    }
+    ctx.check_validation().unwrap();
+}
