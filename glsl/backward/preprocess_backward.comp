@@ -240,10 +240,19 @@ void main() {
     // Conic [c, −b, a]/det → cov2d. Clamp: det = max(det_raw, det_min); no gradient through
     // det when the clamp is active.
     float det = max(det_raw, pc.rc.det_min);
-    vec3 dl_dcov = vec3(dl_dconic.z, -dl_dconic.y, dl_dconic.x) / det;
+    vec3 dl_dcov;
     if (det_raw >= pc.rc.det_min) {
-        float dl_ddet = -(dl_dconic.x * c - dl_dconic.y * b + dl_dconic.z * a) / (det * det);
-        dl_dcov += dl_ddet * vec3(c, -2.0 * b, a);
+        // Unclamped: the conic is Σ2D⁻¹, so dL/dΣ2D = −C G C with G the symmetric conic
+        // gradient. Equal to the reference's [gc, −gb, ga]/det + dL/ddet·[c, −2b, a], whose two
+        // terms nearly cancel in f32 for large round footprints; this form does not.
+        vec3 C = vec3(c, -b, a) / det;
+        mat2 Cm = mat2(C.x, C.y, C.y, C.z);
+        mat2 Gm = mat2(dl_dconic.x, 0.5 * dl_dconic.y, 0.5 * dl_dconic.y, dl_dconic.z);
+        mat2 H = -(Cm * Gm * Cm);
+        dl_dcov = vec3(H[0][0], 2.0 * H[0][1], H[1][1]);
+    } else {
+        // Clamped: det is a constant, only the adjugate's entries carry gradient.
+        dl_dcov = vec3(dl_dconic.z, -dl_dconic.y, dl_dconic.x) / det;
     }
 
     // cov2d = T Σ Tᵀ + eps·I. G is the symmetric gradient (b appears twice: half each).
