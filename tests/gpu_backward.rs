@@ -624,3 +624,96 @@ fn off_screen_gaussians_with_clamped_jacobian_match_reference() {
     check_against_reference("off-screen", &s, &got, &want);
     ctx.check_validation().unwrap();
 }
+
+#[test]
+fn backward_under_subgroup_size_16() {
+    // lavapipe runs with subgroup size 16 when LP_NATIVE_VECTOR_WIDTH=512 (set before the driver
+    // loads, hence a child process), so the subgroup reduction is covered at two sizes. Other
+    // drivers ignore the variable.
+    if std::env::var_os("LPMSPLAT_CHILD").is_some() {
+        return;
+    }
+    let exe = std::env::current_exe().unwrap();
+    let out = std::process::Command::new(exe)
+        .env("LP_NATIVE_VECTOR_WIDTH", "512")
+        .env("LPMSPLAT_CHILD", "1")
+        .args([
+            "--test-threads=1",
+            "random_scenes_match_reference",
+            "thousand_gaussians_on_one_pixel",
+        ])
+        .output()
+        .unwrap();
+    let text =
+        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "child run failed:\n{text}");
+    assert!(
+        text.contains("2 passed"),
+        "child ran the wrong tests:\n{text}"
+    );
+}
+
+#[test]
+fn record_refuses_mismatched_arguments() {
+    let ctx = ctx();
+    let mut rng = Pcg64::seed_from_u64(3);
+    let s = Scene::random(&mut rng, 10, 20, 18, 1);
+    let forward = reference::render(
+        &s.gaussians,
+        &s.camera,
+        &s.pose,
+        s.degree,
+        s.background,
+        &s.settings,
+    )
+    .unwrap();
+    let fx = gpu_forward_fixture(&forward, &s.camera, &s.pose);
+    let cameras = GpuBuffer::from_slice(&ctx, "cameras", &[fx.camera]).unwrap();
+    let projected = GpuBuffer::from_slice(&ctx, "projected", &fx.projected).unwrap();
+    let tile_ranges = GpuBuffer::from_slice(&ctx, "tile_ranges", &fx.tile_ranges).unwrap();
+    let sorted_ids = GpuBuffer::from_slice(&ctx, "sorted_ids", &fx.sorted_ids).unwrap();
+    let final_t = GpuBuffer::from_slice(&ctx, "final_t", &fx.final_t).unwrap();
+    let last_index = GpuBuffer::from_slice(&ctx, "last_index", &fx.last_index).unwrap();
+    let short_image = GpuBuffer::<f32>::from_slice(&ctx, "dl", &[0.0; 7]).unwrap();
+    let dl_dimage = GpuBuffer::<f32>::from_slice(&ctx, "dl", &vec![0.5; fx.image.len()]).unwrap();
+    let splats = GpuSplats::upload(&ctx, &gaussian_params(&s.gaussians, 1), 10).unwrap();
+    let grads = GpuSplats::zeroed(&ctx, "grad_", 1, 10, 10).unwrap();
+    let vgn = GpuBuffer::<f32>::from_slice(&ctx, "vgn", &[0.0; 10]).unwrap();
+    let small = Backward::new(&ctx, 4).unwrap();
+    let big = Backward::new(&ctx, 20).unwrap();
+    let args = |count: usize, sh_degree: u32, camera_index: u32, dl: &'static str| BackwardArgs {
+        cameras: &cameras,
+        camera_index,
+        camera: &fx.camera,
+        projected: &projected,
+        tile_ranges: &tile_ranges,
+        sorted_ids: &sorted_ids,
+        final_t: &final_t,
+        last_index: &last_index,
+        dl_dimage: if dl == "short" {
+            &short_image
+        } else {
+            &dl_dimage
+        },
+        splats: &splats,
+        grads: &grads,
+        view_grad_norm: &vgn,
+        count,
+        sh_degree,
+        constants: RenderConstants::default(),
+        background: [0.0; 3],
+    };
+    let mut rec = Recorder::new(&ctx).unwrap();
+    let err = |r: anyhow::Result<()>| r.unwrap_err().to_string();
+    assert!(err(small.record(&ctx, &mut rec, &args(10, 1, 0, ""))).contains("reserve"));
+    assert!(err(big.record(&ctx, &mut rec, &args(10, 2, 0, ""))).contains("SH degree"));
+    assert!(err(big.record(&ctx, &mut rec, &args(10, 1, 1, ""))).contains("camera index"));
+    assert!(err(big.record(&ctx, &mut rec, &args(11, 1, 0, ""))).contains("count"));
+    assert!(err(big.record(&ctx, &mut rec, &args(10, 1, 0, "short"))).contains("dl_dimage"));
+    // The refused calls recorded nothing; a valid one still works.
+    assert_eq!(rec.dispatch_count(), 0);
+    big.record(&ctx, &mut rec, &args(10, 1, 0, "")).unwrap();
+    rec.submit_and_wait().unwrap();
+    assert!(vgn.read().unwrap().iter().all(|v| v.is_finite()));
+    ctx.check_validation().unwrap();
+}

@@ -285,13 +285,14 @@ impl Backward {
         );
         ensure!(
             (a.camera_index as usize) < a.cameras.len(),
-            "GPU backward: camera index {} but {} cameras",
+            "GPU backward: camera index {} but {} cameras; pass an index into `cameras`",
             a.camera_index,
             a.cameras.len()
         );
         ensure!(
             n <= a.splats.count && n <= a.grads.count,
-            "GPU backward: count {n} exceeds the splats ({}) or gradient ({}) count",
+            "GPU backward: count {n} exceeds the splats ({}) or gradient ({}) count; pass the \
+             forward pass's Gaussian count and gradients sized for it",
             a.splats.count,
             a.grads.count
         );
@@ -317,14 +318,15 @@ impl Backward {
         ] {
             ensure!(
                 len >= need,
-                "GPU backward: buffer {name} has {len} elements, needs {need}"
+                "GPU backward: buffer {name} has {len} elements, needs {need}; size it for this \
+                 camera and Gaussian count"
             );
         }
         for (params, grads) in a.splats.groups().iter().zip(a.grads.groups()) {
             ensure!(
                 params.0.len() >= n * params.1 && grads.0.len() >= n * grads.1,
                 "GPU backward: parameter buffer {} or gradient buffer {} is shorter than {n} \
-                 Gaussians of stride {}",
+                 Gaussians of stride {}; grow it (GpuSplats capacity) first",
                 params.0.name(),
                 grads.0.name(),
                 params.1
