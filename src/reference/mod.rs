@@ -69,6 +69,7 @@
 //! The backward divides by `1 − alpha`, so smooth mode needs opacities below 1.
 
 pub mod backward;
+pub mod gpu_layout;
 pub mod linalg;
 pub mod project;
 pub mod raster;

@@ -1,5 +1,8 @@
-//! The forward pipeline's GPU building blocks: prefix sums and the key–value radix sort.
+//! The renderer on the GPU: the data contract (`layout`), the forward pass (`forward`) and its
+//! building blocks (prefix sums, radix sort), the backward pass (`backward`), and generated
+//! scenes for benchmarks.
 
+pub mod backward;
 pub mod forward;
 pub mod layout;
 pub mod scan;

@@ -1,0 +1,337 @@
+//! The GPU backward pass of the renderer: from `dL/d(image)` to the gradients of every Gaussian
+//! parameter, in two kernels that follow [`crate::reference::backward`] step by step.
+//!
+//! 1. `glsl/backward/rasterize_backward.comp`: one 16×16 workgroup per tile; each pixel walks
+//!    its tile list back to front from its `last_index`, recovering the transmittance in front
+//!    of each splat as `T / (1 − alpha)` from `final_t`, and accumulates the gradients of
+//!    mean2d, conic, colour and opacity into the intermediate [`Backward::grad2d`] buffer
+//!    (summed over each subgroup first, then added atomically: float `atomicAdd` where the
+//!    device has it, a compare-and-swap loop on the bits otherwise).
+//! 2. `glsl/backward/preprocess_backward.comp`: one invocation per Gaussian carries those to
+//!    positions (through the projection, the EWA Jacobian, the camera transform and the SH view
+//!    direction), log-scales, quaternions, opacity logits and SH coefficients, and writes the
+//!    per-view density-control statistic `view_grad_norm`.
+//!
+//! # Clamps (each one is also commented where the GLSL applies it)
+//! - `power > 0` (only possible through rounding): the splat is skipped at that pixel.
+//! - `alpha = min(alpha_max, opacity·exp(power))`: when the clamp is active no gradient reaches
+//!   opacity, conic or mean2d through alpha (colour still gets `alpha·T·dL/dC`).
+//! - `alpha < alpha_min`: skipped (it did not contribute in the forward).
+//! - Smooth mode (`RenderConstants::smooth`): neither the alpha_min skip nor the alpha_max clamp.
+//! - Colour clamped at 0 (`ProjectedGpu::flags`): that channel passes no gradient to the SH
+//!   coefficients nor to the position through the view direction.
+//! - Determinant `max(det, det_min)`: no gradient through det while active. The determinant is
+//!   computed as `|A₀ × A₁|² + eps2d·(a + c) + eps2d²` with `A = J W M` (equal to
+//!   `(a + eps2d)(c + eps2d) − b²`, without its cancellation for large thin footprints).
+//! - EWA Jacobian `x/z`, `y/z` clamped to `fov_clamp` half-FoV tangents from the principal point:
+//!   a clamped ratio is a constant, no gradient through it.
+//! - Quaternion with `|q|² < 1e-24` or not finite: identity rotation, no gradient.
+//! - SH coefficients above the active degree: gradient 0. Opacity: `σ(x)·σ(−x)` (no `1 − σ`
+//!   cancellation at large logits).
+//! - Culled Gaussians (`radius == 0`) and Gaussians whose 2D gradients are all zero get zero
+//!   gradients (the backward is linear in the 2D gradients, so the latter is exact).
+//!
+//! # Buffers
+//! - `grad2d` (owned here): f32 × 9 per Gaussian, `[mean_x, mean_y, conic_a, conic_b, conic_c,
+//!   r, g, b, opacity]` (the gradient of the conic entries with `b` counted once, of the colour
+//!   after the clamp, of the activated opacity), zeroed and accumulated by every `record`.
+//! - Output gradients: a [`GpuSplats`]-shaped set (`GpuSplats::zeroed(ctx, "grad_", ...)`), all
+//!   of Gaussians `0..count` written (not accumulated).
+//! - `view_grad_norm`: f32 per Gaussian, `|(dL/du · W/2, dL/dv · H/2)|`, 0 when culled.
+
+use super::layout::{CameraGpu, ProjectedGpu, RenderConstants};
+use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder};
+use crate::shaders;
+use crate::splats::gpu::{grown_capacity, GpuSplats};
+use crate::splats::model::sh_rest_coeffs;
+use anyhow::{ensure, Result};
+use bytemuck::{Pod, Zeroable};
+use std::sync::Arc;
+
+/// Floats per Gaussian in [`Backward::grad2d`].
+pub const GRAD2D_STRIDE: usize = 9;
+/// Invocations per workgroup: one tile of 16×16 pixels, and the preprocess block size.
+const WG: u32 = 256;
+
+/// How the rasterizer backward adds gradients into global memory.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AtomicMode {
+    /// Float `atomicAdd` when the device supports it (`ctx.info.float_atomic_add`), else
+    /// compare-and-swap.
+    Auto,
+    /// Always the compare-and-swap loop (tests use it to cover that path on any device).
+    CompareSwap,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct RasterPush {
+    constants: RenderConstants,
+    background: [f32; 4],
+    camera_index: u32,
+    _pad: [u32; 3],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct PreprocessPush {
+    constants: RenderConstants,
+    camera_index: u32,
+    count: u32,
+    sh_degree: u32,
+    rest_coeffs: u32,
+}
+
+/// Everything [`Backward::record`] reads and writes. All buffers are the contract buffers of
+/// [`super::layout`]; they must hold the forward pass of the same camera, splats and constants.
+pub struct BackwardArgs<'a> {
+    /// All cameras; the kernels read `cameras[camera_index]`.
+    pub cameras: &'a GpuBuffer<CameraGpu>,
+    pub camera_index: u32,
+    /// Host copy of `cameras[camera_index]`: gives the image and tile-grid sizes for the
+    /// dispatch and the argument checks (no readback).
+    pub camera: &'a CameraGpu,
+    /// Per Gaussian (at least `count`).
+    pub projected: &'a GpuBuffer<ProjectedGpu>,
+    /// Per tile, `[start, end)` into `sorted_ids`.
+    pub tile_ranges: &'a GpuBuffer<[u32; 2]>,
+    pub sorted_ids: &'a GpuBuffer<u32>,
+    /// Per pixel.
+    pub final_t: &'a GpuBuffer<f32>,
+    pub last_index: &'a GpuBuffer<u32>,
+    /// `dL/d(image)`, `[(y·W + x)·3 + c]`.
+    pub dl_dimage: &'a GpuBuffer<f32>,
+    /// The parameters the forward pass rendered.
+    pub splats: &'a GpuSplats,
+    /// Output: same layout as `splats` (same stored SH degree), Gaussians `0..count` written.
+    pub grads: &'a GpuSplats,
+    /// Output: f32 per Gaussian.
+    pub view_grad_norm: &'a GpuBuffer<f32>,
+    pub count: usize,
+    /// Active SH degree of the forward pass (≤ `splats.sh_degree`).
+    pub sh_degree: u32,
+    pub constants: RenderConstants,
+    pub background: [f32; 3],
+}
+
+/// The backward pass's pipelines and its intermediate per-Gaussian buffer.
+pub struct Backward {
+    raster: ComputePipeline,
+    preprocess: ComputePipeline,
+    grad2d: GpuBuffer<f32>,
+    capacity: usize,
+    float_atomics: bool,
+}
+
+impl Backward {
+    /// Pipelines and a `grad2d` buffer for `capacity` Gaussians, float atomics when available.
+    pub fn new(ctx: &Arc<GpuContext>, capacity: usize) -> Result<Self> {
+        Self::with_atomics(ctx, capacity, AtomicMode::Auto)
+    }
+
+    pub fn with_atomics(ctx: &Arc<GpuContext>, capacity: usize, mode: AtomicMode) -> Result<Self> {
+        let float_atomics = mode == AtomicMode::Auto && ctx.info.float_atomic_add;
+        // A device without float atomics gets SPIR-V that does not declare the capability.
+        let raster = if ctx.info.float_atomic_add {
+            ComputePipeline::new(
+                ctx,
+                "backward/rasterize_backward",
+                shaders::BACKWARD_RASTERIZE_BACKWARD,
+                8,
+                std::mem::size_of::<RasterPush>() as u32,
+                WG,
+                &[float_atomics as u32],
+            )?
+        } else {
+            ComputePipeline::new(
+                ctx,
+                "backward/rasterize_backward_cas",
+                shaders::BACKWARD_RASTERIZE_BACKWARD_CAS,
+                8,
+                std::mem::size_of::<RasterPush>() as u32,
+                WG,
+                &[0],
+            )?
+        };
+        let preprocess = ComputePipeline::new(
+            ctx,
+            "backward/preprocess_backward",
+            shaders::BACKWARD_PREPROCESS_BACKWARD,
+            16,
+            std::mem::size_of::<PreprocessPush>() as u32,
+            WG,
+            &[],
+        )?;
+        let capacity = capacity.max(1);
+        Ok(Self {
+            raster,
+            preprocess,
+            grad2d: Self::alloc_grad2d(ctx, capacity)?,
+            capacity,
+            float_atomics,
+        })
+    }
+
+    fn alloc_grad2d(ctx: &Arc<GpuContext>, capacity: usize) -> Result<GpuBuffer<f32>> {
+        GpuBuffer::new(
+            ctx,
+            "backward grad2d",
+            capacity * GRAD2D_STRIDE,
+            BufferKind::DeviceLocal,
+        )
+    }
+
+    /// Number of Gaussians `grad2d` holds.
+    pub fn capacity(&self) -> usize {
+        self.capacity
+    }
+
+    /// Whether the rasterizer backward adds with float atomics (else compare-and-swap).
+    pub fn uses_float_atomics(&self) -> bool {
+        self.float_atomics
+    }
+
+    /// The per-Gaussian 2D gradients of the last recorded pass (layout in the module docs).
+    pub fn grad2d(&self) -> &GpuBuffer<f32> {
+        &self.grad2d
+    }
+
+    /// Makes room for `count` Gaussians (geometric growth). Reallocates `grad2d`: call it only
+    /// when no recorded work that uses this `Backward` is pending.
+    pub fn reserve(&mut self, ctx: &Arc<GpuContext>, count: usize) -> Result<()> {
+        if count > self.capacity {
+            let capacity = grown_capacity(count);
+            self.grad2d = Self::alloc_grad2d(ctx, capacity)?;
+            self.capacity = capacity;
+        }
+        Ok(())
+    }
+
+    /// Records the whole backward pass into `rec`: a barrier (so the forward's outputs and any
+    /// earlier use of `grad2d` are complete), the zeroing of `grad2d`, the rasterizer backward,
+    /// a barrier, the preprocess backward. The caller puts a barrier before reading the outputs.
+    pub fn record(&self, ctx: &GpuContext, rec: &mut Recorder, a: &BackwardArgs) -> Result<()> {
+        self.check(a)?;
+        rec.barrier();
+        rec.fill(&self.grad2d, 0);
+        rec.barrier();
+        let raster_push = RasterPush {
+            constants: a.constants,
+            background: [a.background[0], a.background[1], a.background[2], 0.0],
+            camera_index: a.camera_index,
+            _pad: [0; 3],
+        };
+        rec.dispatch(
+            &self.raster,
+            &[
+                a.cameras,
+                a.projected,
+                a.tile_ranges,
+                a.sorted_ids,
+                a.final_t,
+                a.last_index,
+                a.dl_dimage,
+                &self.grad2d,
+            ],
+            &raster_push,
+            ctx.groups_1d(a.camera.tile_count() as u64, 1),
+        );
+        rec.barrier();
+        let push = PreprocessPush {
+            constants: a.constants,
+            camera_index: a.camera_index,
+            count: a.count as u32,
+            sh_degree: a.sh_degree,
+            rest_coeffs: sh_rest_coeffs(a.splats.sh_degree) as u32,
+        };
+        let s = a.splats;
+        let g = a.grads;
+        if a.count > 0 {
+            rec.dispatch(
+                &self.preprocess,
+                &[
+                    a.cameras,
+                    a.projected,
+                    &self.grad2d,
+                    &s.positions,
+                    &s.log_scales,
+                    &s.rotations,
+                    &s.opacity_logits,
+                    &s.sh_dc,
+                    &s.sh_rest,
+                    &g.positions,
+                    &g.log_scales,
+                    &g.rotations,
+                    &g.opacity_logits,
+                    &g.sh_dc,
+                    &g.sh_rest,
+                    a.view_grad_norm,
+                ],
+                &push,
+                ctx.groups_1d(a.count as u64, WG),
+            );
+        }
+        Ok(())
+    }
+
+    /// Sizes and degrees of the arguments (host-side, no GPU access).
+    fn check(&self, a: &BackwardArgs) -> Result<()> {
+        let n = a.count;
+        let (w, h) = (a.camera.width() as usize, a.camera.height() as usize);
+        ensure!(
+            n <= self.capacity,
+            "GPU backward: {n} Gaussians but room for {}; call Backward::reserve first",
+            self.capacity
+        );
+        ensure!(
+            (a.camera_index as usize) < a.cameras.len(),
+            "GPU backward: camera index {} but {} cameras; pass an index into `cameras`",
+            a.camera_index,
+            a.cameras.len()
+        );
+        ensure!(
+            n <= a.splats.count && n <= a.grads.count,
+            "GPU backward: count {n} exceeds the splats ({}) or gradient ({}) count; pass the \
+             forward pass's Gaussian count and gradients sized for it",
+            a.splats.count,
+            a.grads.count
+        );
+        ensure!(
+            a.grads.sh_degree == a.splats.sh_degree && a.sh_degree <= a.splats.sh_degree,
+            "GPU backward: active SH degree {} with stored degree {} and gradient degree {}; the \
+             gradients need the parameters' layout and the active degree cannot exceed it",
+            a.sh_degree,
+            a.splats.sh_degree,
+            a.grads.sh_degree
+        );
+        for (name, len, need) in [
+            ("projected", a.projected.len(), n),
+            ("view_grad_norm", a.view_grad_norm.len(), n),
+            (
+                "tile_ranges",
+                a.tile_ranges.len(),
+                a.camera.tile_count() as usize,
+            ),
+            ("final_t", a.final_t.len(), w * h),
+            ("last_index", a.last_index.len(), w * h),
+            ("dl_dimage", a.dl_dimage.len(), w * h * 3),
+        ] {
+            ensure!(
+                len >= need,
+                "GPU backward: buffer {name} has {len} elements, needs {need}; size it for this \
+                 camera and Gaussian count"
+            );
+        }
+        for (params, grads) in a.splats.groups().iter().zip(a.grads.groups()) {
+            ensure!(
+                params.0.len() >= n * params.1 && grads.0.len() >= n * grads.1,
+                "GPU backward: parameter buffer {} or gradient buffer {} is shorter than {n} \
+                 Gaussians of stride {}; grow it (GpuSplats capacity) first",
+                params.0.name(),
+                grads.0.name(),
+                params.1
+            );
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,719 @@
+//! The GPU backward pass (rasterizer backward + preprocess backward) against the f64 CPU
+//! reference backward, on random small scenes fed with the reference forward pass in the GPU
+//! contract layout. The scenes are rounded to f32 first so both sides see the same values.
+//! Both atomic paths (float atomicAdd where the device has it, compare-and-swap forced) run on
+//! every scene. Output buffers are poisoned with NaN before each run, so anything left unwritten
+//! (or written past `count`) is caught.
+
+use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder};
+use lpmsplat::reference::gpu_layout::{
+    gaussian_params, gpu_forward_fixture, round_gaussians_to_f32, round_view_to_f32,
+};
+use lpmsplat::reference::scenes::{random_gaussians, random_view};
+use lpmsplat::reference::{self, Gradients, RefGaussians, RenderSettings};
+use lpmsplat::render::backward::{AtomicMode, Backward, BackwardArgs, GRAD2D_STRIDE};
+use lpmsplat::render::layout::{CameraGpu, RenderConstants};
+use lpmsplat::scene::{PinholeCamera, Pose};
+use lpmsplat::splats::gpu::GpuSplats;
+use lpmsplat::splats::model::sh_rest_coeffs;
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+use std::sync::Arc;
+
+const NAN_BITS: u32 = 0x7FC0_0000;
+/// Extra Gaussians of room in the gradient buffers: they must stay poisoned.
+const SPARE: usize = 5;
+
+fn ctx() -> Arc<GpuContext> {
+    GpuContext::new(&GpuOptions::for_tests()).expect("a Vulkan device with the validation layer")
+}
+
+struct Scene {
+    gaussians: RefGaussians,
+    camera: PinholeCamera,
+    pose: Pose,
+    /// Active degree of the render.
+    degree: usize,
+    /// Degree of the parameter buffers (≥ `degree`).
+    stored_degree: u32,
+    background: [f64; 3],
+    settings: RenderSettings,
+    dl_dimage: Vec<[f64; 3]>,
+}
+
+impl Scene {
+    fn random(rng: &mut Pcg64, n: usize, width: u32, height: u32, degree: usize) -> Scene {
+        let gaussians = random_gaussians(rng, n);
+        let (camera, pose) = random_view(rng, width, height);
+        Scene::new(rng, gaussians, camera, pose, degree)
+    }
+
+    fn new(
+        rng: &mut Pcg64,
+        gaussians: RefGaussians,
+        camera: PinholeCamera,
+        pose: Pose,
+        degree: usize,
+    ) -> Scene {
+        let (camera, pose) = round_view_to_f32(&camera, &pose);
+        let pixels = (camera.width * camera.height) as usize;
+        Scene {
+            gaussians: round_gaussians_to_f32(&gaussians),
+            camera,
+            pose,
+            degree,
+            stored_degree: rng.gen_range(degree as u32..=3),
+            background: [0.0; 3],
+            settings: RenderSettings::default(),
+            dl_dimage: (0..pixels)
+                .map(|_| [0; 3].map(|_| rng.gen_range(-1.0f32..1.0) as f64))
+                .collect(),
+        }
+    }
+}
+
+/// What the GPU produced, read back.
+struct GpuResult {
+    grad2d: Vec<f32>,
+    positions: Vec<f32>,
+    log_scales: Vec<f32>,
+    rotations: Vec<f32>,
+    opacity_logits: Vec<f32>,
+    sh_dc: Vec<f32>,
+    sh_rest: Vec<f32>,
+    view_grad_norm: Vec<f32>,
+    float_atomics: bool,
+}
+
+fn run_gpu(ctx: &Arc<GpuContext>, mode: AtomicMode, s: &Scene) -> (GpuResult, Gradients) {
+    let forward = reference::render(
+        &s.gaussians,
+        &s.camera,
+        &s.pose,
+        s.degree,
+        s.background,
+        &s.settings,
+    )
+    .unwrap();
+    let want = reference::backward(
+        &s.gaussians,
+        &s.camera,
+        &s.pose,
+        s.degree,
+        s.background,
+        &s.settings,
+        &forward,
+        &s.dl_dimage,
+    )
+    .unwrap();
+    let fx = gpu_forward_fixture(&forward, &s.camera, &s.pose);
+    let n = s.gaussians.len();
+
+    // The camera sits at index 1 behind a decoy, so the kernels must use the index.
+    let decoy = CameraGpu::new(
+        &PinholeCamera {
+            fx: 3.0,
+            fy: 3.0,
+            cx: 1.0,
+            cy: 1.0,
+            width: 3,
+            height: 2,
+        },
+        &Pose::IDENTITY,
+    );
+    let cameras = GpuBuffer::from_slice(ctx, "cameras", &[decoy, fx.camera]).unwrap();
+    let projected = GpuBuffer::from_slice(ctx, "projected", &fx.projected).unwrap();
+    let tile_ranges = GpuBuffer::from_slice(ctx, "tile_ranges", &fx.tile_ranges).unwrap();
+    let sorted_ids = GpuBuffer::from_slice(ctx, "sorted_ids", &fx.sorted_ids).unwrap();
+    let final_t = GpuBuffer::from_slice(ctx, "final_t", &fx.final_t).unwrap();
+    let last_index = GpuBuffer::from_slice(ctx, "last_index", &fx.last_index).unwrap();
+    let dl: Vec<f32> = s.dl_dimage.iter().flatten().map(|&v| v as f32).collect();
+    let dl_dimage = GpuBuffer::from_slice(ctx, "dl_dimage", &dl).unwrap();
+    let params = gaussian_params(&s.gaussians, s.stored_degree);
+    let splats = GpuSplats::upload(ctx, &params, n + SPARE).unwrap();
+    let grads = GpuSplats::zeroed(ctx, "grad_", s.stored_degree, n, n + SPARE).unwrap();
+    let view_grad_norm = GpuBuffer::<f32>::from_slice(ctx, "vgn", &vec![0.0; n + SPARE]).unwrap();
+
+    let mut bwd = Backward::with_atomics(ctx, 1, mode).unwrap();
+    bwd.reserve(ctx, n).unwrap();
+    let mut rec = Recorder::new(ctx).unwrap();
+    for (buf, _) in grads.groups() {
+        rec.fill(buf, NAN_BITS);
+    }
+    rec.fill(&view_grad_norm, NAN_BITS);
+    rec.fill(bwd.grad2d(), NAN_BITS);
+    let mut constants = RenderConstants::from_settings(&s.settings);
+    constants.smooth = s.settings.smooth as u32;
+    bwd.record(
+        ctx,
+        &mut rec,
+        &BackwardArgs {
+            cameras: &cameras,
+            camera_index: 1,
+            camera: &fx.camera,
+            projected: &projected,
+            tile_ranges: &tile_ranges,
+            sorted_ids: &sorted_ids,
+            final_t: &final_t,
+            last_index: &last_index,
+            dl_dimage: &dl_dimage,
+            splats: &splats,
+            grads: &grads,
+            view_grad_norm: &view_grad_norm,
+            count: n,
+            sh_degree: s.degree as u32,
+            constants,
+            background: s.background.map(|v| v as f32),
+        },
+    )
+    .unwrap();
+    rec.barrier();
+    rec.submit_and_wait().unwrap();
+
+    let all = |b: &GpuBuffer<f32>| b.read().unwrap();
+    let result = GpuResult {
+        grad2d: all(bwd.grad2d()),
+        positions: all(&grads.positions),
+        log_scales: all(&grads.log_scales),
+        rotations: all(&grads.rotations),
+        opacity_logits: all(&grads.opacity_logits),
+        sh_dc: all(&grads.sh_dc),
+        sh_rest: all(&grads.sh_rest),
+        view_grad_norm: all(&view_grad_norm),
+        float_atomics: bwd.uses_float_atomics(),
+    };
+    // Past `count`: untouched (still NaN).
+    let rest = 3 * sh_rest_coeffs(s.stored_degree);
+    for (name, buf, stride) in [
+        ("positions", &result.positions, 3),
+        ("log_scales", &result.log_scales, 3),
+        ("rotations", &result.rotations, 4),
+        ("opacity_logits", &result.opacity_logits, 1),
+        ("sh_dc", &result.sh_dc, 3),
+        ("sh_rest", &result.sh_rest, rest),
+        ("view_grad_norm", &result.view_grad_norm, 1),
+    ] {
+        assert!(
+            buf[n * stride..(n + SPARE) * stride]
+                .iter()
+                .all(|v| v.is_nan()),
+            "{name}: written past count"
+        );
+    }
+    (result, want)
+}
+
+/// `|g − r| ≤ rel·|r| + floor·max|r|` over one group of values (the floor is relative to the
+/// largest reference value of the group, so gradients negligible for the group are compared
+/// against that scale), and no NaN or infinity anywhere.
+fn compare(what: &str, gpu: &[f32], want: &[f64], rel: f64, floor: f64) {
+    assert_eq!(gpu.len(), want.len(), "{what}: length");
+    let scale = want.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    for (i, (&g, &r)) in gpu.iter().zip(want).enumerate() {
+        assert!(g.is_finite(), "{what}[{i}] = {g} (reference {r})");
+        let err = (g as f64 - r).abs();
+        let tol = rel * r.abs() + floor * scale;
+        if err > tol {
+            panic!(
+                "{what}[{i}]: GPU {g:e} vs reference {r:e} (error {err:e}, tolerance {tol:e}, \
+                 group max {scale:e})"
+            );
+        }
+    }
+}
+
+fn check_against_reference(label: &str, s: &Scene, got: &GpuResult, want: &Gradients) {
+    let n = s.gaussians.len();
+    let (rel, floor) = (1e-2, 1e-4);
+    let pg = &want.projected;
+    let g2 = |k: usize| -> Vec<f32> { (0..n).map(|i| got.grad2d[i * GRAD2D_STRIDE + k]).collect() };
+    compare(
+        &format!("{label} grad mean2d.x"),
+        &g2(0),
+        &pg.mean2d.iter().map(|v| v[0]).collect::<Vec<_>>(),
+        rel,
+        floor,
+    );
+    compare(
+        &format!("{label} grad mean2d.y"),
+        &g2(1),
+        &pg.mean2d.iter().map(|v| v[1]).collect::<Vec<_>>(),
+        rel,
+        floor,
+    );
+    for k in 0..3 {
+        compare(
+            &format!("{label} grad conic[{k}]"),
+            &g2(2 + k),
+            &pg.conic.iter().map(|v| v[k]).collect::<Vec<_>>(),
+            rel,
+            floor,
+        );
+        compare(
+            &format!("{label} grad rgb[{k}]"),
+            &g2(5 + k),
+            &pg.rgb.iter().map(|v| v[k]).collect::<Vec<_>>(),
+            rel,
+            floor,
+        );
+    }
+    compare(
+        &format!("{label} grad opacity"),
+        &g2(8),
+        &pg.opacity,
+        rel,
+        floor,
+    );
+
+    let p = &want.params;
+    let flat3 = |v: &[[f64; 3]]| v.iter().flatten().copied().collect::<Vec<_>>();
+    compare(
+        &format!("{label} positions"),
+        &got.positions[..3 * n],
+        &flat3(&p.positions),
+        rel,
+        floor,
+    );
+    compare(
+        &format!("{label} log_scales"),
+        &got.log_scales[..3 * n],
+        &flat3(&p.log_scales),
+        rel,
+        floor,
+    );
+    compare(
+        &format!("{label} rotations"),
+        &got.rotations[..4 * n],
+        &p.rotations.iter().flatten().copied().collect::<Vec<_>>(),
+        rel,
+        floor,
+    );
+    compare(
+        &format!("{label} opacity_logits"),
+        &got.opacity_logits[..n],
+        &p.opacity_logits,
+        rel,
+        floor,
+    );
+    compare(
+        &format!("{label} sh_dc"),
+        &got.sh_dc[..3 * n],
+        &p.sh.iter().flat_map(|c| c[0]).collect::<Vec<_>>(),
+        rel,
+        floor,
+    );
+    let rest = sh_rest_coeffs(s.stored_degree) + 1;
+    compare(
+        &format!("{label} sh_rest"),
+        &got.sh_rest[..3 * (rest - 1) * n],
+        &p.sh
+            .iter()
+            .flat_map(|c| c[1..rest].iter().flatten().copied())
+            .collect::<Vec<_>>(),
+        rel,
+        floor,
+    );
+    compare(
+        &format!("{label} view_grad_norm"),
+        &got.view_grad_norm[..n],
+        &want.ndc_mean2d_norm,
+        rel,
+        floor,
+    );
+}
+
+/// The same scene through both atomic paths.
+fn check_scene(ctx: &Arc<GpuContext>, label: &str, s: &Scene) {
+    for mode in [AtomicMode::Auto, AtomicMode::CompareSwap] {
+        let (got, want) = run_gpu(ctx, mode, s);
+        if mode == AtomicMode::CompareSwap {
+            assert!(!got.float_atomics);
+        } else {
+            assert_eq!(got.float_atomics, ctx.info.float_atomic_add);
+        }
+        check_against_reference(&format!("{label} ({mode:?})"), s, &got, &want);
+    }
+}
+
+#[test]
+fn random_scenes_match_reference() {
+    let ctx = ctx();
+    let mut rng = Pcg64::seed_from_u64(0xB4C4);
+    let sizes = [(37, 23), (50, 41), (16, 16), (29, 57)];
+    for (case, &(w, h)) in sizes.iter().cycle().take(8).enumerate() {
+        let degree = case % 4;
+        let n = rng.gen_range(40..160);
+        let mut s = Scene::random(&mut rng, n, w, h, degree);
+        s.background = match case % 3 {
+            0 => [1.0; 3],
+            1 => [0.0; 3],
+            _ => [0; 3].map(|_| rng.gen_range(0.0f32..1.0) as f64),
+        };
+        check_scene(&ctx, &format!("case {case} {w}×{h} deg {degree} n {n}"), &s);
+    }
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn dense_opaque_scene_matches_reference() {
+    // Opaque, overlapping splats: the alpha_max clamp and the t_min stop are active.
+    let ctx = ctx();
+    let mut rng = Pcg64::seed_from_u64(77);
+    let mut s = Scene::random(&mut rng, 300, 45, 38, 2);
+    for (l, ls) in s
+        .gaussians
+        .opacity_logits
+        .iter_mut()
+        .zip(&mut s.gaussians.log_scales)
+    {
+        *l = rng.gen_range(2.0f32..8.0) as f64;
+        *ls = ls.map(|v| (v + 0.7) as f32 as f64);
+    }
+    s.background = [1.0; 3];
+    let forward = reference::render(
+        &s.gaussians,
+        &s.camera,
+        &s.pose,
+        s.degree,
+        s.background,
+        &s.settings,
+    )
+    .unwrap();
+    let stopped = forward
+        .raster
+        .final_transmittance
+        .iter()
+        .filter(|&&t| t < 0.01)
+        .count();
+    assert!(
+        stopped > 100,
+        "scene is not dense enough ({stopped} opaque pixels)"
+    );
+    check_scene(&ctx, "dense", &s);
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn smooth_mode_matches_reference() {
+    let ctx = ctx();
+    let mut rng = Pcg64::seed_from_u64(5);
+    let mut s = Scene::random(&mut rng, 120, 40, 33, 3);
+    s.settings = RenderSettings::smooth();
+    s.background = [0.3, 0.6, 0.9];
+    check_scene(&ctx, "smooth", &s);
+    ctx.check_validation().unwrap();
+}
+
+/// Every gradient of the first `count` Gaussians finite.
+fn assert_all_finite(label: &str, got: &GpuResult, n: usize, stored_degree: u32) {
+    let rest = 3 * sh_rest_coeffs(stored_degree);
+    for (name, buf, stride) in [
+        ("grad2d", &got.grad2d, GRAD2D_STRIDE),
+        ("positions", &got.positions, 3),
+        ("log_scales", &got.log_scales, 3),
+        ("rotations", &got.rotations, 4),
+        ("opacity_logits", &got.opacity_logits, 1),
+        ("sh_dc", &got.sh_dc, 3),
+        ("sh_rest", &got.sh_rest, rest),
+        ("view_grad_norm", &got.view_grad_norm, 1),
+    ] {
+        if let Some(i) = buf[..n * stride].iter().position(|v| !v.is_finite()) {
+            panic!(
+                "{label}: {name}[{i}] (Gaussian {}) = {}",
+                i / stride.max(1),
+                buf[i]
+            );
+        }
+    }
+}
+
+#[test]
+fn extreme_parameters_give_finite_gradients() {
+    // One scene per kind of extreme: 20 extreme Gaussians among 60 ordinary ones, so the
+    // extreme ones are not all hidden behind each other. Gradients must be finite, culled
+    // Gaussians get zeros, degenerate quaternions no rotation gradient, and the rest still
+    // matches the reference.
+    let ctx = ctx();
+    let mut rng = Pcg64::seed_from_u64(99);
+    let (normal, extreme) = (60, 20);
+    let n = normal + extreme;
+    let ill_conditioned = [0];
+    for kind in 0..6 {
+        let mut g = random_gaussians(&mut rng, n);
+        let (camera, pose) = random_view(&mut rng, 47, 31);
+        let center = pose.center();
+        for i in normal..n {
+            match kind {
+                // Scales from 1e-8 to 1e4, log-uniform, per axis; the big ones faint.
+                0 => {
+                    g.log_scales[i] = [0; 3].map(|_| rng.gen_range(1e-8f64.ln()..1e4f64.ln()));
+                    if g.log_scales[i].iter().any(|&l| l > 0.0) {
+                        g.opacity_logits[i] = -4.0;
+                    }
+                }
+                1 => g.opacity_logits[i] = if i % 2 == 0 { 50.0 } else { -50.0 },
+                2 => {
+                    g.rotations[i] = if i % 2 == 0 {
+                        [0.0; 4]
+                    } else {
+                        [0; 4].map(|_| rng.gen_range(-1.0..1.0) * 1e-40)
+                    }
+                }
+                // On, just in front of and behind the near plane, and at the camera centre.
+                3 => {
+                    let near = s_near();
+                    let z = [0.0, near, near * 1.0001, near * 1.5, 2.0 * near, -0.5][i % 6];
+                    let xy: [f64; 2] = [rng.gen_range(-0.5..0.5), rng.gen_range(-0.5..0.5)];
+                    let cam = [xy[0] * z, xy[1] * z, z];
+                    let d = [0, 1, 2].map(|k| cam[k] - pose.translation[k]);
+                    let r = pose.rotation;
+                    g.positions[i] =
+                        [0, 1, 2].map(|k| r[0][k] * d[0] + r[1][k] * d[1] + r[2][k] * d[2]);
+                    if z == 0.0 && i % 12 == 0 {
+                        g.positions[i] = center;
+                    }
+                    g.log_scales[i] = [0; 3].map(|_| rng.gen_range(-9.0..-5.0));
+                    g.opacity_logits[i] = -3.0;
+                }
+                // Needle-thin and wide at once, fully opaque.
+                4 => {
+                    g.log_scales[i] = [rng.gen_range(-18.0..-12.0), -1.0, 0.5];
+                    g.opacity_logits[i] = 50.0;
+                }
+                // Tiny and opaque: sub-pixel footprints (the eps2d dilation dominates).
+                _ => {
+                    g.log_scales[i] = [0; 3].map(|_| rng.gen_range(-18.0..-8.0));
+                    g.opacity_logits[i] = rng.gen_range(3.0..50.0);
+                }
+            }
+        }
+        let mut s = Scene::new(&mut rng, g, camera, pose, 3);
+        s.background = [1.0; 3];
+        let forward = reference::render(
+            &s.gaussians,
+            &s.camera,
+            &s.pose,
+            s.degree,
+            s.background,
+            &s.settings,
+        )
+        .unwrap();
+        for mode in [AtomicMode::Auto, AtomicMode::CompareSwap] {
+            let label = format!("extreme kind {kind} ({mode:?})");
+            let (got, want) = run_gpu(&ctx, mode, &s);
+            assert_all_finite(&label, &got, n, s.stored_degree);
+            // Footprints with a condition number past f32 resolution (scales 1e4 against
+            // 1e-8) are only required to be finite: the f32 conic cannot represent their long
+            // axis, so the gradients along it differ from the f64 reference.
+            if !ill_conditioned.contains(&kind) {
+                check_against_reference(&label, &s, &got, &want);
+            }
+            let with_gradient = (normal..n)
+                .filter(|&i| want.projected.rgb[i].iter().any(|&v| v != 0.0))
+                .count();
+            assert!(
+                with_gradient >= 3,
+                "{label}: only {with_gradient} extreme Gaussians reach a pixel"
+            );
+            for (i, p) in forward.projected.iter().enumerate() {
+                if p.culled {
+                    assert_eq!(&got.positions[3 * i..3 * i + 3], &[0.0; 3], "{label}: {i}");
+                    assert_eq!(&got.rotations[4 * i..4 * i + 4], &[0.0; 4], "{label}: {i}");
+                    assert_eq!(got.view_grad_norm[i], 0.0, "{label}: culled {i}");
+                }
+                if kind == 2 && i >= normal {
+                    assert_eq!(&got.rotations[4 * i..4 * i + 4], &[0.0; 4], "{label}: {i}");
+                }
+            }
+        }
+    }
+    ctx.check_validation().unwrap();
+}
+
+fn s_near() -> f64 {
+    RenderSettings::default().near
+}
+
+#[test]
+fn thousand_gaussians_on_one_pixel() {
+    let ctx = ctx();
+    let mut rng = Pcg64::seed_from_u64(1000);
+    let n = 1000;
+    let mut g = random_gaussians(&mut rng, n);
+    let (camera, pose) = random_view(&mut rng, 37, 23);
+    for i in 0..n {
+        g.positions[i] = [0.01, -0.02, 0.03];
+        g.log_scales[i] = [0; 3].map(|_| rng.gen_range(-4.0..-2.5));
+        g.opacity_logits[i] = rng.gen_range(-3.0..6.0);
+    }
+    let mut s = Scene::new(&mut rng, g, camera, pose, 1);
+    s.background = [0.0; 3];
+    for mode in [AtomicMode::Auto, AtomicMode::CompareSwap] {
+        let (got, want) = run_gpu(&ctx, mode, &s);
+        assert_all_finite("stacked", &got, n, s.stored_degree);
+        check_against_reference(&format!("stacked ({mode:?})"), &s, &got, &want);
+    }
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn off_screen_gaussians_with_clamped_jacobian_match_reference() {
+    // Wide Gaussians whose centres lie beyond the 1.3× FoV clamp but whose footprints reach into
+    // the image: the EWA Jacobian clamp is active where gradients are not zero.
+    let ctx = ctx();
+    let mut rng = Pcg64::seed_from_u64(1300);
+    let n = 60;
+    let mut g = random_gaussians(&mut rng, n);
+    let (camera, pose) = random_view(&mut rng, 41, 35);
+    let settings = RenderSettings::default();
+    let limits = reference::project::jacobian_limits(&camera, &settings);
+    for i in 0..n {
+        let z = rng.gen_range(2.0..5.0);
+        let side = rng.gen_range(0..4);
+        let beyond = rng.gen_range(1.05..1.5);
+        let (tx, ty) = match side {
+            0 => (
+                limits[0][0] * beyond,
+                rng.gen_range(limits[1][0]..limits[1][1]),
+            ),
+            1 => (
+                limits[0][1] * beyond,
+                rng.gen_range(limits[1][0]..limits[1][1]),
+            ),
+            2 => (
+                rng.gen_range(limits[0][0]..limits[0][1]),
+                limits[1][0] * beyond,
+            ),
+            _ => (
+                rng.gen_range(limits[0][0]..limits[0][1]),
+                limits[1][1] * beyond,
+            ),
+        };
+        let cam = [tx * z, ty * z, z];
+        let d = [0, 1, 2].map(|k| cam[k] - pose.translation[k]);
+        let r = pose.rotation;
+        g.positions[i] = [0, 1, 2].map(|k| r[0][k] * d[0] + r[1][k] * d[1] + r[2][k] * d[2]);
+        g.log_scales[i] = [0; 3].map(|_| rng.gen_range((0.3 * z).ln()..(0.8 * z).ln()));
+    }
+    let mut s = Scene::new(&mut rng, g, camera, pose, 2);
+    s.background = [1.0, 0.5, 0.0];
+    let forward = reference::render(
+        &s.gaussians,
+        &s.camera,
+        &s.pose,
+        s.degree,
+        s.background,
+        &s.settings,
+    )
+    .unwrap();
+    let (got, want) = run_gpu(&ctx, AtomicMode::Auto, &s);
+    let limits = reference::project::jacobian_limits(&s.camera, &s.settings);
+    let clamped_with_gradient = forward
+        .projected
+        .iter()
+        .zip(&want.projected.conic)
+        .filter(|(p, gc)| {
+            let (_, clamped) = reference::project::ewa_jacobian(&s.camera, p.cam_mean, &limits);
+            !p.culled && (clamped[0] || clamped[1]) && gc.iter().any(|v| v.abs() > 1e-6)
+        })
+        .count();
+    assert!(
+        clamped_with_gradient >= 10,
+        "only {clamped_with_gradient} Gaussians with a clamped Jacobian reach the image"
+    );
+    check_against_reference("off-screen", &s, &got, &want);
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn backward_under_subgroup_size_16() {
+    // lavapipe runs with subgroup size 16 when LP_NATIVE_VECTOR_WIDTH=512 (set before the driver
+    // loads, hence a child process), so the subgroup reduction is covered at two sizes. Other
+    // drivers ignore the variable.
+    if std::env::var_os("LPMSPLAT_CHILD").is_some() {
+        return;
+    }
+    let exe = std::env::current_exe().unwrap();
+    let out = std::process::Command::new(exe)
+        .env("LP_NATIVE_VECTOR_WIDTH", "512")
+        .env("LPMSPLAT_CHILD", "1")
+        .args([
+            "--test-threads=1",
+            "random_scenes_match_reference",
+            "thousand_gaussians_on_one_pixel",
+        ])
+        .output()
+        .unwrap();
+    let text =
+        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "child run failed:\n{text}");
+    assert!(
+        text.contains("2 passed"),
+        "child ran the wrong tests:\n{text}"
+    );
+}
+
+#[test]
+fn record_refuses_mismatched_arguments() {
+    let ctx = ctx();
+    let mut rng = Pcg64::seed_from_u64(3);
+    let s = Scene::random(&mut rng, 10, 20, 18, 1);
+    let forward = reference::render(
+        &s.gaussians,
+        &s.camera,
+        &s.pose,
+        s.degree,
+        s.background,
+        &s.settings,
+    )
+    .unwrap();
+    let fx = gpu_forward_fixture(&forward, &s.camera, &s.pose);
+    let cameras = GpuBuffer::from_slice(&ctx, "cameras", &[fx.camera]).unwrap();
+    let projected = GpuBuffer::from_slice(&ctx, "projected", &fx.projected).unwrap();
+    let tile_ranges = GpuBuffer::from_slice(&ctx, "tile_ranges", &fx.tile_ranges).unwrap();
+    let sorted_ids = GpuBuffer::from_slice(&ctx, "sorted_ids", &fx.sorted_ids).unwrap();
+    let final_t = GpuBuffer::from_slice(&ctx, "final_t", &fx.final_t).unwrap();
+    let last_index = GpuBuffer::from_slice(&ctx, "last_index", &fx.last_index).unwrap();
+    let short_image = GpuBuffer::<f32>::from_slice(&ctx, "dl", &[0.0; 7]).unwrap();
+    let dl_dimage = GpuBuffer::<f32>::from_slice(&ctx, "dl", &vec![0.5; fx.image.len()]).unwrap();
+    let splats = GpuSplats::upload(&ctx, &gaussian_params(&s.gaussians, 1), 10).unwrap();
+    let grads = GpuSplats::zeroed(&ctx, "grad_", 1, 10, 10).unwrap();
+    let vgn = GpuBuffer::<f32>::from_slice(&ctx, "vgn", &[0.0; 10]).unwrap();
+    let small = Backward::new(&ctx, 4).unwrap();
+    let big = Backward::new(&ctx, 20).unwrap();
+    let args = |count: usize, sh_degree: u32, camera_index: u32, dl: &'static str| BackwardArgs {
+        cameras: &cameras,
+        camera_index,
+        camera: &fx.camera,
+        projected: &projected,
+        tile_ranges: &tile_ranges,
+        sorted_ids: &sorted_ids,
+        final_t: &final_t,
+        last_index: &last_index,
+        dl_dimage: if dl == "short" {
+            &short_image
+        } else {
+            &dl_dimage
+        },
+        splats: &splats,
+        grads: &grads,
+        view_grad_norm: &vgn,
+        count,
+        sh_degree,
+        constants: RenderConstants::default(),
+        background: [0.0; 3],
+    };
+    let mut rec = Recorder::new(&ctx).unwrap();
+    let err = |r: anyhow::Result<()>| r.unwrap_err().to_string();
+    assert!(err(small.record(&ctx, &mut rec, &args(10, 1, 0, ""))).contains("reserve"));
+    assert!(err(big.record(&ctx, &mut rec, &args(10, 2, 0, ""))).contains("SH degree"));
+    assert!(err(big.record(&ctx, &mut rec, &args(10, 1, 1, ""))).contains("camera index"));
+    assert!(err(big.record(&ctx, &mut rec, &args(11, 1, 0, ""))).contains("count"));
+    assert!(err(big.record(&ctx, &mut rec, &args(10, 1, 0, "short"))).contains("dl_dimage"));
+    // The refused calls recorded nothing; a valid one still works.
+    assert_eq!(rec.dispatch_count(), 0);
+    big.record(&ctx, &mut rec, &args(10, 1, 0, "")).unwrap();
+    rec.submit_and_wait().unwrap();
+    assert!(vgn.read().unwrap().iter().all(|v| v.is_finite()));
+    ctx.check_validation().unwrap();
+}
