@@ -67,7 +67,7 @@ fn check_pair(a: &[f32], b: &[f32], w: usize, h: usize) -> Result<()> {
 
 /// Checks two RGB images of any (equal, non-zero) size.
 fn check_same_len(a: &[f32], b: &[f32]) -> Result<()> {
-    if a.is_empty() || a.len() % 3 != 0 {
+    if a.is_empty() || !a.len().is_multiple_of(3) {
         return Err(bad(
             "first image",
             format!("has {} values, not a non-zero multiple of 3", a.len()),

@@ -1,5 +1,11 @@
-// Shared by the loss kernels (L1 + SSIM, forward and backward). Needs WG_SIZE, TILE_W and TILE_H
-// (specialisation constants 0, 2, 3) declared before inclusion; WG_SIZE == TILE_W * TILE_H.
+// Shared by the loss kernels (L1 + SSIM, forward and backward).
+//
+// The blurs are separable 11-tap passes. Each invocation produces SEG consecutive outputs along
+// the blur direction from SEG + 10 inputs held in registers, so every input is loaded once per
+// invocation instead of 11 times: on a CPU driver (lavapipe) loads and stores are per-lane
+// gathers and dominate, while the multiply-adds run on full SIMD width. Adjacent invocations
+// take adjacent rows (horizontal passes) or columns (vertical passes), so the image-border tests,
+// which depend only on the position along the blur, are uniform across a subgroup.
 //
 // The blurred maps live in three buffers, one per colour channel (so that each stays under the
 // device's storage-binding limit at large image sizes), planar inside: map m of channel c at
@@ -25,6 +31,9 @@ const float GAUSS[11] = float[11](
     1.028380084e-03, 7.598758135e-03, 3.600077213e-02, 1.093606895e-01, 2.130055377e-01,
     2.660117249e-01,
     2.130055377e-01, 1.093606895e-01, 3.600077213e-02, 7.598758135e-03, 1.028380084e-03);
+// Outputs per invocation along the blur direction.
+const int SEG = 16;
+
 const float C1 = 0.0001;
 const float C2 = 0.0009;
 

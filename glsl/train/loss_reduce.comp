@@ -1,10 +1,9 @@
 #version 460
+#extension GL_EXT_control_flow_attributes : require
 // Final loss reduction: one workgroup sums the per-tile partials of ssim_fwd_v in a fixed order
 // (strided serial sums, then a tree), so the same input always gives the same bits, and writes
 // L1, SSIM and the total loss into the caller's slot.
 layout(constant_id = 0) const uint WG_SIZE = 256;
-layout(constant_id = 2) const uint TILE_W = 256;
-layout(constant_id = 3) const uint TILE_H = 1;
 layout(local_size_x_id = 0) in;
 #include "loss_common.glsl"
 layout(std430, set = 0, binding = 0) readonly buffer Partials { float partials[]; };

@@ -1,12 +1,11 @@
 #version 460
+#extension GL_EXT_control_flow_attributes : require
 // SSIM backward, pass 2 and the loss gradient: vertical blur of the three horizontally blurred
 // derivative maps per channel, then
-//   dSSIM/dx = (G*dS/dμx + 2x·G*dS/dE[x²] + y·G*dS/dE[xy]) / N
-//   dL/dx    = ((1 − w)·sign(x − y) − w·N·dSSIM/dx) / N
-// written over the whole gradient image (every pixel, every channel).
-layout(constant_id = 0) const uint WG_SIZE = 256;
-layout(constant_id = 2) const uint TILE_W = 16;
-layout(constant_id = 3) const uint TILE_H = 16;
+//   N·dSSIM/dx = G*dS/dμx + 2x·G*dS/dE[x²] + y·G*dS/dE[xy]
+//   dL/dx      = ((1 − w)·sign(x − y) − w·N·dSSIM/dx) / N
+// written over the whole gradient image. Invocation = one column segment of SEG pixels.
+layout(constant_id = 0) const uint WG_SIZE = 32;
 layout(local_size_x_id = 0) in;
 #include "loss_common.glsl"
 layout(std430, set = 0, binding = 0) readonly buffer Image { float image[]; };
@@ -17,56 +16,45 @@ layout(std430, set = 0, binding = 4) readonly buffer In2 { float in2[]; };
 layout(std430, set = 0, binding = 5) writeonly buffer Grad { float grad[]; };
 #include "image_io.glsl"
 
-const uint SH = TILE_H + 2u * uint(R);
-const uint PLANE = SH * TILE_W;
-shared float tile[3u * PLANE];
-
-float load(uint c, uint i) {
-    if (c == 0u) return in0[i];
-    if (c == 1u) return in1[i];
-    return in2[i];
+vec3 load(uint i) {
+    return vec3(in0[i], in1[i], in2[i]);
 }
 
 void main() {
-    uint lid = gl_LocalInvocationIndex;
-    uint lx = lid % TILE_W;
-    uint ly = lid / TILE_W;
-    uint x0 = gl_WorkGroupID.x * TILE_W;
-    int y0 = int(gl_WorkGroupID.y * TILE_H) - R;
-    uint px = x0 + lx;
-    uint py = gl_WorkGroupID.y * TILE_H + ly;
-    bool inside = px < width && py < height;
+    uint px = gl_WorkGroupID.x * WG_SIZE + gl_LocalInvocationID.x;
+    int y0 = int(gl_WorkGroupID.y) * SEG;
+    if (px >= width) return;
     uint n = width * height;
-    uint pix = py * width + px;
-    vec3 x = vec3(0.0), y = vec3(0.0);
-    if (inside) {
-        x = load_render(pix);
-        y = load_gt(pix);
+    vec3 acc[3][SEG];
+    [[unroll]] for (int o = 0; o < SEG; o++) {
+        [[unroll]] for (uint m = 0u; m < 3u; m++) acc[m][o] = vec3(0.0);
     }
-    for (uint c = 0u; c < 3u; c++) {
-        if (c > 0u) barrier();
-        for (uint i = lid; i < PLANE; i += WG_SIZE) {
-            uint gx = x0 + i % TILE_W;
-            int gy = y0 + int(i / TILE_W);
-            bool ok = gx < width && gy >= 0 && gy < int(height);
-            uint src = uint(gy) * width + gx;
-            for (uint m = 0u; m < 3u; m++) {
-                tile[m * PLANE + i] = ok ? load(c, m * n + src) : 0.0;
+    [[unroll]] for (int j = 0; j < SEG + 2 * R; j++) {
+        int sy = y0 + j - R;
+        vec3 v[3] = vec3[3](vec3(0.0), vec3(0.0), vec3(0.0));
+        if (sy >= 0 && sy < int(height)) {
+            uint src = uint(sy) * width + px;
+            [[unroll]] for (uint m = 0u; m < 3u; m++) v[m] = load(m * n + src);
+        }
+        [[unroll]] for (int o = 0; o < SEG; o++) {
+            int t = j - o;
+            if (t >= 0 && t <= 2 * R) {
+                float g = GAUSS[t];
+                [[unroll]] for (uint m = 0u; m < 3u; m++) acc[m][o] += g * v[m];
             }
         }
-        barrier();
-        if (inside) {
-            float b0 = 0.0, b1 = 0.0, b2 = 0.0;
-            for (int k = 0; k < 11; k++) {
-                uint j = (ly + uint(k)) * TILE_W + lx;
-                float g = GAUSS[k];
-                b0 += g * tile[j];
-                b1 += g * tile[PLANE + j];
-                b2 += g * tile[2u * PLANE + j];
-            }
-            float d_ssim = b0 + 2.0 * x[c] * b1 + y[c] * b2;
-            grad[pix * 3u + c] =
-                ((1.0 - ssim_weight) * sign(x[c] - y[c]) - ssim_weight * d_ssim) * inv_n;
+    }
+    [[unroll]] for (int o = 0; o < SEG; o++) {
+        int py = y0 + o;
+        if (py < int(height)) {
+            uint pix = uint(py) * width + px;
+            vec3 x = load_render(pix);
+            vec3 y = load_gt(pix);
+            vec3 d_ssim = acc[0][o] + 2.0 * x * acc[1][o] + y * acc[2][o];
+            vec3 g = ((1.0 - ssim_weight) * sign(x - y) - ssim_weight * d_ssim) * inv_n;
+            grad[pix * 3u] = g.r;
+            grad[pix * 3u + 1u] = g.g;
+            grad[pix * 3u + 2u] = g.b;
         }
     }
 }

@@ -6,7 +6,8 @@
 //! and channels. The ground truth is packed RGBA8 (`r` in the low byte) composited over a
 //! background colour: `gt = rgb·a + bg·(1 − a)`.
 //!
-//! Five dispatches, all separable 11-tap blurs through shared-memory tiles:
+//! Five dispatches; the blurs are separable 11-tap passes in which each invocation produces a
+//! segment of outputs from inputs held in registers (see `glsl/train/loss_common.glsl`):
 //! 1. `ssim_fwd_h`: horizontal blur of x, y, x², y², xy (15 maps);
 //! 2. `ssim_fwd_v`: vertical blur, SSIM per pixel and its derivatives with respect to the
 //!    blurred moments (9 maps), per-tile sums of |x − y| and SSIM;
@@ -22,10 +23,12 @@ use std::sync::Arc;
 /// Floats per loss slot in `loss_out`: L1, SSIM, total.
 pub const LOSS_SLOT_FLOATS: usize = 3;
 
-/// Tile of the horizontal passes (wide: the halo is horizontal).
-const H_TILE: (u32, u32) = (64, 4);
-/// Tile of the vertical passes (tall enough that the 10-row halo costs little).
-const V_TILE: (u32, u32) = (16, 16);
+/// Invocations per workgroup of the blur passes: adjacent rows (horizontal passes) or columns
+/// (vertical passes).
+const BLUR_WG: u32 = 32;
+/// Outputs per invocation along the blur direction: must equal `SEG` in
+/// `glsl/train/loss_common.glsl`.
+const SEG: u32 = 16;
 const REDUCE_WG: u32 = 256;
 
 /// Moment maps per channel after the forward horizontal pass (μx, μy, E[x²], E[y²], E[xy]).
@@ -62,36 +65,38 @@ pub struct Loss {
     max_height: u32,
 }
 
+/// Workgroups of the vertical passes: columns in x, row segments in y.
 fn v_groups(w: u32, h: u32) -> [u32; 3] {
-    [w.div_ceil(V_TILE.0), h.div_ceil(V_TILE.1), 1]
+    [w.div_ceil(BLUR_WG), h.div_ceil(SEG), 1]
 }
 
+/// Workgroups of the horizontal passes: rows in x, column segments in y.
 fn h_groups(w: u32, h: u32) -> [u32; 3] {
-    [w.div_ceil(H_TILE.0), h.div_ceil(H_TILE.1), 1]
+    [h.div_ceil(BLUR_WG), w.div_ceil(SEG), 1]
 }
 
 impl Loss {
     pub fn new(ctx: &Arc<GpuContext>, max_width: u32, max_height: u32) -> Result<Self> {
-        let pipe = |name: &str, spv: &[u8], buffers: u32, tile: (u32, u32)| {
+        let pipe = |name: &str, spv: &[u8], buffers: u32, wg: u32| {
             ComputePipeline::new(
                 ctx,
                 name,
                 spv,
                 buffers,
                 std::mem::size_of::<LossPush>() as u32,
-                tile.0 * tile.1,
-                &[tile.0, tile.1],
+                wg,
+                &[],
             )
         };
-        let fwd_h = pipe("train/ssim_fwd_h", shaders::TRAIN_SSIM_FWD_H, 5, H_TILE)?;
-        let fwd_v = pipe("train/ssim_fwd_v", shaders::TRAIN_SSIM_FWD_V, 9, V_TILE)?;
-        let bwd_h = pipe("train/ssim_bwd_h", shaders::TRAIN_SSIM_BWD_H, 6, H_TILE)?;
-        let bwd_v = pipe("train/ssim_bwd_v", shaders::TRAIN_SSIM_BWD_V, 6, V_TILE)?;
+        let fwd_h = pipe("train/ssim_fwd_h", shaders::TRAIN_SSIM_FWD_H, 5, BLUR_WG)?;
+        let fwd_v = pipe("train/ssim_fwd_v", shaders::TRAIN_SSIM_FWD_V, 9, BLUR_WG)?;
+        let bwd_h = pipe("train/ssim_bwd_h", shaders::TRAIN_SSIM_BWD_H, 6, BLUR_WG)?;
+        let bwd_v = pipe("train/ssim_bwd_v", shaders::TRAIN_SSIM_BWD_V, 6, BLUR_WG)?;
         let reduce = pipe(
             "train/loss_reduce",
             shaders::TRAIN_LOSS_REDUCE,
             2,
-            (REDUCE_WG, 1),
+            REDUCE_WG,
         )?;
         let (moments, derivs, partials) = Self::alloc(ctx, max_width, max_height)?;
         Ok(Self {
