@@ -6,10 +6,12 @@
 pub mod error;
 pub mod gpu;
 pub mod lpm;
+pub mod metrics;
 pub mod reference;
 pub mod render;
 pub mod scene;
 pub mod splats;
+pub mod train;
 
 /// Embedded SPIR-V, one constant per `glsl/**/*.comp` (see `build.rs`).
 pub mod shaders {

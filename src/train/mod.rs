@@ -1,0 +1,3 @@
+//! Training on the GPU: the loss, the optimizer, density control and the trainer loop.
+
+pub mod loss;
