@@ -10,6 +10,7 @@ pub mod reference;
 pub mod render;
 pub mod scene;
 pub mod splats;
+pub mod train;
 
 /// Embedded SPIR-V, one constant per `glsl/**/*.comp` (see `build.rs`).
 pub mod shaders {
