@@ -132,7 +132,7 @@ impl DensitySchedule {
         iteration < self.densify_until
             && iteration > self.densify_from
             && self.interval > 0
-            && iteration % self.interval == 0
+            && iteration.is_multiple_of(self.interval)
     }
 
     /// Whether the world-size (and, when enabled, screen-size) pruning applies at a densify
@@ -144,7 +144,8 @@ impl DensitySchedule {
     /// Whether all opacities are reset at `iteration` (after densification in that iteration).
     pub fn resets_opacity(&self, iteration: u32) -> bool {
         iteration < self.densify_until
-            && ((self.opacity_reset_interval > 0 && iteration % self.opacity_reset_interval == 0)
+            && ((self.opacity_reset_interval > 0
+                && iteration.is_multiple_of(self.opacity_reset_interval))
                 || (self.white_background && iteration == self.densify_from))
     }
 }

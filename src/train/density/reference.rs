@@ -88,7 +88,9 @@ pub fn decide(
                     DECIDE_SPLIT
                 };
             }
-            if (clone || split) && !(stat >= t.grad_threshold) {
+            // Written as the kernel does (a NaN statistic never densifies, so it is never `lowered`).
+            let at_global = stat >= t.grad_threshold;
+            if (clone || split) && !at_global {
                 d |= DECIDE_LOWERED;
             }
             d
