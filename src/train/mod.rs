@@ -1,3 +1,8 @@
-//! Training on the GPU: the loss, the optimizer, density control and the trainer loop.
+//! Training on the GPU: the loss, the optimiser and its schedules, adaptive density control,
+//! the training data and the trainer loop.
 
+pub mod adam;
+pub mod data;
+pub mod density;
 pub mod loss;
+pub mod schedule;

@@ -1,0 +1,55 @@
+#version 460
+// Density-control decisions, one word per Gaussian (bits in decisions.glsl), Inria's rules:
+//   stat = grad_accum / denom (0 when never seen); densify when stat ≥ threshold (× the
+//   optional per-Gaussian scale); clone when max scale ≤ percent_dense·extent, split otherwise;
+//   prune when opacity < min_opacity, and with `prune_large` when max scale > 0.1·extent;
+//   optionally (screen_max ≥ 0) when the largest screen radius exceeds screen_max.
+// New Gaussians face the same prune tests with their own parameters (a clone has its parent's;
+// split children have scale / 1.6), so a new Gaussian that would be pruned at once is never
+// emitted. Scale and opacity tests compare in the log / logit domain against thresholds formed
+// on the host (monotone, so equivalent up to the threshold's rounding).
+layout(local_size_x_id = 0) in;
+#include "decisions.glsl"
+layout(std430, set = 0, binding = 0) readonly buffer Accum { float grad_accum[]; };
+layout(std430, set = 0, binding = 1) readonly buffer Denom { float denom[]; };
+layout(std430, set = 0, binding = 2) readonly buffer MaxRadii { float max_radii[]; };
+layout(std430, set = 0, binding = 3) readonly buffer LogScales { float log_scales[]; };
+layout(std430, set = 0, binding = 4) readonly buffer Opacity { float opacity_logits[]; };
+layout(std430, set = 0, binding = 5) readonly buffer ThresholdScale { float threshold_scale[]; };
+layout(std430, set = 0, binding = 6) writeonly buffer Decisions { uint decisions[]; };
+layout(push_constant) uniform Push {
+    uint count;
+    uint flags;  // 1: prune large (world size); 2: use threshold_scale
+    float grad_threshold;
+    float log_clone_max;      // ln(percent_dense · extent)
+    float min_opacity_logit;  // logit(min_opacity)
+    float log_world_max;      // ln(0.1 · extent)
+    float log_split_shrink;   // ln(1.6)
+    float screen_max;         // < 0: off
+};
+
+void main() {
+    uint i = linear_index();
+    if (i >= count) return;
+    float dn = denom[i];
+    precise float stat = dn > 0.0 ? grad_accum[i] / dn : 0.0;
+    precise float thr = grad_threshold;
+    if ((flags & 2u) != 0u) thr = grad_threshold * threshold_scale[i];
+    bool densify = stat >= thr;
+    float ls = max(max(log_scales[3u * i], log_scales[3u * i + 1u]), log_scales[3u * i + 2u]);
+    bool clone = densify && ls <= log_clone_max;
+    bool split = densify && ls > log_clone_max;
+    bool prune_large = (flags & 1u) != 0u;
+    bool faint = opacity_logits[i] < min_opacity_logit;
+    bool big = prune_large && ls > log_world_max;
+    bool big_screen = screen_max >= 0.0 && max_radii[i] > screen_max;
+    precise float child_ls = ls - log_split_shrink;
+    bool child_big = prune_large && child_ls > log_world_max;
+
+    uint d = 0u;
+    if (faint || big || big_screen) d |= DECIDE_REMOVE;
+    if (clone && !faint && !big) d |= DECIDE_CLONE;
+    if (split) d |= (faint || child_big) ? DECIDE_REMOVE : DECIDE_SPLIT;
+    if ((clone || split) && !(stat >= grad_threshold)) d |= DECIDE_LOWERED;
+    decisions[i] = d;
+}

@@ -1,0 +1,715 @@
+//! Adaptive density control on the GPU: per-iteration statistics, the densify-and-prune step
+//! (Inria's clone / split / prune rules) and the opacity reset.
+//!
+//! # The step, kernel by kernel (`glsl/density/`)
+//! 1. `decide`: one decision word per Gaussian (`DECIDE_*` bits): clone, split, remove. New
+//!    Gaussians face the prune tests with their own parameters, so one that would be pruned at
+//!    once is never emitted (the reference creates then prunes it: same result).
+//! 2. *(hook)* a caller may run its own kernels on [`DensityControl::decisions`] here, between
+//!    [`DensityControl::record_decide`] and [`DensityControl::apply`], OR-ing in
+//!    `DECIDE_REMOVE` (extra pruning), `DECIDE_CLONE`, or `DECIDE_SPLIT` (the original is then
+//!    removed); LPM also passes a per-Gaussian threshold multiplier to `record_decide`, and
+//!    reads `DECIDE_LOWERED` to know what was densified only because of it.
+//! 3. `expand` + [`PrefixScan`]: slot counts (kept 0/1, clone 0/1, children 0/2) laid out as
+//!    three blocks of `count` and scanned as one array: the scan gives every destination and
+//!    the new count (the only value the host reads back, with the two block starts).
+//! 4. `scatter` for every per-Gaussian buffer (6 parameter groups, both moment sets) and
+//!    `split` for the children's positions and log-scales, into a second [`SplatState`]
+//!    (double buffering: the old one becomes the spare for the next step; when the new count
+//!    exceeds the capacity, a bigger one is allocated with [`grown_capacity`]).
+//!
+//! # New layout
+//! `[survivors in their old order | clones in parent order | split children: two adjacent rows
+//! per parent, in parent order]`. (The reference appends all first children, then all second
+//! children; the order has no effect on training.)
+//!
+//! # What is carried
+//! Survivors keep parameters and moments bit for bit. Clones copy every parameter and get zero
+//! moments. Split children: position = parent mean + R·(scale ⊙ n), n ~ N(0, I) from a
+//! counter-based hash of (seed, iteration, parent index, draw), so a run is deterministic for a
+//! seed; log-scale = parent − ln 1.6; rotation, opacity and SH copied; zero moments. The
+//! statistics are zeroed after the step, as the reference does.
+//!
+//! # Pruning
+//! opacity < 0.005; with `prune_large` (the reference: after the first opacity reset) also
+//! max world scale > 0.1·extent. Screen-size pruning: the reference resets `max_radii2D` to 0
+//! right before its "> 20 px" test, so that test never fires; here it is
+//! [`DensityConfig::screen_size_limit`], `None` by default (the reference's behaviour). When set,
+//! it removes originals whose largest screen radius since the last step exceeds the limit.
+//!
+//! Thresholds are compared in the log / logit domain (`max(log_scale) ≤ ln(0.01·extent)`,
+//! `logit < logit(0.005)`): monotone, so these are the reference's tests up to the rounding of
+//! the threshold itself, and they need no transcendental on the GPU.
+
+pub mod reference;
+pub mod rng;
+
+use super::adam::SplatState;
+use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder};
+use crate::render::layout::ProjectedGpu;
+use crate::render::scan::PrefixScan;
+use crate::shaders;
+use crate::splats::gpu::grown_capacity;
+use anyhow::{bail, ensure};
+use std::sync::Arc;
+
+/// The original is not carried over (pruned).
+pub const DECIDE_REMOVE: u32 = 1;
+/// Emit one identical copy.
+pub const DECIDE_CLONE: u32 = 2;
+/// Emit two split children; the original is removed.
+pub const DECIDE_SPLIT: u32 = 4;
+/// Densified (clone or split intended) only because of the per-Gaussian threshold multiplier.
+pub const DECIDE_LOWERED: u32 = 8;
+
+const WG: u32 = 128;
+
+/// The density-control rules (Inria's defaults).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DensityConfig {
+    /// Densify when the averaged NDC mean-gradient norm is at least this.
+    pub grad_threshold: f32,
+    /// Clone below (≤) and split above this fraction of the scene extent (max axis scale).
+    pub percent_dense: f64,
+    /// Prune below this opacity.
+    pub min_opacity: f64,
+    /// With `prune_large`, prune when the max axis scale exceeds this fraction of the extent.
+    pub max_world_fraction: f64,
+    /// Children's scale divisor (the reference's 0.8 · N with N = 2).
+    pub split_shrink: f64,
+    /// Prune originals whose largest screen radius (px) exceeds this (with `prune_large` only,
+    /// as in the reference); `None` = off, which is what the reference effectively does.
+    pub screen_size_limit: Option<f32>,
+    /// The opacity reset's ceiling.
+    pub opacity_reset_value: f64,
+    /// Seed of the split samples.
+    pub seed: u64,
+}
+
+impl Default for DensityConfig {
+    fn default() -> Self {
+        Self {
+            grad_threshold: 2e-4,
+            percent_dense: 0.01,
+            min_opacity: 0.005,
+            max_world_fraction: 0.1,
+            split_shrink: 1.6,
+            screen_size_limit: None,
+            opacity_reset_value: 0.01,
+            seed: 0,
+        }
+    }
+}
+
+/// Per-step inputs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DensifyArgs {
+    /// Scene extent (1.1 × the largest camera distance from their mean).
+    pub extent: f64,
+    /// World-size (and screen-size, when configured) pruning: after the first opacity reset.
+    pub prune_large: bool,
+    /// The training iteration: keys the split samples.
+    pub iteration: u32,
+}
+
+/// The f32 thresholds the kernels compare against, formed once on the host (shared by the GPU
+/// push constants and the host reference so both test exactly the same numbers).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Thresholds {
+    pub grad_threshold: f32,
+    /// ln(percent_dense · extent)
+    pub log_clone_max: f32,
+    /// logit(min_opacity)
+    pub min_opacity_logit: f32,
+    /// ln(max_world_fraction · extent)
+    pub log_world_max: f32,
+    /// ln(split_shrink)
+    pub log_split_shrink: f32,
+    /// Negative when screen-size pruning is off.
+    pub screen_max: f32,
+    pub prune_large: bool,
+}
+
+impl Thresholds {
+    pub fn new(cfg: &DensityConfig, args: &DensifyArgs) -> anyhow::Result<Self> {
+        if !(args.extent > 0.0 && args.extent.is_finite()) {
+            bail!(
+                "density control: scene extent is {}; it must be a positive finite distance (1.1 × the largest camera distance from the cameras' mean)",
+                args.extent
+            );
+        }
+        let positive = |name: &str, v: f64| -> anyhow::Result<()> {
+            if !(v > 0.0 && v.is_finite()) {
+                bail!("density control: {name} is {v}; it must be positive and finite");
+            }
+            Ok(())
+        };
+        positive("percent_dense", cfg.percent_dense)?;
+        positive("max_world_fraction", cfg.max_world_fraction)?;
+        if !(cfg.min_opacity > 0.0 && cfg.min_opacity < 1.0) {
+            bail!(
+                "density control: min_opacity is {}; it must be in (0, 1) (default 0.005)",
+                cfg.min_opacity
+            );
+        }
+        if !(cfg.split_shrink >= 1.0 && cfg.split_shrink.is_finite()) {
+            bail!(
+                "density control: split_shrink is {}; it must be ≥ 1 (default 1.6)",
+                cfg.split_shrink
+            );
+        }
+        if !cfg.grad_threshold.is_finite() {
+            bail!("density control: grad_threshold is not finite");
+        }
+        let screen_max = match cfg.screen_size_limit {
+            Some(px) if !(px >= 0.0 && px.is_finite()) => {
+                bail!("density control: screen_size_limit is {px}; it must be ≥ 0 px")
+            }
+            Some(px) if args.prune_large => px,
+            _ => -1.0,
+        };
+        let p = cfg.min_opacity;
+        Ok(Self {
+            grad_threshold: cfg.grad_threshold,
+            log_clone_max: (cfg.percent_dense * args.extent).ln() as f32,
+            min_opacity_logit: (p / (1.0 - p)).ln() as f32,
+            log_world_max: (cfg.max_world_fraction * args.extent).ln() as f32,
+            log_split_shrink: cfg.split_shrink.ln() as f32,
+            screen_max,
+            prune_large: args.prune_large,
+        })
+    }
+}
+
+/// The opacity reset's ceiling as a logit.
+pub fn reset_logit(cfg: &DensityConfig) -> anyhow::Result<f32> {
+    let p = cfg.opacity_reset_value;
+    if !(p > 0.0 && p < 1.0) {
+        bail!("density control: opacity_reset_value is {p}; it must be in (0, 1) (default 0.01)");
+    }
+    Ok((p / (1.0 - p)).ln() as f32)
+}
+
+/// What a step did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct DensifyOutcome {
+    pub before: usize,
+    pub after: usize,
+    /// Originals carried over (so `before − kept` were pruned or split).
+    pub kept: usize,
+    pub clones: usize,
+    /// Children emitted (two per split parent).
+    pub split_children: usize,
+    /// The state now has a larger capacity: per-Gaussian buffers owned elsewhere (gradients,
+    /// projected, …) must grow to `capacity` too.
+    pub grew: bool,
+    pub capacity: usize,
+}
+
+/// Per-Gaussian statistics accumulated between steps (capacity-sized, Gaussian `i` at `i`).
+pub struct DensityStats {
+    /// Sum of the NDC mean-gradient norms over the views that saw the Gaussian.
+    pub grad_accum: GpuBuffer<f32>,
+    /// Number of such views (f32, as in the reference).
+    pub denom: GpuBuffer<f32>,
+    /// Largest screen radius (px) since the last step.
+    pub max_radii: GpuBuffer<f32>,
+}
+
+impl DensityStats {
+    fn zeroed(ctx: &Arc<GpuContext>, capacity: usize) -> anyhow::Result<Self> {
+        let z = vec![0.0f32; capacity.max(1)];
+        Ok(Self {
+            grad_accum: GpuBuffer::from_slice(ctx, "density grad_accum", &z)?,
+            denom: GpuBuffer::from_slice(ctx, "density denom", &z)?,
+            max_radii: GpuBuffer::from_slice(ctx, "density max_radii", &z)?,
+        })
+    }
+
+    pub fn capacity(&self) -> usize {
+        self.denom.len()
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct CountPush {
+    count: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct DecidePush {
+    count: u32,
+    flags: u32,
+    grad_threshold: f32,
+    log_clone_max: f32,
+    min_opacity_logit: f32,
+    log_world_max: f32,
+    log_split_shrink: f32,
+    screen_max: f32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct ScatterPush {
+    count: u32,
+    stride: u32,
+    mode: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct SplitPush {
+    count: u32,
+    seed: u32,
+    step: u32,
+    log_split_shrink: f32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct ResetPush {
+    count: u32,
+    max_logit: f32,
+}
+
+const SCATTER_COPY: u32 = 0;
+const SCATTER_ZERO_NEW: u32 = 1;
+const SCATTER_SKIP_CHILDREN: u32 = 2;
+
+/// Density control: owns the statistics, the step's scratch buffers and the spare state.
+pub struct DensityControl {
+    ctx: Arc<GpuContext>,
+    pub config: DensityConfig,
+    accumulate: ComputePipeline,
+    decide: ComputePipeline,
+    expand: ComputePipeline,
+    scatter: ComputePipeline,
+    split: ComputePipeline,
+    reset: ComputePipeline,
+    stats: DensityStats,
+    decisions: GpuBuffer<u32>,
+    /// Slot counts, scanned in place into destinations (3 × scratch capacity).
+    slots: GpuBuffer<u32>,
+    scan: PrefixScan,
+    /// `[3·count (scan length), new count, kept, kept + clones]`.
+    counts: GpuBuffer<u32>,
+    /// Bound in place of a missing threshold-scale buffer.
+    dummy: GpuBuffer<f32>,
+    scratch_capacity: usize,
+    /// Count `record_decide` ran on, so `apply` can check it is applied to the same state.
+    decided: Option<usize>,
+    spare: Option<SplatState>,
+}
+
+impl DensityControl {
+    /// Sized for states of up to `capacity` Gaussians (grows with them).
+    pub fn new(
+        ctx: &Arc<GpuContext>,
+        capacity: usize,
+        config: DensityConfig,
+    ) -> anyhow::Result<Self> {
+        reset_logit(&config)?;
+        let pipe = |name: &str, spirv: &[u8], buffers: u32, push: usize| {
+            ComputePipeline::new(ctx, name, spirv, buffers, push as u32, WG, &[])
+        };
+        use std::mem::size_of;
+        let capacity = capacity.max(1);
+        Ok(Self {
+            ctx: ctx.clone(),
+            config,
+            accumulate: pipe(
+                "density/accumulate",
+                shaders::DENSITY_ACCUMULATE,
+                5,
+                size_of::<CountPush>(),
+            )?,
+            decide: pipe(
+                "density/decide",
+                shaders::DENSITY_DECIDE,
+                7,
+                size_of::<DecidePush>(),
+            )?,
+            expand: pipe(
+                "density/expand",
+                shaders::DENSITY_EXPAND,
+                3,
+                size_of::<CountPush>(),
+            )?,
+            scatter: pipe(
+                "density/scatter",
+                shaders::DENSITY_SCATTER,
+                4,
+                size_of::<ScatterPush>(),
+            )?,
+            split: pipe(
+                "density/split",
+                shaders::DENSITY_SPLIT,
+                7,
+                size_of::<SplitPush>(),
+            )?,
+            reset: pipe(
+                "density/reset_opacity",
+                shaders::DENSITY_RESET_OPACITY,
+                3,
+                size_of::<ResetPush>(),
+            )?,
+            stats: DensityStats::zeroed(ctx, capacity)?,
+            decisions: GpuBuffer::new(ctx, "density decisions", capacity, BufferKind::DeviceLocal)?,
+            slots: GpuBuffer::new(ctx, "density slots", 3 * capacity, BufferKind::DeviceLocal)?,
+            scan: PrefixScan::new(ctx, 3 * capacity as u64)?,
+            counts: GpuBuffer::from_slice(ctx, "density counts", &[0u32; 4])?,
+            dummy: GpuBuffer::from_slice(ctx, "density no threshold scale", &[1.0f32])?,
+            scratch_capacity: capacity,
+            decided: None,
+            spare: None,
+        })
+    }
+
+    pub fn stats(&self) -> &DensityStats {
+        &self.stats
+    }
+
+    /// The decision words of the last `record_decide` (first `count` entries; `DECIDE_*` bits).
+    /// Kernels recorded between `record_decide` and `apply` may modify them (the LPM hook).
+    pub fn decisions(&self) -> &GpuBuffer<u32> {
+        &self.decisions
+    }
+
+    /// Hands over a state to use as the next step's destination (it must have the current
+    /// state's capacity and SH degree to be used; its contents are overwritten).
+    pub fn set_spare(&mut self, spare: SplatState) {
+        self.spare = Some(spare);
+    }
+
+    /// Grows the statistics to `capacity` Gaussians, keeping their values (for callers that
+    /// add Gaussians themselves). Submits and waits: no recorded work may still use the stats.
+    pub fn ensure_capacity(&mut self, capacity: usize) -> anyhow::Result<()> {
+        if capacity <= self.stats.capacity() {
+            return Ok(());
+        }
+        let grown = DensityStats::zeroed(&self.ctx, capacity)?;
+        let n = self.stats.capacity();
+        let mut rec = Recorder::new(&self.ctx)?;
+        rec.copy(&self.stats.grad_accum, &grown.grad_accum, n);
+        rec.copy(&self.stats.denom, &grown.denom, n);
+        rec.copy(&self.stats.max_radii, &grown.max_radii, n);
+        rec.submit_and_wait()?;
+        self.stats = grown;
+        Ok(())
+    }
+
+    fn ensure_scratch(&mut self, capacity: usize) -> anyhow::Result<()> {
+        if capacity <= self.scratch_capacity {
+            return Ok(());
+        }
+        let ctx = &self.ctx;
+        self.decisions =
+            GpuBuffer::new(ctx, "density decisions", capacity, BufferKind::DeviceLocal)?;
+        self.slots = GpuBuffer::new(ctx, "density slots", 3 * capacity, BufferKind::DeviceLocal)?;
+        self.scan = PrefixScan::new(ctx, 3 * capacity as u64)?;
+        self.scratch_capacity = capacity;
+        Ok(())
+    }
+
+    /// Records zeroing of the statistics.
+    pub fn record_reset_stats(&self, rec: &mut Recorder) {
+        rec.barrier();
+        rec.fill(&self.stats.grad_accum, 0);
+        rec.fill(&self.stats.denom, 0);
+        rec.fill(&self.stats.max_radii, 0);
+        rec.barrier();
+    }
+
+    /// Records this view's contribution to the statistics: `view_grad_norm[i]` is |dL/d mean2d|
+    /// in NDC for Gaussian `i` (written by the backward pass), `projected[i].radius > 0` marks
+    /// the visible ones.
+    pub fn record_accumulate(
+        &self,
+        rec: &mut Recorder,
+        view_grad_norm: &GpuBuffer<f32>,
+        projected: &GpuBuffer<ProjectedGpu>,
+        count: usize,
+    ) -> anyhow::Result<()> {
+        ensure!(
+            count <= self.stats.capacity()
+                && count <= view_grad_norm.len()
+                && count <= projected.len(),
+            "density statistics: {count} Gaussians, but stats hold {}, gradient norms {}, projected {}",
+            self.stats.capacity(),
+            view_grad_norm.len(),
+            projected.len()
+        );
+        if count == 0 {
+            return Ok(());
+        }
+        rec.barrier();
+        rec.dispatch(
+            &self.accumulate,
+            &[
+                view_grad_norm,
+                projected,
+                &self.stats.grad_accum,
+                &self.stats.denom,
+                &self.stats.max_radii,
+            ],
+            &CountPush {
+                count: count as u32,
+            },
+            self.ctx.groups_1d(count as u64, WG),
+        );
+        rec.barrier();
+        Ok(())
+    }
+
+    /// Records the decision kernel for `state` (see the module docs). `threshold_scale`, when
+    /// given, multiplies the gradient threshold per Gaussian (e.g. 0.5 inside LPM zones).
+    pub fn record_decide(
+        &mut self,
+        rec: &mut Recorder,
+        state: &SplatState,
+        args: &DensifyArgs,
+        threshold_scale: Option<&GpuBuffer<f32>>,
+    ) -> anyhow::Result<()> {
+        let t = Thresholds::new(&self.config, args)?;
+        let count = state.count();
+        ensure!(
+            count <= self.stats.capacity(),
+            "density control: {count} Gaussians but statistics for {} (call ensure_capacity after adding Gaussians)",
+            self.stats.capacity()
+        );
+        ensure!(
+            count < (u32::MAX / 3) as usize,
+            "density control: {count} Gaussians exceed the 32-bit slot scan"
+        );
+        if let Some(s) = threshold_scale {
+            ensure!(
+                s.len() >= count,
+                "density control: threshold scale buffer has {} entries for {count} Gaussians",
+                s.len()
+            );
+        }
+        self.ensure_scratch(state.capacity().max(count))?;
+        self.decided = Some(count);
+        if count == 0 {
+            return Ok(());
+        }
+        let push = DecidePush {
+            count: count as u32,
+            flags: t.prune_large as u32 | ((threshold_scale.is_some() as u32) << 1),
+            grad_threshold: t.grad_threshold,
+            log_clone_max: t.log_clone_max,
+            min_opacity_logit: t.min_opacity_logit,
+            log_world_max: t.log_world_max,
+            log_split_shrink: t.log_split_shrink,
+            screen_max: t.screen_max,
+        };
+        rec.barrier();
+        rec.dispatch(
+            &self.decide,
+            &[
+                &self.stats.grad_accum,
+                &self.stats.denom,
+                &self.stats.max_radii,
+                &state.params.log_scales,
+                &state.params.opacity_logits,
+                threshold_scale.unwrap_or(&self.dummy),
+                &self.decisions,
+            ],
+            &push,
+            self.ctx.groups_1d(count as u64, WG),
+        );
+        rec.barrier();
+        Ok(())
+    }
+
+    /// Applies the recorded decisions: submits everything recorded in `rec` so far, reads the
+    /// new count, moves every per-Gaussian buffer into the new layout and replaces `*state` with
+    /// it (the old buffers become the spare), zeroes the statistics, and leaves `rec` begun and
+    /// empty. Waits for the GPU twice.
+    pub fn apply(
+        &mut self,
+        rec: &mut Recorder,
+        state: &mut SplatState,
+        args: &DensifyArgs,
+    ) -> anyhow::Result<DensifyOutcome> {
+        let t = Thresholds::new(&self.config, args)?;
+        let count = state.count();
+        match self.decided.take() {
+            Some(c) if c == count => {}
+            Some(c) => bail!("density control: decisions were recorded for {c} Gaussians, the state holds {count}"),
+            None => bail!("density control: apply without record_decide"),
+        }
+        if count == 0 {
+            self.record_reset_stats(rec);
+            rec.submit_and_wait()?;
+            rec.begin()?;
+            return Ok(DensifyOutcome {
+                before: 0,
+                after: 0,
+                kept: 0,
+                clones: 0,
+                split_children: 0,
+                grew: false,
+                capacity: state.capacity(),
+            });
+        }
+
+        // Phase 1: slots, scan, and the three numbers the host needs.
+        rec.barrier();
+        rec.dispatch(
+            &self.expand,
+            &[&self.decisions, &self.slots, &self.counts],
+            &CountPush {
+                count: count as u32,
+            },
+            self.ctx.groups_1d(count as u64, WG),
+        );
+        self.scan
+            .record(&self.ctx, rec, &self.slots, &self.counts, 0, Some(1));
+        rec.copy_region(&self.slots, count, &self.counts, 2, 1);
+        rec.copy_region(&self.slots, 2 * count, &self.counts, 3, 1);
+        rec.submit_and_wait()?;
+        let c = self.counts.read_range(1, 3)?;
+        let (after, kept, kept_and_clones) = (c[0] as usize, c[1] as usize, c[2] as usize);
+        ensure!(
+            kept <= kept_and_clones && kept_and_clones <= after && after <= 3 * count,
+            "density control: inconsistent counts from the GPU ({kept}, {kept_and_clones}, {after})"
+        );
+
+        // Destination: the spare when it fits, else fresh buffers (grown geometrically).
+        let grew = after > state.capacity();
+        let capacity = if grew {
+            grown_capacity(after)
+        } else {
+            state.capacity()
+        };
+        let spare = self
+            .spare
+            .take()
+            .filter(|s| s.capacity() == capacity && s.sh_degree() == state.sh_degree());
+        let mut dst = match spare {
+            Some(s) => s,
+            None => SplatState::zeroed(&self.ctx, state.sh_degree(), 0, capacity)?,
+        };
+        if grew {
+            // Nothing pending uses the old statistics (phase 1 has completed).
+            self.stats = DensityStats::zeroed(&self.ctx, capacity)?;
+        }
+
+        // Phase 2: scatter every per-Gaussian buffer, then the children's geometry.
+        rec.begin()?;
+        fn groups(s: &SplatState) -> [[(&GpuBuffer<f32>, usize); 6]; 3] {
+            [s.params.groups(), s.m.groups(), s.v.groups()]
+        }
+        let (src_sets, dst_sets) = (groups(state), groups(&dst));
+        for (set, (src, dstg)) in src_sets.iter().zip(dst_sets.iter()).enumerate() {
+            for k in 0..6 {
+                let stride = src[k].1;
+                if stride == 0 {
+                    continue;
+                }
+                let mode = if set > 0 {
+                    SCATTER_ZERO_NEW
+                } else if k < 2 {
+                    SCATTER_SKIP_CHILDREN
+                } else {
+                    SCATTER_COPY
+                };
+                rec.dispatch(
+                    &self.scatter,
+                    &[&self.decisions, &self.slots, src[k].0, dstg[k].0],
+                    &ScatterPush {
+                        count: count as u32,
+                        stride: stride as u32,
+                        mode,
+                    },
+                    self.ctx.groups_1d(count as u64, WG),
+                );
+            }
+        }
+        rec.dispatch(
+            &self.split,
+            &[
+                &self.decisions,
+                &self.slots,
+                &state.params.positions,
+                &state.params.log_scales,
+                &state.params.rotations,
+                &dst.params.positions,
+                &dst.params.log_scales,
+            ],
+            &SplitPush {
+                count: count as u32,
+                seed: rng::fold_seed(self.config.seed),
+                step: args.iteration,
+                log_split_shrink: t.log_split_shrink,
+            },
+            self.ctx.groups_1d(count as u64, WG),
+        );
+        if !grew {
+            self.record_reset_stats(rec);
+        }
+        rec.submit_and_wait()?;
+        rec.begin()?;
+
+        dst.set_count(after);
+        std::mem::swap(state, &mut dst);
+        // The old buffers are the next destination when the capacity did not change.
+        if !grew {
+            self.spare = Some(dst);
+        }
+        Ok(DensifyOutcome {
+            before: count,
+            after,
+            kept,
+            clones: kept_and_clones - kept,
+            split_children: after - kept_and_clones,
+            grew,
+            capacity,
+        })
+    }
+
+    /// `record_decide` then `apply`: one densify-and-prune step.
+    pub fn step(
+        &mut self,
+        rec: &mut Recorder,
+        state: &mut SplatState,
+        args: &DensifyArgs,
+        threshold_scale: Option<&GpuBuffer<f32>>,
+    ) -> anyhow::Result<DensifyOutcome> {
+        self.record_decide(rec, state, args, threshold_scale)?;
+        self.apply(rec, state, args)
+    }
+
+    /// Records the opacity reset of `state`: opacity = min(opacity, `opacity_reset_value`) and
+    /// the opacity group's moments zeroed (first `count` Gaussians).
+    pub fn record_opacity_reset(
+        &self,
+        rec: &mut Recorder,
+        state: &SplatState,
+    ) -> anyhow::Result<()> {
+        let max_logit = reset_logit(&self.config)?;
+        let count = state.count();
+        if count == 0 {
+            return Ok(());
+        }
+        rec.barrier();
+        rec.dispatch(
+            &self.reset,
+            &[
+                &state.params.opacity_logits,
+                &state.m.opacity_logits,
+                &state.v.opacity_logits,
+            ],
+            &ResetPush {
+                count: count as u32,
+                max_logit,
+            },
+            self.ctx.groups_1d(count as u64, WG),
+        );
+        rec.barrier();
+        Ok(())
+    }
+}

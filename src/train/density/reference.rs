@@ -1,0 +1,258 @@
+//! Host reference of density control on [`GaussianParams`]-shaped data: the same decisions
+//! (same f32 arithmetic, same thresholds), the same layout, the same RNG. Split children's
+//! positions are computed in f64 (the GPU's `exp`/`log`/`cos` are not correctly rounded), every
+//! other value is reproduced exactly.
+
+use super::rng::rng_normal;
+use super::{Thresholds, DECIDE_CLONE, DECIDE_LOWERED, DECIDE_REMOVE, DECIDE_SPLIT};
+use crate::reference::project::{normalize_quat, quat_to_rotation};
+use crate::splats::GaussianParams;
+
+/// Parameters and their Adam moments (the moments use the parameter layout).
+#[derive(Debug, Clone, PartialEq)]
+pub struct HostState {
+    pub params: GaussianParams,
+    pub m: GaussianParams,
+    pub v: GaussianParams,
+}
+
+/// The statistics of [`super::DensityStats`] on the host.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct HostStats {
+    pub grad_accum: Vec<f32>,
+    pub denom: Vec<f32>,
+    pub max_radii: Vec<f32>,
+}
+
+impl HostStats {
+    pub fn zeros(n: usize) -> Self {
+        Self {
+            grad_accum: vec![0.0; n],
+            denom: vec![0.0; n],
+            max_radii: vec![0.0; n],
+        }
+    }
+
+    /// One view: visible (radius > 0) Gaussians add their norm, count the view, keep the max
+    /// radius.
+    pub fn accumulate(&mut self, view_grad_norm: &[f32], radii: &[f32]) {
+        for (i, &r) in radii.iter().enumerate() {
+            if r > 0.0 {
+                self.grad_accum[i] += view_grad_norm[i];
+                self.denom[i] += 1.0;
+                self.max_radii[i] = self.max_radii[i].max(r);
+            }
+        }
+    }
+}
+
+/// The decision word of every Gaussian (`DECIDE_*` bits), as `decide.comp` computes it.
+pub fn decide(
+    t: &Thresholds,
+    stats: &HostStats,
+    params: &GaussianParams,
+    threshold_scale: Option<&[f32]>,
+) -> Vec<u32> {
+    (0..params.len())
+        .map(|i| {
+            let dn = stats.denom[i];
+            let stat = if dn > 0.0 {
+                stats.grad_accum[i] / dn
+            } else {
+                0.0
+            };
+            let thr = match threshold_scale {
+                Some(s) => t.grad_threshold * s[i],
+                None => t.grad_threshold,
+            };
+            let densify = stat >= thr;
+            let s = params.log_scales[i];
+            let ls = s[0].max(s[1]).max(s[2]);
+            let clone = densify && ls <= t.log_clone_max;
+            let split = densify && ls > t.log_clone_max;
+            let faint = params.opacity_logits[i] < t.min_opacity_logit;
+            let big = t.prune_large && ls > t.log_world_max;
+            let big_screen = t.screen_max >= 0.0 && stats.max_radii[i] > t.screen_max;
+            let child_big = t.prune_large && (ls - t.log_split_shrink) > t.log_world_max;
+            let mut d = 0;
+            if faint || big || big_screen {
+                d |= DECIDE_REMOVE;
+            }
+            if clone && !faint && !big {
+                d |= DECIDE_CLONE;
+            }
+            if split {
+                d |= if faint || child_big {
+                    DECIDE_REMOVE
+                } else {
+                    DECIDE_SPLIT
+                };
+            }
+            // Written as the kernel does (a NaN statistic never densifies, so it is never `lowered`).
+            let at_global = stat >= t.grad_threshold;
+            if (clone || split) && !at_global {
+                d |= DECIDE_LOWERED;
+            }
+            d
+        })
+        .collect()
+}
+
+fn keeps(d: u32) -> bool {
+    d & (DECIDE_REMOVE | DECIDE_SPLIT) == 0
+}
+
+/// Row `i` of every array of `p` appended to `out` (`zero`: zeros instead).
+fn push_row(out: &mut GaussianParams, p: &GaussianParams, i: usize, zero: bool) {
+    let z = |v: f32| if zero { 0.0 } else { v };
+    out.positions.push(p.positions[i].map(z));
+    out.log_scales.push(p.log_scales[i].map(z));
+    out.rotations.push(p.rotations[i].map(z));
+    out.opacity_logits.push(z(p.opacity_logits[i]));
+    out.sh_dc.push(p.sh_dc[i].map(z));
+    out.sh_rest
+        .extend(p.sh_rest_of(i).unwrap_or(&[]).iter().map(|&v| z(v)));
+}
+
+/// Position of split child `j` of Gaussian `i` (f64 math on the f32 inputs).
+pub fn child_position(p: &GaussianParams, i: usize, j: u32, seed: u32, step: u32) -> [f32; 3] {
+    let q = p.rotations[i].map(|v| v as f64);
+    let r = match normalize_quat(q) {
+        Some((u, _)) => quat_to_rotation(u),
+        None => [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+    };
+    let local: [f64; 3] = std::array::from_fn(|k| {
+        (p.log_scales[i][k] as f64).exp() * rng_normal(seed, step, i as u32, 3 * j + k as u32)
+    });
+    std::array::from_fn(|a| {
+        let off: f64 = (0..3).map(|k| r[a][k] * local[k]).sum();
+        (p.positions[i][a] as f64 + off) as f32
+    })
+}
+
+/// The state after applying `decisions`: survivors in order, then clones, then two adjacent
+/// children per split parent. New Gaussians get zero moments.
+pub fn apply(
+    state: &HostState,
+    decisions: &[u32],
+    seed: u32,
+    step: u32,
+    log_split_shrink: f32,
+) -> HostState {
+    let deg = state.params.sh_degree;
+    let mut out = HostState {
+        params: GaussianParams::empty(deg),
+        m: GaussianParams::empty(deg),
+        v: GaussianParams::empty(deg),
+    };
+    let p = &state.params;
+    for (i, &d) in decisions.iter().enumerate() {
+        if keeps(d) {
+            push_row(&mut out.params, p, i, false);
+            push_row(&mut out.m, &state.m, i, false);
+            push_row(&mut out.v, &state.v, i, false);
+        }
+    }
+    for (i, &d) in decisions.iter().enumerate() {
+        if d & DECIDE_CLONE != 0 {
+            push_row(&mut out.params, p, i, false);
+            push_row(&mut out.m, &state.m, i, true);
+            push_row(&mut out.v, &state.v, i, true);
+        }
+    }
+    for (i, &d) in decisions.iter().enumerate() {
+        if d & DECIDE_SPLIT != 0 {
+            for j in 0..2 {
+                push_row(&mut out.params, p, i, false);
+                let last = out.params.len() - 1;
+                out.params.positions[last] = child_position(p, i, j, seed, step);
+                out.params.log_scales[last] = p.log_scales[i].map(|v| v - log_split_shrink);
+                push_row(&mut out.m, &state.m, i, true);
+                push_row(&mut out.v, &state.v, i, true);
+            }
+        }
+    }
+    out
+}
+
+/// The opacity reset: logits capped at `max_logit`, opacity moments zeroed.
+pub fn reset_opacity(state: &mut HostState, max_logit: f32) {
+    for x in &mut state.params.opacity_logits {
+        *x = x.min(max_logit);
+    }
+    state.m.opacity_logits.iter_mut().for_each(|v| *v = 0.0);
+    state.v.opacity_logits.iter_mut().for_each(|v| *v = 0.0);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::{DensifyArgs, DensityConfig};
+    use super::*;
+
+    fn one(log_scale: f32, opacity_logit: f32) -> GaussianParams {
+        let mut p = GaussianParams::empty(0);
+        p.positions.push([0.0; 3]);
+        p.log_scales
+            .push([log_scale - 1.0, log_scale, log_scale - 2.0]);
+        p.rotations.push([1.0, 0.0, 0.0, 0.0]);
+        p.opacity_logits.push(opacity_logit);
+        p.sh_dc.push([0.0; 3]);
+        p
+    }
+
+    #[test]
+    fn rules_of_the_reference_on_single_gaussians() {
+        let extent = 2.0;
+        let args = |prune_large| DensifyArgs {
+            extent,
+            prune_large,
+            iteration: 1000,
+        };
+        let t = Thresholds::new(&DensityConfig::default(), &args(false)).unwrap();
+        let tl = Thresholds::new(&DensityConfig::default(), &args(true)).unwrap();
+        let stats = |g: f32, n: f32| HostStats {
+            grad_accum: vec![g * n],
+            denom: vec![n],
+            max_radii: vec![30.0],
+        };
+        let small = (0.005f32 * extent as f32).ln(); // below 0.01·extent
+        let mid = (0.05f32 * extent as f32).ln(); // between 0.01 and 0.1·extent
+        let huge = (0.5f32 * extent as f32).ln(); // above 0.1·extent
+        let opaque = 0.0; // opacity 0.5
+        let faint = -6.0; // opacity 0.0025
+        let d = |t: &Thresholds, s: &HostStats, p: &GaussianParams| decide(t, s, p, None)[0];
+        assert_eq!(d(&t, &stats(3e-4, 4.0), &one(small, opaque)), DECIDE_CLONE);
+        assert_eq!(d(&t, &stats(3e-4, 4.0), &one(mid, opaque)), DECIDE_SPLIT);
+        assert_eq!(d(&t, &stats(1e-4, 4.0), &one(mid, opaque)), 0);
+        assert_eq!(d(&t, &stats(3e-4, 0.0), &one(mid, opaque)), 0, "never seen");
+        assert_eq!(d(&t, &stats(0.0, 0.0), &one(small, faint)), DECIDE_REMOVE);
+        assert_eq!(
+            d(&t, &stats(3e-4, 2.0), &one(small, faint)),
+            DECIDE_REMOVE,
+            "a faint clone is pruned with its parent"
+        );
+        assert_eq!(
+            d(&t, &stats(3e-4, 2.0), &one(mid, faint)),
+            DECIDE_REMOVE,
+            "faint children are pruned"
+        );
+        assert_eq!(d(&t, &stats(0.0, 1.0), &one(huge, opaque)), 0);
+        assert_eq!(d(&tl, &stats(0.0, 1.0), &one(huge, opaque)), DECIDE_REMOVE);
+        // Children of a huge Gaussian are 1.6× smaller: still too big → nothing survives.
+        assert_eq!(d(&tl, &stats(1.0, 1.0), &one(huge, opaque)), DECIDE_REMOVE);
+        // A parent just above the limit has children below it.
+        let above = (0.12f32 * extent as f32).ln();
+        assert_eq!(
+            d(&tl, &stats(1.0, 1.0), &one(above, opaque)),
+            DECIDE_REMOVE | DECIDE_SPLIT
+        );
+        // Lowered threshold.
+        let p = one(small, opaque);
+        let s = stats(1.5e-4, 3.0);
+        assert_eq!(decide(&t, &s, &p, Some(&[1.0]))[0], 0);
+        assert_eq!(
+            decide(&t, &s, &p, Some(&[0.5]))[0],
+            DECIDE_CLONE | DECIDE_LOWERED
+        );
+    }
+}

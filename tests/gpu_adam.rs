@@ -1,0 +1,209 @@
+//! GPU Adam against the op-by-op host reference over 100 steps of random gradients, with the
+//! Inria learning-rate schedule, validation on.
+
+use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder};
+use lpmsplat::splats::gpu::GpuSplats;
+use lpmsplat::splats::GaussianParams;
+use lpmsplat::train::adam::{adam_host_step, Adam, SplatState};
+use lpmsplat::train::schedule::LearningRates;
+use rand::{Rng, SeedableRng};
+use std::sync::Arc;
+
+fn ctx() -> Arc<GpuContext> {
+    GpuContext::new(&GpuOptions::for_tests()).expect("a Vulkan device with the validation layer")
+}
+
+/// Random values for every field (magnitudes spread over decades, some exact zeros).
+fn random_params(rng: &mut impl Rng, n: usize, degree: u32, scale: f32) -> GaussianParams {
+    let mut p = GaussianParams::empty(degree);
+    let v = |rng: &mut dyn rand::RngCore| -> f32 {
+        if rng.gen_bool(0.05) {
+            0.0
+        } else {
+            scale * rng.gen_range(-1.0f32..1.0) * 10f32.powi(rng.gen_range(-4..1))
+        }
+    };
+    for _ in 0..n {
+        p.positions.push([(); 3].map(|_| v(rng)));
+        p.log_scales.push([(); 3].map(|_| v(rng)));
+        p.rotations.push([(); 4].map(|_| v(rng)));
+        p.opacity_logits.push(v(rng));
+        p.sh_dc.push([(); 3].map(|_| v(rng)));
+    }
+    let rest = p.rest_stride();
+    p.sh_rest = (0..n * rest).map(|_| v(rng)).collect();
+    p
+}
+
+/// Flat f32 arrays per group, in `GpuSplats::groups()` order.
+fn flat(p: &GaussianParams) -> [Vec<f32>; 6] {
+    [
+        bytemuck::cast_slice(&p.positions).to_vec(),
+        bytemuck::cast_slice(&p.log_scales).to_vec(),
+        bytemuck::cast_slice(&p.rotations).to_vec(),
+        p.opacity_logits.clone(),
+        bytemuck::cast_slice(&p.sh_dc).to_vec(),
+        p.sh_rest.clone(),
+    ]
+}
+
+fn ulps(a: f32, b: f32) -> u32 {
+    let key = |x: f32| {
+        let i = x.to_bits() as i32;
+        if i < 0 {
+            i32::MIN.wrapping_sub(i)
+        } else {
+            i
+        }
+    };
+    key(a).wrapping_sub(key(b)).unsigned_abs()
+}
+
+#[test]
+fn hundred_steps_match_the_host_reference() {
+    let ctx = ctx();
+    let exact = ctx.info.driver.to_lowercase().contains("llvmpipe")
+        || ctx.info.name.to_lowercase().contains("llvmpipe");
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(2024);
+    let (n, degree, steps) = (1_500usize, 3u32, 100u32);
+    let capacity = n + 77;
+    let params = random_params(&mut rng, n, degree, 1.0);
+    let state = SplatState::new(&ctx, GpuSplats::upload(&ctx, &params, capacity).unwrap()).unwrap();
+    // Poison the tails past `count`: Adam must not touch them.
+    const TAIL: u32 = 0x7FC0_0000;
+    let mut rec = Recorder::new(&ctx).unwrap();
+    for set in [&state.params, &state.m, &state.v] {
+        for (buf, stride) in set.groups() {
+            if stride > 0 {
+                let tail = vec![f32::from_bits(TAIL); (capacity - n) * stride];
+                let mut whole = buf.read_range(0, n * stride).unwrap();
+                whole.extend(tail);
+                buf.upload(&whole).unwrap();
+            }
+        }
+    }
+    // All gradients in one buffer per group, copied into the gradient set step by step, so the
+    // 100 steps are one submission. A third of the rows are zero each step (unseen Gaussians).
+    let grads = GpuSplats::zeroed(&ctx, "grad ", degree, n, capacity).unwrap();
+    let mut all: [Vec<f32>; 6] = Default::default();
+    for _ in 0..steps {
+        let mut g = random_params(&mut rng, n, degree, 0.3);
+        for i in 0..n {
+            if rng.gen_bool(0.33) {
+                g.positions[i] = [0.0; 3];
+                g.log_scales[i] = [0.0; 3];
+                g.rotations[i] = [0.0; 4];
+                g.opacity_logits[i] = 0.0;
+                g.sh_dc[i] = [0.0; 3];
+                let r = g.rest_stride();
+                g.sh_rest[i * r..(i + 1) * r].fill(0.0);
+            }
+        }
+        for (k, f) in flat(&g).into_iter().enumerate() {
+            all[k].extend(f);
+        }
+    }
+    let all_gpu: Vec<GpuBuffer<f32>> = all
+        .iter()
+        .map(|v| GpuBuffer::from_slice(&ctx, "all grads", v).unwrap())
+        .collect();
+    let adam = Adam::new(&ctx).unwrap();
+    let lrs = LearningRates::default();
+    let extent = 4.2;
+    rec.begin().unwrap();
+    for t in 1..=steps {
+        for (k, (buf, stride)) in grads.groups().into_iter().enumerate() {
+            let len = n * stride;
+            rec.copy_region(&all_gpu[k], (t as usize - 1) * len, buf, 0, len);
+        }
+        adam.record_state(&ctx, &mut rec, &state, &grads, t, &lrs.at(t, extent))
+            .unwrap();
+    }
+    rec.submit_and_wait().unwrap();
+
+    // Host: the same steps.
+    let mut hp = flat(&params);
+    let mut hm: [Vec<f32>; 6] = std::array::from_fn(|k| vec![0.0; hp[k].len()]);
+    let mut hv = hm.clone();
+    for t in 1..=steps {
+        let lr = lrs.at(t, extent).0;
+        for k in 0..6 {
+            let len = hp[k].len();
+            let g = &all[k][(t as usize - 1) * len..t as usize * len];
+            adam_host_step(&adam.hyper, &mut hp[k], g, &mut hm[k], &mut hv[k], lr[k], t);
+        }
+    }
+    let mut worst = 0u32;
+    for (set, host) in [(&state.params, &hp), (&state.m, &hm), (&state.v, &hv)] {
+        for (k, (buf, stride)) in set.groups().into_iter().enumerate() {
+            let got = buf.read().unwrap();
+            let len = n * stride;
+            for i in 0..len {
+                assert!(got[i].is_finite(), "group {k} element {i} not finite");
+                worst = worst.max(ulps(got[i], host[k][i]));
+            }
+            assert!(
+                got[len..capacity * stride]
+                    .iter()
+                    .all(|v| v.to_bits() == TAIL),
+                "group {k}: Adam wrote past count"
+            );
+        }
+    }
+    eprintln!(
+        "Adam GPU vs host after {steps} steps: max {worst} ulp ({})",
+        ctx.info.name
+    );
+    if exact {
+        assert_eq!(
+            worst, 0,
+            "lavapipe rounds / and sqrt correctly: expected bit-exact"
+        );
+    } else {
+        assert!(worst <= 64, "max {worst} ulp");
+    }
+    // The parameters moved, including rows that had zero gradient at the last step.
+    let moved = hp[0]
+        .iter()
+        .zip(flat(&params)[0].iter())
+        .filter(|(a, b)| a != b)
+        .count();
+    assert!(moved > hp[0].len() * 9 / 10, "{moved}");
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn bad_calls_are_refused() {
+    let ctx = ctx();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
+    let p = random_params(&mut rng, 10, 1, 1.0);
+    let state = SplatState::new(&ctx, GpuSplats::upload(&ctx, &p, 10).unwrap()).unwrap();
+    let grads = GpuSplats::zeroed(&ctx, "g ", 1, 10, 10).unwrap();
+    let small = GpuSplats::zeroed(&ctx, "g ", 1, 5, 5).unwrap();
+    let other_degree = GpuSplats::zeroed(&ctx, "g ", 2, 10, 10).unwrap();
+    let adam = Adam::new(&ctx).unwrap();
+    let lrs = LearningRates::default().at(1, 1.0);
+    let mut rec = Recorder::new(&ctx).unwrap();
+    let (pa, m, v) = (&state.params, &state.m, &state.v);
+    assert!(adam
+        .record(&ctx, &mut rec, pa, &grads, m, v, 10, 0, &lrs)
+        .is_err());
+    assert!(adam
+        .record(&ctx, &mut rec, pa, &small, m, v, 10, 1, &lrs)
+        .is_err());
+    assert!(adam
+        .record(&ctx, &mut rec, pa, &other_degree, m, v, 10, 1, &lrs)
+        .is_err());
+    assert!(adam
+        .record(&ctx, &mut rec, pa, &grads, m, v, 11, 1, &lrs)
+        .is_err());
+    let mut nan = lrs;
+    nan.0[3] = f64::NAN;
+    assert!(adam
+        .record(&ctx, &mut rec, pa, &grads, m, v, 10, 1, &nan)
+        .is_err());
+    adam.record(&ctx, &mut rec, pa, &grads, m, v, 10, 1, &lrs)
+        .unwrap();
+    rec.submit_and_wait().unwrap();
+    ctx.check_validation().unwrap();
+}

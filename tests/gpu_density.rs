@@ -1,0 +1,629 @@
+//! GPU density control against the host reference (`train::density::reference`): statistics,
+//! decisions, compaction of every per-Gaussian buffer, split samples, opacity reset, growth past
+//! the capacity, the decision hook. Validation on; destinations poisoned before every step.
+
+use lpmsplat::gpu::{BufferKind, GpuBuffer, GpuContext, GpuOptions, Recorder};
+use lpmsplat::render::layout::ProjectedGpu;
+use lpmsplat::splats::gpu::{grown_capacity, GpuSplats};
+use lpmsplat::splats::GaussianParams;
+use lpmsplat::train::adam::SplatState;
+use lpmsplat::train::density::reference::{self, HostState, HostStats};
+use lpmsplat::train::density::rng::fold_seed;
+use lpmsplat::train::density::{
+    reset_logit, DensifyArgs, DensityConfig, DensityControl, Thresholds, DECIDE_CLONE,
+    DECIDE_REMOVE, DECIDE_SPLIT,
+};
+use rand::{Rng, SeedableRng};
+use std::sync::Arc;
+
+const NAN_BITS: u32 = 0x7FC0_0000;
+
+fn ctx() -> Arc<GpuContext> {
+    GpuContext::new(&GpuOptions::for_tests()).expect("a Vulkan device with the validation layer")
+}
+
+fn normal(rng: &mut impl Rng) -> f32 {
+    let u1: f64 = rng.gen_range(1e-12..1.0);
+    let u2: f64 = rng.gen();
+    ((-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()) as f32
+}
+
+/// Random Gaussians whose scales straddle the clone / split / world-size limits of `extent`
+/// and whose opacities straddle the prune limit.
+fn random_params(rng: &mut impl Rng, n: usize, degree: u32, extent: f32) -> GaussianParams {
+    let mut p = GaussianParams::empty(degree);
+    for _ in 0..n {
+        p.positions.push([(); 3].map(|_| rng.gen_range(-1.0..1.0)));
+        let top = (extent * 10f32.powf(rng.gen_range(-3.0..0.0))).ln();
+        p.log_scales.push([
+            top,
+            top - rng.gen_range(0.0..2.0),
+            top - rng.gen_range(0.0..2.0),
+        ]);
+        p.rotations.push([(); 4].map(|_| normal(rng)));
+        p.opacity_logits.push(rng.gen_range(-7.0..4.0));
+        p.sh_dc.push([(); 3].map(|_| normal(rng)));
+    }
+    p.sh_rest = (0..n * p.rest_stride())
+        .map(|_| normal(rng) * 0.1)
+        .collect();
+    p
+}
+
+/// Moments: any values (v non-negative).
+fn random_moments(rng: &mut impl Rng, n: usize, degree: u32, positive: bool) -> GaussianParams {
+    let mut p = GaussianParams::empty(degree);
+    let mut v = || {
+        let x = normal(rng) * 1e-3;
+        if positive {
+            x.abs()
+        } else {
+            x
+        }
+    };
+    for _ in 0..n {
+        p.positions.push([v(), v(), v()]);
+        p.log_scales.push([v(), v(), v()]);
+        p.rotations.push([v(), v(), v(), v()]);
+        p.opacity_logits.push(v());
+        p.sh_dc.push([v(), v(), v()]);
+    }
+    p.sh_rest = (0..n * p.rest_stride()).map(|_| v()).collect();
+    p
+}
+
+fn upload_state(ctx: &Arc<GpuContext>, h: &HostState, capacity: usize) -> SplatState {
+    // Moments are uploaded through the parameter path (same layout).
+    SplatState {
+        params: GpuSplats::upload(ctx, &h.params, capacity).unwrap(),
+        m: GpuSplats::upload(ctx, &h.m, capacity).unwrap(),
+        v: GpuSplats::upload(ctx, &h.v, capacity).unwrap(),
+    }
+}
+
+fn download_state(s: &SplatState) -> HostState {
+    HostState {
+        params: s.params.download().unwrap(),
+        m: s.m.download().unwrap(),
+        v: s.v.download().unwrap(),
+    }
+}
+
+fn random_stats(rng: &mut impl Rng, n: usize) -> HostStats {
+    let denom: Vec<f32> = (0..n).map(|_| rng.gen_range(0..6) as f32).collect();
+    HostStats {
+        grad_accum: denom
+            .iter()
+            .map(|&d| d * 10f32.powf(rng.gen_range(-5.0..-2.5)))
+            .collect(),
+        denom,
+        max_radii: (0..n)
+            .map(|_| rng.gen_range(0.0..40.0f32).floor())
+            .collect(),
+    }
+}
+
+fn upload_stats(dc: &DensityControl, s: &HostStats) {
+    dc.stats().grad_accum.upload(&s.grad_accum).unwrap();
+    dc.stats().denom.upload(&s.denom).unwrap();
+    dc.stats().max_radii.upload(&s.max_radii).unwrap();
+}
+
+/// A destination state filled with NaN bits, so any row the step forgets shows up.
+fn poisoned_spare(ctx: &Arc<GpuContext>, degree: u32, capacity: usize) -> SplatState {
+    let s = SplatState::zeroed(ctx, degree, 0, capacity).unwrap();
+    let mut rec = Recorder::new(ctx).unwrap();
+    for set in [&s.params, &s.m, &s.v] {
+        for (b, _) in set.groups() {
+            rec.fill(b, NAN_BITS);
+        }
+    }
+    rec.submit_and_wait().unwrap();
+    s
+}
+
+fn bits<T: bytemuck::Pod>(v: &[T]) -> Vec<u32> {
+    bytemuck::cast_slice::<T, u32>(v).to_vec()
+}
+
+/// Exact comparison except the children's positions (rows ≥ `children_from`), which the GPU
+/// computes with its own exp / log / cos.
+fn assert_states_match(gpu: &HostState, host: &HostState, children_from: usize, what: &str) {
+    assert_eq!(gpu.params.len(), host.params.len(), "{what}: count");
+    let (g, h) = (&gpu.params, &host.params);
+    for i in 0..h.len() {
+        for a in 0..3 {
+            let (x, y) = (g.positions[i][a], h.positions[i][a]);
+            if i < children_from {
+                assert_eq!(x.to_bits(), y.to_bits(), "{what}: position {i}");
+            } else {
+                assert!(
+                    (x - y).abs() <= 2e-5 * (1.0 + y.abs()),
+                    "{what}: child {i} position {x} vs {y}"
+                );
+            }
+        }
+    }
+    assert_eq!(
+        bits(&g.log_scales),
+        bits(&h.log_scales),
+        "{what}: log_scales"
+    );
+    assert_eq!(bits(&g.rotations), bits(&h.rotations), "{what}: rotations");
+    assert_eq!(
+        bits(&g.opacity_logits),
+        bits(&h.opacity_logits),
+        "{what}: opacity"
+    );
+    assert_eq!(bits(&g.sh_dc), bits(&h.sh_dc), "{what}: sh_dc");
+    assert_eq!(bits(&g.sh_rest), bits(&h.sh_rest), "{what}: sh_rest");
+    assert_eq!(gpu.m, host.m, "{what}: first moments");
+    assert_eq!(gpu.v, host.v, "{what}: second moments");
+}
+
+/// Rows in `[count, capacity)` of every buffer must still hold the poison.
+fn assert_tail_untouched(s: &SplatState, what: &str) {
+    let (n, cap) = (s.count(), s.capacity());
+    for set in [&s.params, &s.m, &s.v] {
+        for (b, stride) in set.groups() {
+            if stride > 0 && cap > n {
+                let tail = b.read_range(n * stride, (cap - n) * stride).unwrap();
+                assert!(
+                    tail.iter().all(|v| v.to_bits() == NAN_BITS),
+                    "{what}: {} written past the new count",
+                    b.name()
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn constructed_cases_clone_split_and_prune_exactly_the_expected_gaussians() {
+    let ctx = ctx();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(1);
+    let extent = 2.0f32;
+    let degree = 1;
+    let small = (0.005 * extent).ln();
+    let mid = (0.05 * extent).ln();
+    let huge = (0.5 * extent).ln();
+    // (max log-scale, opacity logit, grad_accum, denom)
+    let cases: [(f32, f32, f32, f32); 9] = [
+        (small, 0.0, 9e-4, 3.0),  // 0: clone
+        (mid, 1.0, 9e-4, 3.0),    // 1: split
+        (mid, 1.0, 1e-4, 1.0),    // 2: keep (low gradient)
+        (small, -6.0, 0.0, 0.0),  // 3: prune (faint)
+        (huge, 2.0, 0.0, 2.0),    // 4: prune (world size)
+        (small, -6.0, 9e-4, 1.0), // 5: prune, and its clone too
+        (mid, 0.5, 5e-3, 0.0),    // 6: keep (never seen: stat 0)
+        (small, 0.5, 2e-4, 1.0),  // 7: clone (stat exactly at the threshold)
+        (huge, 0.5, 9e-4, 1.0),   // 8: split, children still too large: all removed
+    ];
+    let n = cases.len();
+    let mut params = random_params(&mut rng, n, degree, extent);
+    for (i, c) in cases.iter().enumerate() {
+        params.log_scales[i] = [c.0 - 0.5, c.0, c.0 - 1.0];
+        params.opacity_logits[i] = c.1;
+    }
+    let host = HostState {
+        m: random_moments(&mut rng, n, degree, false),
+        v: random_moments(&mut rng, n, degree, true),
+        params,
+    };
+    let stats = HostStats {
+        grad_accum: cases.iter().map(|c| c.2).collect(),
+        denom: cases.iter().map(|c| c.3).collect(),
+        max_radii: vec![100.0; n],
+    };
+    let capacity = 16;
+    let mut state = upload_state(&ctx, &host, capacity);
+    let cfg = DensityConfig {
+        seed: 99,
+        ..Default::default()
+    };
+    let mut dc = DensityControl::new(&ctx, capacity, cfg).unwrap();
+    upload_stats(&dc, &stats);
+    dc.set_spare(poisoned_spare(&ctx, degree, capacity));
+    let args = DensifyArgs {
+        extent: extent as f64,
+        prune_large: true,
+        iteration: 700,
+    };
+    let mut rec = Recorder::new(&ctx).unwrap();
+    let out = dc.step(&mut rec, &mut state, &args, None).unwrap();
+    let d = dc.decisions().read_range(0, n).unwrap();
+    assert_eq!(
+        d,
+        vec![
+            DECIDE_CLONE,
+            DECIDE_SPLIT,
+            0,
+            DECIDE_REMOVE,
+            DECIDE_REMOVE,
+            DECIDE_REMOVE,
+            0,
+            DECIDE_CLONE,
+            DECIDE_REMOVE
+        ]
+    );
+    assert_eq!(
+        (
+            out.before,
+            out.kept,
+            out.clones,
+            out.split_children,
+            out.after
+        ),
+        (9, 4, 2, 2, 8)
+    );
+    assert!(!out.grew);
+    let gpu = download_state(&state);
+    // Survivors 0, 2, 6, 7 in order; clones of 0 and 7; children of 1.
+    let p = &host.params;
+    for (row, src) in [0usize, 2, 6, 7, 0, 7].into_iter().enumerate() {
+        assert_eq!(gpu.params.positions[row], p.positions[src], "row {row}");
+        assert_eq!(gpu.params.log_scales[row], p.log_scales[src]);
+        assert_eq!(gpu.params.sh_rest_of(row), p.sh_rest_of(src));
+        let (m, v) = if row < 4 {
+            (host.m.sh_dc[src], host.v.sh_dc[src])
+        } else {
+            ([0.0; 3], [0.0; 3])
+        };
+        assert_eq!(gpu.m.sh_dc[row], m, "row {row} moments");
+        assert_eq!(gpu.v.sh_dc[row], v, "row {row} moments");
+    }
+    for row in 6..8 {
+        let shrink = 1.6f64.ln() as f32;
+        assert_eq!(
+            gpu.params.log_scales[row],
+            p.log_scales[1].map(|v| v - shrink)
+        );
+        assert_eq!(gpu.params.rotations[row], p.rotations[1]);
+        assert_eq!(gpu.params.opacity_logits[row], p.opacity_logits[1]);
+        assert_ne!(gpu.params.positions[row], p.positions[1]);
+        assert_eq!(gpu.m.positions[row], [0.0; 3]);
+    }
+    // And the whole state equals the host reference.
+    let t = Thresholds::new(&cfg, &args).unwrap();
+    let expect = reference::apply(&host, &d, fold_seed(cfg.seed), 700, t.log_split_shrink);
+    assert_states_match(&gpu, &expect, 6, "constructed");
+    assert_tail_untouched(&state, "constructed");
+    // Statistics are zero after the step.
+    for b in [
+        &dc.stats().grad_accum,
+        &dc.stats().denom,
+        &dc.stats().max_radii,
+    ] {
+        assert!(b.read().unwrap().iter().all(|&v| v == 0.0));
+    }
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn random_steps_match_the_host_reference_and_grow_past_the_capacity() {
+    let ctx = ctx();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(77);
+    let (n, degree, extent) = (2_000usize, 2u32, 3.0f32);
+    let mut host = HostState {
+        params: random_params(&mut rng, n, degree, extent),
+        m: random_moments(&mut rng, n, degree, false),
+        v: random_moments(&mut rng, n, degree, true),
+    };
+    let mut state = upload_state(&ctx, &host, n + 50);
+    let cfg = DensityConfig {
+        seed: 0x1234_5678_9abc,
+        ..Default::default()
+    };
+    let mut dc = DensityControl::new(&ctx, n + 50, cfg).unwrap();
+    let mut rec = Recorder::new(&ctx).unwrap();
+    let mut grew = 0;
+    for step in 0..7u32 {
+        let count = state.count();
+        let cap = state.capacity();
+        assert_eq!(dc.stats().capacity(), cap);
+        let stats = random_stats(&mut rng, count);
+        upload_stats(&dc, &stats);
+        let mut cfg_step = cfg;
+        cfg_step.screen_size_limit = (step == 5).then_some(20.0);
+        dc.config = cfg_step;
+        let args = DensifyArgs {
+            extent: extent as f64,
+            prune_large: step % 2 == 1,
+            iteration: 600 + 100 * step,
+        };
+        // Some steps lower the threshold for part of the Gaussians (the LPM input).
+        let scale: Option<Vec<f32>> = (step % 3 == 2).then(|| {
+            (0..count)
+                .map(|_| if rng.gen_bool(0.3) { 0.5 } else { 1.0 })
+                .collect()
+        });
+        let scale_buf = scale
+            .as_ref()
+            .map(|s| GpuBuffer::from_slice(&ctx, "threshold scale", s).unwrap());
+        dc.set_spare(poisoned_spare(&ctx, degree, cap));
+        let out = dc
+            .step(&mut rec, &mut state, &args, scale_buf.as_ref())
+            .unwrap();
+
+        let t = Thresholds::new(&cfg_step, &args).unwrap();
+        let d = reference::decide(&t, &stats, &host.params, scale.as_deref());
+        assert_eq!(
+            dc.decisions().read_range(0, count).unwrap(),
+            d,
+            "step {step}"
+        );
+        let expect = reference::apply(
+            &host,
+            &d,
+            fold_seed(cfg.seed),
+            args.iteration,
+            t.log_split_shrink,
+        );
+        assert_eq!(out.after, expect.params.len(), "step {step}");
+        let gpu = download_state(&state);
+        assert_states_match(
+            &gpu,
+            &expect,
+            out.kept + out.clones,
+            &format!("step {step}"),
+        );
+        if out.grew {
+            grew += 1;
+            assert_eq!(state.capacity(), grown_capacity(out.after));
+            assert_eq!(dc.stats().capacity(), state.capacity());
+        } else {
+            assert_eq!(state.capacity(), cap);
+            assert_tail_untouched(&state, &format!("step {step}"));
+        }
+        assert!(out.clones > 0 && out.split_children > 0 && out.kept < count);
+        eprintln!("step {step}: {out:?}");
+        // Continue from the GPU's state so the children's rounding does not accumulate.
+        host = gpu;
+    }
+    assert!(grew >= 1, "the test must exercise growth");
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn split_children_are_samples_of_the_parent_and_deterministic() {
+    let ctx = ctx();
+    let n = 12_000usize;
+    let extent = 1.0f32;
+    let mut p = GaussianParams::empty(0);
+    let (mean, ls) = (
+        [0.3f32, -1.2, 2.0],
+        [0.2f32.ln(), 0.05f32.ln(), 0.1f32.ln()],
+    );
+    let q = [0.8f32, 0.3, -0.4, 0.2];
+    for _ in 0..n {
+        p.positions.push(mean);
+        p.log_scales.push(ls);
+        p.rotations.push(q);
+        p.opacity_logits.push(1.0);
+        p.sh_dc.push([0.1, 0.2, 0.3]);
+    }
+    let zeros = GaussianParams {
+        positions: vec![[0.0; 3]; n],
+        log_scales: vec![[0.0; 3]; n],
+        rotations: vec![[0.0; 4]; n],
+        opacity_logits: vec![0.0; n],
+        sh_dc: vec![[0.0; 3]; n],
+        ..GaussianParams::empty(0)
+    };
+    let host = HostState {
+        params: p,
+        m: zeros.clone(),
+        v: zeros,
+    };
+    let stats = HostStats {
+        grad_accum: vec![1e-3; n],
+        denom: vec![1.0; n],
+        max_radii: vec![0.0; n],
+    };
+    let args = DensifyArgs {
+        extent: extent as f64,
+        prune_large: false,
+        iteration: 1200,
+    };
+    let run = |seed: u64| {
+        let mut state = upload_state(&ctx, &host, n);
+        let cfg = DensityConfig {
+            seed,
+            ..Default::default()
+        };
+        let mut dc = DensityControl::new(&ctx, n, cfg).unwrap();
+        upload_stats(&dc, &stats);
+        let mut rec = Recorder::new(&ctx).unwrap();
+        let out = dc.step(&mut rec, &mut state, &args, None).unwrap();
+        assert_eq!((out.kept, out.split_children, out.after), (0, 2 * n, 2 * n));
+        assert!(out.grew, "2n children do not fit a capacity of n");
+        download_state(&state).params
+    };
+    let a = run(5);
+    // Mean and covariance of the children against the parent's N(mean, R S² Rᵀ).
+    let m = 2 * n;
+    let mut mu = [0.0f64; 3];
+    for x in &a.positions {
+        for k in 0..3 {
+            mu[k] += x[k] as f64 / m as f64;
+        }
+    }
+    let mut cov = [[0.0f64; 3]; 3];
+    for x in &a.positions {
+        for r in 0..3 {
+            for c in 0..3 {
+                cov[r][c] += (x[r] as f64 - mu[r]) * (x[c] as f64 - mu[c]) / m as f64;
+            }
+        }
+    }
+    let qd = q.map(|v| v as f64);
+    let (u, _) = lpmsplat::reference::project::normalize_quat(qd).unwrap();
+    let rot = lpmsplat::reference::project::quat_to_rotation(u);
+    let s2 = ls.map(|v| (2.0 * v as f64).exp());
+    for r in 0..3 {
+        let var = (0..3).map(|k| rot[r][k] * rot[r][k] * s2[k]).sum::<f64>();
+        let se = (var / m as f64).sqrt();
+        assert!((mu[r] - mean[r] as f64).abs() < 4.0 * se, "mean axis {r}");
+        for c in 0..3 {
+            let want = (0..3).map(|k| rot[r][k] * rot[c][k] * s2[k]).sum::<f64>();
+            assert!(
+                (cov[r][c] - want).abs() < 0.05 * 0.04,
+                "cov[{r}][{c}] {} vs {want}",
+                cov[r][c]
+            );
+        }
+    }
+    let shrink = 1.6f64.ln() as f32;
+    assert!(a.log_scales.iter().all(|s| *s == ls.map(|v| v - shrink)));
+    assert!(a.rotations.iter().all(|r| *r == q));
+    // Deterministic for a seed, different for another.
+    let b = run(5);
+    assert_eq!(bits(&a.positions), bits(&b.positions));
+    let c = run(6);
+    assert_ne!(a.positions[0], c.positions[0]);
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn statistics_accumulate_only_visible_gaussians() {
+    let ctx = ctx();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
+    let n = 5_000;
+    let dc = DensityControl::new(&ctx, n + 10, DensityConfig::default()).unwrap();
+    let mut host = HostStats::zeros(n + 10);
+    let norms = GpuBuffer::<f32>::new(&ctx, "norms", n, BufferKind::DeviceLocal).unwrap();
+    let proj =
+        GpuBuffer::<ProjectedGpu>::new(&ctx, "projected", n, BufferKind::DeviceLocal).unwrap();
+    for view in 0..5 {
+        let nv: Vec<f32> = (0..n).map(|_| rng.gen_range(0.0..1e-3)).collect();
+        let radii: Vec<f32> = (0..n)
+            .map(|_| {
+                if rng.gen_bool(0.4) {
+                    0.0
+                } else {
+                    rng.gen_range(1..50) as f32
+                }
+            })
+            .collect();
+        let projected: Vec<ProjectedGpu> = radii
+            .iter()
+            .map(|&radius| ProjectedGpu {
+                // Other fields are garbage on purpose: only the radius may matter.
+                mean_x: f32::NAN,
+                depth: -1.0,
+                radius,
+                flags: 0xFFFF_FFFF,
+                ..bytemuck::Zeroable::zeroed()
+            })
+            .collect();
+        norms.upload(&nv).unwrap();
+        proj.upload(&projected).unwrap();
+        let mut rec = Recorder::new(&ctx).unwrap();
+        // Count smaller than the buffers on one view: the rest must stay untouched.
+        let count = if view == 2 { n - 100 } else { n };
+        dc.record_accumulate(&mut rec, &norms, &proj, count)
+            .unwrap();
+        rec.submit_and_wait().unwrap();
+        host.accumulate(&nv[..count], &radii[..count]);
+    }
+    assert_eq!(
+        bits(&dc.stats().grad_accum.read().unwrap()),
+        bits(&host.grad_accum)
+    );
+    assert_eq!(dc.stats().denom.read().unwrap(), host.denom);
+    assert_eq!(dc.stats().max_radii.read().unwrap(), host.max_radii);
+    assert!(host.denom.contains(&0.0) && host.denom.contains(&5.0));
+    // Too many Gaussians for the buffers is refused.
+    let mut rec = Recorder::new(&ctx).unwrap();
+    assert!(dc
+        .record_accumulate(&mut rec, &norms, &proj, n + 1)
+        .is_err());
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn opacity_reset_caps_opacity_and_clears_only_the_opacity_moments() {
+    let ctx = ctx();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(8);
+    let (n, degree) = (3_000, 1);
+    let mut host = HostState {
+        params: random_params(&mut rng, n, degree, 1.0),
+        m: random_moments(&mut rng, n, degree, false),
+        v: random_moments(&mut rng, n, degree, true),
+    };
+    let state = upload_state(&ctx, &host, n);
+    let cfg = DensityConfig::default();
+    let dc = DensityControl::new(&ctx, n, cfg).unwrap();
+    let mut rec = Recorder::new(&ctx).unwrap();
+    dc.record_opacity_reset(&mut rec, &state).unwrap();
+    rec.submit_and_wait().unwrap();
+    let max_logit = reset_logit(&cfg).unwrap();
+    assert!((max_logit as f64 - (0.01f64 / 0.99).ln()).abs() < 1e-6);
+    let before = host.params.opacity_logits.clone();
+    reference::reset_opacity(&mut host, max_logit);
+    let gpu = download_state(&state);
+    assert_states_match(&gpu, &host, n, "opacity reset");
+    let capped = before.iter().filter(|&&x| x > max_logit).count();
+    assert!(capped > n / 2 && capped < n, "{capped}");
+    assert!(gpu.m.opacity_logits.iter().all(|&v| v == 0.0));
+    assert!(
+        gpu.m.sh_dc.iter().any(|v| v[0] != 0.0),
+        "other moments kept"
+    );
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn decisions_can_be_edited_between_decide_and_apply() {
+    // The LPM hook: extra pruning OR-ed into the decisions before the scan.
+    let ctx = ctx();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(12);
+    let (n, degree, extent) = (1_000usize, 0u32, 2.0f32);
+    let host = HostState {
+        params: random_params(&mut rng, n, degree, extent),
+        m: random_moments(&mut rng, n, degree, false),
+        v: random_moments(&mut rng, n, degree, true),
+    };
+    let cap = 4 * n;
+    let mut state = upload_state(&ctx, &host, cap);
+    let cfg = DensityConfig::default();
+    let mut dc = DensityControl::new(&ctx, cap, cfg).unwrap();
+    let stats = random_stats(&mut rng, n);
+    upload_stats(&dc, &stats);
+    let args = DensifyArgs {
+        extent: extent as f64,
+        prune_large: false,
+        iteration: 900,
+    };
+    let mut rec = Recorder::new(&ctx).unwrap();
+    dc.record_decide(&mut rec, &state, &args, None).unwrap();
+    rec.submit_and_wait().unwrap();
+    rec.begin().unwrap();
+    let mut d = dc.decisions().read_range(0, n).unwrap();
+    for (i, w) in d.iter_mut().enumerate() {
+        if i % 7 == 0 {
+            *w |= DECIDE_REMOVE;
+        }
+    }
+    dc.decisions().upload(&d).unwrap();
+    dc.set_spare(poisoned_spare(&ctx, degree, cap));
+    let out = dc.apply(&mut rec, &mut state, &args).unwrap();
+    let t = Thresholds::new(&cfg, &args).unwrap();
+    let expect = reference::apply(&host, &d, fold_seed(cfg.seed), 900, t.log_split_shrink);
+    assert_eq!(out.after, expect.params.len());
+    assert_states_match(
+        &download_state(&state),
+        &expect,
+        out.kept + out.clones,
+        "hook",
+    );
+    assert_tail_untouched(&state, "hook");
+    // apply needs a matching record_decide.
+    assert!(dc.apply(&mut rec, &mut state, &args).is_err());
+    let bad = DensifyArgs {
+        extent: 0.0,
+        ..args
+    };
+    assert!(dc.record_decide(&mut rec, &state, &bad, None).is_err());
+    ctx.check_validation().unwrap();
+}
