@@ -4,6 +4,7 @@ mod bench;
 mod info;
 mod matching;
 mod render;
+mod train;
 
 use clap::{Args, Parser, Subcommand};
 use lpmsplat::gpu::GpuOptions;
@@ -35,6 +36,8 @@ pub enum Command {
     Match(matching::MatchArgs),
     /// Render chosen cameras of a scene from a trained PLY into PNGs.
     Render(render::RenderArgs),
+    /// Train a scene (ADC baseline) and write the PLY, test renders and metrics.
+    Train(train::TrainArgs),
     /// Benchmarks: `bench fps` (rendering speed and per-stage GPU time).
     Bench(bench::BenchArgs),
 }
@@ -81,5 +84,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Match(a) => matching::run(&a),
         Command::Render(a) => render::run(&gpu, &a),
         Command::Bench(a) => bench::run(&gpu, &a),
+        Command::Train(a) => train::run(&gpu, &a),
     }
 }

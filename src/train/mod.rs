@@ -6,3 +6,4 @@ pub mod data;
 pub mod density;
 pub mod loss;
 pub mod schedule;
+pub mod trainer;

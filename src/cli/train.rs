@@ -1,0 +1,353 @@
+//! `train`: fits Gaussians to a scene's training views on the GPU and writes the output folder:
+//! `point_cloud.ply` (Inria layout), `renders/test/*.png`, `metrics.json`, `config.json`.
+
+use super::render::parse_rgb;
+use super::SceneArgs;
+use anyhow::Context;
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use lpmsplat::error::write_atomic;
+use lpmsplat::gpu::{GpuContext, GpuOptions, StageTimes};
+use lpmsplat::scene::{images, Image, Scene};
+use lpmsplat::splats::{self, read_ply, write_ply, GaussianParams};
+use lpmsplat::train::trainer::{Background, TrainConfig, Trainer, ViewMetrics};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+#[derive(Args, Debug)]
+pub struct TrainArgs {
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Output folder (created; existing files in it are replaced atomically).
+    #[arg(long, short = 'o')]
+    pub out: PathBuf,
+    #[arg(long, default_value_t = 30_000)]
+    pub iterations: u32,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Highest SH degree (0–3).
+    #[arg(long, default_value_t = 3)]
+    pub sh_degree: u32,
+    /// Background: black, white, random, or r,g,b. Default: white for NeRF-synthetic, else black.
+    #[arg(long)]
+    pub background: Option<String>,
+    /// Start from this PLY instead of the SfM points / random points.
+    #[arg(long)]
+    pub init_ply: Option<PathBuf>,
+    /// Random initial points for scenes without SfM points (the reference uses 100k).
+    #[arg(long, default_value_t = 100_000)]
+    pub init_points: usize,
+    /// Evaluate on the test views every N iterations (0 = only at the end).
+    #[arg(long, default_value_t = 0)]
+    pub eval_every: u32,
+    /// Collect per-stage GPU timestamps and report their shares.
+    #[arg(long)]
+    pub timestamps: bool,
+    // Learning rates and density control (reference defaults).
+    #[arg(long, default_value_t = 1.6e-4)]
+    pub lr_position: f64,
+    #[arg(long, default_value_t = 1.6e-6)]
+    pub lr_position_final: f64,
+    #[arg(long, default_value_t = 30_000)]
+    pub lr_position_max_steps: u32,
+    #[arg(long, default_value_t = 2.5e-3)]
+    pub lr_sh_dc: f64,
+    #[arg(long, default_value_t = 2.5e-3 / 20.0)]
+    pub lr_sh_rest: f64,
+    #[arg(long, default_value_t = 0.05)]
+    pub lr_opacity: f64,
+    #[arg(long, default_value_t = 5e-3)]
+    pub lr_scaling: f64,
+    #[arg(long, default_value_t = 1e-3)]
+    pub lr_rotation: f64,
+    #[arg(long, default_value_t = 0.2)]
+    pub ssim_weight: f32,
+    #[arg(long, default_value_t = 2e-4)]
+    pub densify_grad_threshold: f32,
+    #[arg(long, default_value_t = 500)]
+    pub densify_from: u32,
+    #[arg(long, default_value_t = 15_000)]
+    pub densify_until: u32,
+    #[arg(long, default_value_t = 100)]
+    pub densify_interval: u32,
+    #[arg(long, default_value_t = 3000)]
+    pub opacity_reset_interval: u32,
+    #[arg(long, default_value_t = 0.01)]
+    pub percent_dense: f64,
+    #[arg(long, default_value_t = 0.005)]
+    pub min_opacity: f64,
+    /// Prune Gaussians whose screen radius exceeds this many pixels (off by default, as the
+    /// reference's test never fires).
+    #[arg(long)]
+    pub screen_size_limit: Option<f32>,
+}
+
+pub fn background_from(arg: Option<&str>, scene: &Scene) -> anyhow::Result<Background> {
+    Ok(match arg {
+        None => Background::Fixed(scene.background.unwrap_or([0.0; 3])),
+        Some("black") => Background::Fixed([0.0; 3]),
+        Some("white") => Background::Fixed([1.0; 3]),
+        Some("random") => Background::Random,
+        Some(s) => Background::Fixed(parse_rgb(s).map_err(|e| {
+            anyhow::anyhow!("--background {e}; or use black, white or random")
+        })?),
+    })
+}
+
+impl TrainArgs {
+    pub fn config(&self, scene: &Scene) -> anyhow::Result<TrainConfig> {
+        anyhow::ensure!(
+            self.sh_degree <= 3,
+            "--sh-degree {}: the engine supports 0..=3. Fix: pass 0, 1, 2 or 3",
+            self.sh_degree
+        );
+        anyhow::ensure!(
+            self.iterations > 0,
+            "--iterations 0: nothing to train. Fix: pass at least 1"
+        );
+        anyhow::ensure!(
+            self.densify_from <= self.densify_until,
+            "--densify-from {} is after --densify-until {}. Fix: make from ≤ until",
+            self.densify_from,
+            self.densify_until
+        );
+        anyhow::ensure!(
+            (0.0..=1.0).contains(&self.ssim_weight),
+            "--ssim-weight {} must lie in [0, 1]",
+            self.ssim_weight
+        );
+        let mut c = TrainConfig {
+            iterations: self.iterations,
+            seed: self.seed,
+            sh_degree: self.sh_degree,
+            background: background_from(self.background.as_deref(), scene)?,
+            ssim_weight: self.ssim_weight,
+            timestamps: self.timestamps,
+            ..TrainConfig::default()
+        };
+        c.lr.position_init = self.lr_position;
+        c.lr.position_final = self.lr_position_final;
+        c.lr.position_max_steps = self.lr_position_max_steps;
+        c.lr.sh_dc = self.lr_sh_dc;
+        c.lr.sh_rest = self.lr_sh_rest;
+        c.lr.opacity = self.lr_opacity;
+        c.lr.scaling = self.lr_scaling;
+        c.lr.rotation = self.lr_rotation;
+        c.density.grad_threshold = self.densify_grad_threshold;
+        c.density.percent_dense = self.percent_dense;
+        c.density.min_opacity = self.min_opacity;
+        c.density.screen_size_limit = self.screen_size_limit;
+        c.schedule.densify_from = self.densify_from;
+        c.schedule.densify_until = self.densify_until;
+        c.schedule.interval = self.densify_interval;
+        c.schedule.opacity_reset_interval = self.opacity_reset_interval;
+        c.schedule.white_background = c.background == Background::Fixed([1.0; 3]);
+        Ok(c)
+    }
+}
+
+/// Initial Gaussians: a PLY, the SfM points, or random points in the cameras' bounds.
+pub fn initial_model(
+    scene: &Scene,
+    init_ply: Option<&Path>,
+    init_points: usize,
+    seed: u64,
+    sh_degree: u32,
+) -> anyhow::Result<GaussianParams> {
+    if let Some(p) = init_ply {
+        return read_ply(p);
+    }
+    match &scene.points {
+        Some(points) if !points.is_empty() => splats::init::from_sfm(points, sh_degree),
+        _ => {
+            // The reference's NeRF-synthetic box is ±1.3 around the origin; scale it with the
+            // cameras' extent for other scenes without points.
+            let half = if scene.background == Some([1.0; 3]) {
+                1.3
+            } else {
+                scene.extent / 1.1 * 0.5
+            };
+            splats::init::random_init(init_points, scene.center, [half; 3], seed, sh_degree)
+        }
+    }
+}
+
+/// Creates `out` and proves it writable before any work is done.
+pub fn prepare_output(out: &Path) -> anyhow::Result<()> {
+    std::fs::create_dir_all(out).with_context(|| {
+        format!(
+            "{}: cannot create the output folder. Fix: choose a writable --out",
+            out.display()
+        )
+    })?;
+    let probe = out.join(".lpmsplat-write-test");
+    std::fs::write(&probe, b"ok").with_context(|| {
+        format!(
+            "{}: the output folder is not writable. Fix: choose a writable --out",
+            out.display()
+        )
+    })?;
+    let _ = std::fs::remove_file(probe);
+    Ok(())
+}
+
+fn stage_shares(t: &StageTimes) -> serde_json::Value {
+    let total = t.total_ms().max(1e-12);
+    serde_json::Value::Array(
+        t.stages
+            .iter()
+            .map(|(n, ms)| serde_json::json!({"stage": n, "ms_total": ms, "share": ms / total}))
+            .collect(),
+    )
+}
+
+pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
+    let scene = Scene::load(&args.scene.scene, &args.scene.load_options()?)?;
+    let config = args.config(&scene)?;
+    prepare_output(&args.out)?;
+    let t_load = Instant::now();
+    let train_images = images::load_images(&scene, &scene.train)?;
+    let test_images = images::load_images(&scene, &scene.test)?;
+    let init = initial_model(
+        &scene,
+        args.init_ply.as_deref(),
+        args.init_points,
+        args.seed,
+        args.sh_degree,
+    )?;
+    let ctx = GpuContext::new(gpu)?;
+    eprintln!(
+        "{}: {} training / {} test views at {}×{}, {} initial Gaussians, {} on {}",
+        args.scene.scene.display(),
+        scene.train.len(),
+        scene.test.len(),
+        scene.views[scene.train[0]].camera.width,
+        scene.views[scene.train[0]].camera.height,
+        init.len(),
+        config.background.describe(),
+        ctx.info.name
+    );
+    let mut trainer = Trainer::new(&ctx, &scene, &train_images, &init, config.clone())?;
+    let load_s = t_load.elapsed().as_secs_f64();
+    let bar = ProgressBar::new(config.iterations as u64);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{bar:30} {pos}/{len} {msg} [{elapsed_precise} < {eta_precise}, {per_sec}]",
+        )
+        .unwrap(),
+    );
+    let t0 = Instant::now();
+    let mut stages = StageTimes::default();
+    let mut evals = Vec::new();
+    let mut ema_loss = None::<f64>;
+    for _ in 0..config.iterations {
+        let r = trainer.step()?;
+        if let Some(s) = &r.stages {
+            stages.accumulate(s);
+        }
+        let l = r.loss as f64;
+        let ema = ema_loss.map_or(l, |e| 0.9 * e + 0.1 * l);
+        ema_loss = Some(ema);
+        if r.iteration % 10 == 0 || r.iteration == config.iterations {
+            let psnr_l1 = -10.0 * (r.l1 as f64).max(1e-12).log10();
+            bar.set_message(format!(
+                "loss {ema:.4} (L1 {:.4}, ~{psnr_l1:.1} dB) | {} Gaussians",
+                r.l1, r.gaussians
+            ));
+            bar.set_position(r.iteration as u64);
+        }
+        if args.eval_every > 0
+            && r.iteration % args.eval_every == 0
+            && r.iteration < config.iterations
+            && !scene.test.is_empty()
+        {
+            let (m, _) = trainer.evaluate(&scene, &scene.test, &test_images)?;
+            let (p, s) = mean_metrics(&m);
+            bar.println(format!(
+                "[{}] test PSNR {p:.3} dB, SSIM {s:.4}, {} Gaussians",
+                r.iteration,
+                trainer.gaussians()
+            ));
+            evals.push(serde_json::json!({"iteration": r.iteration, "psnr": p, "ssim": s, "gaussians": trainer.gaussians()}));
+        }
+    }
+    bar.finish();
+    let train_s = t0.elapsed().as_secs_f64();
+    let model = trainer.model()?;
+    write_ply(&args.out.join("point_cloud.ply"), &model)?;
+
+    // Final evaluation and renders.
+    let (per_view, renders) = if scene.test.is_empty() {
+        (Vec::new(), Vec::new())
+    } else {
+        trainer.evaluate(&scene, &scene.test, &test_images)?
+    };
+    let render_dir = args.out.join("renders").join("test");
+    std::fs::create_dir_all(&render_dir)
+        .with_context(|| format!("creating {}", render_dir.display()))?;
+    for (k, &v) in scene.test.iter().enumerate() {
+        let cam = &scene.views[v].camera;
+        let img = Image {
+            width: cam.width,
+            height: cam.height,
+            rgb: renders[k].clone(),
+            alpha: None,
+        };
+        images::save_png(&render_dir.join(format!("{}.png", scene.views[v].stem)), &img)?;
+    }
+    let (psnr, ssim) = mean_metrics(&per_view);
+    let metrics = serde_json::json!({
+        "scene": args.scene.scene.display().to_string(),
+        "iterations": config.iterations,
+        "gaussians": model.len(),
+        "test_views": scene.test.len(),
+        "psnr": psnr,
+        "ssim": ssim,
+        "per_view": per_view,
+        "evaluations": evals,
+        "train_seconds": train_s,
+        "iterations_per_second": config.iterations as f64 / train_s,
+        "setup_seconds": load_s,
+        "dropped_frames": trainer.dropped_frames,
+        "device": ctx.info.name,
+        "stages": if config.timestamps { stage_shares(&stages) } else { serde_json::Value::Null },
+    });
+    let text = serde_json::to_string_pretty(&metrics)?;
+    write_atomic(&args.out.join("metrics.json"), |f| Ok(f.write_all(text.as_bytes())?))?;
+    let mut cfg = config.to_json();
+    cfg["scene"] = serde_json::json!(args.scene.scene.display().to_string());
+    cfg["resolution"] = serde_json::json!(args.scene.resolution);
+    cfg["init_points"] = serde_json::json!(init.len());
+    let text = serde_json::to_string_pretty(&cfg)?;
+    write_atomic(&args.out.join("config.json"), |f| Ok(f.write_all(text.as_bytes())?))?;
+    println!(
+        "trained {} iterations in {:.1} s ({:.2} it/s): {} Gaussians, test PSNR {:.3} dB, SSIM {:.4}",
+        config.iterations,
+        train_s,
+        config.iterations as f64 / train_s,
+        model.len(),
+        psnr,
+        ssim
+    );
+    if config.timestamps {
+        let total = stages.total_ms().max(1e-12);
+        for (n, ms) in &stages.stages {
+            println!("  {n:<12} {:>6.1}%  ({:.2} ms/it)", 100.0 * ms / total, ms / config.iterations as f64);
+        }
+    }
+    println!("wrote {}", args.out.display());
+    ctx.check_validation()?;
+    Ok(())
+}
+
+pub fn mean_metrics(m: &[ViewMetrics]) -> (f64, f64) {
+    if m.is_empty() {
+        return (f64::NAN, f64::NAN);
+    }
+    let n = m.len() as f64;
+    (
+        m.iter().map(|v| v.psnr).sum::<f64>() / n,
+        m.iter().map(|v| v.ssim).sum::<f64>() / n,
+    )
+}

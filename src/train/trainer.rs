@@ -1,0 +1,481 @@
+//! The training loop: one command buffer per iteration (forward, loss, backward, density
+//! statistics and Adam), density control at its schedule, evaluation on the test views.
+//!
+//! Order within an iteration follows the reference trainer: render, loss, backward, statistics,
+//! then densify / prune / reset when due, then the optimizer step. At a densify iteration the
+//! reference replaces every parameter tensor, which leaves them without gradients, so torch's
+//! Adam skips that iteration; we do the same (and keep one step counter for all groups: at an
+//! opacity reset, which always coincides with a densify step, nothing steps either).
+//!
+//! The host waits for each iteration's fence before recording the next (it reads the loss and
+//! the intersection count from host-visible copies made at the end of the command buffer; no
+//! other readback). When a frame needed more intersections than the buffers hold, the pairs
+//! past the capacity (the farthest Gaussians) were dropped for that one iteration; the buffers
+//! then grow to 1.5× the need, and it does not happen again for that view size.
+
+use std::sync::Arc;
+
+use anyhow::Context;
+
+use super::adam::{Adam, SplatState};
+use super::data::{scene_cameras, GpuImages, ViewSchedule};
+use super::density::{DensifyArgs, DensifyOutcome, DensityConfig, DensityControl};
+use super::loss::{Loss, LOSS_SLOT_FLOATS};
+use super::schedule::{sh_degree_at, DensitySchedule, LearningRates};
+use crate::gpu::{BufferKind, GpuBuffer, GpuContext, Recorder, StageTimes, TimestampPool};
+use crate::render::backward::{Backward, BackwardArgs};
+use crate::render::forward::{Capacity, FrameSettings, Renderer};
+use crate::render::layout::{CameraGpu, RenderConstants};
+use crate::scene::{Image, Scene};
+use crate::splats::gpu::{grown_capacity, GpuSplats};
+use crate::splats::GaussianParams;
+
+/// The background the model is trained against.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Background {
+    Fixed([f32; 3]),
+    /// A new uniform random colour every iteration (evaluation then uses black).
+    Random,
+}
+
+impl Background {
+    pub fn describe(&self) -> String {
+        match self {
+            Background::Fixed(c) => format!("{},{},{}", c[0], c[1], c[2]),
+            Background::Random => "random".into(),
+        }
+    }
+    /// The colour used for evaluation and saved renders.
+    pub fn eval_colour(&self) -> [f32; 3] {
+        match self {
+            Background::Fixed(c) => *c,
+            Background::Random => [0.0; 3],
+        }
+    }
+}
+
+/// Everything that decides a training run (written to `config.json`).
+#[derive(Debug, Clone)]
+pub struct TrainConfig {
+    pub iterations: u32,
+    pub seed: u64,
+    pub sh_degree: u32,
+    pub background: Background,
+    pub lr: LearningRates,
+    pub density: DensityConfig,
+    pub schedule: DensitySchedule,
+    pub ssim_weight: f32,
+    /// Collect per-stage GPU timestamps every iteration.
+    pub timestamps: bool,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        Self {
+            iterations: 30_000,
+            seed: 0,
+            sh_degree: 3,
+            background: Background::Fixed([0.0; 3]),
+            lr: LearningRates::default(),
+            density: DensityConfig::default(),
+            schedule: DensitySchedule::default(),
+            ssim_weight: 0.2,
+            timestamps: false,
+        }
+    }
+}
+
+impl TrainConfig {
+    pub fn to_json(&self) -> serde_json::Value {
+        let lr = &self.lr;
+        let d = &self.density;
+        let s = &self.schedule;
+        serde_json::json!({
+            "iterations": self.iterations,
+            "seed": self.seed,
+            "sh_degree": self.sh_degree,
+            "background": self.background.describe(),
+            "ssim_weight": self.ssim_weight,
+            "lr": {
+                "position_init": lr.position_init, "position_final": lr.position_final,
+                "position_max_steps": lr.position_max_steps, "scaling": lr.scaling,
+                "rotation": lr.rotation, "opacity": lr.opacity, "sh_dc": lr.sh_dc,
+                "sh_rest": lr.sh_rest,
+            },
+            "density": {
+                "grad_threshold": d.grad_threshold, "percent_dense": d.percent_dense,
+                "min_opacity": d.min_opacity, "max_world_fraction": d.max_world_fraction,
+                "split_shrink": d.split_shrink, "screen_size_limit": d.screen_size_limit,
+                "opacity_reset_value": d.opacity_reset_value,
+                "densify_from": s.densify_from, "densify_until": s.densify_until,
+                "interval": s.interval, "opacity_reset_interval": s.opacity_reset_interval,
+                "white_background_reset": s.white_background,
+            },
+        })
+    }
+}
+
+/// What one iteration reports.
+#[derive(Debug, Clone, Default)]
+pub struct StepReport {
+    pub iteration: u32,
+    pub view: usize,
+    pub l1: f32,
+    pub ssim: f32,
+    pub loss: f32,
+    pub gaussians: usize,
+    pub densified: Option<DensifyOutcome>,
+    pub stages: Option<StageTimes>,
+}
+
+/// Per-view evaluation result.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ViewMetrics {
+    pub view: String,
+    pub psnr: f64,
+    pub ssim: f64,
+}
+
+pub struct Trainer {
+    pub ctx: Arc<GpuContext>,
+    pub config: TrainConfig,
+    pub extent: f64,
+    cameras_host: Vec<CameraGpu>,
+    cameras: GpuBuffer<CameraGpu>,
+    images: GpuImages,
+    /// `scene.views` index → slot in `images` (training views only).
+    image_of_view: Vec<Option<usize>>,
+    pub state: SplatState,
+    grads: GpuSplats,
+    view_grad_norm: GpuBuffer<f32>,
+    renderer: Renderer,
+    backward: Backward,
+    loss: Loss,
+    adam: Adam,
+    pub density: DensityControl,
+    dl_dimage: GpuBuffer<f32>,
+    loss_out: GpuBuffer<f32>,
+    loss_host: GpuBuffer<f32>,
+    pub views: ViewSchedule,
+    pub iteration: u32,
+    pub adam_step: u32,
+    rec: Recorder,
+    pool: TimestampPool,
+    pub dropped_frames: u32,
+}
+
+/// Per-iteration background colour for `Background::Random`: a hash of (seed, iteration), so a
+/// resumed run draws the same colours.
+fn random_background(seed: u64, iteration: u32) -> [f32; 3] {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(seed ^ ((iteration as u64) << 20) ^ 0xB6);
+    [rng.gen(), rng.gen(), rng.gen()]
+}
+
+impl Trainer {
+    /// Sets up training of `init` on the training views of `scene` (`train_images[k]` is the
+    /// image of `scene.train[k]`).
+    pub fn new(
+        ctx: &Arc<GpuContext>,
+        scene: &Scene,
+        train_images: &[Image],
+        init: &GaussianParams,
+        config: TrainConfig,
+    ) -> anyhow::Result<Self> {
+        anyhow::ensure!(
+            train_images.len() == scene.train.len(),
+            "trainer: {} images for {} training views",
+            train_images.len(),
+            scene.train.len()
+        );
+        anyhow::ensure!(
+            !init.is_empty(),
+            "the initial model has no Gaussians. Fix: give a scene with SfM points or a PLY \
+             with at least one Gaussian"
+        );
+        let init = init.clone().with_sh_degree(config.sh_degree)?;
+        let cameras_host = scene_cameras(scene);
+        let cameras = GpuBuffer::from_slice(ctx, "cameras", &cameras_host)?;
+        let images = GpuImages::upload(ctx, train_images)?;
+        let mut image_of_view = vec![None; scene.views.len()];
+        for (k, &v) in scene.train.iter().enumerate() {
+            image_of_view[v] = Some(k);
+        }
+        let capacity = grown_capacity(init.len());
+        let params = GpuSplats::upload(ctx, &init, capacity)?;
+        let state = SplatState::new(ctx, params)?;
+        let grads = GpuSplats::zeroed(ctx, "grad ", config.sh_degree, init.len(), capacity)?;
+        let view_grad_norm = GpuBuffer::new(ctx, "view grad norm", capacity, BufferKind::DeviceLocal)?;
+        let (mut max_w, mut max_h, mut max_tiles) = (1u32, 1u32, 1u32);
+        for &v in &scene.train {
+            let c = &cameras_host[v];
+            max_w = max_w.max(c.width());
+            max_h = max_h.max(c.height());
+            max_tiles = max_tiles.max(c.tile_count());
+        }
+        let pixels = (max_w * max_h) as usize;
+        let renderer = Renderer::new(
+            ctx,
+            Capacity {
+                gaussians: capacity,
+                intersections: (capacity * 8).max(1 << 16),
+                pixels,
+                tiles: max_tiles as usize,
+            },
+        )?;
+        let mut density = config.density;
+        density.seed = config.seed;
+        Ok(Self {
+            ctx: ctx.clone(),
+            extent: scene.extent,
+            cameras_host,
+            cameras,
+            images,
+            image_of_view,
+            grads,
+            view_grad_norm,
+            renderer,
+            backward: Backward::new(ctx, capacity)?,
+            loss: Loss::new(ctx, max_w, max_h)?,
+            adam: Adam::new(ctx)?,
+            density: DensityControl::new(ctx, capacity, density)?,
+            dl_dimage: GpuBuffer::new(ctx, "dL/dimage", pixels * 3, BufferKind::DeviceLocal)?,
+            loss_out: GpuBuffer::new(ctx, "loss", LOSS_SLOT_FLOATS, BufferKind::DeviceLocal)?,
+            loss_host: GpuBuffer::new(ctx, "loss (host)", LOSS_SLOT_FLOATS, BufferKind::Readback)?,
+            views: ViewSchedule::new(scene.train.clone(), config.seed)?,
+            iteration: 0,
+            adam_step: 0,
+            rec: Recorder::new(ctx)?,
+            pool: TimestampPool::new(ctx, 32)?,
+            dropped_frames: 0,
+            state,
+            config,
+        })
+    }
+
+    pub fn gaussians(&self) -> usize {
+        self.state.count()
+    }
+
+    /// Grows the per-Gaussian buffers the trainer owns to the state's capacity.
+    fn follow_capacity(&mut self) -> anyhow::Result<()> {
+        let cap = self.state.capacity();
+        if self.grads.capacity < cap {
+            self.grads = GpuSplats::zeroed(&self.ctx, "grad ", self.state.sh_degree(), 0, cap)?;
+            self.view_grad_norm =
+                GpuBuffer::new(&self.ctx, "view grad norm", cap, BufferKind::DeviceLocal)?;
+            self.backward.reserve(&self.ctx, cap)?;
+        }
+        let c = self.renderer.capacity();
+        self.renderer.ensure_capacity(Capacity {
+            gaussians: cap,
+            ..c
+        })?;
+        self.grads.count = self.state.count();
+        Ok(())
+    }
+
+    /// Runs one training iteration (waits for it).
+    pub fn step(&mut self) -> anyhow::Result<StepReport> {
+        self.iteration += 1;
+        let it = self.iteration;
+        let cfg = self.config.clone();
+        let view = self.views.next_view();
+        let slot = self.image_of_view[view].context("trainer: scheduled a non-training view")?;
+        let cam = self.cameras_host[view];
+        let bg = match cfg.background {
+            Background::Fixed(c) => c,
+            Background::Random => random_background(cfg.seed, it),
+        };
+        let sh = sh_degree_at(it, cfg.sh_degree);
+        let densifies = cfg.schedule.densifies(it);
+        let count = self.state.count();
+        self.grads.count = count;
+
+        self.rec.begin()?;
+        if cfg.timestamps {
+            self.rec.start_timestamps(&mut self.pool);
+        }
+        let constants = RenderConstants::default();
+        self.renderer.record(
+            &mut self.rec,
+            &self.state.params,
+            &self.cameras,
+            view as u32,
+            &cam,
+            &FrameSettings {
+                sh_degree: sh,
+                background: bg,
+                constants,
+            },
+            if cfg.timestamps { Some(&mut self.pool) } else { None },
+        )?;
+        let img = self.images.slots[slot];
+        self.loss.record(
+            &mut self.rec,
+            &self.renderer.frame.image,
+            &self.images.buffers[img.buffer],
+            img.offset_px,
+            img.width,
+            img.height,
+            bg,
+            &self.dl_dimage,
+            &self.loss_out,
+            0,
+            cfg.ssim_weight,
+        )?;
+        if cfg.timestamps {
+            self.rec.timestamp(&mut self.pool, "loss");
+        }
+        let f = &self.renderer.frame;
+        self.backward.record(
+            &self.ctx,
+            &mut self.rec,
+            &BackwardArgs {
+                cameras: &self.cameras,
+                camera_index: view as u32,
+                camera: &cam,
+                projected: &f.projected,
+                tile_ranges: &f.tile_ranges,
+                sorted_ids: self.renderer.sorted_ids(),
+                final_t: &f.final_t,
+                last_index: &f.last_index,
+                dl_dimage: &self.dl_dimage,
+                splats: &self.state.params,
+                grads: &self.grads,
+                view_grad_norm: &self.view_grad_norm,
+                count,
+                sh_degree: sh,
+                constants,
+                background: bg,
+            },
+        )?;
+        if cfg.timestamps {
+            self.rec.timestamp(&mut self.pool, "backward");
+        }
+        if cfg.schedule.accumulates(it) {
+            self.density
+                .record_accumulate(&mut self.rec, &self.view_grad_norm, &f.projected, count)?;
+        }
+        if !densifies {
+            self.adam_step += 1;
+            let lrs = cfg.lr.at(it, self.extent);
+            self.adam
+                .record_state(&self.ctx, &mut self.rec, &self.state, &self.grads, self.adam_step, &lrs)?;
+        }
+        if cfg.timestamps {
+            self.rec.timestamp(&mut self.pool, "adam");
+        }
+        self.rec.copy(&self.loss_out, &self.loss_host, LOSS_SLOT_FLOATS);
+        self.rec.submit_and_wait()?;
+        let stages = if cfg.timestamps {
+            Some(self.pool.read()?)
+        } else {
+            None
+        };
+
+        if !self.renderer.last_frame_complete()? {
+            let need = self.renderer.last_intersections()? as usize;
+            self.dropped_frames += 1;
+            let c = self.renderer.capacity();
+            self.renderer.ensure_capacity(Capacity {
+                intersections: need,
+                ..c
+            })?;
+        }
+        let l = self.loss_host.read()?;
+        anyhow::ensure!(
+            l.iter().all(|v| v.is_finite()),
+            "iteration {it}: the loss is not finite (L1 {}, SSIM {}); the model diverged. \
+             Fix: lower the learning rates or report the scene",
+            l[0],
+            l[1]
+        );
+        let mut report = StepReport {
+            iteration: it,
+            view,
+            l1: l[0],
+            ssim: l[1],
+            loss: l[2],
+            gaussians: count,
+            densified: None,
+            stages,
+        };
+
+        if densifies {
+            self.rec.begin()?;
+            let args = DensifyArgs {
+                extent: self.extent,
+                prune_large: cfg.schedule.prunes_large(it),
+                iteration: it,
+            };
+            let outcome = self.density.step(&mut self.rec, &mut self.state, &args, None)?;
+            self.follow_capacity()?;
+            if cfg.schedule.resets_opacity(it) {
+                self.density.record_opacity_reset(&mut self.rec, &self.state)?;
+            }
+            self.rec.submit_and_wait()?;
+            report.gaussians = self.state.count();
+            report.densified = Some(outcome);
+        } else if cfg.schedule.resets_opacity(it) {
+            self.rec.begin()?;
+            self.density.record_opacity_reset(&mut self.rec, &self.state)?;
+            self.rec.submit_and_wait()?;
+        }
+        Ok(report)
+    }
+
+    /// The current model.
+    pub fn model(&self) -> anyhow::Result<GaussianParams> {
+        self.state.params.download()
+    }
+
+    /// Renders view `view` of the scene with the current model (RGB interleaved).
+    pub fn render_view(&mut self, view: usize, background: [f32; 3]) -> anyhow::Result<Vec<f32>> {
+        let cam = self.cameras_host[view];
+        let c = self.renderer.capacity();
+        self.renderer.ensure_capacity(Capacity {
+            pixels: c.pixels.max((cam.width() * cam.height()) as usize),
+            tiles: c.tiles.max(cam.tile_count() as usize),
+            ..c
+        })?;
+        self.renderer.render_blocking(
+            &self.state.params,
+            &self.cameras,
+            view as u32,
+            &cam,
+            &FrameSettings {
+                sh_degree: self.config.sh_degree,
+                background,
+                constants: RenderConstants::default(),
+            },
+        )?;
+        self.renderer.read_image()
+    }
+
+    /// PSNR and SSIM of every view in `views` against `images` (composited on the evaluation
+    /// background).
+    pub fn evaluate(
+        &mut self,
+        scene: &Scene,
+        views: &[usize],
+        images: &[Image],
+    ) -> anyhow::Result<(Vec<ViewMetrics>, Vec<Vec<f32>>)> {
+        let bg = self.config.background.eval_colour();
+        let mut out = Vec::new();
+        let mut renders = Vec::new();
+        for (k, &v) in views.iter().enumerate() {
+            let render = self.render_view(v, bg)?;
+            let gt = crate::scene::images::composite_on_background(&images[k], bg);
+            let clamped: Vec<f32> = render.iter().map(|x| x.clamp(0.0, 1.0)).collect();
+            let (w, h) = (gt.width as usize, gt.height as usize);
+            out.push(ViewMetrics {
+                view: scene.views[v].name.clone(),
+                psnr: crate::metrics::psnr(&clamped, &gt.rgb)?,
+                ssim: crate::metrics::ssim(&clamped, &gt.rgb, w, h)?,
+            });
+            renders.push(clamped);
+        }
+        Ok((out, renders))
+    }
+}
