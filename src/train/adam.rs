@@ -17,7 +17,7 @@
 //! The update is dense: every Gaussian below `count` moves, seen this iteration or not, as in
 //! the reference (moments keep decaying for Gaussians with zero gradient).
 
-use crate::gpu::{ComputePipeline, GpuContext, Recorder};
+use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder};
 use crate::shaders;
 use crate::splats::gpu::GpuSplats;
 use anyhow::{bail, ensure};
@@ -177,6 +177,43 @@ impl SplatState {
             params: GpuSplats::zeroed(ctx, "params ", sh_degree, count, capacity)?,
             m: GpuSplats::zeroed(ctx, "adam m ", sh_degree, count, capacity)?,
             v: GpuSplats::zeroed(ctx, "adam v ", sh_degree, count, capacity)?,
+        })
+    }
+
+    /// Three sets of `capacity` Gaussians, count 0, contents undefined: the destination of a
+    /// density step, which writes every row below its new count (skips the host-side zero
+    /// upload that [`SplatState::zeroed`] pays, gigabytes at millions of Gaussians).
+    pub fn allocate(
+        ctx: &Arc<GpuContext>,
+        sh_degree: u32,
+        capacity: usize,
+    ) -> anyhow::Result<Self> {
+        let rest = crate::splats::GaussianParams::empty(sh_degree).rest_stride();
+        let set = |prefix: &str| -> anyhow::Result<GpuSplats> {
+            let buf = |name: &str, stride: usize| {
+                GpuBuffer::new(
+                    ctx,
+                    &format!("{prefix}{name}"),
+                    capacity * stride,
+                    BufferKind::DeviceLocal,
+                )
+            };
+            Ok(GpuSplats {
+                count: 0,
+                capacity,
+                sh_degree,
+                positions: buf("positions", 3)?,
+                log_scales: buf("log_scales", 3)?,
+                rotations: buf("rotations", 4)?,
+                opacity_logits: buf("opacity_logits", 1)?,
+                sh_dc: buf("sh_dc", 3)?,
+                sh_rest: buf("sh_rest", rest)?,
+            })
+        };
+        Ok(Self {
+            params: set("params ")?,
+            m: set("adam m ")?,
+            v: set("adam v ")?,
         })
     }
 

@@ -465,6 +465,8 @@ impl DensityControl {
 
     /// Records the decision kernel for `state` (see the module docs). `threshold_scale`, when
     /// given, multiplies the gradient threshold per Gaussian (e.g. 0.5 inside LPM zones).
+    /// May reallocate the scratch buffers (decisions, slots) when the state outgrew them, so
+    /// record it once per step and follow it with [`DensityControl::apply`].
     pub fn record_decide(
         &mut self,
         rec: &mut Recorder,
@@ -591,7 +593,7 @@ impl DensityControl {
             .filter(|s| s.capacity() == capacity && s.sh_degree() == state.sh_degree());
         let mut dst = match spare {
             Some(s) => s,
-            None => SplatState::zeroed(&self.ctx, state.sh_degree(), 0, capacity)?,
+            None => SplatState::allocate(&self.ctx, state.sh_degree(), capacity)?,
         };
         if grew {
             // Nothing pending uses the old statistics (phase 1 has completed).
