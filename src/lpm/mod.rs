@@ -13,6 +13,8 @@ pub mod correspondences;
 pub mod enclosing_sphere;
 pub mod epipolar;
 pub mod features;
+pub mod gpu;
+pub mod membership;
 pub mod neighbours;
 pub mod pairing;
 pub mod record;
