@@ -70,6 +70,8 @@ impl ZoneTest {
         if !(v > 0.0 && big_a > 0.0 && d >= 0.0) {
             return false;
         }
+        // Negated like the shader, so a NaN (overflow of inf·0) gives "not in front" on both sides.
+        #[allow(clippy::neg_cmp_op_on_partial_ord)]
         if !((d * d) * (big_a + big_r) >= (big_a * big_a) * v) {
             return false;
         }
