@@ -7,12 +7,16 @@
 //! * at each LPM step for view V: pick V' with [`Neighbours::pick`], take the regions from
 //!   [`regions::error_regions`] (or a GPU block mask through [`regions::regions_from_blocks`]),
 //!   then [`record::zones_for_step`] gives the [`ZoneRecord`]s to upload.
+//!
+//! The GPU half (steps 1–2 and 7–8) is [`gpu::LpmGpu`]; [`membership`] is its CPU twin.
 
 pub mod cache;
 pub mod correspondences;
 pub mod enclosing_sphere;
 pub mod epipolar;
 pub mod features;
+pub mod gpu;
+pub mod membership;
 pub mod neighbours;
 pub mod pairing;
 pub mod record;

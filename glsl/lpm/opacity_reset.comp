@@ -1,0 +1,29 @@
+#version 460
+#extension GL_KHR_shader_subgroup_basic : require
+#extension GL_KHR_shader_subgroup_arithmetic : require
+// LPM opacity reset (LPM.md step 8): every Gaussian in front of a zone (FLAG_IN_FRONT) whose
+// opacity logit is at or above the selected threshold (select_pick.comp, mode 1, over the logits of
+// the Gaussians inside zones) gets `reset_logit`. Comparing logits is comparing opacities (the
+// sigmoid is increasing); both sides compare float keys, so the order is total (NaN included).
+// Adam moments are left as they are, as in the authors' code.
+layout(constant_id = 0) const uint WG_SIZE = 256;
+layout(local_size_x_id = 0) in;
+#include "zone.glsl"
+#include "float_key.glsl"
+#include "select_state.glsl"
+layout(std430, set = 0, binding = 0) readonly buffer Flags { uint flags[]; };
+layout(std430, set = 0, binding = 1) buffer Logits { float logits[]; };
+layout(std430, set = 0, binding = 2) buffer State { uint state[]; };
+layout(push_constant) uniform Push { uint count; float reset_logit; };
+
+void main() {
+    if (state[SEL_VALID] == 0u) return;  // uniform: no Gaussian inside a zone, or k = 0
+    uint group = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
+    uint i = group * WG_SIZE + gl_LocalInvocationIndex;
+    uint threshold = state[SEL_PREFIX];
+    bool reset = i < count && (flags[i] & FLAG_IN_FRONT) != 0u
+        && float_key(floatBitsToUint(logits[i])) >= threshold;
+    if (reset) logits[i] = reset_logit;
+    uint n = subgroupAdd(reset ? 1u : 0u);
+    if (subgroupElect() && n != 0u) atomicAdd(state[SEL_RESET], n);
+}

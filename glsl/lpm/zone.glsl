@@ -1,0 +1,18 @@
+// Error zones as the LPM kernels read them: the mirror of `ZoneRecord` in src/lpm/record.rs
+// (64 bytes, std430: each vec3 is followed by a scalar that fills its fourth slot).
+struct Zone {
+    vec3 center;
+    float radius;         // sphere radius; for a box, its circumscribed radius
+    vec3 camera_center;   // apex of the "in front" cone
+    uint shape;           // ZONE_SPHERE or ZONE_BOX
+    vec3 color;
+    float pad0;
+    vec3 half_extents;    // box only
+    float pad1;
+};
+const uint ZONE_SPHERE = 0u;
+const uint ZONE_BOX = 1u;
+
+// Bits of the per-Gaussian membership flags (src/lpm/membership.rs has the same constants).
+const uint FLAG_INSIDE = 1u;
+const uint FLAG_IN_FRONT = 2u;

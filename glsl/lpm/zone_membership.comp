@@ -1,0 +1,138 @@
+#version 460
+#extension GL_KHR_shader_subgroup_basic : require
+#extension GL_KHR_shader_subgroup_vote : require
+#extension GL_KHR_shader_subgroup_arithmetic : require
+// LPM step 7: for every Gaussian centre x, whether it lies inside any zone of the step and
+// whether it lies "in front of" any zone; per zone, how many centres lie inside it.
+//
+// flags[i]: bit 0 (FLAG_INSIDE) inside at least one zone, bit 1 (FLAG_IN_FRONT) in front of at
+// least one zone; the other bits are 0.
+//
+// Inside: sphere |x − c|² ≤ r², box |x_k − c_k| ≤ h_k on each axis (boundary included).
+// In front (LPM.md step 7), with apex o = camera_center, v = x − o, a = c − o, and the zone's
+// bounding sphere (c, r): angle(v, a) ≤ atan(r / |a|) and |v| ≤ |a| − r (|v| ≤ |a| when |a| ≤ r).
+// Written without sqrt, atan or division, with V = v·v, A = a·a, D = v·a, R = r²:
+//   angle:    D ≥ 0 and D²(A + R) ≥ A² V       (cos² of the angle ≥ cos² of atan(r/h) = A/(A+R))
+//   distance: A > R:  W = A − V − R ≥ 0 and 4 R V ≤ W²   (|v| + r ≤ h squared twice)
+//             A ≤ R:  V ≤ A
+// The angle is undefined at the apex (V = 0) and for a zone centred on its camera (A = 0): such
+// points are not in front. Every operation is an IEEE add, sub or mul marked `precise` (no fused
+// multiply-add, no reordering), so src/lpm/membership.rs reproduces each flag bit for bit. Terms
+// grow as |coordinate|⁶: coordinates must stay below ~1e6 (f32 overflow).
+//
+// One workgroup handles WG_SIZE · ITEMS Gaussians; zones are staged in shared memory in batches
+// of ZONE_BATCH, so any number of zones works and each zone is read once per workgroup. Per-zone
+// counts are summed in the subgroup, then in shared memory, then added to zone_inside once per
+// workgroup and zone (zone_inside must be zeroed before).
+layout(constant_id = 0) const uint WG_SIZE = 256;
+layout(constant_id = 2) const uint ITEMS = 4;
+layout(constant_id = 3) const uint ZONE_BATCH = 128;
+layout(local_size_x_id = 0) in;
+#include "zone.glsl"
+layout(std430, set = 0, binding = 0) readonly buffer Positions { float positions[]; };
+layout(std430, set = 0, binding = 1) readonly buffer Zones { Zone zones[]; };
+layout(std430, set = 0, binding = 2) writeonly buffer Flags { uint flags[]; };
+layout(std430, set = 0, binding = 3) buffer ZoneInside { uint zone_inside[]; };
+layout(push_constant) uniform Push { uint count; uint zone_count; };
+
+shared vec4 s_sphere[ZONE_BATCH];  // centre, r²
+shared vec4 s_half[ZONE_BATCH];    // box half extents
+shared vec4 s_apex[ZONE_BATCH];    // camera centre o, A = |c − o|²
+shared vec4 s_axis[ZONE_BATCH];    // a = c − o
+shared uint s_shape[ZONE_BATCH];
+shared uint s_inside[ZONE_BATCH];
+
+bool inside_zone(vec3 x, uint j) {
+    vec4 s = s_sphere[j];
+    if (s_shape[j] == ZONE_BOX) {
+        vec3 h = s_half[j].xyz;
+        precise vec3 d = abs(x - s.xyz);
+        return d.x <= h.x && d.y <= h.y && d.z <= h.z;
+    }
+    precise float dx = x.x - s.x;
+    precise float dy = x.y - s.y;
+    precise float dz = x.z - s.z;
+    precise float d2 = dx * dx + dy * dy + dz * dz;
+    return d2 <= s.w;
+}
+
+bool in_front(vec3 x, uint j) {
+    vec4 o = s_apex[j];
+    vec3 a = s_axis[j].xyz;
+    float A = o.w;
+    float R = s_sphere[j].w;
+    precise float vx = x.x - o.x;
+    precise float vy = x.y - o.y;
+    precise float vz = x.z - o.z;
+    precise float V = vx * vx + vy * vy + vz * vz;
+    precise float D = vx * a.x + vy * a.y + vz * a.z;
+    if (!(V > 0.0 && A > 0.0 && D >= 0.0)) return false;
+    precise float cone_l = (D * D) * (A + R);
+    precise float cone_r = (A * A) * V;
+    if (!(cone_l >= cone_r)) return false;
+    if (A > R) {
+        precise float W = (A - V) - R;
+        precise float dist_l = (4.0 * R) * V;
+        precise float dist_r = W * W;
+        return W >= 0.0 && dist_l <= dist_r;
+    }
+    return V <= A;
+}
+
+void main() {
+    uint tid = gl_LocalInvocationIndex;
+    uint group = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
+    uint first = group * WG_SIZE * ITEMS + tid;
+    vec3 x[ITEMS];
+    uint f[ITEMS];
+    for (uint k = 0u; k < ITEMS; k++) {
+        uint i = first + k * WG_SIZE;
+        x[k] = i < count ? vec3(positions[3u * i], positions[3u * i + 1u], positions[3u * i + 2u])
+                         : vec3(0.0);
+        f[k] = 0u;
+    }
+    // Every invocation runs the zone loops (no early exit): they hold barriers and subgroup ops.
+    for (uint zb = 0u; zb < zone_count; zb += ZONE_BATCH) {
+        uint nb = min(ZONE_BATCH, zone_count - zb);
+        barrier();  // the previous batch is no longer read
+        for (uint j = tid; j < nb; j += WG_SIZE) {
+            Zone z = zones[zb + j];
+            precise float R = z.radius * z.radius;
+            precise float ax = z.center.x - z.camera_center.x;
+            precise float ay = z.center.y - z.camera_center.y;
+            precise float az = z.center.z - z.camera_center.z;
+            precise float A = ax * ax + ay * ay + az * az;
+            s_sphere[j] = vec4(z.center, R);
+            s_half[j] = vec4(z.half_extents, 0.0);
+            s_apex[j] = vec4(z.camera_center, A);
+            s_axis[j] = vec4(ax, ay, az, 0.0);
+            s_shape[j] = z.shape;
+            s_inside[j] = 0u;
+        }
+        barrier();
+        for (uint j = 0u; j < nb; j++) {
+            uint c = 0u;
+            for (uint k = 0u; k < ITEMS; k++) {
+                if (first + k * WG_SIZE >= count) continue;
+                if (inside_zone(x[k], j)) {
+                    f[k] |= FLAG_INSIDE;
+                    c++;
+                }
+                if ((f[k] & FLAG_IN_FRONT) == 0u && in_front(x[k], j)) f[k] |= FLAG_IN_FRONT;
+            }
+            if (subgroupAny(c != 0u)) {
+                uint s = subgroupAdd(c);
+                if (subgroupElect()) atomicAdd(s_inside[j], s);
+            }
+        }
+        barrier();
+        for (uint j = tid; j < nb; j += WG_SIZE) {
+            uint s = s_inside[j];
+            if (s != 0u) atomicAdd(zone_inside[zb + j], s);
+        }
+    }
+    for (uint k = 0u; k < ITEMS; k++) {
+        uint i = first + k * WG_SIZE;
+        if (i < count) flags[i] = f[k];
+    }
+}

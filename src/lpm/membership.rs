@@ -1,0 +1,250 @@
+//! Zone membership and the LPM opacity reset on the CPU (LPM.md steps 7–8): the oracle of the GPU
+//! passes in [`super::gpu`], written to give the same bits.
+//!
+//! * Membership reproduces `glsl/lpm/zone_membership.comp` operation for operation in f32 (IEEE
+//!   add, sub and mul only, same order, no fused multiply-add), so every flag and count is equal,
+//!   including points exactly on a zone's boundary: "inside" includes the boundary (`≤`) on both
+//!   sides, and both sides round the same products the same way. The geometry is documented in the
+//!   shader and on [`ZoneTest`].
+//! * The opacity threshold is an order statistic, selected exactly on both sides, and compared in
+//!   the total order of [`float_key`].
+
+use super::record::{ZoneRecord, ZONE_BOX};
+
+/// Bit 0 of a Gaussian's membership flags: its centre is inside at least one zone.
+pub const FLAG_INSIDE: u32 = 1;
+/// Bit 1: its centre is in front of at least one zone.
+pub const FLAG_IN_FRONT: u32 = 2;
+
+/// One zone prepared for the tests, with the shader's per-zone precomputation.
+///
+/// Inside: sphere `|x − c|² ≤ r²`, box `|x_k − c_k| ≤ h_k` per axis. In front (the cone from the
+/// zone's `camera_center` o to its bounding sphere (c, r)): with v = x − o, a = c − o, V = v·v,
+/// A = a·a, D = v·a, R = r²: `D ≥ 0`, `D²(A + R) ≥ A²V` (angle(v, a) ≤ atan(r/|a|)), and
+/// `|v| ≤ |a| − r` as `W = A − V − R ≥ 0 ∧ 4RV ≤ W²` when A > R, else `V ≤ A` (|v| ≤ |a|).
+/// Points at the apex (V = 0) and zones centred on their camera (A = 0) have no defined angle and
+/// give "not in front".
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ZoneTest {
+    center: [f32; 3],
+    r2: f32,
+    half: [f32; 3],
+    is_box: bool,
+    apex: [f32; 3],
+    axis: [f32; 3],
+    a2: f32,
+}
+
+impl ZoneTest {
+    pub fn new(z: &ZoneRecord) -> ZoneTest {
+        let c = z.center;
+        let o = z.camera_center;
+        let axis = [c[0] - o[0], c[1] - o[1], c[2] - o[2]];
+        ZoneTest {
+            center: c,
+            r2: z.radius * z.radius,
+            half: z.half_extents,
+            is_box: z.shape == ZONE_BOX,
+            apex: o,
+            axis,
+            a2: axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2],
+        }
+    }
+
+    pub fn contains(&self, x: [f32; 3]) -> bool {
+        let c = self.center;
+        if self.is_box {
+            return (0..3).all(|k| (x[k] - c[k]).abs() <= self.half[k]);
+        }
+        let (dx, dy, dz) = (x[0] - c[0], x[1] - c[1], x[2] - c[2]);
+        dx * dx + dy * dy + dz * dz <= self.r2
+    }
+
+    pub fn in_front(&self, x: [f32; 3]) -> bool {
+        let o = self.apex;
+        let a = self.axis;
+        let (big_a, big_r) = (self.a2, self.r2);
+        let (vx, vy, vz) = (x[0] - o[0], x[1] - o[1], x[2] - o[2]);
+        let v = vx * vx + vy * vy + vz * vz;
+        let d = vx * a[0] + vy * a[1] + vz * a[2];
+        if !(v > 0.0 && big_a > 0.0 && d >= 0.0) {
+            return false;
+        }
+        // Negated like the shader, so a NaN (overflow of inf·0) gives "not in front" on both sides.
+        #[allow(clippy::neg_cmp_op_on_partial_ord)]
+        if !((d * d) * (big_a + big_r) >= (big_a * big_a) * v) {
+            return false;
+        }
+        if big_a > big_r {
+            let w = (big_a - v) - big_r;
+            return w >= 0.0 && (4.0 * big_r) * v <= w * w;
+        }
+        v <= big_a
+    }
+}
+
+/// Flags of every Gaussian and the number of centres inside each zone.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct Membership {
+    /// One per Gaussian: [`FLAG_INSIDE`] | [`FLAG_IN_FRONT`].
+    pub flags: Vec<u32>,
+    /// One per zone: centres inside it (a centre inside two zones counts in both).
+    pub inside_counts: Vec<u32>,
+}
+
+/// Membership of `positions` (xyz per Gaussian) against `zones`.
+pub fn membership(positions: &[f32], zones: &[ZoneRecord]) -> Membership {
+    let tests: Vec<ZoneTest> = zones.iter().map(ZoneTest::new).collect();
+    let mut inside_counts = vec![0u32; zones.len()];
+    let flags = positions
+        .chunks_exact(3)
+        .map(|p| {
+            let x = [p[0], p[1], p[2]];
+            let mut f = 0;
+            for (t, n) in tests.iter().zip(inside_counts.iter_mut()) {
+                if t.contains(x) {
+                    f |= FLAG_INSIDE;
+                    *n += 1;
+                }
+                if f & FLAG_IN_FRONT == 0 && t.in_front(x) {
+                    f |= FLAG_IN_FRONT;
+                }
+            }
+            f
+        })
+        .collect();
+    Membership {
+        flags,
+        inside_counts,
+    }
+}
+
+/// A u32 whose unsigned order is `f32::total_cmp`'s (the GPU's `float_key`).
+pub fn float_key(x: f32) -> u32 {
+    let b = x.to_bits();
+    if b & 0x8000_0000 != 0 {
+        !b
+    } else {
+        b | 0x8000_0000
+    }
+}
+
+/// The inverse of [`float_key`].
+pub fn key_to_f32(k: u32) -> f32 {
+    f32::from_bits(if k & 0x8000_0000 != 0 {
+        k & 0x7FFF_FFFF
+    } else {
+        !k
+    })
+}
+
+/// Denominator of the reset share on the GPU: the share is applied in whole basis points.
+pub const SHARE_DENOMINATOR: u32 = 10_000;
+
+/// The LPM opacity reset (LPM.md step 8).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OpacityResetSettings {
+    /// Among the n Gaussians inside zones, the k = ⌊n·(1 − quantile)⌋ highest opacities are at or
+    /// above the threshold: the threshold is the k-th largest opacity (the `quantile` in the
+    /// nearest-rank sense). No reset when k = 0. The share 1 − quantile is rounded to whole basis
+    /// points. 0.7 follows LPM.md; the authors' code (`topk` of int(0.7·n)) is quantile 0.3.
+    pub quantile: f64,
+    /// The opacity given to reset Gaussians.
+    pub opacity: f64,
+}
+
+impl Default for OpacityResetSettings {
+    fn default() -> Self {
+        Self {
+            quantile: 0.7,
+            opacity: 0.01,
+        }
+    }
+}
+
+impl OpacityResetSettings {
+    /// 1 − quantile in basis points.
+    pub fn top_basis_points(&self) -> anyhow::Result<u32> {
+        anyhow::ensure!(
+            self.quantile.is_finite() && (0.0..=1.0).contains(&self.quantile),
+            "LPM opacity reset: quantile {} is outside [0, 1]; use a value such as 0.7",
+            self.quantile
+        );
+        Ok(((1.0 - self.quantile) * SHARE_DENOMINATOR as f64).round() as u32)
+    }
+
+    /// logit(opacity), rounded once to f32.
+    pub fn reset_logit(&self) -> anyhow::Result<f32> {
+        anyhow::ensure!(
+            self.opacity > 0.0 && self.opacity < 1.0,
+            "LPM opacity reset: opacity {} is outside (0, 1); use a value such as 0.01",
+            self.opacity
+        );
+        Ok((self.opacity / (1.0 - self.opacity)).ln() as f32)
+    }
+}
+
+/// What one opacity reset did.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct OpacityResetStats {
+    /// Gaussians inside at least one zone.
+    pub inside: u32,
+    /// The threshold logit (`None`: nothing inside, or k = 0, so no reset).
+    pub threshold_logit: Option<f32>,
+    /// Gaussians whose opacity was reset.
+    pub reset: u32,
+}
+
+/// The reset threshold as a float key: the k-th largest key among the Gaussians inside zones.
+pub fn opacity_threshold_key(
+    logits: &[f32],
+    flags: &[u32],
+    s: &OpacityResetSettings,
+) -> anyhow::Result<(u32, Option<u32>)> {
+    let top = s.top_basis_points()? as u64;
+    let mut keys: Vec<u32> = logits
+        .iter()
+        .zip(flags)
+        .filter(|(_, &f)| f & FLAG_INSIDE != 0)
+        .map(|(&l, _)| float_key(l))
+        .collect();
+    let n = keys.len() as u64;
+    let k = n * top / SHARE_DENOMINATOR as u64;
+    if k == 0 {
+        return Ok((n as u32, None));
+    }
+    let rank = (n - k) as usize;
+    let (_, &mut t, _) = keys.select_nth_unstable(rank);
+    Ok((n as u32, Some(t)))
+}
+
+/// Resets, in place, the opacity logit of every Gaussian in front of a zone whose logit is at or
+/// above the threshold (compared as float keys). `flags` and `logits` have one entry per Gaussian.
+pub fn apply_opacity_reset(
+    logits: &mut [f32],
+    flags: &[u32],
+    s: &OpacityResetSettings,
+) -> anyhow::Result<OpacityResetStats> {
+    anyhow::ensure!(
+        logits.len() == flags.len(),
+        "LPM opacity reset: {} opacity logits but {} membership flags (one each per Gaussian)",
+        logits.len(),
+        flags.len()
+    );
+    let value = s.reset_logit()?;
+    let (inside, key) = opacity_threshold_key(logits, flags, s)?;
+    let mut stats = OpacityResetStats {
+        inside,
+        threshold_logit: key.map(key_to_f32),
+        reset: 0,
+    };
+    if let Some(t) = key {
+        for (l, &f) in logits.iter_mut().zip(flags) {
+            if f & FLAG_IN_FRONT != 0 && float_key(*l) >= t {
+                *l = value;
+                stats.reset += 1;
+            }
+        }
+    }
+    Ok(stats)
+}

@@ -1,0 +1,603 @@
+//! LPM's GPU passes against their CPU twins on random inputs, validation on: zone membership and
+//! per-zone counts (exact), the opacity reset (exact), error blocks (exact given the GPU's error
+//! map, and within the f32-vs-f64 error-map tolerance against regions.rs).
+
+use lpmsplat::gpu::{BufferKind, GpuBuffer, GpuContext, GpuOptions, Recorder};
+use lpmsplat::lpm::enclosing_sphere::Sphere;
+use lpmsplat::lpm::gpu::{
+    block_grid, error_block_counts, unpack_ground_truth, ErrorImages, LpmGpu,
+};
+use lpmsplat::lpm::membership::{
+    apply_opacity_reset, membership, OpacityResetSettings, ZoneTest, FLAG_INSIDE, FLAG_IN_FRONT,
+};
+use lpmsplat::lpm::regions::{block_mask, error_map, quantile, BlockMask};
+use lpmsplat::lpm::{RegionSettings, Zone, ZoneRecord};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+use std::sync::Arc;
+
+const POISON: u32 = 0xDEAD_BEEF;
+const TAIL: usize = 7;
+
+fn ctx() -> Arc<GpuContext> {
+    GpuContext::new(&GpuOptions::for_tests()).expect("a Vulkan device with the validation layer")
+}
+
+fn v3(rng: &mut Pcg64, lo: f64, hi: f64) -> [f64; 3] {
+    [
+        rng.gen_range(lo..hi),
+        rng.gen_range(lo..hi),
+        rng.gen_range(lo..hi),
+    ]
+}
+
+fn f32s(v: [f64; 3]) -> [f32; 3] {
+    v.map(|x| x as f32)
+}
+
+fn sphere(center: [f64; 3], radius: f64, cam: [f64; 3]) -> ZoneRecord {
+    ZoneRecord::new(&Zone::Sphere(Sphere { center, radius }), cam, [0.5; 3])
+}
+
+/// Zones of every kind the membership pass must handle.
+fn random_zones(rng: &mut Pcg64, n: usize) -> Vec<ZoneRecord> {
+    let mut zones = vec![
+        // Dyadic values: the boundary points below are exactly on the sphere / box.
+        sphere([0.5, 0.25, -0.75], 0.5, [4.0, 0.25, -0.75]),
+        ZoneRecord::new(
+            &Zone::Box {
+                min: [-1.5, -0.5, 0.25],
+                max: [-0.5, 0.5, 1.25],
+            },
+            [-1.0, 0.0, 5.0],
+            [0.1; 3],
+        ),
+        // Camera inside its zone (h < r), camera at the centre (h = 0), zero radius.
+        sphere([0.0, 0.0, 0.0], 1.5, [0.3, -0.2, 0.1]),
+        sphere([1.0, 1.0, 1.0], 0.7, [1.0, 1.0, 1.0]),
+        sphere([-1.0, 1.0, 0.5], 0.0, [-1.0, 4.0, 0.5]),
+    ];
+    while zones.len() < n {
+        let c = v3(rng, -2.0, 2.0);
+        let dir = v3(rng, -1.0, 1.0);
+        let dist = rng.gen_range(0.5..6.0);
+        let cam = [
+            c[0] + dist * dir[0],
+            c[1] + dist * dir[1],
+            c[2] + dist * dir[2],
+        ];
+        let r = match rng.gen_range(0..10) {
+            0 => 0.0,
+            1 => rng.gen_range(1.0..3.0), // often contains its camera
+            _ => rng.gen_range(0.05..0.9),
+        };
+        if rng.gen_bool(0.3) {
+            let h = v3(rng, 0.0, 0.6);
+            let z = Zone::Box {
+                min: [c[0] - h[0], c[1] - h[1], c[2] - h[2]],
+                max: [c[0] + h[0], c[1] + h[1], c[2] + h[2]],
+            };
+            zones.push(ZoneRecord::new(&z, cam, [0.2; 3]));
+        } else {
+            zones.push(sphere(c, r, cam));
+        }
+    }
+    zones
+}
+
+/// Gaussians spread over the scene, plus points on the camera-to-zone segments, inside zones, on
+/// exact boundaries and at the apexes.
+fn random_positions(rng: &mut Pcg64, zones: &[ZoneRecord], n: usize) -> Vec<f32> {
+    let mut p: Vec<[f32; 3]> = vec![
+        [1.0, 0.25, -0.75],  // on sphere 0, +x
+        [0.5, -0.25, -0.75], // on sphere 0, −y
+        [0.5, 0.25, -0.25],  // on sphere 0, +z
+        [-1.5, 0.5, 1.25],   // box 1 corner
+        [-0.5, 0.0, 0.75],   // box 1 face
+        [0.3, -0.2, 0.1],    // apex of zone 2
+        [1.0, 1.0, 1.0],     // apex and centre of zone 3
+        [-1.0, 1.0, 0.5],    // the zero-radius zone's centre
+    ];
+    for z in zones.iter().take(60) {
+        let (c, o) = (z.center, z.camera_center);
+        for _ in 0..12 {
+            let t: f32 = rng.gen_range(-0.2..1.2);
+            let j = 0.05 * z.radius.max(0.05);
+            p.push([0, 1, 2].map(|k| o[k] + t * (c[k] - o[k]) + rng.gen_range(-j..j)));
+        }
+        for _ in 0..6 {
+            let r = z.radius;
+            p.push([0, 1, 2].map(|k| c[k] + rng.gen_range(-r..=r)));
+        }
+    }
+    while p.len() < n {
+        p.push(f32s(v3(rng, -3.0, 3.0)));
+    }
+    p.truncate(n);
+    p.into_iter().flatten().collect()
+}
+
+/// The sqrt-free f32 tests implement LPM.md's definition: check against acos/atan in f64 where
+/// the point is not within rounding distance of a boundary.
+fn check_against_f64_definition(positions: &[f32], zones: &[ZoneRecord]) -> (usize, usize) {
+    let (mut checked, mut front) = (0, 0);
+    for z in zones {
+        let t = ZoneTest::new(z);
+        let c = f32s(z.center.map(|x| x as f64)).map(|x| x as f64);
+        let o = z.camera_center.map(|x| x as f64);
+        let r = z.radius as f64;
+        let a = [c[0] - o[0], c[1] - o[1], c[2] - o[2]];
+        let h = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
+        for p in positions.chunks_exact(3) {
+            let x = [p[0] as f64, p[1] as f64, p[2] as f64];
+            let v = [x[0] - o[0], x[1] - o[1], x[2] - o[2]];
+            let vl = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            if vl < 1e-6 || h < 1e-6 {
+                continue;
+            }
+            let cos = (v[0] * a[0] + v[1] * a[1] + v[2] * a[2]) / (vl * h);
+            let angle = cos.clamp(-1.0, 1.0).acos();
+            let half = (r / h).atan();
+            let limit = if h > r { h - r } else { h };
+            if (angle - half).abs() < 1e-3 || (vl - limit).abs() < 1e-4 {
+                continue;
+            }
+            let expect = angle <= half && vl <= limit;
+            let got = t.in_front([p[0], p[1], p[2]]);
+            assert_eq!(got, expect, "in front: zone {z:?}, point {x:?}");
+            checked += 1;
+            front += got as usize;
+            if z.shape == 0 {
+                let d =
+                    ((x[0] - c[0]).powi(2) + (x[1] - c[1]).powi(2) + (x[2] - c[2]).powi(2)).sqrt();
+                if (d - r).abs() > 1e-5 {
+                    assert_eq!(
+                        t.contains([p[0], p[1], p[2]]),
+                        d <= r,
+                        "inside: {z:?} {x:?}"
+                    );
+                }
+            }
+        }
+    }
+    (checked, front)
+}
+
+fn run_membership(
+    ctx: &Arc<GpuContext>,
+    lpm: &LpmGpu,
+    positions: &[f32],
+    zones: &[ZoneRecord],
+) -> (Vec<u32>, Vec<u32>) {
+    let n = positions.len() / 3;
+    let pos = GpuBuffer::from_slice(ctx, "positions", positions).unwrap();
+    let zbuf = if zones.is_empty() {
+        GpuBuffer::<ZoneRecord>::new(ctx, "zones", 1, BufferKind::DeviceLocal).unwrap()
+    } else {
+        GpuBuffer::from_slice(ctx, "zones", zones).unwrap()
+    };
+    let flags = GpuBuffer::<u32>::new(ctx, "flags", n + TAIL, BufferKind::DeviceLocal).unwrap();
+    let counts =
+        GpuBuffer::<u32>::new(ctx, "zone counts", zones.len() + 1, BufferKind::DeviceLocal)
+            .unwrap();
+    let mut rec = Recorder::new(ctx).unwrap();
+    rec.fill(&flags, POISON);
+    rec.fill(&counts, POISON);
+    lpm.record_membership(
+        &mut rec,
+        &pos,
+        n as u32,
+        &zbuf,
+        zones.len() as u32,
+        &flags,
+        &counts,
+    )
+    .unwrap();
+    rec.submit_and_wait().unwrap();
+    let f = flags.read().unwrap();
+    assert!(
+        f[n..].iter().all(|&v| v == POISON),
+        "flags written past count"
+    );
+    let c = counts.read().unwrap();
+    (f[..n].to_vec(), c[..zones.len()].to_vec())
+}
+
+#[test]
+fn membership_matches_cpu_exactly() {
+    let ctx = ctx();
+    let lpm = LpmGpu::new(&ctx, 1).unwrap();
+    let mut rng = Pcg64::seed_from_u64(71);
+    // 300 zones span three shared-memory batches; 0 zones must give all-zero flags.
+    for &(nz, ng) in &[(40usize, 30_011usize), (300, 6_007), (0, 1_000), (7, 1)] {
+        let zones = random_zones(&mut rng, nz.max(5));
+        let zones = &zones[..nz];
+        let positions = random_positions(&mut rng, zones, ng);
+        let cpu = membership(&positions, zones);
+        let (flags, counts) = run_membership(&ctx, &lpm, &positions, zones);
+        for (i, (g, c)) in flags.iter().zip(&cpu.flags).enumerate() {
+            assert_eq!(g, c, "flags of Gaussian {i} ({} zones)", nz);
+        }
+        assert_eq!(counts, cpu.inside_counts, "per-zone counts ({nz} zones)");
+        if nz >= 40 {
+            // The inputs exercise both bits, and the exact boundary points count as inside.
+            let inside = flags.iter().filter(|&&f| f & FLAG_INSIDE != 0).count();
+            let front = flags.iter().filter(|&&f| f & FLAG_IN_FRONT != 0).count();
+            assert!(
+                inside > 100 && front > 100,
+                "inside {inside}, in front {front}"
+            );
+            assert!(flags[..5].iter().all(|&f| f & FLAG_INSIDE != 0));
+            let (checked, front) = check_against_f64_definition(&positions[..3 * 2000], zones);
+            assert!(
+                checked > 10_000 && front > 50,
+                "{checked} checked, {front} in front"
+            );
+        }
+        if nz == 0 {
+            assert!(flags.iter().all(|&f| f == 0));
+        }
+    }
+    ctx.check_validation().unwrap();
+}
+
+fn run_reset(
+    ctx: &Arc<GpuContext>,
+    lpm: &LpmGpu,
+    flags: &[u32],
+    logits: &[f32],
+    count: usize,
+    s: &OpacityResetSettings,
+) -> Vec<f32> {
+    let fb = GpuBuffer::from_slice(ctx, "flags", flags).unwrap();
+    let lb = GpuBuffer::from_slice(ctx, "logits", logits).unwrap();
+    let mut rec = Recorder::new(ctx).unwrap();
+    lpm.record_opacity_reset(&mut rec, &fb, &lb, count as u32, s)
+        .unwrap();
+    rec.submit_and_wait().unwrap();
+    lb.read().unwrap()
+}
+
+#[test]
+fn opacity_reset_matches_cpu_exactly() {
+    let ctx = ctx();
+    let lpm = LpmGpu::new(&ctx, 1).unwrap();
+    let mut rng = Pcg64::seed_from_u64(72);
+    let paper = OpacityResetSettings::default();
+    let authors = OpacityResetSettings {
+        quantile: 0.3,
+        ..paper
+    };
+    // (Gaussians, P(inside), quantised logits with ties, settings)
+    let cases = [
+        (50_003usize, 0.3, false, paper),
+        (50_003, 0.3, true, paper),
+        (20_000, 0.6, true, authors),
+        (1_000, 0.0, false, paper), // nothing inside: no reset
+        (3, 1.0, false, paper),     // n = 3: k = ⌊0.9⌋ = 0, no reset
+        (4, 1.0, false, paper),     // n = 4: k = 1
+        (300_017, 0.05, false, paper),
+    ];
+    let mut some_reset = false;
+    for (n, p_in, ties, s) in cases {
+        let total = n + TAIL;
+        let flags: Vec<u32> = (0..total)
+            .map(|_| {
+                ((rng.gen_bool(p_in) as u32) * FLAG_INSIDE)
+                    | ((rng.gen_bool(0.4) as u32) * FLAG_IN_FRONT)
+            })
+            .collect();
+        let logits: Vec<f32> = (0..total)
+            .map(|_| {
+                let x: f32 = rng.gen_range(-8.0..8.0);
+                if ties {
+                    match rng.gen_range(0..20) {
+                        0 => 0.0,
+                        1 => -0.0,
+                        _ => (x * 4.0).round() / 4.0,
+                    }
+                } else {
+                    x
+                }
+            })
+            .collect();
+        let mut expect = logits[..n].to_vec();
+        let stats = apply_opacity_reset(&mut expect, &flags[..n], &s).unwrap();
+        expect.extend_from_slice(&logits[n..]);
+        let got = run_reset(&ctx, &lpm, &flags, &logits, n, &s);
+        for (i, (g, e)) in got.iter().zip(&expect).enumerate() {
+            assert_eq!(g.to_bits(), e.to_bits(), "logit {i} of {n}");
+        }
+        let gpu_stats = lpm.read_opacity_reset_stats().unwrap();
+        assert_eq!(gpu_stats, stats, "n = {n}");
+        some_reset |= stats.reset > 0;
+        if p_in == 0.0 || n == 3 {
+            assert_eq!(stats.threshold_logit, None);
+        }
+        if n == 4 {
+            assert!(stats.threshold_logit.is_some());
+        }
+    }
+    assert!(some_reset);
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn membership_then_reset_in_one_submission() {
+    let ctx = ctx();
+    let lpm = LpmGpu::new(&ctx, 1).unwrap();
+    let mut rng = Pcg64::seed_from_u64(73);
+    let zones = random_zones(&mut rng, 25);
+    let positions = random_positions(&mut rng, &zones, 12_345);
+    let n = positions.len() / 3;
+    let logits: Vec<f32> = (0..n).map(|_| rng.gen_range(-5.0..5.0)).collect();
+    let s = OpacityResetSettings::default();
+    let cpu = membership(&positions, &zones);
+    let mut expect = logits.clone();
+    let stats = apply_opacity_reset(&mut expect, &cpu.flags, &s).unwrap();
+    assert!(stats.reset > 0);
+
+    let pos = GpuBuffer::from_slice(&ctx, "positions", &positions).unwrap();
+    let zbuf = GpuBuffer::from_slice(&ctx, "zones", &zones).unwrap();
+    let flags = GpuBuffer::<u32>::new(&ctx, "flags", n, BufferKind::DeviceLocal).unwrap();
+    let counts =
+        GpuBuffer::<u32>::new(&ctx, "counts", zones.len(), BufferKind::DeviceLocal).unwrap();
+    let lb = GpuBuffer::from_slice(&ctx, "logits", &logits).unwrap();
+    let mut rec = Recorder::new(&ctx).unwrap();
+    rec.fill(&flags, POISON);
+    let (nn, nz) = (n as u32, zones.len() as u32);
+    lpm.record_membership(&mut rec, &pos, nn, &zbuf, nz, &flags, &counts)
+        .unwrap();
+    lpm.record_opacity_reset(&mut rec, &flags, &lb, nn, &s)
+        .unwrap();
+    rec.submit_and_wait().unwrap();
+    assert_eq!(counts.read().unwrap(), cpu.inside_counts);
+    let got = lb.read().unwrap();
+    assert!(got
+        .iter()
+        .zip(&expect)
+        .all(|(g, e)| g.to_bits() == e.to_bits()));
+    assert_eq!(lpm.read_opacity_reset_stats().unwrap(), stats);
+    ctx.check_validation().unwrap();
+}
+
+/// Random images made of flat rectangles (many equal errors) over noise, with large-error
+/// rectangles; ground truth with partial alpha.
+fn random_images(rng: &mut Pcg64, w: u32, h: u32, bg: [f32; 3]) -> (Vec<f32>, Vec<u32>) {
+    let n = (w * h) as usize;
+    let mut gt: Vec<u32> = (0..n)
+        .map(|_| {
+            let a = if rng.gen_bool(0.2) { rng.gen() } else { 255u8 };
+            u32::from_le_bytes([rng.gen(), rng.gen(), rng.gen(), a])
+        })
+        .collect();
+    let rect = |rng: &mut Pcg64| {
+        let x0 = rng.gen_range(0..w);
+        let y0 = rng.gen_range(0..h);
+        let x1 = rng.gen_range(x0 + 1..=w.min(x0 + 80));
+        let y1 = rng.gen_range(y0 + 1..=h.min(y0 + 80));
+        (x0, y0, x1, y1)
+    };
+    for _ in 0..4 {
+        let (x0, y0, x1, y1) = rect(rng);
+        let v = u32::from_le_bytes([rng.gen(), rng.gen(), rng.gen(), 255]);
+        for y in y0..y1 {
+            for x in x0..x1 {
+                gt[(y * w + x) as usize] = v;
+            }
+        }
+    }
+    let composited = unpack_ground_truth(&gt, bg);
+    let mut render: Vec<f32> = composited
+        .iter()
+        .map(|&g| (g + rng.gen_range(-0.03..0.03f32)).clamp(0.0, 1.0))
+        .collect();
+    for _ in 0..5 {
+        let (x0, y0, x1, y1) = rect(rng);
+        let flat = rng.gen_bool(0.5);
+        let v: [f32; 3] = [rng.gen(), rng.gen(), rng.gen()];
+        for y in y0..y1 {
+            for x in x0..x1 {
+                let i = 3 * (y * w + x) as usize;
+                for c in 0..3 {
+                    render[i + c] = if flat { v[c] } else { rng.gen() };
+                }
+            }
+        }
+    }
+    (render, gt)
+}
+
+#[test]
+fn error_blocks_match_cpu() {
+    let ctx = ctx();
+    let lpm = LpmGpu::new(&ctx, 300 * 200).unwrap();
+    let mut rng = Pcg64::seed_from_u64(74);
+    let mut kept_total = (0usize, 0usize);
+    for &(w, h, block, q) in &[
+        (37u32, 29u32, 16u32, 0.4f32),
+        (100, 75, 16, 0.4),
+        (257, 130, 16, 0.4),
+        (300, 200, 16, 0.4),
+        (64, 48, 8, 0.7),
+        (1, 1, 16, 0.4),
+        (5, 3, 16, 1.0),
+    ] {
+        let n = (w * h) as usize;
+        let bg: [f32; 3] = [rng.gen(), rng.gen(), rng.gen()];
+        let (render, gt) = random_images(&mut rng, w, h, bg);
+        // The image sits at an offset inside a larger ground-truth buffer.
+        let offset = rng.gen_range(0..500u32);
+        let mut gt_all: Vec<u32> = (0..offset).map(|_| rng.gen()).collect();
+        gt_all.extend_from_slice(&gt);
+        gt_all.extend((0..33).map(|_| rng.gen::<u32>()));
+        let rbuf = GpuBuffer::from_slice(&ctx, "render", &render).unwrap();
+        let gbuf = GpuBuffer::from_slice(&ctx, "gt", &gt_all).unwrap();
+        let (bx, by) = block_grid(w, h, block);
+        let nb = (bx * by) as usize;
+        let counts =
+            GpuBuffer::<u32>::new(&ctx, "counts", nb + TAIL, BufferKind::DeviceLocal).unwrap();
+        let s = RegionSettings {
+            quantile: q,
+            block,
+            keep_fraction: 0.85,
+        };
+        let img = ErrorImages {
+            render: &rbuf,
+            gt: &gbuf,
+            gt_offset: offset,
+            width: w,
+            height: h,
+            background: bg,
+        };
+        let mut rec = Recorder::new(&ctx).unwrap();
+        rec.fill(&counts, POISON);
+        rec.fill(lpm.error_map_buffer(), 0x7FC0_0000);
+        assert_eq!(
+            lpm.record_error_blocks(&mut rec, &img, &s, &counts)
+                .unwrap(),
+            (bx, by)
+        );
+        rec.submit_and_wait().unwrap();
+        let all = counts.read().unwrap();
+        assert!(
+            all[nb..].iter().all(|&c| c == POISON),
+            "counts past the grid"
+        );
+        let gpu_counts = &all[..nb];
+        let gpu_map = lpm.error_map_buffer().read_range(0, n).unwrap();
+        let gpu_thr = lpm.read_error_threshold().unwrap();
+
+        // Exact, given the GPU's own map: the quantile (up to the interpolation's last ulp) and
+        // every count.
+        let thr_on_gpu_map = quantile(&gpu_map, q);
+        assert!(
+            gpu_thr == thr_on_gpu_map
+                || (gpu_thr.to_bits() as i64 - thr_on_gpu_map.to_bits() as i64).abs() <= 1,
+            "{w}×{h}: threshold {gpu_thr} vs {thr_on_gpu_map}"
+        );
+        let expect = error_block_counts(&gpu_map, w, h, block, thr_on_gpu_map).unwrap();
+        assert_eq!(gpu_counts, &expect[..], "{w}×{h} counts on the GPU's map");
+
+        // Against regions.rs in f64: the map within f32 rounding; counts may differ only by
+        // pixels whose error is within that rounding of the threshold.
+        let gt_rgb = unpack_ground_truth(&gt, bg);
+        let cpu_map = error_map(&render, &gt_rgb, w, h).unwrap();
+        for (i, (g, c)) in gpu_map.iter().zip(&cpu_map).enumerate() {
+            assert!(g.is_finite(), "pixel {i}: {g}");
+            assert!(
+                (g - c).abs() <= 2e-5 * (1.0 + c.abs()),
+                "pixel {i}: {g} vs {c}"
+            );
+        }
+        let cpu_thr = quantile(&cpu_map, q);
+        let cpu_counts = error_block_counts(&cpu_map, w, h, block, cpu_thr).unwrap();
+        let cpu_mask = block_mask(&cpu_map, w, h, q, block, 0.85).unwrap();
+        let mask_from_cpu_counts = BlockMask::from_error_counts(w, h, block, &cpu_counts, 0.85);
+        assert_eq!(mask_from_cpu_counts.unwrap(), cpu_mask);
+        let gpu_mask = BlockMask::from_error_counts(w, h, block, gpu_counts, 0.85).unwrap();
+        let tol = 4e-5 * (1.0 + cpu_thr.abs());
+        let mut near = vec![0u32; nb];
+        for (i, &e) in cpu_map.iter().enumerate() {
+            let (x, y) = (i as u32 % w, i as u32 / w);
+            if (e - cpu_thr).abs() <= tol {
+                near[((y / block) * bx + x / block) as usize] += 1;
+            }
+        }
+        for b in 0..nb {
+            let d = (gpu_counts[b] as i64 - cpu_counts[b] as i64).unsigned_abs();
+            assert!(
+                d <= near[b] as u64,
+                "{w}×{h} block {b}: {} vs {}",
+                gpu_counts[b],
+                cpu_counts[b]
+            );
+            if near[b] == 0 {
+                assert_eq!(gpu_mask.kept[b], cpu_mask.kept[b], "{w}×{h} block {b}");
+            }
+        }
+        kept_total.0 += gpu_mask.kept.iter().filter(|&&k| k).count();
+        kept_total.1 += nb;
+    }
+    assert!(
+        kept_total.0 > 0 && kept_total.0 < kept_total.1,
+        "kept {} of {} blocks",
+        kept_total.0,
+        kept_total.1
+    );
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn bad_inputs_are_errors() {
+    let ctx = ctx();
+    let lpm = LpmGpu::new(&ctx, 100).unwrap();
+    let small = GpuBuffer::<f32>::new(&ctx, "small", 30, BufferKind::DeviceLocal).unwrap();
+    let gt = GpuBuffer::<u32>::new(&ctx, "gt", 10, BufferKind::DeviceLocal).unwrap();
+    let flags = GpuBuffer::<u32>::new(&ctx, "flags", 10, BufferKind::DeviceLocal).unwrap();
+    let zones = GpuBuffer::<ZoneRecord>::new(&ctx, "zones", 2, BufferKind::DeviceLocal).unwrap();
+    let mut rec = Recorder::new(&ctx).unwrap();
+    let img = |w, h| ErrorImages {
+        render: &small,
+        gt: &gt,
+        gt_offset: 0,
+        width: w,
+        height: h,
+        background: [0.0; 3],
+    };
+    let s = RegionSettings::default();
+    assert!(lpm
+        .record_error_blocks(&mut rec, &img(20, 20), &s, &flags)
+        .is_err());
+    assert!(lpm
+        .record_error_blocks(&mut rec, &img(0, 5), &s, &flags)
+        .is_err());
+    assert!(lpm
+        .record_error_blocks(&mut rec, &img(5, 5), &s, &flags)
+        .is_err());
+    assert!(lpm
+        .record_membership(&mut rec, &small, 11, &zones, 2, &flags, &flags)
+        .is_err());
+    assert!(lpm
+        .record_membership(&mut rec, &small, 10, &zones, 3, &flags, &flags)
+        .is_err());
+    let bad = OpacityResetSettings {
+        quantile: 1.5,
+        ..Default::default()
+    };
+    assert!(lpm
+        .record_opacity_reset(&mut rec, &flags, &small, 10, &bad)
+        .is_err());
+    assert!(lpm
+        .record_opacity_reset(&mut rec, &flags, &small, 11, &Default::default())
+        .is_err());
+    rec.submit_and_wait().unwrap();
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn lpm_passes_under_subgroup_size_16() {
+    // lavapipe runs with subgroup size 16 when LP_NATIVE_VECTOR_WIDTH=512 (set before the driver
+    // loads, hence a child process); the subgroup reductions must not assume a size.
+    if std::env::var_os("LPMSPLAT_CHILD").is_some() {
+        return;
+    }
+    let out = std::process::Command::new(std::env::current_exe().unwrap())
+        .env("LP_NATIVE_VECTOR_WIDTH", "512")
+        .env("LPMSPLAT_CHILD", "1")
+        .args([
+            "--test-threads=1",
+            "membership_matches_cpu_exactly",
+            "opacity_reset_matches_cpu_exactly",
+            "error_blocks_match_cpu",
+        ])
+        .output()
+        .unwrap();
+    let text =
+        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "child run failed:\n{text}");
+    assert!(
+        text.contains("3 passed"),
+        "child ran the wrong tests:\n{text}"
+    );
+}
