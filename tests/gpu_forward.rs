@@ -436,3 +436,46 @@ fn intersections_beyond_capacity_regrow_and_render_the_same() {
     );
     ctx.check_validation().unwrap();
 }
+
+#[test]
+fn a_4096_square_image_renders_or_is_refused_with_the_binding_limit() {
+    let ctx = ctx();
+    let settings = RenderSettings::default();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(4096);
+    let g = scenes::random_gaussians(&mut rng, 20);
+    let (camera, pose) = scenes::random_view(&mut rng, 4096, 4096);
+    let params = g.to_params(0);
+    let splats = GpuSplats::upload(&ctx, &params, params.len()).unwrap();
+    let cam = CameraGpu::new(&camera, &pose);
+    let cameras = GpuBuffer::from_slice(&ctx, "cameras", &[cam]).unwrap();
+    let frame = FrameSettings {
+        sh_degree: 0,
+        background: [0.0; 3],
+        constants: RenderConstants::from_settings(&settings),
+    };
+    // 4096² RGB f32 is 192 MiB: above lavapipe's 128 MiB storage binding limit.
+    let need = 4096u64 * 4096 * 12;
+    match Renderer::for_camera(&ctx, params.len(), &cam).and_then(|mut r| {
+        r.render_blocking(&splats, &cameras, 0, &cam, &frame)
+            .map(|_| r)
+    }) {
+        Ok(r) => {
+            assert!(need <= ctx.info.max_storage_buffer_range);
+            let img = r.read_image().unwrap();
+            assert_eq!(img.len(), 4096 * 4096 * 3);
+            assert!(img.iter().all(|v| v.is_finite()));
+        }
+        Err(e) => {
+            let msg = format!("{e:#}");
+            assert!(
+                need > ctx.info.max_storage_buffer_range,
+                "unexpected error: {msg}"
+            );
+            assert!(
+                msg.contains("maxStorageBufferRange"),
+                "unclear error: {msg}"
+            );
+        }
+    }
+    ctx.check_validation().unwrap();
+}

@@ -89,9 +89,10 @@ pub fn background_from(arg: Option<&str>, scene: &Scene) -> anyhow::Result<Backg
         Some("black") => Background::Fixed([0.0; 3]),
         Some("white") => Background::Fixed([1.0; 3]),
         Some("random") => Background::Random,
-        Some(s) => Background::Fixed(parse_rgb(s).map_err(|e| {
-            anyhow::anyhow!("--background {e}; or use black, white or random")
-        })?),
+        Some(s) => Background::Fixed(
+            parse_rgb(s)
+                .map_err(|e| anyhow::anyhow!("--background {e}; or use black, white or random"))?,
+        ),
     })
 }
 
@@ -294,7 +295,10 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
             rgb: renders[k].clone(),
             alpha: None,
         };
-        images::save_png(&render_dir.join(format!("{}.png", scene.views[v].stem)), &img)?;
+        images::save_png(
+            &render_dir.join(format!("{}.png", scene.views[v].stem)),
+            &img,
+        )?;
     }
     let (psnr, ssim) = mean_metrics(&per_view);
     let metrics = serde_json::json!({
@@ -314,13 +318,17 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         "stages": if config.timestamps { stage_shares(&stages) } else { serde_json::Value::Null },
     });
     let text = serde_json::to_string_pretty(&metrics)?;
-    write_atomic(&args.out.join("metrics.json"), |f| Ok(f.write_all(text.as_bytes())?))?;
+    write_atomic(&args.out.join("metrics.json"), |f| {
+        Ok(f.write_all(text.as_bytes())?)
+    })?;
     let mut cfg = config.to_json();
     cfg["scene"] = serde_json::json!(args.scene.scene.display().to_string());
     cfg["resolution"] = serde_json::json!(args.scene.resolution);
     cfg["init_points"] = serde_json::json!(init.len());
     let text = serde_json::to_string_pretty(&cfg)?;
-    write_atomic(&args.out.join("config.json"), |f| Ok(f.write_all(text.as_bytes())?))?;
+    write_atomic(&args.out.join("config.json"), |f| {
+        Ok(f.write_all(text.as_bytes())?)
+    })?;
     println!(
         "trained {} iterations in {:.1} s ({:.2} it/s): {} Gaussians, test PSNR {:.3} dB, SSIM {:.4}",
         config.iterations,
@@ -333,7 +341,11 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     if config.timestamps {
         let total = stages.total_ms().max(1e-12);
         for (n, ms) in &stages.stages {
-            println!("  {n:<12} {:>6.1}%  ({:.2} ms/it)", 100.0 * ms / total, ms / config.iterations as f64);
+            println!(
+                "  {n:<12} {:>6.1}%  ({:.2} ms/it)",
+                100.0 * ms / total,
+                ms / config.iterations as f64
+            );
         }
     }
     println!("wrote {}", args.out.display());

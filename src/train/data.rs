@@ -31,7 +31,10 @@ pub fn pack_rgba8(img: &Image) -> Vec<u32> {
     (0..img.len())
         .map(|i| {
             let a = img.alpha.as_ref().map_or(255, |a| q(a[i]));
-            q(img.rgb[3 * i]) | (q(img.rgb[3 * i + 1]) << 8) | (q(img.rgb[3 * i + 2]) << 16) | (a << 24)
+            q(img.rgb[3 * i])
+                | (q(img.rgb[3 * i + 1]) << 8)
+                | (q(img.rgb[3 * i + 2]) << 16)
+                | (a << 24)
         })
         .collect()
 }
@@ -86,7 +89,12 @@ impl GpuImages {
                 };
                 data.extend(pack_rgba8(&images[i]));
             }
-            let buf = GpuBuffer::new(ctx, "ground truth", data.len().max(1), BufferKind::DeviceLocal)?;
+            let buf = GpuBuffer::new(
+                ctx,
+                "ground truth",
+                data.len().max(1),
+                BufferKind::DeviceLocal,
+            )?;
             if !data.is_empty() {
                 buf.upload(&data)?;
             }
@@ -135,7 +143,9 @@ impl ViewSchedule {
     }
 
     fn shuffle(&mut self) {
-        let mut rng = rand_pcg::Pcg64::seed_from_u64(self.seed ^ self.epoch.wrapping_mul(0x9E37_79B9_7F4A_7C15));
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(
+            self.seed ^ self.epoch.wrapping_mul(0x9E37_79B9_7F4A_7C15),
+        );
         self.order = self.views.clone();
         self.order.shuffle(&mut rng);
         self.next = 0;

@@ -205,7 +205,8 @@ impl Trainer {
         let params = GpuSplats::upload(ctx, &init, capacity)?;
         let state = SplatState::new(ctx, params)?;
         let grads = GpuSplats::zeroed(ctx, "grad ", config.sh_degree, init.len(), capacity)?;
-        let view_grad_norm = GpuBuffer::new(ctx, "view grad norm", capacity, BufferKind::DeviceLocal)?;
+        let view_grad_norm =
+            GpuBuffer::new(ctx, "view grad norm", capacity, BufferKind::DeviceLocal)?;
         let (mut max_w, mut max_h, mut max_tiles) = (1u32, 1u32, 1u32);
         for &v in &scene.train {
             let c = &cameras_host[v];
@@ -308,7 +309,11 @@ impl Trainer {
                 background: bg,
                 constants,
             },
-            if cfg.timestamps { Some(&mut self.pool) } else { None },
+            if cfg.timestamps {
+                Some(&mut self.pool)
+            } else {
+                None
+            },
         )?;
         let img = self.images.slots[slot];
         self.loss.record(
@@ -354,19 +359,30 @@ impl Trainer {
             self.rec.timestamp(&mut self.pool, "backward");
         }
         if cfg.schedule.accumulates(it) {
-            self.density
-                .record_accumulate(&mut self.rec, &self.view_grad_norm, &f.projected, count)?;
+            self.density.record_accumulate(
+                &mut self.rec,
+                &self.view_grad_norm,
+                &f.projected,
+                count,
+            )?;
         }
         if !densifies {
             self.adam_step += 1;
             let lrs = cfg.lr.at(it, self.extent);
-            self.adam
-                .record_state(&self.ctx, &mut self.rec, &self.state, &self.grads, self.adam_step, &lrs)?;
+            self.adam.record_state(
+                &self.ctx,
+                &mut self.rec,
+                &self.state,
+                &self.grads,
+                self.adam_step,
+                &lrs,
+            )?;
         }
         if cfg.timestamps {
             self.rec.timestamp(&mut self.pool, "adam");
         }
-        self.rec.copy(&self.loss_out, &self.loss_host, LOSS_SLOT_FLOATS);
+        self.rec
+            .copy(&self.loss_out, &self.loss_host, LOSS_SLOT_FLOATS);
         self.rec.submit_and_wait()?;
         let stages = if cfg.timestamps {
             Some(self.pool.read()?)
@@ -409,17 +425,21 @@ impl Trainer {
                 prune_large: cfg.schedule.prunes_large(it),
                 iteration: it,
             };
-            let outcome = self.density.step(&mut self.rec, &mut self.state, &args, None)?;
+            let outcome = self
+                .density
+                .step(&mut self.rec, &mut self.state, &args, None)?;
             self.follow_capacity()?;
             if cfg.schedule.resets_opacity(it) {
-                self.density.record_opacity_reset(&mut self.rec, &self.state)?;
+                self.density
+                    .record_opacity_reset(&mut self.rec, &self.state)?;
             }
             self.rec.submit_and_wait()?;
             report.gaussians = self.state.count();
             report.densified = Some(outcome);
         } else if cfg.schedule.resets_opacity(it) {
             self.rec.begin()?;
-            self.density.record_opacity_reset(&mut self.rec, &self.state)?;
+            self.density
+                .record_opacity_reset(&mut self.rec, &self.state)?;
             self.rec.submit_and_wait()?;
         }
         Ok(report)
