@@ -238,6 +238,9 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         )
         .unwrap(),
     );
+    // Without a terminal (CI, logs) the bar is hidden: print a plain line every ~10 s instead.
+    let plain = !std::io::IsTerminal::is_terminal(&std::io::stderr());
+    let mut last_line = Instant::now();
     let t0 = Instant::now();
     let mut stages = StageTimes::default();
     let mut evals = Vec::new();
@@ -257,6 +260,21 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
                 r.l1, r.gaussians
             ));
             bar.set_position(r.iteration as u64);
+            if plain
+                && (last_line.elapsed().as_secs_f64() > 10.0 || r.iteration == config.iterations)
+            {
+                last_line = Instant::now();
+                let el = t0.elapsed().as_secs_f64();
+                let rate = r.iteration as f64 / el;
+                eprintln!(
+                    "[{}/{}] loss {ema:.4} (L1 {:.4}) | {} Gaussians | {rate:.2} it/s | ETA {:.0} s",
+                    r.iteration,
+                    config.iterations,
+                    r.l1,
+                    r.gaussians,
+                    (config.iterations - r.iteration) as f64 / rate
+                );
+            }
         }
         if args.eval_every > 0
             && r.iteration % args.eval_every == 0
@@ -265,11 +283,16 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         {
             let (m, _) = trainer.evaluate(&scene, &scene.test, &test_images)?;
             let (p, s) = mean_metrics(&m);
-            bar.println(format!(
+            let line = format!(
                 "[{}] test PSNR {p:.3} dB, SSIM {s:.4}, {} Gaussians",
                 r.iteration,
                 trainer.gaussians()
-            ));
+            );
+            if plain {
+                eprintln!("{line}");
+            } else {
+                bar.println(line);
+            }
             evals.push(serde_json::json!({"iteration": r.iteration, "psnr": p, "ssim": s, "gaussians": trainer.gaussians()}));
         }
     }
