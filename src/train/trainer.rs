@@ -425,6 +425,22 @@ impl Trainer {
         Ok(report)
     }
 
+    /// The renderer's intersection capacity (saved in checkpoints: a frame that overflows it
+    /// is dropped, so it is part of the state that decides results).
+    pub fn intersection_capacity(&self) -> usize {
+        self.renderer.capacity().intersections
+    }
+
+    /// Grows the intersection buffers to at least `n` pairs.
+    pub fn reserve_intersections(&mut self, n: usize) -> anyhow::Result<()> {
+        let c = self.renderer.capacity();
+        self.renderer.ensure_capacity(Capacity {
+            intersections: n,
+            ..c
+        })?;
+        Ok(())
+    }
+
     /// The current model.
     pub fn model(&self) -> anyhow::Result<GaussianParams> {
         self.state.params.download()
