@@ -288,6 +288,8 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         )?,
     };
     let ctx = GpuContext::new(gpu)?;
+    // From here on Ctrl-C is polled after each iteration (and saves a checkpoint).
+    super::interrupt::install();
     eprintln!(
         "{}: {} training / {} test views at {}×{}, {} initial Gaussians, {} on {}",
         args.scene.scene.display(),
@@ -312,7 +314,6 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         Some(_) => Some(NonFiniteCheck::new(&ctx)?),
         None => None,
     };
-    super::interrupt::install();
     let load_s = t_load.elapsed().as_secs_f64();
     let start_iteration = trainer.iteration;
     let bar = ProgressBar::new(config.iterations as u64);
