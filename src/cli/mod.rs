@@ -1,7 +1,9 @@
 //! Subcommands. Each lives in its own file; this one parses and dispatches.
 
 mod bench;
+mod eval;
 mod info;
+mod interrupt;
 mod matching;
 mod render;
 mod train;
@@ -38,6 +40,8 @@ pub enum Command {
     Render(render::RenderArgs),
     /// Train a scene (ADC baseline) and write the PLY, test renders and metrics.
     Train(train::TrainArgs),
+    /// PSNR and SSIM of a trained PLY on a scene's test views (table, JSON, side-by-side PNGs).
+    Eval(eval::EvalArgs),
     /// Benchmarks: `bench fps` (rendering speed and per-stage GPU time).
     Bench(bench::BenchArgs),
 }
@@ -85,5 +89,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Render(a) => render::run(&gpu, &a),
         Command::Bench(a) => bench::run(&gpu, &a),
         Command::Train(a) => train::run(&gpu, &a),
+        Command::Eval(a) => eval::run(&gpu, &a),
     }
 }

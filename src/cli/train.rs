@@ -10,6 +10,7 @@ use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuContext, GpuOptions, StageTimes};
 use lpmsplat::scene::{images, Image, Scene};
 use lpmsplat::splats::{self, read_ply, write_ply, GaussianParams};
+use lpmsplat::train::nan_check::NonFiniteCheck;
 use lpmsplat::train::trainer::{Background, TrainConfig, Trainer, ViewMetrics};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -44,6 +45,16 @@ pub struct TrainArgs {
     /// Collect per-stage GPU timestamps and report their shares.
     #[arg(long)]
     pub timestamps: bool,
+    /// Write OUT/checkpoint.bin every N iterations (0 = only at the end and on Ctrl-C).
+    #[arg(long, default_value_t = 0)]
+    pub checkpoint_every: u32,
+    /// Continue the run saved in this checkpoint (same scene and flags; --iterations may grow).
+    #[arg(long)]
+    pub resume: Option<PathBuf>,
+    /// Stop at the first NaN or inf in the parameters, naming the iteration, the parameter
+    /// group and the Gaussian; checks every N iterations (N = 1 when given without a value).
+    #[arg(long, num_args = 0..=1, default_missing_value = "1")]
+    pub nan_check: Option<u32>,
     // Learning rates and density control (reference defaults).
     #[arg(long, default_value_t = 1.6e-4)]
     pub lr_position: f64,
@@ -203,21 +214,83 @@ fn stage_shares(t: &StageTimes) -> serde_json::Value {
     )
 }
 
+/// Flag combinations that cannot work, caught before anything is loaded.
+fn check_flags(args: &TrainArgs) -> anyhow::Result<()> {
+    if let Some(r) = &args.resume {
+        anyhow::ensure!(
+            args.init_ply.is_none(),
+            "--resume {} with --init-ply: a resumed run continues from the checkpoint's \
+             Gaussians. Fix: drop --init-ply (or drop --resume to start fresh from the PLY)",
+            r.display()
+        );
+        anyhow::ensure!(
+            r.is_file(),
+            "{}: --resume: no such checkpoint file. Fix: pass the checkpoint.bin a previous run \
+             wrote into its output folder",
+            r.display()
+        );
+    }
+    anyhow::ensure!(
+        args.nan_check != Some(0),
+        "--nan-check 0: the check interval must be at least 1. Fix: pass --nan-check or \
+         --nan-check N with N ≥ 1"
+    );
+    Ok(())
+}
+
+/// How to continue this run: its own command line with `--resume CHECKPOINT` (for messages).
+fn resume_hint(checkpoint: &Path) -> String {
+    let mut words = Vec::new();
+    let mut args = std::env::args();
+    while let Some(a) = args.next() {
+        if a == "--resume" {
+            args.next();
+        } else if !a.starts_with("--resume=") {
+            words.push(a);
+        }
+    }
+    words.push("--resume".into());
+    words.push(checkpoint.display().to_string());
+    words.join(" ")
+}
+
 pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
+    check_flags(args)?;
     let scene = Scene::load(&args.scene.scene, &args.scene.load_options()?)?;
     let config = args.config(&scene)?;
     prepare_output(&args.out)?;
+    let checkpoint_path = args.out.join("checkpoint.bin");
     let t_load = Instant::now();
     let train_images = images::load_images(&scene, &scene.train)?;
     let test_images = images::load_images(&scene, &scene.test)?;
-    let init = initial_model(
-        &scene,
-        args.init_ply.as_deref(),
-        args.init_points,
-        args.seed,
-        args.sh_degree,
-    )?;
+    let resumed = match &args.resume {
+        Some(p) => Some(lpmsplat::train::checkpoint::Checkpoint::read(p)?),
+        None => None,
+    };
+    if let (Some(ck), Some(p)) = (&resumed, &args.resume) {
+        anyhow::ensure!(
+            ck.iteration < config.iterations,
+            "{}: iteration: the checkpoint is already at iteration {}, and --iterations is {}. \
+             Fix: pass --iterations above {} to train further",
+            p.display(),
+            ck.iteration,
+            config.iterations,
+            ck.iteration
+        );
+    }
+    let init = match &resumed {
+        Some(ck) => ck.params(),
+        None => initial_model(
+            &scene,
+            args.init_ply.as_deref(),
+            args.init_points,
+            args.seed,
+            args.sh_degree,
+        )?,
+    };
     let ctx = GpuContext::new(gpu)?;
+    // From here on Ctrl-C is polled after each iteration (and saves a checkpoint).
+    super::interrupt::install();
     eprintln!(
         "{}: {} training / {} test views at {}×{}, {} initial Gaussians, {} on {}",
         args.scene.scene.display(),
@@ -229,9 +302,23 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         config.background.describe(),
         ctx.info.name
     );
-    let mut trainer = Trainer::new(&ctx, &scene, &train_images, &init, config.clone())?;
+    let mut trainer = match (&resumed, &args.resume) {
+        (Some(ck), Some(p)) => {
+            let t = Trainer::restore(&ctx, &scene, &train_images, config.clone(), ck, p)?;
+            eprintln!("resuming {} at iteration {}", p.display(), t.iteration);
+            t
+        }
+        _ => Trainer::new(&ctx, &scene, &train_images, &init, config.clone())?,
+    };
+    drop(resumed);
+    let mut nan_check = match args.nan_check {
+        Some(_) => Some(NonFiniteCheck::new(&ctx)?),
+        None => None,
+    };
     let load_s = t_load.elapsed().as_secs_f64();
+    let start_iteration = trainer.iteration;
     let bar = ProgressBar::new(config.iterations as u64);
+    bar.set_position(start_iteration as u64);
     bar.set_style(
         ProgressStyle::with_template(
             "{bar:30} {pos}/{len} {msg} [{elapsed_precise} < {eta_precise}, {per_sec}]",
@@ -245,8 +332,31 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     let mut stages = StageTimes::default();
     let mut evals = Vec::new();
     let mut ema_loss = None::<f64>;
-    for _ in 0..config.iterations {
+    for _ in start_iteration..config.iterations {
         let r = trainer.step()?;
+        if let (Some(check), Some(every)) = (nan_check.as_mut(), args.nan_check) {
+            if r.iteration % every == 0 || r.iteration == config.iterations {
+                check.check(&trainer.state.params, r.iteration)?;
+            }
+        }
+        if super::interrupt::requested() {
+            bar.abandon();
+            trainer.save_checkpoint(&scene, &checkpoint_path)?;
+            write_ply(&args.out.join("point_cloud.ply"), &trainer.model()?)?;
+            anyhow::bail!(
+                "interrupted (Ctrl-C) after iteration {}: wrote {} and {}. To continue: {}",
+                r.iteration,
+                checkpoint_path.display(),
+                args.out.join("point_cloud.ply").display(),
+                resume_hint(&checkpoint_path)
+            );
+        }
+        if args.checkpoint_every > 0
+            && r.iteration % args.checkpoint_every == 0
+            && r.iteration < config.iterations
+        {
+            trainer.save_checkpoint(&scene, &checkpoint_path)?;
+        }
         if let Some(s) = &r.stages {
             stages.accumulate(s);
         }
@@ -298,8 +408,10 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     }
     bar.finish();
     let train_s = t0.elapsed().as_secs_f64();
+    let trained = (config.iterations - start_iteration).max(1);
     let model = trainer.model()?;
     write_ply(&args.out.join("point_cloud.ply"), &model)?;
+    trainer.save_checkpoint(&scene, &checkpoint_path)?;
 
     // Final evaluation and renders.
     let (per_view, renders) = if scene.test.is_empty() {
@@ -334,7 +446,8 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         "per_view": per_view,
         "evaluations": evals,
         "train_seconds": train_s,
-        "iterations_per_second": config.iterations as f64 / train_s,
+        "iterations_per_second": trained as f64 / train_s,
+        "resumed_from": start_iteration,
         "setup_seconds": load_s,
         "dropped_frames": trainer.dropped_frames,
         "device": ctx.info.name,
@@ -356,7 +469,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         "trained {} iterations in {:.1} s ({:.2} it/s): {} Gaussians, test PSNR {:.3} dB, SSIM {:.4}",
         config.iterations,
         train_s,
-        config.iterations as f64 / train_s,
+        trained as f64 / train_s,
         model.len(),
         psnr,
         ssim
@@ -367,7 +480,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
             println!(
                 "  {n:<12} {:>6.1}%  ({:.2} ms/it)",
                 100.0 * ms / total,
-                ms / config.iterations as f64
+                ms / trained as f64
             );
         }
     }

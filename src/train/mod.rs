@@ -2,8 +2,10 @@
 //! the training data and the trainer loop.
 
 pub mod adam;
+pub mod checkpoint;
 pub mod data;
 pub mod density;
 pub mod loss;
+pub mod nan_check;
 pub mod schedule;
 pub mod trainer;

@@ -12,6 +12,14 @@
 //! other readback). When a frame needed more intersections than the buffers hold, the pairs
 //! past the capacity (the farthest Gaussians) were dropped for that one iteration; the buffers
 //! then grow to 1.5× the need, and it does not happen again for that view size.
+//!
+//! Determinism: the backward pass sums gradients with float atomics, so on a device that runs
+//! workgroups concurrently the order of those sums, and with it the last bits of the gradients,
+//! varies from run to run (lavapipe: thousands of words differ after one iteration, and the
+//! runs drift apart chaotically). With `LP_NUM_THREADS=1` lavapipe runs workgroups in order and
+//! identical runs are bitwise equal. A checkpoint (`super::checkpoint`) restores everything the
+//! next iteration reads, so a resumed run is bitwise equal to a straight one wherever straight
+//! runs are reproducible (`tests/train.rs`).
 
 use std::sync::Arc;
 
@@ -443,6 +451,22 @@ impl Trainer {
             self.rec.submit_and_wait()?;
         }
         Ok(report)
+    }
+
+    /// The renderer's intersection capacity (saved in checkpoints: a frame that overflows it
+    /// is dropped, so it is part of the state that decides results).
+    pub fn intersection_capacity(&self) -> usize {
+        self.renderer.capacity().intersections
+    }
+
+    /// Grows the intersection buffers to at least `n` pairs.
+    pub fn reserve_intersections(&mut self, n: usize) -> anyhow::Result<()> {
+        let c = self.renderer.capacity();
+        self.renderer.ensure_capacity(Capacity {
+            intersections: n,
+            ..c
+        })?;
+        Ok(())
     }
 
     /// The current model.

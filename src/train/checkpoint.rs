@@ -1,0 +1,609 @@
+//! Training checkpoints: everything needed to continue a run exactly where it stopped.
+//!
+//! Binary, little-endian, versioned. Layout (format version 1):
+//!
+//! ```text
+//! magic "LPMSCKPT"  u32 version
+//! fingerprint: u32 sh_degree, u32 views, per view (u32 name length, name bytes, u32 width,
+//!              u32 height), u32 train views, u32 per train view (index into the views)
+//! u32 iteration  u32 adam_step  u64 epoch  u64 position in the epoch  u32 dropped frames
+//! u64 intersection capacity
+//! u64 count
+//! parameters, Adam m, Adam v: 6 groups each (positions, log-scales, rotations, opacity
+//!              logits, SH DC, SH rest), each u64 length then f32 data (count × stride)
+//! density statistics grad_accum, denom, max_radii: u64 length then f32 data (count each)
+//! config: u64 length then the config's JSON (UTF-8)
+//! u64 FNV-1a hash of every byte before it
+//! ```
+//!
+//! The fingerprint ties a checkpoint to the scene it was trained on (the view names, their
+//! sizes at the chosen resolution, the training split) and to the SH degree; the hash catches
+//! truncated and corrupt files before anything is uploaded. Files are written with
+//! [`write_atomic`], so a crash while saving leaves the previous checkpoint intact.
+//!
+//! Resuming restores the Gaussians, both Adam moment sets, the density statistics, the
+//! iteration and Adam step counters and the view schedule's position, so N iterations in one
+//! run and N/2 + save + load + N/2 produce the same model (bit for bit where the device's
+//! float atomics are; see `tests/train.rs`). Buffer capacities are not restored except the
+//! intersection capacity (the one that changes results: a frame that overflows it is dropped).
+
+use std::io::Write;
+use std::path::Path;
+use std::sync::Arc;
+
+use anyhow::Context;
+
+use super::trainer::{TrainConfig, Trainer};
+use crate::error::{bad_input, write_atomic};
+use crate::gpu::{GpuBuffer, GpuContext};
+use crate::scene::{Image, Scene};
+use crate::splats::gpu::GpuSplats;
+use crate::splats::GaussianParams;
+
+pub const MAGIC: &[u8; 8] = b"LPMSCKPT";
+pub const FORMAT_VERSION: u32 = 1;
+const GROUP_NAMES: [&str; 6] = [
+    "positions",
+    "log_scales",
+    "rotations",
+    "opacity_logits",
+    "sh_dc",
+    "sh_rest",
+];
+
+/// What ties a checkpoint to a scene and a model layout.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SceneFingerprint {
+    pub sh_degree: u32,
+    /// (name, width, height) of every view at the loaded resolution.
+    pub views: Vec<(String, u32, u32)>,
+    pub train: Vec<u32>,
+}
+
+impl SceneFingerprint {
+    pub fn of(scene: &Scene, sh_degree: u32) -> Self {
+        Self {
+            sh_degree,
+            views: scene
+                .views
+                .iter()
+                .map(|v| (v.name.clone(), v.camera.width, v.camera.height))
+                .collect(),
+            train: scene.train.iter().map(|&v| v as u32).collect(),
+        }
+    }
+
+    /// The first difference from `other` (the scene being resumed), as (field, problem).
+    fn difference(&self, scene: &Self) -> Option<(String, String)> {
+        if self.sh_degree != scene.sh_degree {
+            return Some((
+                "sh_degree".into(),
+                format!(
+                    "the checkpoint has SH degree {}, this run asks for {}",
+                    self.sh_degree, scene.sh_degree
+                ),
+            ));
+        }
+        if self.views.len() != scene.views.len() {
+            return Some((
+                "views".into(),
+                format!(
+                    "the checkpoint was trained on a scene of {} views, this scene has {}",
+                    self.views.len(),
+                    scene.views.len()
+                ),
+            ));
+        }
+        for (i, (a, b)) in self.views.iter().zip(&scene.views).enumerate() {
+            if a.0 != b.0 {
+                return Some((
+                    format!("views[{i}].name"),
+                    format!("the checkpoint has '{}', this scene has '{}'", a.0, b.0),
+                ));
+            }
+            if (a.1, a.2) != (b.1, b.2) {
+                return Some((
+                    format!("views[{i}].size"),
+                    format!(
+                        "'{}' is {}×{} in the checkpoint and {}×{} here (another -r?)",
+                        a.0, a.1, a.2, b.1, b.2
+                    ),
+                ));
+            }
+        }
+        if self.train != scene.train {
+            return Some((
+                "train".into(),
+                "the training split differs (another --test-split or holdout?)".into(),
+            ));
+        }
+        None
+    }
+}
+
+/// A checkpoint in host memory.
+#[derive(Debug, Clone)]
+pub struct Checkpoint {
+    pub fingerprint: SceneFingerprint,
+    pub iteration: u32,
+    pub adam_step: u32,
+    pub schedule_epoch: u64,
+    pub schedule_next: u64,
+    pub dropped_frames: u32,
+    pub intersection_capacity: u64,
+    pub count: u64,
+    /// Parameters, Adam m, Adam v: the six groups each, `count × stride` floats.
+    pub sets: [[Vec<f32>; 6]; 3],
+    /// grad_accum, denom, max_radii (`count` floats each).
+    pub stats: [Vec<f32>; 3],
+    pub config_json: String,
+}
+
+fn fnv1a(bytes: &[u8]) -> u64 {
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    for &b in bytes {
+        h ^= b as u64;
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    h
+}
+
+struct Writer(Vec<u8>);
+impl Writer {
+    fn u32(&mut self, v: u32) {
+        self.0.extend_from_slice(&v.to_le_bytes());
+    }
+    fn u64(&mut self, v: u64) {
+        self.0.extend_from_slice(&v.to_le_bytes());
+    }
+    fn bytes(&mut self, b: &[u8]) {
+        self.u64(b.len() as u64);
+        self.0.extend_from_slice(b);
+    }
+    fn floats(&mut self, f: &[f32]) {
+        self.u64(f.len() as u64);
+        for v in f {
+            self.0.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+}
+
+/// Reads fields in order; running out of bytes is an error naming the field.
+struct Reader<'a> {
+    path: &'a Path,
+    data: &'a [u8],
+    at: usize,
+}
+
+impl Reader<'_> {
+    fn take(&mut self, n: usize, field: &str) -> anyhow::Result<&[u8]> {
+        if self.data.len() - self.at < n {
+            return bad_input(
+                self.path,
+                field,
+                format!(
+                    "the file ends at byte {} but the field needs {n} bytes from byte {}",
+                    self.data.len(),
+                    self.at
+                ),
+                "the checkpoint is truncated or corrupt; use an intact checkpoint.bin or \
+                 start a fresh run without --resume",
+            );
+        }
+        let s = &self.data[self.at..self.at + n];
+        self.at += n;
+        Ok(s)
+    }
+    fn u32(&mut self, field: &str) -> anyhow::Result<u32> {
+        Ok(u32::from_le_bytes(self.take(4, field)?.try_into().unwrap()))
+    }
+    fn u64(&mut self, field: &str) -> anyhow::Result<u64> {
+        Ok(u64::from_le_bytes(self.take(8, field)?.try_into().unwrap()))
+    }
+    fn len(&mut self, field: &str, each: usize) -> anyhow::Result<usize> {
+        let n = self.u64(field)?;
+        let left = (self.data.len() - self.at) as u64;
+        if n.checked_mul(each as u64).is_none_or(|b| b > left) {
+            return bad_input(
+                self.path,
+                field,
+                format!("a length of {n} exceeds the {left} bytes left in the file"),
+                "the checkpoint is truncated or corrupt; use an intact checkpoint.bin or \
+                 start a fresh run without --resume",
+            );
+        }
+        Ok(n as usize)
+    }
+    fn string(&mut self, field: &str) -> anyhow::Result<String> {
+        let n = self.len(field, 1)?;
+        let b = self.take(n, field)?.to_vec();
+        String::from_utf8(b).or_else(|_| {
+            bad_input(
+                self.path,
+                field,
+                "not UTF-8",
+                "the checkpoint is corrupt; use an intact checkpoint.bin",
+            )
+        })
+    }
+    fn floats(&mut self, field: &str, expect: usize) -> anyhow::Result<Vec<f32>> {
+        let n = self.len(field, 4)?;
+        if n != expect {
+            return bad_input(
+                self.path,
+                field,
+                format!("{n} values where the Gaussian count asks for {expect}"),
+                "the checkpoint is corrupt; use an intact checkpoint.bin",
+            );
+        }
+        let b = self.take(n * 4, field)?;
+        Ok(b.chunks_exact(4)
+            .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+            .collect())
+    }
+}
+
+/// Floats per Gaussian of each group at `sh_degree`.
+fn strides(sh_degree: u32) -> [usize; 6] {
+    [
+        3,
+        3,
+        4,
+        1,
+        3,
+        GaussianParams::empty(sh_degree).rest_stride(),
+    ]
+}
+
+impl Checkpoint {
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let mut w = Writer(Vec::new());
+        w.0.extend_from_slice(MAGIC);
+        w.u32(FORMAT_VERSION);
+        let f = &self.fingerprint;
+        w.u32(f.sh_degree);
+        w.u32(f.views.len() as u32);
+        for (name, width, height) in &f.views {
+            w.bytes(name.as_bytes());
+            w.u32(*width);
+            w.u32(*height);
+        }
+        w.u32(f.train.len() as u32);
+        for &t in &f.train {
+            w.u32(t);
+        }
+        w.u32(self.iteration);
+        w.u32(self.adam_step);
+        w.u64(self.schedule_epoch);
+        w.u64(self.schedule_next);
+        w.u32(self.dropped_frames);
+        w.u64(self.intersection_capacity);
+        w.u64(self.count);
+        for set in &self.sets {
+            for g in set {
+                w.floats(g);
+            }
+        }
+        for s in &self.stats {
+            w.floats(s);
+        }
+        w.bytes(self.config_json.as_bytes());
+        let h = fnv1a(&w.0);
+        w.u64(h);
+        w.0
+    }
+
+    /// Parses a checkpoint; `path` is only used in error messages.
+    pub fn from_bytes(path: &Path, data: &[u8]) -> anyhow::Result<Self> {
+        let corrupt = "use an intact checkpoint.bin or start a fresh run without --resume";
+        if data.len() < 12 || &data[..8] != MAGIC {
+            return bad_input(
+                path,
+                "magic",
+                "not an lpmsplat checkpoint (the file does not start with LPMSCKPT)",
+                "pass the checkpoint.bin that `lpmsplat train` wrote",
+            );
+        }
+        let version = u32::from_le_bytes(data[8..12].try_into().unwrap());
+        if version != FORMAT_VERSION {
+            return bad_input(
+                path,
+                "format version",
+                format!("format version {version}; this build reads version {FORMAT_VERSION}"),
+                "resume with the lpmsplat version that wrote it, or start a fresh run (its \
+                 point_cloud.ply can seed one with --init-ply)",
+            );
+        }
+        if data.len() < 20 {
+            return bad_input(path, "header", "the file is truncated", corrupt);
+        }
+        let (body, tail) = data.split_at(data.len() - 8);
+        let stored = u64::from_le_bytes(tail.try_into().unwrap());
+        if fnv1a(body) != stored {
+            return bad_input(
+                path,
+                "checksum",
+                "the stored hash does not match the contents (truncated or corrupt file)",
+                corrupt,
+            );
+        }
+        let mut r = Reader {
+            path,
+            data: body,
+            at: 12,
+        };
+        let sh_degree = r.u32("sh_degree")?;
+        if sh_degree > 3 {
+            return bad_input(path, "sh_degree", format!("{sh_degree} > 3"), corrupt);
+        }
+        let nviews = r.u32("views")? as usize;
+        let mut views = Vec::new();
+        for i in 0..nviews {
+            let name = r.string(&format!("views[{i}].name"))?;
+            let w = r.u32(&format!("views[{i}].width"))?;
+            let h = r.u32(&format!("views[{i}].height"))?;
+            views.push((name, w, h));
+        }
+        let ntrain = r.u32("train")? as usize;
+        let mut train = Vec::new();
+        for i in 0..ntrain {
+            train.push(r.u32(&format!("train[{i}]"))?);
+        }
+        let iteration = r.u32("iteration")?;
+        let adam_step = r.u32("adam_step")?;
+        let schedule_epoch = r.u64("schedule epoch")?;
+        let schedule_next = r.u64("schedule position")?;
+        let dropped_frames = r.u32("dropped frames")?;
+        let intersection_capacity = r.u64("intersection capacity")?;
+        let count = r.u64("count")?;
+        let st = strides(sh_degree);
+        let mut sets: [[Vec<f32>; 6]; 3] = Default::default();
+        for (s, set_name) in ["params", "adam m", "adam v"].iter().enumerate() {
+            for g in 0..6 {
+                let expect = (count as usize)
+                    .checked_mul(st[g])
+                    .context("count overflows")?;
+                sets[s][g] = r.floats(&format!("{set_name}.{}", GROUP_NAMES[g]), expect)?;
+            }
+        }
+        let mut stats: [Vec<f32>; 3] = Default::default();
+        for (k, name) in ["grad_accum", "denom", "max_radii"].iter().enumerate() {
+            stats[k] = r.floats(&format!("density.{name}"), count as usize)?;
+        }
+        let config_json = r.string("config")?;
+        if r.at != body.len() {
+            return bad_input(
+                path,
+                "end",
+                format!("{} unexpected bytes after the config", body.len() - r.at),
+                corrupt,
+            );
+        }
+        Ok(Self {
+            fingerprint: SceneFingerprint {
+                sh_degree,
+                views,
+                train,
+            },
+            iteration,
+            adam_step,
+            schedule_epoch,
+            schedule_next,
+            dropped_frames,
+            intersection_capacity,
+            count,
+            sets,
+            stats,
+            config_json,
+        })
+    }
+
+    pub fn read(path: &Path) -> anyhow::Result<Self> {
+        let data = std::fs::read(path).with_context(|| {
+            format!(
+                "{}: cannot read the checkpoint. Fix: check the --resume path",
+                path.display()
+            )
+        })?;
+        Self::from_bytes(path, &data)
+    }
+
+    /// Writes atomically (an existing checkpoint survives a failed write).
+    pub fn write(&self, path: &Path) -> anyhow::Result<()> {
+        let bytes = self.to_bytes();
+        write_atomic(path, |f| Ok(f.write_all(&bytes)?))
+    }
+
+    /// The Gaussians of the checkpoint.
+    pub fn params(&self) -> GaussianParams {
+        let s = &self.sets[0];
+        let mut p = GaussianParams::empty(self.fingerprint.sh_degree);
+        p.positions = bytemuck::cast_slice(&s[0]).to_vec();
+        p.log_scales = bytemuck::cast_slice(&s[1]).to_vec();
+        p.rotations = bytemuck::cast_slice(&s[2]).to_vec();
+        p.opacity_logits = s[3].clone();
+        p.sh_dc = bytemuck::cast_slice(&s[4]).to_vec();
+        p.sh_rest = s[5].clone();
+        p
+    }
+}
+
+fn read_groups(splats: &GpuSplats) -> anyhow::Result<[Vec<f32>; 6]> {
+    let n = splats.count;
+    let g = splats.groups();
+    let mut out: [Vec<f32>; 6] = Default::default();
+    for (k, (buf, stride)) in g.iter().enumerate() {
+        out[k] = buf.read_range(0, n * stride)?;
+    }
+    Ok(out)
+}
+
+fn upload_groups(splats: &GpuSplats, data: &[Vec<f32>; 6]) -> anyhow::Result<()> {
+    for ((buf, _), d) in splats.groups().iter().zip(data) {
+        buf.upload(d)?;
+    }
+    Ok(())
+}
+
+/// Keys of two config JSONs that differ (ignoring `iterations`, which a resumed run may raise).
+fn config_differences(saved: &serde_json::Value, now: &serde_json::Value) -> Vec<String> {
+    fn walk(prefix: &str, a: &serde_json::Value, b: &serde_json::Value, out: &mut Vec<String>) {
+        match (a, b) {
+            (serde_json::Value::Object(x), serde_json::Value::Object(y)) => {
+                let mut keys: Vec<&String> = x.keys().chain(y.keys()).collect();
+                keys.sort();
+                keys.dedup();
+                for k in keys {
+                    let name = if prefix.is_empty() {
+                        k.clone()
+                    } else {
+                        format!("{prefix}.{k}")
+                    };
+                    if name == "iterations" {
+                        continue;
+                    }
+                    match (x.get(k), y.get(k)) {
+                        (Some(a), Some(b)) => walk(&name, a, b, out),
+                        (a, b) => out.push(format!(
+                            "{name} (checkpoint {}, now {})",
+                            a.map_or("absent".into(), |v| v.to_string()),
+                            b.map_or("absent".into(), |v| v.to_string())
+                        )),
+                    }
+                }
+            }
+            _ if a != b => out.push(format!("{prefix} (checkpoint {a}, now {b})")),
+            _ => {}
+        }
+    }
+    let mut out = Vec::new();
+    walk("", saved, now, &mut out);
+    out
+}
+
+impl Trainer {
+    /// The complete training state (waits for nothing: call between iterations).
+    pub fn checkpoint(&self, scene: &Scene) -> anyhow::Result<Checkpoint> {
+        let (epoch, next) = self.views.position();
+        let stats = self.density.stats();
+        let n = self.state.count();
+        Ok(Checkpoint {
+            fingerprint: SceneFingerprint::of(scene, self.state.sh_degree()),
+            iteration: self.iteration,
+            adam_step: self.adam_step,
+            schedule_epoch: epoch,
+            schedule_next: next as u64,
+            dropped_frames: self.dropped_frames,
+            intersection_capacity: self.intersection_capacity() as u64,
+            count: n as u64,
+            sets: [
+                read_groups(&self.state.params)?,
+                read_groups(&self.state.m)?,
+                read_groups(&self.state.v)?,
+            ],
+            stats: [
+                stats.grad_accum.read_range(0, n)?,
+                stats.denom.read_range(0, n)?,
+                stats.max_radii.read_range(0, n)?,
+            ],
+            config_json: self.config.to_json().to_string(),
+        })
+    }
+
+    /// Writes the training state to `path` atomically.
+    pub fn save_checkpoint(&self, scene: &Scene, path: &Path) -> anyhow::Result<()> {
+        self.checkpoint(scene)?.write(path)
+    }
+
+    /// A trainer continuing the run saved in `checkpoint` (read from `path`, named in errors)
+    /// on `scene`, which must be the scene it was trained on, with the same configuration
+    /// (only `iterations` may differ).
+    pub fn resume(
+        ctx: &Arc<GpuContext>,
+        scene: &Scene,
+        train_images: &[Image],
+        config: TrainConfig,
+        path: &Path,
+    ) -> anyhow::Result<Self> {
+        let ck = Checkpoint::read(path)?;
+        Self::restore(ctx, scene, train_images, config, &ck, path)
+    }
+
+    /// As [`Trainer::resume`] from a checkpoint already in memory.
+    pub fn restore(
+        ctx: &Arc<GpuContext>,
+        scene: &Scene,
+        train_images: &[Image],
+        config: TrainConfig,
+        ck: &Checkpoint,
+        path: &Path,
+    ) -> anyhow::Result<Self> {
+        let here = SceneFingerprint::of(scene, config.sh_degree);
+        if let Some((field, problem)) = ck.fingerprint.difference(&here) {
+            return bad_input(
+                path,
+                field,
+                format!("{problem}: the checkpoint belongs to another scene or setting"),
+                format!(
+                    "resume with the scene, -r and --sh-degree it was trained with, or start \
+                     a fresh run without --resume (scene given: {})",
+                    scene.root.display()
+                ),
+            );
+        }
+        let saved: serde_json::Value = serde_json::from_str(&ck.config_json).or_else(|e| {
+            bad_input(
+                path,
+                "config",
+                format!("not valid JSON ({e})"),
+                "the checkpoint is corrupt; use an intact checkpoint.bin",
+            )
+        })?;
+        let diffs = config_differences(&saved, &config.to_json());
+        if !diffs.is_empty() {
+            return bad_input(
+                path,
+                "config",
+                format!(
+                    "the run was trained with other settings: {}",
+                    diffs.join("; ")
+                ),
+                "resume with the flags of the original run (only --iterations may change), or \
+                 start a fresh run without --resume",
+            );
+        }
+        if ck.count == 0 {
+            return bad_input(
+                path,
+                "count",
+                "no Gaussians",
+                "use an intact checkpoint.bin",
+            );
+        }
+        let params = ck.params();
+        params.validate().with_context(|| {
+            format!(
+                "{}: params: the saved Gaussians are invalid. Fix: use an intact checkpoint.bin",
+                path.display()
+            )
+        })?;
+        let mut t = Trainer::new(ctx, scene, train_images, &params, config)?;
+        upload_groups(&t.state.m, &ck.sets[1])?;
+        upload_groups(&t.state.v, &ck.sets[2])?;
+        let stats = t.density.stats();
+        upload_stat(&stats.grad_accum, &ck.stats[0])?;
+        upload_stat(&stats.denom, &ck.stats[1])?;
+        upload_stat(&stats.max_radii, &ck.stats[2])?;
+        t.iteration = ck.iteration;
+        t.adam_step = ck.adam_step;
+        t.dropped_frames = ck.dropped_frames;
+        t.views
+            .restore(ck.schedule_epoch, ck.schedule_next as usize);
+        t.reserve_intersections(ck.intersection_capacity as usize)?;
+        Ok(t)
+    }
+}
+
+fn upload_stat(buf: &GpuBuffer<f32>, data: &[f32]) -> anyhow::Result<()> {
+    buf.upload(data)
+}
