@@ -53,6 +53,19 @@ pub const GRAD2D_STRIDE: usize = 9;
 /// Invocations per workgroup: one tile of 16×16 pixels, and the preprocess block size.
 const WG: u32 = 256;
 
+/// Pixels per invocation of the rasterizer backward: 8 on CPU drivers, where a subgroup is a
+/// SIMD loop whose per-splat reduction and atomics cost the same hit or not (see
+/// `glsl/backward/rasterize_backward.glsl`), 1 on GPUs; 1 whenever 8 would leave a partial
+/// subgroup.
+pub fn default_pixels_per_invocation(info: &crate::gpu::DeviceInfo) -> u32 {
+    let cpu = info.device_type.starts_with("CPU");
+    if cpu && (WG / 8) % info.subgroup_size.max(1) == 0 {
+        8
+    } else {
+        1
+    }
+}
+
 /// How the rasterizer backward adds gradients into global memory.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum AtomicMode {
@@ -130,6 +143,29 @@ impl Backward {
     }
 
     pub fn with_atomics(ctx: &Arc<GpuContext>, capacity: usize, mode: AtomicMode) -> Result<Self> {
+        Self::with_pixels(
+            ctx,
+            capacity,
+            mode,
+            default_pixels_per_invocation(&ctx.info),
+        )
+    }
+
+    /// As [`Backward::with_atomics`], with `pixels` (1, 2, 4 or 8) pixels per invocation of the
+    /// rasterizer backward instead of the device's default (benchmarks compare them).
+    pub fn with_pixels(
+        ctx: &Arc<GpuContext>,
+        capacity: usize,
+        mode: AtomicMode,
+        pixels: u32,
+    ) -> Result<Self> {
+        let wg = WG / pixels.max(1);
+        ensure!(
+            matches!(pixels, 1 | 2 | 4 | 8) && wg % ctx.info.subgroup_size.max(1) == 0,
+            "GPU backward: {pixels} pixels per invocation gives {wg} invocations per tile, not a \
+             multiple of the subgroup size {}; use 1, 2, 4 or 8 with whole subgroups",
+            ctx.info.subgroup_size
+        );
         let float_atomics = mode == AtomicMode::Auto && ctx.info.float_atomic_add;
         // A device without float atomics gets SPIR-V that does not declare the capability.
         let raster = if ctx.info.float_atomic_add {
@@ -139,8 +175,8 @@ impl Backward {
                 shaders::BACKWARD_RASTERIZE_BACKWARD,
                 8,
                 std::mem::size_of::<RasterPush>() as u32,
-                WG,
-                &[float_atomics as u32],
+                wg,
+                &[float_atomics as u32, pixels],
             )?
         } else {
             ComputePipeline::new(
@@ -149,8 +185,8 @@ impl Backward {
                 shaders::BACKWARD_RASTERIZE_BACKWARD_CAS,
                 8,
                 std::mem::size_of::<RasterPush>() as u32,
-                WG,
-                &[0],
+                wg,
+                &[0, pixels],
             )?
         };
         let preprocess = ComputePipeline::new(
