@@ -1,8 +1,15 @@
 #version 460
-// Forward step 4: one 16×16 workgroup per tile. The tile's Gaussians (front to back) are
+// Forward step 4: one workgroup per 16×16 tile, PIXELS pixels per invocation (pixel q = local
+// index + k·WG_SIZE, at (q % 16, q / 16) in the tile). The tile's Gaussians (front to back) are
 // loaded into shared memory a batch at a time; every pixel blends them in order and stops
 // before its transmittance would fall under t_min. Mirrors src/reference/raster.rs.
-layout(constant_id = 0) const uint WG_SIZE = 256;  // must be 256 = 16 × 16
+//
+// Why several pixels per invocation: on a CPU driver (lavapipe) a subgroup is one SIMD loop
+// iteration and `if` only masks lanes, so the shared loads and the loop overhead per splat are
+// paid per subgroup; PIXELS = 8 shares them between 8 pixels. GPUs use PIXELS = 1.
+#extension GL_EXT_control_flow_attributes : require
+layout(constant_id = 0) const uint WG_SIZE = 256;  // must be 256 / PIXELS
+layout(constant_id = 2) const uint PIXELS = 1;     // 1, 2, 4 or 8
 layout(local_size_x_id = 0) in;
 #include "camera.glsl"
 #include "projected.glsl"
@@ -29,60 +36,89 @@ void main() {
     uint tiles_x = cam.size.z;
     uint tile = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
     if (tile >= tiles_x * cam.size.w) return;  // uniform over the workgroup
-    uint lx = gl_LocalInvocationIndex % 16u, ly = gl_LocalInvocationIndex / 16u;
-    uint px = (tile % tiles_x) * 16u + lx, py = (tile / tiles_x) * 16u + ly;
-    bool inside = px < cam.size.x && py < cam.size.y;
-    vec2 centre = vec2(float(px) + 0.5, float(py) + 0.5);
+    uint li = gl_LocalInvocationIndex;
+
+    vec2 centre[PIXELS];
+    float T[PIXELS];
+    vec3 color[PIXELS];
+    uint last[PIXELS];
+    bool done[PIXELS];
+    bool all_done = true;
+    [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
+        uint q = li + k * WG_SIZE;
+        uint px = (tile % tiles_x) * 16u + q % 16u, py = (tile / tiles_x) * 16u + q / 16u;
+        centre[k] = vec2(float(px) + 0.5, float(py) + 0.5);
+        T[k] = 1.0;
+        color[k] = vec3(0.0);
+        last[k] = 0u;
+        done[k] = !(px < cam.size.x && py < cam.size.y);
+        all_done = all_done && done[k];
+    }
 
     uvec2 range = ranges[tile];
-    float T = 1.0;
-    vec3 color = vec3(0.0);
-    uint last = 0u;
-    bool done = !inside;
     for (uint base = range.x; base < range.y; base += WG_SIZE) {
         // Stop loading once every pixel of the tile is done (the count is workgroup-uniform).
-        if (gl_LocalInvocationIndex == 0u) s_done = 0u;
+        if (li == 0u) s_done = 0u;
         barrier();
-        if (done) atomicAdd(s_done, 1u);
-        uint k = base + gl_LocalInvocationIndex;
+        if (all_done) atomicAdd(s_done, 1u);
+        uint k = base + li;
         if (k < range.y) {
             Projected p = projected[sorted_ids[k]];
-            s_mean_opacity[gl_LocalInvocationIndex] = vec4(p.mean_x, p.mean_y, p.opacity, 0.0);
+            s_mean_opacity[li] = vec4(p.mean_x, p.mean_y, p.opacity, 0.0);
             // A power this far below ln(alpha_min / opacity) gives alpha < alpha_min with room
             // for rounding, so the pixel can skip exp(); the exact test still follows.
             float cutoff = rc.smooth_mode == 0u ? log(rc.alpha_min / p.opacity) - 1e-3 : -1e30;
-            s_conic[gl_LocalInvocationIndex] = vec4(p.conic_a, p.conic_b, p.conic_c, cutoff);
-            s_rgb[gl_LocalInvocationIndex] = vec4(p.r, p.g, p.b, 0.0);
+            s_conic[li] = vec4(p.conic_a, p.conic_b, p.conic_c, cutoff);
+            s_rgb[li] = vec4(p.r, p.g, p.b, 0.0);
         }
         barrier();
         if (s_done == WG_SIZE) break;
         uint batch = min(WG_SIZE, range.y - base);
-        for (uint j = 0u; !done && j < batch; j++) {
+        for (uint j = 0u; !all_done && j < batch; j++) {
             vec4 mo = s_mean_opacity[j];
             vec4 cn = s_conic[j];
-            vec2 d = mo.xy - centre;
-            float power = -0.5 * (cn.x * d.x * d.x + cn.z * d.y * d.y) - cn.y * d.x * d.y;
-            // power > 0 only happens through rounding for a positive definite conic.
-            if (power > 0.0 || power < cn.w) continue;
-            float alpha = mo.z * exp(power);
-            if (rc.smooth_mode == 0u) {
-                alpha = min(alpha, rc.alpha_max);  // bounds 1/(1 − alpha) in the backward
-                if (alpha < rc.alpha_min) continue;
+            vec3 rgb = s_rgb[j].rgb;
+            all_done = true;
+            [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
+                if (!done[k]) {
+                    vec2 d = mo.xy - centre[k];
+                    float power = -0.5 * (cn.x * d.x * d.x + cn.z * d.y * d.y)
+                                  - cn.y * d.x * d.y;
+                    // power > 0 only happens through rounding for a positive definite conic.
+                    if (power <= 0.0 && power >= cn.w) {
+                        float alpha = mo.z * exp(power);
+                        bool keep = true;
+                        if (rc.smooth_mode == 0u) {
+                            alpha = min(alpha, rc.alpha_max);  // bounds 1/(1 − alpha) backward
+                            keep = alpha >= rc.alpha_min;
+                        }
+                        if (keep) {
+                            float next_t = T[k] * (1.0 - alpha);
+                            if (rc.smooth_mode == 0u && next_t < rc.t_min) {
+                                done[k] = true;
+                            } else {
+                                color[k] += rgb * (alpha * T[k]);
+                                T[k] = next_t;
+                                last[k] = base - range.x + j + 1u;
+                            }
+                        }
+                    }
+                }
+                all_done = all_done && done[k];
             }
-            float next_t = T * (1.0 - alpha);
-            if (rc.smooth_mode == 0u && next_t < rc.t_min) { done = true; break; }
-            color += s_rgb[j].rgb * (alpha * T);
-            T = next_t;
-            last = base - range.x + j + 1u;
         }
         barrier();
     }
-    if (inside) {
-        uint pix = py * cam.size.x + px;
-        image[3u * pix] = color.r + T * bg_r;
-        image[3u * pix + 1u] = color.g + T * bg_g;
-        image[3u * pix + 2u] = color.b + T * bg_b;
-        final_t[pix] = T;
-        last_index[pix] = last;
+    [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
+        uint q = li + k * WG_SIZE;
+        uint px = (tile % tiles_x) * 16u + q % 16u, py = (tile / tiles_x) * 16u + q / 16u;
+        if (px < cam.size.x && py < cam.size.y) {
+            uint pix = py * cam.size.x + px;
+            image[3u * pix] = color[k].r + T[k] * bg_r;
+            image[3u * pix + 1u] = color[k].g + T[k] * bg_g;
+            image[3u * pix + 2u] = color[k].b + T[k] * bg_b;
+            final_t[pix] = T[k];
+            last_index[pix] = last[k];
+        }
     }
 }
