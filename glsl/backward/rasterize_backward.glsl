@@ -148,7 +148,11 @@ void main() {
 
     if (li == 0u) s_max_last = 0u;
     barrier();
-    atomicMax(s_max_last, subgroupMax(my_max_last));
+    // Entries at or past the subgroup's largest last_index touch none of its pixels: the
+    // subgroup starts each batch after them (a loop bound, which skips work even where `if`
+    // only masks lanes).
+    uint sg_max_last = subgroupMax(my_max_last);
+    atomicMax(s_max_last, sg_max_last);
     barrier();
     uint max_last = s_max_last;
 
@@ -165,7 +169,13 @@ void main() {
             s_rgb[li] = vec4(p.r, p.g, p.b, 0.0);
         }
         barrier();
-        for (uint j = 0u; j < batch; j++) {
+        // Zero sums for the entries this subgroup skips (e >= sg_max_last, i.e. j < j_first).
+        uint j_first = min(batch, max_last - done - min(sg_max_last, max_last - done));
+        for (uint j = gl_SubgroupInvocationID; j < j_first; j += SUBGROUP_SIZE) {
+            uint a = (j * NUM_SG + gl_SubgroupID) * GRAD2D_STRIDE;
+            [[unroll]] for (uint c = 0u; c < GRAD2D_STRIDE; c++) s_acc[a + c] = 0.0;
+        }
+        for (uint j = j_first; j < batch; j++) {
             uint e = max_last - 1u - (done + j);
             vec4 mo = s_mean_opacity[j];
             vec3 conic = s_conic[j].xyz;
@@ -190,12 +200,13 @@ void main() {
                 float alpha = clamped ? pc.rc.alpha_max : raw;
                 // Skip 3: alpha < alpha_min contributed nothing (not in smooth mode).
                 if (!smooth_mode && alpha < pc.rc.alpha_min) continue;
-                float one_minus = 1.0 - alpha;
-                t[k] /= one_minus;
+                // One division per pixel and splat (divisions are slow on CPUs).
+                float inv_one_minus = 1.0 / (1.0 - alpha);
+                t[k] *= inv_one_minus;
                 behind[k] = next_alpha[k] * next_rgb[k] + (1.0 - next_alpha[k]) * behind[k];
                 g_rgb += alpha * t[k] * dl_dc[k];
                 float dl_dalpha = dot((rgb - behind[k]) * t[k], dl_dc[k])
-                                  - t_final[k] / one_minus * bg_dot[k];
+                                  - t_final[k] * inv_one_minus * bg_dot[k];
                 next_alpha[k] = alpha;
                 next_rgb[k] = rgb;
                 if (!clamped) {
