@@ -1,7 +1,6 @@
 // Rasterizer backward (shared body of rasterize_backward.comp and rasterize_backward_cas.comp).
 //
-// One workgroup per 16×16 tile; each invocation owns PIXELS pixels of it (pixel q = local
-// index + k·WG_SIZE, at (q % 16, q / 16) in the tile, k < PIXELS). Every pixel walks its tile's
+// One workgroup per 16×16 tile; each invocation owns PIXELS pixels of it (tile_pixel). Every pixel walks its tile's
 // sorted list back to front, from its `last_index` (the forward's last contributor + 1) down to
 // entry 0, so all pixels of the workgroup visit the same splat at the same time: the splats are
 // staged in shared memory a batch at a time. Per splat, an invocation sums the gradients of its
@@ -92,6 +91,15 @@ const uint NUM_SG = WG_SIZE / SUBGROUP_SIZE;
 const uint BATCH_BY_ACC = ACC_FLOATS / (NUM_SG * GRAD2D_STRIDE);
 const uint BATCH = WG_SIZE < BATCH_BY_ACC ? WG_SIZE : BATCH_BY_ACC;
 
+// Pixel k of invocation li, as an index into the 16×16 tile (row-major): invocation li is lane
+// li % SUBGROUP_SIZE of group li / SUBGROUP_SIZE, and each such group owns SUBGROUP_SIZE·PIXELS
+// consecutive pixels (whole rows), so a subgroup's pixels are close together and tend to stop
+// at similar depths. A bijection onto 0..255 for any WG_SIZE = 256 / PIXELS.
+uint tile_pixel(uint li, uint k) {
+    uint lane = li % SUBGROUP_SIZE;
+    return (li - lane) * PIXELS + k * SUBGROUP_SIZE + lane;
+}
+
 shared uint s_max_last;
 shared uint s_id[BATCH];
 shared vec4 s_mean_opacity[BATCH];  // mean_x, mean_y, opacity, -
@@ -126,7 +134,7 @@ void main() {
     vec3 next_rgb[PIXELS];
     uint my_max_last = 0u;
     [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
-        uint q = li + k * WG_SIZE;
+        uint q = tile_pixel(li, k);
         uint px = (tile % tiles_x) * TILE + q % TILE;
         uint py = (tile / tiles_x) * TILE + q / TILE;
         bool inside = px < width && py < height;

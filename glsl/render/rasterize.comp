@@ -1,14 +1,14 @@
 #version 460
-// Forward step 4: one workgroup per 16×16 tile, PIXELS pixels per invocation (pixel q = local
-// index + k·WG_SIZE, at (q % 16, q / 16) in the tile). The tile's Gaussians (front to back) are
-// loaded into shared memory a batch at a time; every pixel blends them in order and stops
-// before its transmittance would fall under t_min. Mirrors src/reference/raster.rs.
+// Forward step 4: one workgroup per 16×16 tile, PIXELS pixels per invocation (tile_pixel).
+// The tile's Gaussians (front to back) are loaded into shared memory a batch at a time; every
+// pixel blends them in order and stops before its transmittance would fall under t_min. Mirrors src/reference/raster.rs.
 //
 // Why several pixels per invocation: on a CPU driver (lavapipe) a subgroup is one SIMD loop
 // iteration and `if` only masks lanes, so the shared loads and the loop overhead per splat are
 // paid per subgroup; PIXELS = 8 shares them between 8 pixels. GPUs use PIXELS = 1.
 #extension GL_EXT_control_flow_attributes : require
 layout(constant_id = 0) const uint WG_SIZE = 256;  // must be 256 / PIXELS
+layout(constant_id = 1) const uint SUBGROUP_SIZE = 32;  // must divide WG_SIZE
 layout(constant_id = 2) const uint PIXELS = 1;     // 1, 2, 4 or 8
 layout(local_size_x_id = 0) in;
 #include "camera.glsl"
@@ -25,6 +25,15 @@ layout(push_constant) uniform Push {
     uint camera_index;
     float bg_r, bg_g, bg_b;
 };
+
+// Pixel k of invocation li, as an index into the 16×16 tile (row-major): invocation li is lane
+// li % SUBGROUP_SIZE of group li / SUBGROUP_SIZE, and each such group owns SUBGROUP_SIZE·PIXELS
+// consecutive pixels (whole rows), so a subgroup's pixels are close together and tend to stop
+// at similar depths. A bijection onto 0..255 for any WG_SIZE = 256 / PIXELS.
+uint tile_pixel(uint li, uint k) {
+    uint lane = li % SUBGROUP_SIZE;
+    return (li - lane) * PIXELS + k * SUBGROUP_SIZE + lane;
+}
 
 shared vec4 s_mean_opacity[WG_SIZE];  // mean x, mean y, opacity, unused
 shared vec4 s_conic[WG_SIZE];         // a, b, c, power below which alpha < alpha_min
@@ -45,7 +54,7 @@ void main() {
     bool done[PIXELS];
     bool all_done = true;
     [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
-        uint q = li + k * WG_SIZE;
+        uint q = tile_pixel(li, k);
         uint px = (tile % tiles_x) * 16u + q % 16u, py = (tile / tiles_x) * 16u + q / 16u;
         centre[k] = vec2(float(px) + 0.5, float(py) + 0.5);
         T[k] = 1.0;
@@ -110,7 +119,7 @@ void main() {
         barrier();
     }
     [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
-        uint q = li + k * WG_SIZE;
+        uint q = tile_pixel(li, k);
         uint px = (tile % tiles_x) * 16u + q % 16u, py = (tile / tiles_x) * 16u + q / 16u;
         if (px < cam.size.x && py < cam.size.y) {
             uint pix = py * cam.size.x + px;
