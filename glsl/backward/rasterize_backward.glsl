@@ -31,6 +31,7 @@
 #extension GL_KHR_shader_subgroup_basic : require
 #extension GL_KHR_shader_subgroup_arithmetic : require
 #extension GL_KHR_shader_subgroup_vote : require
+#extension GL_KHR_shader_subgroup_ballot : require
 
 #extension GL_EXT_control_flow_attributes : require
 
@@ -42,6 +43,7 @@ layout(local_size_x_id = 0) in;
 
 #include "camera.glsl"
 #include "projected.glsl"
+#include "../render/splat_reach.glsl"
 
 const uint TILE = 16u;
 const uint GRAD2D_STRIDE = 9u;
@@ -102,11 +104,13 @@ uint tile_pixel(uint li, uint k) {
 
 shared uint s_max_last;
 shared uint s_id[BATCH];
-shared vec4 s_mean_opacity[BATCH];  // mean_x, mean_y, opacity, -
-shared vec4 s_conic[BATCH];         // a, b, c, -
+shared vec4 s_mean_opacity[BATCH];  // mean_x, mean_y, opacity, half width of the reach
+shared vec4 s_conic[BATCH];         // a, b, c, half height of the reach
 shared vec4 s_rgb[BATCH];           // r, g, b, -
 // [(splat in batch · NUM_SG + subgroup) · 9 + k]: the subgroup's gradient sums.
 shared float s_acc[ACC_FLOATS];
+// [subgroup · BATCH + i]: the batch entries that may touch the subgroup's pixels, in order.
+shared uint s_list[ACC_FLOATS / GRAD2D_STRIDE];
 
 void main() {
     Camera cam = cameras[pc.camera_index];
@@ -160,6 +164,15 @@ void main() {
     // subgroup starts each batch after them (a loop bound, which skips work even where `if`
     // only masks lanes).
     uint sg_max_last = subgroupMax(my_max_last);
+    // The box of the subgroup's pixel centres (from the pixels themselves, whatever the
+    // subgroup's layout): splats whose reach misses it are not visited by the subgroup.
+    vec2 c_lo = centre[0], c_hi = centre[0];
+    [[unroll]] for (uint k = 1u; k < PIXELS; k++) {
+        c_lo = min(c_lo, centre[k]);
+        c_hi = max(c_hi, centre[k]);
+    }
+    c_lo = subgroupMin(c_lo);
+    c_hi = subgroupMax(c_hi);
     atomicMax(s_max_last, sg_max_last);
     barrier();
     uint max_last = s_max_last;
@@ -172,18 +185,44 @@ void main() {
             uint g = sorted_ids[range.x + e];
             Projected p = projected[g];
             s_id[li] = g;
-            s_mean_opacity[li] = vec4(p.mean_x, p.mean_y, p.opacity, 0.0);
-            s_conic[li] = vec4(p.conic_a, p.conic_b, p.conic_c, 0.0);
+            vec2 reach = splat_reach(p.opacity, vec3(p.conic_a, p.conic_b, p.conic_c),
+                                      pc.rc.alpha_min, smooth_mode);
+            s_mean_opacity[li] = vec4(p.mean_x, p.mean_y, p.opacity, reach.x);
+            s_conic[li] = vec4(p.conic_a, p.conic_b, p.conic_c, reach.y);
             s_rgb[li] = vec4(p.r, p.g, p.b, 0.0);
         }
         barrier();
         // Zero sums for the entries this subgroup skips (e >= sg_max_last, i.e. j < j_first).
         uint j_first = min(batch, max_last - done - min(sg_max_last, max_last - done));
-        for (uint j = gl_SubgroupInvocationID; j < j_first; j += SUBGROUP_SIZE) {
+        for (uint j = gl_SubgroupInvocationID; j < j_first; j += gl_SubgroupSize) {
             uint a = (j * NUM_SG + gl_SubgroupID) * GRAD2D_STRIDE;
             [[unroll]] for (uint c = 0u; c < GRAD2D_STRIDE; c++) s_acc[a + c] = 0.0;
         }
-        for (uint j = j_first; j < batch; j++) {
+        // Compact (in order) the entries from j_first on whose reach meets the subgroup's box;
+        // the others get zero sums.
+        uint list_base = gl_SubgroupID * BATCH;
+        uint n_list = 0u;
+        for (uint j0 = j_first; j0 < batch; j0 += gl_SubgroupSize) {
+            uint j = j0 + gl_SubgroupInvocationID;
+            bool meets = false;
+            if (j < batch) {
+                vec4 mo = s_mean_opacity[j];
+                vec2 reach = vec2(mo.w, s_conic[j].w);
+                meets = reach_meets(mo.xy, reach, c_lo, c_hi);
+            }
+            uvec4 ballot = subgroupBallot(meets);
+            if (meets) {
+                s_list[list_base + n_list + subgroupBallotExclusiveBitCount(ballot)] = j;
+            } else if (j < batch) {
+                uint a = (j * NUM_SG + gl_SubgroupID) * GRAD2D_STRIDE;
+                [[unroll]] for (uint c = 0u; c < GRAD2D_STRIDE; c++) s_acc[a + c] = 0.0;
+            }
+            n_list += subgroupBallotBitCount(ballot);
+        }
+        subgroupMemoryBarrierShared();
+        subgroupBarrier();
+        for (uint i = 0u; i < n_list; i++) {
+            uint j = s_list[list_base + i];
             uint e = max_last - 1u - (done + j);
             vec4 mo = s_mean_opacity[j];
             vec3 conic = s_conic[j].xyz;
