@@ -7,12 +7,17 @@
 // iteration and `if` only masks lanes, so the shared loads and the loop overhead per splat are
 // paid per subgroup; PIXELS = 8 shares them between 8 pixels. GPUs use PIXELS = 1.
 #extension GL_EXT_control_flow_attributes : require
+#extension GL_KHR_shader_subgroup_basic : require
+#extension GL_KHR_shader_subgroup_arithmetic : require
+#extension GL_KHR_shader_subgroup_ballot : require
+#extension GL_KHR_shader_subgroup_vote : require
 layout(constant_id = 0) const uint WG_SIZE = 256;  // must be 256 / PIXELS
 layout(constant_id = 1) const uint SUBGROUP_SIZE = 32;  // must divide WG_SIZE
 layout(constant_id = 2) const uint PIXELS = 1;     // 1, 2, 4 or 8
 layout(local_size_x_id = 0) in;
 #include "camera.glsl"
 #include "projected.glsl"
+#include "splat_reach.glsl"
 layout(std430, set = 0, binding = 0) readonly buffer Proj { Projected projected[]; };
 layout(std430, set = 0, binding = 1) readonly buffer Ids { uint sorted_ids[]; };
 layout(std430, set = 0, binding = 2) readonly buffer Ranges { uvec2 ranges[]; };
@@ -37,7 +42,14 @@ uint tile_pixel(uint li, uint k) {
 
 shared vec4 s_mean_opacity[WG_SIZE];  // mean x, mean y, opacity, unused
 shared vec4 s_conic[WG_SIZE];         // a, b, c, power below which alpha < alpha_min
-shared vec4 s_rgb[WG_SIZE];
+shared vec4 s_rgb[WG_SIZE];           // r, g, b, unused
+shared vec2 s_reach[WG_SIZE];         // splat_reach
+// Splats per batch: at most one per invocation, and every subgroup's list must fit in s_list.
+const uint LIST_SLOTS = 2048u;
+const uint NUM_SG = WG_SIZE / SUBGROUP_SIZE;
+const uint BATCH = WG_SIZE < LIST_SLOTS / NUM_SG ? WG_SIZE : LIST_SLOTS / NUM_SG;
+// [subgroup · BATCH + i]: the batch entries that may touch the subgroup's pixels, in order.
+shared uint s_list[LIST_SLOTS];
 shared uint s_done;
 
 void main() {
@@ -64,14 +76,25 @@ void main() {
         all_done = all_done && done[k];
     }
 
+    // The box of the subgroup's pixel centres (from the pixels themselves, whatever the
+    // subgroup's layout).
+    vec2 c_lo = centre[0], c_hi = centre[0];
+    [[unroll]] for (uint k = 1u; k < PIXELS; k++) {
+        c_lo = min(c_lo, centre[k]);
+        c_hi = max(c_hi, centre[k]);
+    }
+    c_lo = subgroupMin(c_lo);
+    c_hi = subgroupMax(c_hi);
+    bool smooth_mode = rc.smooth_mode != 0u;
+
     uvec2 range = ranges[tile];
-    for (uint base = range.x; base < range.y; base += WG_SIZE) {
+    for (uint base = range.x; base < range.y; base += BATCH) {
         // Stop loading once every pixel of the tile is done (the count is workgroup-uniform).
         if (li == 0u) s_done = 0u;
         barrier();
         if (all_done) atomicAdd(s_done, 1u);
         uint k = base + li;
-        if (k < range.y) {
+        if (li < BATCH && k < range.y) {
             Projected p = projected[sorted_ids[k]];
             s_mean_opacity[li] = vec4(p.mean_x, p.mean_y, p.opacity, 0.0);
             // A power this far below ln(alpha_min / opacity) gives alpha < alpha_min with room
@@ -79,11 +102,27 @@ void main() {
             float cutoff = rc.smooth_mode == 0u ? log(rc.alpha_min / p.opacity) - 1e-3 : -1e30;
             s_conic[li] = vec4(p.conic_a, p.conic_b, p.conic_c, cutoff);
             s_rgb[li] = vec4(p.r, p.g, p.b, 0.0);
+            s_reach[li] = splat_reach(p.opacity, vec3(p.conic_a, p.conic_b, p.conic_c),
+                                      rc.alpha_min, smooth_mode);
         }
         barrier();
         if (s_done == WG_SIZE) break;
-        uint batch = min(WG_SIZE, range.y - base);
-        for (uint j = 0u; !all_done && j < batch; j++) {
+        uint batch = min(BATCH, range.y - base);
+        // Compact (in order) the entries whose reach meets the subgroup's box: the loop below
+        // visits only those (a loop bound skips work even where `if` only masks lanes).
+        uint list_base = gl_SubgroupID * BATCH;
+        uint n_list = 0u;
+        for (uint j0 = 0u; !subgroupAll(all_done) && j0 < batch; j0 += gl_SubgroupSize) {
+            uint j = j0 + gl_SubgroupInvocationID;
+            bool meets = j < batch && reach_meets(s_mean_opacity[j].xy, s_reach[j], c_lo, c_hi);
+            uvec4 ballot = subgroupBallot(meets);
+            if (meets) s_list[list_base + n_list + subgroupBallotExclusiveBitCount(ballot)] = j;
+            n_list += subgroupBallotBitCount(ballot);
+        }
+        subgroupMemoryBarrierShared();
+        subgroupBarrier();
+        for (uint i = 0u; !all_done && i < n_list; i++) {
+            uint j = s_list[list_base + i];
             vec4 mo = s_mean_opacity[j];
             vec4 cn = s_conic[j];
             vec3 rgb = s_rgb[j].rgb;
