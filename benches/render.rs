@@ -2,13 +2,13 @@
 //! backward) against the Gaussian count and the resolution, on `render::synthetic` scenes.
 //! Run: `cargo bench --bench render`. The default run is short (2 sizes × 2 resolutions);
 //! `LPMSPLAT_BENCH_SIZES=1000,10000,100000` and `LPMSPLAT_BENCH_RES=162x242,648x968` widen it,
-//! `LPMSPLAT_BENCH_VARIANTS=1` adds backward variants ("c/8": compare-and-swap, "a/1": one
-//! pixel per invocation; the default is "a/P": float atomics, P pixels per invocation);
+//! `LPMSPLAT_BENCH_VARIANTS=1` adds backward variants ("c/P": compare-and-swap, "a/1" … "a/16":
+//! 1 … 16 pixels per invocation; the default is "a/P": float atomics, P pixels per invocation);
 //! `LPMSPLAT_BENCH_FRAMES` sets the timed frames (median reported). Times come from timestamps.
 
 use lpmsplat::gpu::{BufferKind, GpuBuffer, GpuContext, GpuOptions, Recorder, TimestampPool};
 use lpmsplat::render::backward::{
-    default_pixels_per_invocation, AtomicMode, Backward, BackwardArgs,
+    backward_pixels_per_invocation, AtomicMode, Backward, BackwardArgs,
 };
 use lpmsplat::render::forward::{FrameSettings, Renderer};
 use lpmsplat::render::layout::{CameraGpu, RenderConstants};
@@ -38,12 +38,14 @@ fn main() -> anyhow::Result<()> {
         .unwrap_or(5);
     // Backward variants: (label, atomics, pixels per invocation). LPMSPLAT_BENCH_VARIANTS=1
     // adds compare-and-swap and one pixel per invocation next to the device default.
-    let px = default_pixels_per_invocation(&ctx.info);
+    let px = backward_pixels_per_invocation(&ctx.info);
     let mut modes: Vec<(String, AtomicMode, u32)> = vec![(format!("a/{px}"), AtomicMode::Auto, px)];
     if std::env::var("LPMSPLAT_BENCH_VARIANTS").is_ok() {
         modes.push((format!("c/{px}"), AtomicMode::CompareSwap, px));
-        if px != 1 {
-            modes.push(("a/1".into(), AtomicMode::Auto, 1));
+        for p in [1, 2, 4, 8, 16] {
+            if p != px && (256 / p) % ctx.info.subgroup_size == 0 {
+                modes.push((format!("a/{p}"), AtomicMode::Auto, p));
+            }
         }
     }
     println!(

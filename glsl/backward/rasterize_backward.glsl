@@ -10,7 +10,7 @@
 //
 // Why several pixels per invocation: on a CPU driver (lavapipe) a subgroup is one SIMD loop
 // iteration and `if` only masks lanes, so the per-splat reduction, shared loads and atomics cost
-// the same whether a pixel was hit or not; PIXELS = 8 divides that fixed cost by 8. GPUs use
+// the same whether a pixel was hit or not; PIXELS = 16 divides that fixed cost by 16. GPUs use
 // PIXELS = 1 (one invocation per pixel, the usual occupancy).
 //
 // Per splat the pixel repeats the forward's decisions exactly (see src/reference/raster.rs):
@@ -38,7 +38,7 @@
 layout(constant_id = 0) const uint WG_SIZE = 256;  // must be TILE·TILE / PIXELS
 layout(constant_id = 1) const uint SUBGROUP_SIZE = 32;
 layout(constant_id = 2) const uint USE_FLOAT_ATOMICS = 0;
-layout(constant_id = 3) const uint PIXELS = 1;  // pixels per invocation: 1, 2, 4 or 8
+layout(constant_id = 3) const uint PIXELS = 1;  // pixels per invocation: 1, 2, 4, 8 or 16
 layout(local_size_x_id = 0) in;
 
 #include "camera.glsl"
