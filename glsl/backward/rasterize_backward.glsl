@@ -106,7 +106,7 @@ shared uint s_max_last;
 shared uint s_id[BATCH];
 shared vec4 s_mean_opacity[BATCH];  // mean_x, mean_y, opacity, half width of the reach
 shared vec4 s_conic[BATCH];         // a, b, c, half height of the reach
-shared vec4 s_rgb[BATCH];           // r, g, b, -
+shared vec4 s_rgb[BATCH];           // r, g, b, splat_q_cut
 // [(splat in batch · NUM_SG + subgroup) · 9 + k]: the subgroup's gradient sums.
 shared float s_acc[ACC_FLOATS];
 // [subgroup · BATCH + i]: the batch entries that may touch the subgroup's pixels, in order.
@@ -189,7 +189,8 @@ void main() {
                                       pc.rc.alpha_min, smooth_mode);
             s_mean_opacity[li] = vec4(p.mean_x, p.mean_y, p.opacity, reach.x);
             s_conic[li] = vec4(p.conic_a, p.conic_b, p.conic_c, reach.y);
-            s_rgb[li] = vec4(p.r, p.g, p.b, 0.0);
+            float q_cut = splat_q_cut(p.opacity, pc.rc.alpha_min, smooth_mode);
+            s_rgb[li] = vec4(p.r, p.g, p.b, q_cut);
         }
         barrier();
         // Zero sums for the entries this subgroup skips (e >= sg_max_last, i.e. j < j_first).
@@ -208,7 +209,8 @@ void main() {
             if (j < batch) {
                 vec4 mo = s_mean_opacity[j];
                 vec2 reach = vec2(mo.w, s_conic[j].w);
-                meets = reach_meets(mo.xy, reach, c_lo, c_hi);
+                meets = reach_meets(mo.xy, reach, c_lo, c_hi) &&
+                        ellipse_meets(mo.xy, s_conic[j].xyz, s_rgb[j].w, c_lo, c_hi);
             }
             uvec4 ballot = subgroupBallot(meets);
             if (meets) {

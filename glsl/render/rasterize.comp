@@ -42,7 +42,7 @@ uint tile_pixel(uint li, uint k) {
 
 shared vec4 s_mean_opacity[WG_SIZE];  // mean x, mean y, opacity, unused
 shared vec4 s_conic[WG_SIZE];         // a, b, c, power below which alpha < alpha_min
-shared vec4 s_rgb[WG_SIZE];           // r, g, b, unused
+shared vec4 s_rgb[WG_SIZE];           // r, g, b, splat_q_cut
 shared vec2 s_reach[WG_SIZE];         // splat_reach
 // Splats per batch: at most one per invocation, and every subgroup's list must fit in s_list.
 const uint LIST_SLOTS = 2048u;
@@ -101,7 +101,8 @@ void main() {
             // for rounding, so the pixel can skip exp(); the exact test still follows.
             float cutoff = rc.smooth_mode == 0u ? log(rc.alpha_min / p.opacity) - 1e-3 : -1e30;
             s_conic[li] = vec4(p.conic_a, p.conic_b, p.conic_c, cutoff);
-            s_rgb[li] = vec4(p.r, p.g, p.b, 0.0);
+            float q_cut = splat_q_cut(p.opacity, rc.alpha_min, smooth_mode);
+            s_rgb[li] = vec4(p.r, p.g, p.b, q_cut);
             s_reach[li] = splat_reach(p.opacity, vec3(p.conic_a, p.conic_b, p.conic_c),
                                       rc.alpha_min, smooth_mode);
         }
@@ -114,7 +115,12 @@ void main() {
         uint n_list = 0u;
         for (uint j0 = 0u; !subgroupAll(all_done) && j0 < batch; j0 += gl_SubgroupSize) {
             uint j = j0 + gl_SubgroupInvocationID;
-            bool meets = j < batch && reach_meets(s_mean_opacity[j].xy, s_reach[j], c_lo, c_hi);
+            bool meets = false;
+            if (j < batch) {
+                vec2 mean = s_mean_opacity[j].xy;
+                meets = reach_meets(mean, s_reach[j], c_lo, c_hi) &&
+                        ellipse_meets(mean, s_conic[j].xyz, s_rgb[j].w, c_lo, c_hi);
+            }
             uvec4 ballot = subgroupBallot(meets);
             if (meets) s_list[list_base + n_list + subgroupBallotExclusiveBitCount(ballot)] = j;
             n_list += subgroupBallotBitCount(ballot);
