@@ -74,7 +74,7 @@ fn cpu_pixels_per_invocation(info: &crate::gpu::DeviceInfo, want: u32) -> u32 {
         return 1;
     }
     let mut p = want;
-    while p > 1 && (WG / p) % info.subgroup_size.max(1) != 0 {
+    while p > 1 && !(WG / p).is_multiple_of(info.subgroup_size.max(1)) {
         p /= 2;
     }
     p
@@ -175,7 +175,8 @@ impl Backward {
     ) -> Result<Self> {
         let wg = WG / pixels.max(1);
         ensure!(
-            matches!(pixels, 1 | 2 | 4 | 8 | 16) && wg % ctx.info.subgroup_size.max(1) == 0,
+            matches!(pixels, 1 | 2 | 4 | 8 | 16)
+                && wg.is_multiple_of(ctx.info.subgroup_size.max(1)),
             "GPU backward: {pixels} pixels per invocation gives {wg} invocations per tile, not a \
              multiple of the subgroup size {}; use 1, 2, 4, 8 or 16 with whole subgroups",
             ctx.info.subgroup_size
