@@ -86,6 +86,17 @@ struct GpuResult {
 }
 
 fn run_gpu(ctx: &Arc<GpuContext>, mode: AtomicMode, s: &Scene) -> (GpuResult, Gradients) {
+    run_gpu_pixels(ctx, mode, None, s)
+}
+
+/// As `run_gpu`, with `pixels` per invocation of the rasterizer backward instead of the
+/// device's default (the GPU layout, 1, runs on lavapipe too this way).
+fn run_gpu_pixels(
+    ctx: &Arc<GpuContext>,
+    mode: AtomicMode,
+    pixels: Option<u32>,
+    s: &Scene,
+) -> (GpuResult, Gradients) {
     let forward = reference::render(
         &s.gaussians,
         &s.camera,
@@ -134,7 +145,10 @@ fn run_gpu(ctx: &Arc<GpuContext>, mode: AtomicMode, s: &Scene) -> (GpuResult, Gr
     let grads = GpuSplats::zeroed(ctx, "grad_", s.stored_degree, n, n + SPARE).unwrap();
     let view_grad_norm = GpuBuffer::<f32>::from_slice(ctx, "vgn", &vec![0.0; n + SPARE]).unwrap();
 
-    let mut bwd = Backward::with_atomics(ctx, 1, mode).unwrap();
+    let mut bwd = match pixels {
+        Some(p) => Backward::with_pixels(ctx, 1, mode, p).unwrap(),
+        None => Backward::with_atomics(ctx, 1, mode).unwrap(),
+    };
     bwd.reserve(ctx, n).unwrap();
     let mut rec = Recorder::new(ctx).unwrap();
     for (buf, _) in grads.groups() {
@@ -332,6 +346,11 @@ fn check_scene(ctx: &Arc<GpuContext>, label: &str, s: &Scene) {
             assert_eq!(got.float_atomics, ctx.info.float_atomic_add);
         }
         check_against_reference(&format!("{label} ({mode:?})"), s, &got, &want);
+    }
+    // The other pixels-per-invocation layouts (1 is what GPUs run).
+    for pixels in [1, 4] {
+        let (got, want) = run_gpu_pixels(ctx, AtomicMode::Auto, Some(pixels), s);
+        check_against_reference(&format!("{label} ({pixels} px/invocation)"), s, &got, &want);
     }
 }
 

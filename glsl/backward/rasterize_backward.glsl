@@ -1,11 +1,17 @@
 // Rasterizer backward (shared body of rasterize_backward.comp and rasterize_backward_cas.comp).
 //
-// One 16×16 workgroup per tile, one invocation per pixel (1-D local index, pixel (i % 16,
-// i / 16) of the tile). Every pixel walks its tile's sorted list back to front, from its
-// `last_index` (the forward's last contributor + 1) down to entry 0, so all pixels of the
-// workgroup visit the same splat at the same time: the splats are staged in shared memory a
-// batch at a time, and the per-pixel gradients of one splat are summed over the subgroup
-// before one invocation adds them to global memory.
+// One workgroup per 16×16 tile; each invocation owns PIXELS pixels of it (tile_pixel). Every pixel walks its tile's
+// sorted list back to front, from its `last_index` (the forward's last contributor + 1) down to
+// entry 0, so all pixels of the workgroup visit the same splat at the same time: the splats are
+// staged in shared memory a batch at a time. Per splat, an invocation sums the gradients of its
+// pixels, the subgroup sums those (subgroupAdd) into shared memory, and after the batch one
+// invocation per splat adds the subgroups' sums to global memory: nine atomics per (tile,
+// splat) pair, whether or not a pixel was touched.
+//
+// Why several pixels per invocation: on a CPU driver (lavapipe) a subgroup is one SIMD loop
+// iteration and `if` only masks lanes, so the per-splat reduction, shared loads and atomics cost
+// the same whether a pixel was hit or not; PIXELS = 16 divides that fixed cost by 16. GPUs use
+// PIXELS = 1 (one invocation per pixel, the usual occupancy).
 //
 // Per splat the pixel repeats the forward's decisions exactly (see src/reference/raster.rs):
 //   power = −½(a·dx² + c·dy²) − b·dx·dy; skip when power > 0 (rounding guard);
@@ -25,14 +31,19 @@
 #extension GL_KHR_shader_subgroup_basic : require
 #extension GL_KHR_shader_subgroup_arithmetic : require
 #extension GL_KHR_shader_subgroup_vote : require
+#extension GL_KHR_shader_subgroup_ballot : require
 
-layout(constant_id = 0) const uint WG_SIZE = 256;  // must be TILE·TILE = 256
+#extension GL_EXT_control_flow_attributes : require
+
+layout(constant_id = 0) const uint WG_SIZE = 256;  // must be TILE·TILE / PIXELS
 layout(constant_id = 1) const uint SUBGROUP_SIZE = 32;
 layout(constant_id = 2) const uint USE_FLOAT_ATOMICS = 0;
+layout(constant_id = 3) const uint PIXELS = 1;  // pixels per invocation: 1, 2, 4, 8 or 16
 layout(local_size_x_id = 0) in;
 
 #include "camera.glsl"
 #include "projected.glsl"
+#include "../render/splat_reach.glsl"
 
 const uint TILE = 16u;
 const uint GRAD2D_STRIDE = 9u;
@@ -74,11 +85,32 @@ void atomic_add_float(uint idx, float v) {
     }
 }
 
+
+// Splats per batch: every invocation stages one, and the per-subgroup sums of a batch must fit
+// in s_acc (ACC_FLOATS / (subgroups · 9) splats).
+const uint ACC_FLOATS = 4608u;
+const uint NUM_SG = WG_SIZE / SUBGROUP_SIZE;
+const uint BATCH_BY_ACC = ACC_FLOATS / (NUM_SG * GRAD2D_STRIDE);
+const uint BATCH = WG_SIZE < BATCH_BY_ACC ? WG_SIZE : BATCH_BY_ACC;
+
+// Pixel k of invocation li, as an index into the 16×16 tile (row-major): invocation li is lane
+// li % SUBGROUP_SIZE of group li / SUBGROUP_SIZE, and each such group owns SUBGROUP_SIZE·PIXELS
+// consecutive pixels (whole rows), so a subgroup's pixels are close together and tend to stop
+// at similar depths. A bijection onto 0..255 for any WG_SIZE = 256 / PIXELS.
+uint tile_pixel(uint li, uint k) {
+    uint lane = li % SUBGROUP_SIZE;
+    return (li - lane) * PIXELS + k * SUBGROUP_SIZE + lane;
+}
+
 shared uint s_max_last;
-shared uint s_id[WG_SIZE];
-shared vec4 s_mean_opacity[WG_SIZE];  // mean_x, mean_y, opacity, -
-shared vec4 s_conic[WG_SIZE];         // a, b, c, -
-shared vec4 s_rgb[WG_SIZE];           // r, g, b, -
+shared uint s_id[BATCH];
+shared vec4 s_mean_opacity[BATCH];  // mean_x, mean_y, opacity, half width of the reach
+shared vec4 s_conic[BATCH];         // a, b, c, half height of the reach
+shared vec4 s_rgb[BATCH];           // r, g, b, splat_q_cut
+// [(splat in batch · NUM_SG + subgroup) · 9 + k]: the subgroup's gradient sums.
+shared float s_acc[ACC_FLOATS];
+// [subgroup · BATCH + i]: the batch entries that may touch the subgroup's pixels, in order.
+shared uint s_list[ACC_FLOATS / GRAD2D_STRIDE];
 
 void main() {
     Camera cam = cameras[pc.camera_index];
@@ -88,112 +120,183 @@ void main() {
     if (tile >= tiles_x * tiles_y) return;
 
     uint li = gl_LocalInvocationIndex;
-    uint px = (tile % tiles_x) * TILE + li % TILE;
-    uint py = (tile / tiles_x) * TILE + li / TILE;
-    bool inside = px < width && py < height;
-    uint pix = py * width + px;
-
     uvec2 range = tile_ranges[tile];
     uint list_len = range.y > range.x ? range.y - range.x : 0u;
-    // A last_index past the tile's list would read other tiles' entries: clamp (bad input).
-    uint last = inside ? min(last_index[pix], list_len) : 0u;
-    float t_final = inside ? final_t[pix] : 1.0;
-    vec3 dl_dc = inside ? vec3(dl_dimage[3u * pix], dl_dimage[3u * pix + 1u],
-                               dl_dimage[3u * pix + 2u])
-                        : vec3(0.0);
-    float bg_dot = dot(pc.background.xyz, dl_dc);
     bool smooth_mode = pc.rc.smooth_mode != 0u;
+
+    // Per-pixel state (the loops over k are unrolled, so these stay in registers).
+    vec2 centre[PIXELS];
+    uint last[PIXELS];
+    float t_final[PIXELS];
+    float t[PIXELS];
+    vec3 dl_dc[PIXELS];
+    float bg_dot[PIXELS];
+    // Colour of everything behind the current splat per unit of the transmittance in front of
+    // it (background excluded: it enters through t_final).
+    vec3 behind[PIXELS];
+    float next_alpha[PIXELS];
+    vec3 next_rgb[PIXELS];
+    uint my_max_last = 0u;
+    [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
+        uint q = tile_pixel(li, k);
+        uint px = (tile % tiles_x) * TILE + q % TILE;
+        uint py = (tile / tiles_x) * TILE + q / TILE;
+        bool inside = px < width && py < height;
+        uint pix = py * width + px;
+        centre[k] = vec2(float(px) + 0.5, float(py) + 0.5);
+        // A last_index past the tile's list would read other tiles' entries: clamp (bad input).
+        last[k] = inside ? min(last_index[pix], list_len) : 0u;
+        t_final[k] = inside ? final_t[pix] : 1.0;
+        dl_dc[k] = inside ? vec3(dl_dimage[3u * pix], dl_dimage[3u * pix + 1u],
+                                 dl_dimage[3u * pix + 2u])
+                          : vec3(0.0);
+        bg_dot[k] = dot(pc.background.xyz, dl_dc[k]);
+        t[k] = t_final[k];
+        behind[k] = vec3(0.0);
+        next_alpha[k] = 0.0;
+        next_rgb[k] = vec3(0.0);
+        my_max_last = max(my_max_last, last[k]);
+    }
 
     if (li == 0u) s_max_last = 0u;
     barrier();
-    atomicMax(s_max_last, last);
+    // Entries at or past the subgroup's largest last_index touch none of its pixels: the
+    // subgroup starts each batch after them (a loop bound, which skips work even where `if`
+    // only masks lanes).
+    uint sg_max_last = subgroupMax(my_max_last);
+    // The box of the subgroup's pixel centres (from the pixels themselves, whatever the
+    // subgroup's layout): splats whose reach misses it are not visited by the subgroup.
+    vec2 c_lo = centre[0], c_hi = centre[0];
+    [[unroll]] for (uint k = 1u; k < PIXELS; k++) {
+        c_lo = min(c_lo, centre[k]);
+        c_hi = max(c_hi, centre[k]);
+    }
+    c_lo = subgroupMin(c_lo);
+    c_hi = subgroupMax(c_hi);
+    atomicMax(s_max_last, sg_max_last);
     barrier();
     uint max_last = s_max_last;
 
-    float t = t_final;
-    // Colour of everything behind the current splat per unit of the transmittance in front of
-    // it (background excluded: it enters through t_final).
-    vec3 behind = vec3(0.0);
-    float next_alpha = 0.0;
-    vec3 next_rgb = vec3(0.0);
-
-    for (uint done = 0u; done < max_last; done += WG_SIZE) {
-        uint batch = min(WG_SIZE, max_last - done);
-        barrier();  // the previous batch has been consumed by every invocation
+    for (uint done = 0u; done < max_last; done += BATCH) {
+        uint batch = min(BATCH, max_last - done);
+        barrier();  // the previous batch (splats and sums) has been consumed by every invocation
         if (li < batch) {
-            uint k = max_last - 1u - (done + li);
-            uint g = sorted_ids[range.x + k];
+            uint e = max_last - 1u - (done + li);
+            uint g = sorted_ids[range.x + e];
             Projected p = projected[g];
             s_id[li] = g;
-            s_mean_opacity[li] = vec4(p.mean_x, p.mean_y, p.opacity, 0.0);
-            s_conic[li] = vec4(p.conic_a, p.conic_b, p.conic_c, 0.0);
-            s_rgb[li] = vec4(p.r, p.g, p.b, 0.0);
+            vec2 reach = splat_reach(p.opacity, vec3(p.conic_a, p.conic_b, p.conic_c),
+                                      pc.rc.alpha_min, smooth_mode);
+            s_mean_opacity[li] = vec4(p.mean_x, p.mean_y, p.opacity, reach.x);
+            s_conic[li] = vec4(p.conic_a, p.conic_b, p.conic_c, reach.y);
+            float q_cut = splat_q_cut(p.opacity, pc.rc.alpha_min, smooth_mode);
+            s_rgb[li] = vec4(p.r, p.g, p.b, q_cut);
         }
         barrier();
-        for (uint j = 0u; j < batch; j++) {
-            uint k = max_last - 1u - (done + j);
+        // Zero sums for the entries this subgroup skips (e >= sg_max_last, i.e. j < j_first).
+        uint j_first = min(batch, max_last - done - min(sg_max_last, max_last - done));
+        for (uint j = gl_SubgroupInvocationID; j < j_first; j += gl_SubgroupSize) {
+            uint a = (j * NUM_SG + gl_SubgroupID) * GRAD2D_STRIDE;
+            [[unroll]] for (uint c = 0u; c < GRAD2D_STRIDE; c++) s_acc[a + c] = 0.0;
+        }
+        // Compact (in order) the entries from j_first on whose reach meets the subgroup's box;
+        // the others get zero sums.
+        uint list_base = gl_SubgroupID * BATCH;
+        uint n_list = 0u;
+        for (uint j0 = j_first; j0 < batch; j0 += gl_SubgroupSize) {
+            uint j = j0 + gl_SubgroupInvocationID;
+            bool meets = false;
+            if (j < batch) {
+                vec4 mo = s_mean_opacity[j];
+                vec2 reach = vec2(mo.w, s_conic[j].w);
+                meets = reach_meets(mo.xy, reach, c_lo, c_hi) &&
+                        ellipse_meets(mo.xy, s_conic[j].xyz, s_rgb[j].w, c_lo, c_hi);
+            }
+            uvec4 ballot = subgroupBallot(meets);
+            if (meets) {
+                s_list[list_base + n_list + subgroupBallotExclusiveBitCount(ballot)] = j;
+            } else if (j < batch) {
+                uint a = (j * NUM_SG + gl_SubgroupID) * GRAD2D_STRIDE;
+                [[unroll]] for (uint c = 0u; c < GRAD2D_STRIDE; c++) s_acc[a + c] = 0.0;
+            }
+            n_list += subgroupBallotBitCount(ballot);
+        }
+        subgroupMemoryBarrierShared();
+        subgroupBarrier();
+        for (uint i = 0u; i < n_list; i++) {
+            uint j = s_list[list_base + i];
+            uint e = max_last - 1u - (done + j);
+            vec4 mo = s_mean_opacity[j];
+            vec3 conic = s_conic[j].xyz;
+            vec3 rgb = s_rgb[j].xyz;
             vec2 g_mean = vec2(0.0);
             vec3 g_conic = vec3(0.0);
             vec3 g_rgb = vec3(0.0);
             float g_opacity = 0.0;
-            bool hit = false;
-            if (k < last) {
-                vec4 mo = s_mean_opacity[j];
-                vec3 conic = s_conic[j].xyz;
-                vec2 d = mo.xy - vec2(float(px) + 0.5, float(py) + 0.5);
+            [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
+                if (e >= last[k]) continue;
+                vec2 d = mo.xy - centre[k];
                 float power = -0.5 * (conic.x * d.x * d.x + conic.z * d.y * d.y)
                               - conic.y * d.x * d.y;
                 // Clamp/skip 1: power > 0 cannot happen for a positive definite conic; the
                 // forward skips it as a rounding guard, so do we.
-                if (power <= 0.0) {
-                    float gauss = exp(power);
-                    float raw = mo.z * gauss;
-                    // Clamp 2: alpha = min(alpha_max, raw); when active it passes no gradient
-                    // to opacity, conic or mean (not in smooth mode).
-                    bool clamped = !smooth_mode && raw > pc.rc.alpha_max;
-                    float alpha = clamped ? pc.rc.alpha_max : raw;
-                    // Skip 3: alpha < alpha_min contributed nothing (not in smooth mode).
-                    if (smooth_mode || alpha >= pc.rc.alpha_min) {
-                        hit = true;
-                        vec3 rgb = s_rgb[j].xyz;
-                        float one_minus = 1.0 - alpha;
-                        t /= one_minus;
-                        behind = next_alpha * next_rgb + (1.0 - next_alpha) * behind;
-                        g_rgb = alpha * t * dl_dc;
-                        float dl_dalpha = dot((rgb - behind) * t, dl_dc)
-                                          - t_final / one_minus * bg_dot;
-                        next_alpha = alpha;
-                        next_rgb = rgb;
-                        if (!clamped) {
-                            g_opacity = gauss * dl_dalpha;
-                            float dl_dpower = mo.z * gauss * dl_dalpha;
-                            g_mean = dl_dpower * vec2(-conic.x * d.x - conic.y * d.y,
-                                                      -conic.z * d.y - conic.y * d.x);
-                            g_conic = dl_dpower * vec3(-0.5 * d.x * d.x, -d.x * d.y,
-                                                       -0.5 * d.y * d.y);
-                        }
-                    }
+                if (power > 0.0) continue;
+                float gauss = exp(power);
+                float raw = mo.z * gauss;
+                // Clamp 2: alpha = min(alpha_max, raw); when active it passes no gradient to
+                // opacity, conic or mean (not in smooth mode).
+                bool clamped = !smooth_mode && raw > pc.rc.alpha_max;
+                float alpha = clamped ? pc.rc.alpha_max : raw;
+                // Skip 3: alpha < alpha_min contributed nothing (not in smooth mode).
+                if (!smooth_mode && alpha < pc.rc.alpha_min) continue;
+                // One division per pixel and splat (divisions are slow on CPUs).
+                float inv_one_minus = 1.0 / (1.0 - alpha);
+                t[k] *= inv_one_minus;
+                behind[k] = next_alpha[k] * next_rgb[k] + (1.0 - next_alpha[k]) * behind[k];
+                g_rgb += alpha * t[k] * dl_dc[k];
+                float dl_dalpha = dot((rgb - behind[k]) * t[k], dl_dc[k])
+                                  - t_final[k] * inv_one_minus * bg_dot[k];
+                next_alpha[k] = alpha;
+                next_rgb[k] = rgb;
+                if (!clamped) {
+                    g_opacity += gauss * dl_dalpha;
+                    float dl_dpower = mo.z * gauss * dl_dalpha;
+                    g_mean += dl_dpower * vec2(-conic.x * d.x - conic.y * d.y,
+                                               -conic.z * d.y - conic.y * d.x);
+                    g_conic += dl_dpower * vec3(-0.5 * d.x * d.x, -d.x * d.y,
+                                                -0.5 * d.y * d.y);
                 }
             }
-            // Subgroup-uniform branch: the pixels of this subgroup that touched the splat are
-            // summed before a single invocation does the nine atomics.
-            if (subgroupAny(hit)) {
-                vec2 s_mean = subgroupAdd(g_mean);
-                vec3 s_con = subgroupAdd(g_conic);
-                vec3 s_col = subgroupAdd(g_rgb);
-                float s_op = subgroupAdd(g_opacity);
-                if (subgroupElect()) {
-                    uint base = s_id[j] * GRAD2D_STRIDE;
-                    atomic_add_float(base + 0u, s_mean.x);
-                    atomic_add_float(base + 1u, s_mean.y);
-                    atomic_add_float(base + 2u, s_con.x);
-                    atomic_add_float(base + 3u, s_con.y);
-                    atomic_add_float(base + 4u, s_con.z);
-                    atomic_add_float(base + 5u, s_col.x);
-                    atomic_add_float(base + 6u, s_col.y);
-                    atomic_add_float(base + 7u, s_col.z);
-                    atomic_add_float(base + 8u, s_op);
-                }
+            g_mean = subgroupAdd(g_mean);
+            g_conic = subgroupAdd(g_conic);
+            g_rgb = subgroupAdd(g_rgb);
+            g_opacity = subgroupAdd(g_opacity);
+            if (subgroupElect()) {
+                uint a = (j * NUM_SG + gl_SubgroupID) * GRAD2D_STRIDE;
+                s_acc[a + 0u] = g_mean.x;
+                s_acc[a + 1u] = g_mean.y;
+                s_acc[a + 2u] = g_conic.x;
+                s_acc[a + 3u] = g_conic.y;
+                s_acc[a + 4u] = g_conic.z;
+                s_acc[a + 5u] = g_rgb.x;
+                s_acc[a + 6u] = g_rgb.y;
+                s_acc[a + 7u] = g_rgb.z;
+                s_acc[a + 8u] = g_opacity;
+            }
+        }
+        barrier();
+        // One invocation per splat of the batch: the subgroups' sums, then nine atomics.
+        for (uint j = li; j < batch; j += WG_SIZE) {
+            float sum[GRAD2D_STRIDE];
+            [[unroll]] for (uint c = 0u; c < GRAD2D_STRIDE; c++) sum[c] = 0.0;
+            for (uint sg = 0u; sg < NUM_SG; sg++) {
+                uint a = (j * NUM_SG + sg) * GRAD2D_STRIDE;
+                [[unroll]] for (uint c = 0u; c < GRAD2D_STRIDE; c++) sum[c] += s_acc[a + c];
+            }
+            uint base = s_id[j] * GRAD2D_STRIDE;
+            [[unroll]] for (uint c = 0u; c < GRAD2D_STRIDE; c++) {
+                // Splats that touched no pixel of the tile add nothing (a real skip on GPUs).
+                if (sum[c] != 0.0) atomic_add_float(base + c, sum[c]);
             }
         }
     }

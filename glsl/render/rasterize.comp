@@ -1,11 +1,23 @@
 #version 460
-// Forward step 4: one 16×16 workgroup per tile. The tile's Gaussians (front to back) are
-// loaded into shared memory a batch at a time; every pixel blends them in order and stops
-// before its transmittance would fall under t_min. Mirrors src/reference/raster.rs.
-layout(constant_id = 0) const uint WG_SIZE = 256;  // must be 256 = 16 × 16
+// Forward step 4: one workgroup per 16×16 tile, PIXELS pixels per invocation (tile_pixel).
+// The tile's Gaussians (front to back) are loaded into shared memory a batch at a time; every
+// pixel blends them in order and stops before its transmittance would fall under t_min. Mirrors src/reference/raster.rs.
+//
+// Why several pixels per invocation: on a CPU driver (lavapipe) a subgroup is one SIMD loop
+// iteration and `if` only masks lanes, so the shared loads and the loop overhead per splat are
+// paid per subgroup; PIXELS = 8 shares them between 8 pixels. GPUs use PIXELS = 1.
+#extension GL_EXT_control_flow_attributes : require
+#extension GL_KHR_shader_subgroup_basic : require
+#extension GL_KHR_shader_subgroup_arithmetic : require
+#extension GL_KHR_shader_subgroup_ballot : require
+#extension GL_KHR_shader_subgroup_vote : require
+layout(constant_id = 0) const uint WG_SIZE = 256;  // must be 256 / PIXELS
+layout(constant_id = 1) const uint SUBGROUP_SIZE = 32;  // must divide WG_SIZE
+layout(constant_id = 2) const uint PIXELS = 1;     // 1, 2, 4 or 8
 layout(local_size_x_id = 0) in;
 #include "camera.glsl"
 #include "projected.glsl"
+#include "splat_reach.glsl"
 layout(std430, set = 0, binding = 0) readonly buffer Proj { Projected projected[]; };
 layout(std430, set = 0, binding = 1) readonly buffer Ids { uint sorted_ids[]; };
 layout(std430, set = 0, binding = 2) readonly buffer Ranges { uvec2 ranges[]; };
@@ -19,9 +31,25 @@ layout(push_constant) uniform Push {
     float bg_r, bg_g, bg_b;
 };
 
+// Pixel k of invocation li, as an index into the 16×16 tile (row-major): invocation li is lane
+// li % SUBGROUP_SIZE of group li / SUBGROUP_SIZE, and each such group owns SUBGROUP_SIZE·PIXELS
+// consecutive pixels (whole rows), so a subgroup's pixels are close together and tend to stop
+// at similar depths. A bijection onto 0..255 for any WG_SIZE = 256 / PIXELS.
+uint tile_pixel(uint li, uint k) {
+    uint lane = li % SUBGROUP_SIZE;
+    return (li - lane) * PIXELS + k * SUBGROUP_SIZE + lane;
+}
+
 shared vec4 s_mean_opacity[WG_SIZE];  // mean x, mean y, opacity, unused
 shared vec4 s_conic[WG_SIZE];         // a, b, c, power below which alpha < alpha_min
-shared vec4 s_rgb[WG_SIZE];
+shared vec4 s_rgb[WG_SIZE];           // r, g, b, splat_q_cut
+shared vec2 s_reach[WG_SIZE];         // splat_reach
+// Splats per batch: at most one per invocation, and every subgroup's list must fit in s_list.
+const uint LIST_SLOTS = 2048u;
+const uint NUM_SG = WG_SIZE / SUBGROUP_SIZE;
+const uint BATCH = WG_SIZE < LIST_SLOTS / NUM_SG ? WG_SIZE : LIST_SLOTS / NUM_SG;
+// [subgroup · BATCH + i]: the batch entries that may touch the subgroup's pixels, in order.
+shared uint s_list[LIST_SLOTS];
 shared uint s_done;
 
 void main() {
@@ -29,60 +57,122 @@ void main() {
     uint tiles_x = cam.size.z;
     uint tile = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
     if (tile >= tiles_x * cam.size.w) return;  // uniform over the workgroup
-    uint lx = gl_LocalInvocationIndex % 16u, ly = gl_LocalInvocationIndex / 16u;
-    uint px = (tile % tiles_x) * 16u + lx, py = (tile / tiles_x) * 16u + ly;
-    bool inside = px < cam.size.x && py < cam.size.y;
-    vec2 centre = vec2(float(px) + 0.5, float(py) + 0.5);
+    uint li = gl_LocalInvocationIndex;
+
+    vec2 centre[PIXELS];
+    float T[PIXELS];
+    vec3 color[PIXELS];
+    uint last[PIXELS];
+    bool done[PIXELS];
+    bool all_done = true;
+    [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
+        uint q = tile_pixel(li, k);
+        uint px = (tile % tiles_x) * 16u + q % 16u, py = (tile / tiles_x) * 16u + q / 16u;
+        centre[k] = vec2(float(px) + 0.5, float(py) + 0.5);
+        T[k] = 1.0;
+        color[k] = vec3(0.0);
+        last[k] = 0u;
+        done[k] = !(px < cam.size.x && py < cam.size.y);
+        all_done = all_done && done[k];
+    }
+
+    // The box of the subgroup's pixel centres (from the pixels themselves, whatever the
+    // subgroup's layout).
+    vec2 c_lo = centre[0], c_hi = centre[0];
+    [[unroll]] for (uint k = 1u; k < PIXELS; k++) {
+        c_lo = min(c_lo, centre[k]);
+        c_hi = max(c_hi, centre[k]);
+    }
+    c_lo = subgroupMin(c_lo);
+    c_hi = subgroupMax(c_hi);
+    bool smooth_mode = rc.smooth_mode != 0u;
 
     uvec2 range = ranges[tile];
-    float T = 1.0;
-    vec3 color = vec3(0.0);
-    uint last = 0u;
-    bool done = !inside;
-    for (uint base = range.x; base < range.y; base += WG_SIZE) {
+    for (uint base = range.x; base < range.y; base += BATCH) {
         // Stop loading once every pixel of the tile is done (the count is workgroup-uniform).
-        if (gl_LocalInvocationIndex == 0u) s_done = 0u;
+        if (li == 0u) s_done = 0u;
         barrier();
-        if (done) atomicAdd(s_done, 1u);
-        uint k = base + gl_LocalInvocationIndex;
-        if (k < range.y) {
+        if (all_done) atomicAdd(s_done, 1u);
+        uint k = base + li;
+        if (li < BATCH && k < range.y) {
             Projected p = projected[sorted_ids[k]];
-            s_mean_opacity[gl_LocalInvocationIndex] = vec4(p.mean_x, p.mean_y, p.opacity, 0.0);
+            s_mean_opacity[li] = vec4(p.mean_x, p.mean_y, p.opacity, 0.0);
             // A power this far below ln(alpha_min / opacity) gives alpha < alpha_min with room
             // for rounding, so the pixel can skip exp(); the exact test still follows.
             float cutoff = rc.smooth_mode == 0u ? log(rc.alpha_min / p.opacity) - 1e-3 : -1e30;
-            s_conic[gl_LocalInvocationIndex] = vec4(p.conic_a, p.conic_b, p.conic_c, cutoff);
-            s_rgb[gl_LocalInvocationIndex] = vec4(p.r, p.g, p.b, 0.0);
+            s_conic[li] = vec4(p.conic_a, p.conic_b, p.conic_c, cutoff);
+            float q_cut = splat_q_cut(p.opacity, rc.alpha_min, smooth_mode);
+            s_rgb[li] = vec4(p.r, p.g, p.b, q_cut);
+            s_reach[li] = splat_reach(p.opacity, vec3(p.conic_a, p.conic_b, p.conic_c),
+                                      rc.alpha_min, smooth_mode);
         }
         barrier();
         if (s_done == WG_SIZE) break;
-        uint batch = min(WG_SIZE, range.y - base);
-        for (uint j = 0u; !done && j < batch; j++) {
+        uint batch = min(BATCH, range.y - base);
+        // Compact (in order) the entries whose reach meets the subgroup's box: the loop below
+        // visits only those (a loop bound skips work even where `if` only masks lanes).
+        uint list_base = gl_SubgroupID * BATCH;
+        uint n_list = 0u;
+        for (uint j0 = 0u; !subgroupAll(all_done) && j0 < batch; j0 += gl_SubgroupSize) {
+            uint j = j0 + gl_SubgroupInvocationID;
+            bool meets = false;
+            if (j < batch) {
+                vec2 mean = s_mean_opacity[j].xy;
+                meets = reach_meets(mean, s_reach[j], c_lo, c_hi) &&
+                        ellipse_meets(mean, s_conic[j].xyz, s_rgb[j].w, c_lo, c_hi);
+            }
+            uvec4 ballot = subgroupBallot(meets);
+            if (meets) s_list[list_base + n_list + subgroupBallotExclusiveBitCount(ballot)] = j;
+            n_list += subgroupBallotBitCount(ballot);
+        }
+        subgroupMemoryBarrierShared();
+        subgroupBarrier();
+        for (uint i = 0u; !all_done && i < n_list; i++) {
+            uint j = s_list[list_base + i];
             vec4 mo = s_mean_opacity[j];
             vec4 cn = s_conic[j];
-            vec2 d = mo.xy - centre;
-            float power = -0.5 * (cn.x * d.x * d.x + cn.z * d.y * d.y) - cn.y * d.x * d.y;
-            // power > 0 only happens through rounding for a positive definite conic.
-            if (power > 0.0 || power < cn.w) continue;
-            float alpha = mo.z * exp(power);
-            if (rc.smooth_mode == 0u) {
-                alpha = min(alpha, rc.alpha_max);  // bounds 1/(1 − alpha) in the backward
-                if (alpha < rc.alpha_min) continue;
+            vec3 rgb = s_rgb[j].rgb;
+            all_done = true;
+            [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
+                if (!done[k]) {
+                    vec2 d = mo.xy - centre[k];
+                    float power = -0.5 * (cn.x * d.x * d.x + cn.z * d.y * d.y)
+                                  - cn.y * d.x * d.y;
+                    // power > 0 only happens through rounding for a positive definite conic.
+                    if (power <= 0.0 && power >= cn.w) {
+                        float alpha = mo.z * exp(power);
+                        bool keep = true;
+                        if (rc.smooth_mode == 0u) {
+                            alpha = min(alpha, rc.alpha_max);  // bounds 1/(1 − alpha) backward
+                            keep = alpha >= rc.alpha_min;
+                        }
+                        if (keep) {
+                            float next_t = T[k] * (1.0 - alpha);
+                            if (rc.smooth_mode == 0u && next_t < rc.t_min) {
+                                done[k] = true;
+                            } else {
+                                color[k] += rgb * (alpha * T[k]);
+                                T[k] = next_t;
+                                last[k] = base - range.x + j + 1u;
+                            }
+                        }
+                    }
+                }
+                all_done = all_done && done[k];
             }
-            float next_t = T * (1.0 - alpha);
-            if (rc.smooth_mode == 0u && next_t < rc.t_min) { done = true; break; }
-            color += s_rgb[j].rgb * (alpha * T);
-            T = next_t;
-            last = base - range.x + j + 1u;
         }
         barrier();
     }
-    if (inside) {
-        uint pix = py * cam.size.x + px;
-        image[3u * pix] = color.r + T * bg_r;
-        image[3u * pix + 1u] = color.g + T * bg_g;
-        image[3u * pix + 2u] = color.b + T * bg_b;
-        final_t[pix] = T;
-        last_index[pix] = last;
+    [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
+        uint q = tile_pixel(li, k);
+        uint px = (tile % tiles_x) * 16u + q % 16u, py = (tile / tiles_x) * 16u + q / 16u;
+        if (px < cam.size.x && py < cam.size.y) {
+            uint pix = py * cam.size.x + px;
+            image[3u * pix] = color[k].r + T[k] * bg_r;
+            image[3u * pix + 1u] = color[k].g + T[k] * bg_g;
+            image[3u * pix + 2u] = color[k].b + T[k] * bg_b;
+            final_t[pix] = T[k];
+            last_index[pix] = last[k];
+        }
     }
 }

@@ -53,6 +53,33 @@ pub const GRAD2D_STRIDE: usize = 9;
 /// Invocations per workgroup: one tile of 16×16 pixels, and the preprocess block size.
 const WG: u32 = 256;
 
+/// Pixels per invocation of the forward rasterizer: 8 on CPU drivers, where a subgroup is a
+/// SIMD loop whose per-splat loads and loop overhead cost the same for every lane (see
+/// `glsl/render/rasterize.comp`), 1 on GPUs; 1 whenever 8 would leave a partial subgroup.
+pub fn default_pixels_per_invocation(info: &crate::gpu::DeviceInfo) -> u32 {
+    cpu_pixels_per_invocation(info, 8)
+}
+
+/// Pixels per invocation of the rasterizer backward: 16 on CPU drivers (its per-splat
+/// reduction is dearer than the forward's loads; lavapipe, 12k Gaussians at 162×242:
+/// 1 → 200 ms, 4 → 77 ms, 8 → 55–68 ms, 16 → 48 ms), 1 on GPUs.
+pub fn backward_pixels_per_invocation(info: &crate::gpu::DeviceInfo) -> u32 {
+    cpu_pixels_per_invocation(info, 16)
+}
+
+/// `want` (a power of two ≤ 16) on CPU devices, halved until the workgroup (256 / pixels) is a
+/// whole number of subgroups; 1 on other devices.
+fn cpu_pixels_per_invocation(info: &crate::gpu::DeviceInfo, want: u32) -> u32 {
+    if !info.device_type.starts_with("CPU") {
+        return 1;
+    }
+    let mut p = want;
+    while p > 1 && !(WG / p).is_multiple_of(info.subgroup_size.max(1)) {
+        p /= 2;
+    }
+    p
+}
+
 /// How the rasterizer backward adds gradients into global memory.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum AtomicMode {
@@ -130,6 +157,30 @@ impl Backward {
     }
 
     pub fn with_atomics(ctx: &Arc<GpuContext>, capacity: usize, mode: AtomicMode) -> Result<Self> {
+        Self::with_pixels(
+            ctx,
+            capacity,
+            mode,
+            default_pixels_per_invocation(&ctx.info),
+        )
+    }
+
+    /// As [`Backward::with_atomics`], with `pixels` (1, 2, 4, 8 or 16) pixels per invocation of the
+    /// rasterizer backward instead of the device's default (benchmarks compare them).
+    pub fn with_pixels(
+        ctx: &Arc<GpuContext>,
+        capacity: usize,
+        mode: AtomicMode,
+        pixels: u32,
+    ) -> Result<Self> {
+        let wg = WG / pixels.max(1);
+        ensure!(
+            matches!(pixels, 1 | 2 | 4 | 8 | 16)
+                && wg.is_multiple_of(ctx.info.subgroup_size.max(1)),
+            "GPU backward: {pixels} pixels per invocation gives {wg} invocations per tile, not a \
+             multiple of the subgroup size {}; use 1, 2, 4, 8 or 16 with whole subgroups",
+            ctx.info.subgroup_size
+        );
         let float_atomics = mode == AtomicMode::Auto && ctx.info.float_atomic_add;
         // A device without float atomics gets SPIR-V that does not declare the capability.
         let raster = if ctx.info.float_atomic_add {
@@ -139,8 +190,8 @@ impl Backward {
                 shaders::BACKWARD_RASTERIZE_BACKWARD,
                 8,
                 std::mem::size_of::<RasterPush>() as u32,
-                WG,
-                &[float_atomics as u32],
+                wg,
+                &[float_atomics as u32, pixels],
             )?
         } else {
             ComputePipeline::new(
@@ -149,8 +200,8 @@ impl Backward {
                 shaders::BACKWARD_RASTERIZE_BACKWARD_CAS,
                 8,
                 std::mem::size_of::<RasterPush>() as u32,
-                WG,
-                &[0],
+                wg,
+                &[0, pixels],
             )?
         };
         let preprocess = ComputePipeline::new(

@@ -16,6 +16,7 @@
 
 use std::sync::Arc;
 
+use super::backward::default_pixels_per_invocation;
 use super::layout::{CameraGpu, ProjectedGpu, RenderConstants};
 use super::scan::PrefixScan;
 use super::sort::{RadixSort, SortedIn};
@@ -185,12 +186,19 @@ impl Renderer {
                 std::mem::size_of::<EmitPush>(),
             )?,
             ranges: pipe("render/tile_ranges", shaders::RENDER_TILE_RANGES, 3, 0)?,
-            raster: pipe(
-                "render/rasterize",
-                shaders::RENDER_RASTERIZE,
-                7,
-                std::mem::size_of::<RasterPush>(),
-            )?,
+            raster: {
+                // Same pixels-per-invocation choice as the backward (CPU drivers: 8).
+                let pixels = default_pixels_per_invocation(&ctx.info);
+                ComputePipeline::new(
+                    ctx,
+                    "render/rasterize",
+                    shaders::RENDER_RASTERIZE,
+                    7,
+                    std::mem::size_of::<RasterPush>() as u32,
+                    WG / pixels,
+                    &[pixels],
+                )?
+            },
             depth_sort: RadixSort::new(ctx, capacity.gaussians as u64)?,
             tile_sort: RadixSort::new(ctx, capacity.intersections as u64)?,
             scan: PrefixScan::new(ctx, capacity.gaussians as u64)?,
