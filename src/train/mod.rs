@@ -5,5 +5,7 @@ pub mod adam;
 pub mod data;
 pub mod density;
 pub mod loss;
+mod lpm_debug;
+pub mod lpm_step;
 pub mod schedule;
 pub mod trainer;
