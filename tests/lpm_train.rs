@@ -99,7 +99,8 @@ fn plane(hole: bool) -> GaussianParams {
                 continue;
             }
             p.positions.push([x, y, 0.0]);
-            p.log_scales.push([0.07f32.ln(), 0.07f32.ln(), 0.01f32.ln()]);
+            p.log_scales
+                .push([0.07f32.ln(), 0.07f32.ln(), 0.01f32.ln()]);
             p.rotations.push([1.0, 0.0, 0.0, 0.0]);
             p.opacity_logits.push(logit(0.8));
             p.sh_dc
@@ -234,19 +235,34 @@ fn one_lpm_step_fills_the_hole_and_resets_the_occluder_adc_does_neither() {
 
     let (adc, r_adc) = run(false);
     assert!(r_adc.lpm.is_none());
-    assert_eq!(adc.len(), n0, "ADC with an unreachable threshold neither adds nor prunes");
+    assert_eq!(
+        adc.len(),
+        n0,
+        "ADC with an unreachable threshold neither adds nor prunes"
+    );
     let near = |m: &GaussianParams, c: [f32; 3], r: f32| -> Vec<usize> {
-        (0..m.len()).filter(|&i| dist(m.positions[i], c) < r).collect()
+        (0..m.len())
+            .filter(|&i| dist(m.positions[i], c) < r)
+            .collect()
     };
-    assert!(near(&adc, HOLE, 0.6).is_empty(), "ADC put a Gaussian in the hole");
+    assert!(
+        near(&adc, HOLE, 0.6).is_empty(),
+        "ADC put a Gaussian in the hole"
+    );
     let occ = near(&adc, OCCLUDER, 0.05);
     assert_eq!(occ.len(), 1);
-    assert!(adc.opacity_logits[occ[0]] > logit(0.9), "ADC changed the occluder's opacity");
+    assert!(
+        adc.opacity_logits[occ[0]] > logit(0.9),
+        "ADC changed the occluder's opacity"
+    );
 
     let (lpm, r) = run(true);
     let rep = r.lpm.expect("LPM ran at iteration 1");
     eprintln!("{rep:?}");
-    assert!(rep.zones >= 2, "expected zones at the hole and the occluder: {rep:?}");
+    assert!(
+        rep.zones >= 2,
+        "expected zones at the hole and the occluder: {rep:?}"
+    );
     assert!(rep.added >= 1 && rep.reset >= 1, "{rep:?}");
     assert_eq!(lpm.len(), n0 + rep.added as usize);
     // The added Gaussians are the last rows: isotropic, opacity 0.1, one of them in the hole.

@@ -519,10 +519,7 @@ impl LpmTrainer {
     /// submits): membership of the new Gaussians, the LPM opacity reset, added points. Leaves
     /// `t.rec` begun and empty.
     pub(super) fn finish(&mut self, t: &mut Trainer) -> anyhow::Result<LpmStepReport> {
-        let mut p = self
-            .pending
-            .take()
-            .context("LPM: finish without densify")?;
+        let mut p = self.pending.take().context("LPM: finish without densify")?;
         let nz = p.records.len() as u32;
         let count = t.state.count();
         if nz > 0 && (self.config.reset || self.config.add_points) {
