@@ -10,7 +10,7 @@ use lpmsplat::lpm::neighbours::{select_neighbours, NeighbourSettings};
 use lpmsplat::lpm::{Correspondences, PairMatches};
 use lpmsplat::scene::{CameraModel, Image, PinholeCamera, Pose, Scene, SceneFormat, View};
 use lpmsplat::splats::GaussianParams;
-use lpmsplat::train::lpm_step::{LpmConfig, LpmTrainer};
+use lpmsplat::train::lpm_step::{LpmConfig, LpmStepReport, LpmTrainer};
 use lpmsplat::train::trainer::{Background, TrainConfig, Trainer};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
@@ -309,8 +309,11 @@ fn lpm_off_is_bit_identical_to_adc() {
             t.lpm = Some(LpmTrainer::new(&ctx, &scene, &gt, correspondences(&scene), c).unwrap());
         }
         let mut densified = 0;
+        let mut reports = Vec::new();
         for _ in 0..12 {
-            densified += t.step().unwrap().densified.is_some() as u32;
+            let r = t.step().unwrap();
+            densified += r.densified.is_some() as u32;
+            reports.extend(r.lpm);
         }
         assert_eq!(densified, 2);
         let m = t.model().unwrap();
@@ -321,18 +324,59 @@ fn lpm_off_is_bit_identical_to_adc() {
             bits(&m.opacity_logits),
             bits(bytemuck::cast_slice(&m.sh_dc)),
             m.len(),
+            reports,
         )
     };
-    let base = run(None);
-    assert_eq!(base, run(None), "the ADC trainer is deterministic");
+    let model = |r: &(
+        Vec<u32>,
+        Vec<u32>,
+        Vec<u32>,
+        Vec<u32>,
+        usize,
+        Vec<LpmStepReport>,
+    )| { (r.0.clone(), r.1.clone(), r.2.clone(), r.3.clone(), r.4) };
+    let base = model(&run(None));
+    assert_eq!(base, model(&run(None)), "the ADC trainer is deterministic");
     // An LPM whose window never opens must not perturb anything.
     let never = LpmConfig {
         from: 1000,
         until: 2000,
         ..lpm_config()
     };
-    assert_eq!(base, run(Some(never)));
+    let r = run(Some(never));
+    assert!(r.5.is_empty());
+    assert_eq!(base, model(&r));
+    // LPM running through the fused path (error blocks, zones, membership, threshold-scale
+    // buffer, decide, lowered count) with a ratio of 1 and no addition or reset decides exactly
+    // what ADC decides.
+    let neutral = LpmConfig {
+        threshold_ratio: 1.0,
+        add_points: false,
+        reset: false,
+        ..lpm_config()
+    };
+    let r = run(Some(neutral));
+    assert_eq!(r.5.len(), 2);
+    assert!(r
+        .5
+        .iter()
+        .all(|s| s.zones > 0 && s.lowered == 0 && s.pruned == 0));
+    assert_eq!(base, model(&r));
     // And LPM that does run changes the model (so the comparison above can fail).
-    assert_ne!(base, run(Some(lpm_config())));
+    let r = run(Some(lpm_config()));
+    eprintln!("{:?}", r.5);
+    assert_ne!(base, model(&r));
+    // Density-aware pruning removes exactly as many as the lowered threshold added.
+    assert!(r.5.iter().all(|s| s.pruned == s.lowered));
+    // A threshold scale that makes every seen Gaussian inside a zone densify exercises the
+    // lowered-threshold count and the exact lowest-opacity selection.
+    let low = LpmConfig {
+        threshold_ratio: 1e-3,
+        ..lpm_config()
+    };
+    let r = run(Some(low));
+    eprintln!("{:?}", r.5);
+    assert!(r.5.iter().any(|s| s.lowered > 0));
+    assert!(r.5.iter().all(|s| s.pruned == s.lowered));
     ctx.check_validation().unwrap();
 }
