@@ -15,6 +15,9 @@ use std::io::Write;
 use std::path::PathBuf;
 use std::time::Instant;
 
+#[path = "bench_trade.rs"]
+mod trade;
+
 #[derive(Args, Debug)]
 pub struct BenchArgs {
     #[command(subcommand)]
@@ -25,6 +28,8 @@ pub struct BenchArgs {
 pub enum BenchKind {
     /// Rendering frames per second and per-stage GPU time.
     Fps(FpsArgs),
+    /// ADC vs ADC+LPM (and ablations) side by side: PSNR, SSIM, size, time, FPS.
+    Trade(trade::TradeArgs),
 }
 
 #[derive(Args, Debug)]
@@ -74,6 +79,7 @@ pub struct FpsResult {
 pub fn run(gpu: &GpuOptions, args: &BenchArgs) -> anyhow::Result<()> {
     match &args.what {
         BenchKind::Fps(a) => fps(gpu, a),
+        BenchKind::Trade(a) => trade::run(gpu, a),
     }
 }
 

@@ -8,9 +8,11 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuContext, GpuOptions, StageTimes};
+use lpmsplat::lpm::{self, ZoneGeometry};
 use lpmsplat::scene::{images, Image, Scene};
 use lpmsplat::splats::{self, read_ply, write_ply, GaussianParams};
 use lpmsplat::train::nan_check::NonFiniteCheck;
+use lpmsplat::train::lpm_step::{LpmConfig, LpmTrainer};
 use lpmsplat::train::trainer::{Background, TrainConfig, Trainer, ViewMetrics};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -92,6 +94,114 @@ pub struct TrainArgs {
     /// reference's test never fires).
     #[arg(long)]
     pub screen_size_limit: Option<f32>,
+    #[command(flatten)]
+    pub lpm: Box<LpmArgs>,
+}
+
+/// Localized Point Management (LPM.md), fused into the density steps.
+#[derive(Args, Debug, Clone)]
+pub struct LpmArgs {
+    /// Turn LPM on (ADC always runs).
+    #[arg(long)]
+    pub lpm: bool,
+    /// Ablation: no point addition in sparse zones.
+    #[arg(long)]
+    pub lpm_no_add: bool,
+    /// Ablation: no opacity reset of the Gaussians in front of zones.
+    #[arg(long)]
+    pub lpm_no_reset: bool,
+    /// LPM runs every N iterations (a multiple of --densify-interval: it is fused with it).
+    #[arg(long, default_value_t = 100)]
+    pub lpm_interval: u32,
+    /// LPM window: from < iteration < until.
+    #[arg(long, default_value_t = 500)]
+    pub lpm_from: u32,
+    #[arg(long, default_value_t = 15_000)]
+    pub lpm_until: u32,
+    /// Gradient-threshold multiplier inside zones.
+    #[arg(long, default_value_t = 0.5)]
+    pub lpm_threshold_ratio: f32,
+    /// Error pixels: above this quantile of the error map.
+    #[arg(long, default_value_t = 0.4)]
+    pub lpm_error_quantile: f32,
+    /// Opacity reset: in-front Gaussians at or above this quantile of the opacities inside zones.
+    #[arg(long, default_value_t = 0.7)]
+    pub lpm_reset_quantile: f64,
+    /// Largest optical-axis angle between neighbour views, degrees (90 suggested indoors).
+    #[arg(long, default_value_t = 45.0)]
+    pub lpm_neighbour_angle: f64,
+    /// Zone geometry: sphere (paper), ray-pairs, authors-box (the authors' code).
+    #[arg(long, default_value = "sphere", value_parser = ["sphere", "ray-pairs", "authors-box"])]
+    pub lpm_zone: String,
+    /// Dump PNGs of every LPM step (error map, kept blocks, paired regions, zones) here.
+    #[arg(long)]
+    pub lpm_debug: Option<PathBuf>,
+}
+
+impl LpmArgs {
+    /// The LPM configuration, or `None` without `--lpm`.
+    pub fn config(&self, densify_interval: u32, seed: u64) -> anyhow::Result<Option<LpmConfig>> {
+        if !self.lpm {
+            return Ok(None);
+        }
+        anyhow::ensure!(
+            self.lpm_interval > 0
+                && densify_interval > 0
+                && self.lpm_interval.is_multiple_of(densify_interval),
+            "--lpm-interval {} must be a positive multiple of --densify-interval {} (LPM runs \
+             inside the density step)",
+            self.lpm_interval,
+            densify_interval
+        );
+        anyhow::ensure!(
+            self.lpm_neighbour_angle > 0.0 && self.lpm_neighbour_angle <= 180.0,
+            "--lpm-neighbour-angle {}: must be in (0, 180] degrees",
+            self.lpm_neighbour_angle
+        );
+        let mut c = LpmConfig {
+            interval: self.lpm_interval,
+            from: self.lpm_from,
+            until: self.lpm_until,
+            threshold_ratio: self.lpm_threshold_ratio,
+            add_points: !self.lpm_no_add,
+            reset: !self.lpm_no_reset,
+            seed,
+            debug_dir: self.lpm_debug.clone(),
+            ..LpmConfig::default()
+        };
+        c.regions.quantile = self.lpm_error_quantile;
+        c.reset_settings.quantile = self.lpm_reset_quantile;
+        c.matching.neighbours.max_angle_deg = self.lpm_neighbour_angle;
+        c.matching.neighbours.seed = seed;
+        c.zones.geometry = match self.lpm_zone.as_str() {
+            "ray-pairs" => ZoneGeometry::SphereRayPairs,
+            "authors-box" => ZoneGeometry::AuthorsBox,
+            _ => ZoneGeometry::Sphere,
+        };
+        c.validate()?;
+        Ok(Some(c))
+    }
+}
+
+/// Builds the LPM state for a trainer: correspondences from the cache in `cache_dir` (built and
+/// written there when missing or stale).
+pub fn build_lpm(
+    ctx: &std::sync::Arc<GpuContext>,
+    scene: &Scene,
+    train_images: &[Image],
+    config: LpmConfig,
+    cache_dir: &Path,
+) -> anyhow::Result<LpmTrainer> {
+    let loader = |i: usize| -> anyhow::Result<Image> {
+        match scene.train.iter().position(|&v| v == i) {
+            Some(k) => Ok(train_images[k].clone()),
+            None => Ok(images::load_images(scene, &[i])?.remove(0)),
+        }
+    };
+    let cache = cache_dir.join(lpm::CACHE_FILE_NAME);
+    let (corr, summary) = lpm::load_or_build(scene, &config.matching, &cache, &loader, None)?;
+    eprintln!("LPM correspondences: {summary}");
+    LpmTrainer::new(ctx, scene, train_images, corr, config)
 }
 
 pub fn background_from(arg: Option<&str>, scene: &Scene) -> anyhow::Result<Background> {
@@ -258,6 +368,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     check_flags(args)?;
     let scene = Scene::load(&args.scene.scene, &args.scene.load_options()?)?;
     let config = args.config(&scene)?;
+    let lpm_config = args.lpm.config(args.densify_interval, args.seed)?;
     prepare_output(&args.out)?;
     let checkpoint_path = args.out.join("checkpoint.bin");
     let t_load = Instant::now();
@@ -315,6 +426,9 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         Some(_) => Some(NonFiniteCheck::new(&ctx)?),
         None => None,
     };
+    if let Some(c) = lpm_config.clone() {
+        trainer.lpm = Some(build_lpm(&ctx, &scene, &train_images, c, &args.out)?);
+    }
     let load_s = t_load.elapsed().as_secs_f64();
     let start_iteration = trainer.iteration;
     let bar = ProgressBar::new(config.iterations as u64);
@@ -452,6 +566,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         "dropped_frames": trainer.dropped_frames,
         "device": ctx.info.name,
         "stages": if config.timestamps { stage_shares(&stages) } else { serde_json::Value::Null },
+        "lpm": trainer.lpm.as_ref().map(|l| lpm_summary(&l.totals, train_s, config.iterations)),
     });
     let text = serde_json::to_string_pretty(&metrics)?;
     write_atomic(&args.out.join("metrics.json"), |f| {
@@ -461,6 +576,9 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     cfg["scene"] = serde_json::json!(args.scene.scene.display().to_string());
     cfg["resolution"] = serde_json::json!(args.scene.resolution);
     cfg["init_points"] = serde_json::json!(init.len());
+    cfg["lpm"] = lpm_config
+        .as_ref()
+        .map_or(serde_json::Value::Null, |c| c.to_json());
     let text = serde_json::to_string_pretty(&cfg)?;
     write_atomic(&args.out.join("config.json"), |f| {
         Ok(f.write_all(text.as_bytes())?)
@@ -484,6 +602,23 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
             );
         }
     }
+    if let Some(l) = &trainer.lpm {
+        let t = &l.totals;
+        println!(
+            "  LPM: {} steps ({} with zones), {} zones, {} densified by the lowered threshold, {} \
+             extra prunes, {} opacity resets, {} added; {:.2} s = {:.2} % of training ({:.3} ms/it)",
+            t.steps,
+            t.steps_with_zones,
+            t.zones,
+            t.lowered,
+            t.pruned,
+            t.reset,
+            t.added,
+            t.seconds,
+            100.0 * t.seconds / train_s.max(1e-12),
+            1e3 * t.seconds / config.iterations as f64
+        );
+    }
     println!("wrote {}", args.out.display());
     ctx.check_validation()?;
     Ok(())
@@ -498,4 +633,19 @@ pub fn mean_metrics(m: &[ViewMetrics]) -> (f64, f64) {
         m.iter().map(|v| v.psnr).sum::<f64>() / n,
         m.iter().map(|v| v.ssim).sum::<f64>() / n,
     )
+}
+
+/// LPM totals for `metrics.json`.
+pub fn lpm_summary(
+    t: &lpmsplat::train::lpm_step::LpmTotals,
+    train_seconds: f64,
+    iterations: u32,
+) -> serde_json::Value {
+    serde_json::json!({
+        "steps": t.steps, "steps_with_zones": t.steps_with_zones, "zones": t.zones,
+        "lowered": t.lowered, "pruned_extra": t.pruned, "opacity_reset": t.reset,
+        "added": t.added, "seconds": t.seconds,
+        "share_of_training": t.seconds / train_seconds.max(1e-12),
+        "ms_per_iteration": 1e3 * t.seconds / iterations.max(1) as f64,
+    })
 }

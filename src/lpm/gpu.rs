@@ -152,6 +152,7 @@ pub struct LpmGpu {
     scales: GpuBuffer<f32>,
     error_select: Selection,
     opacity_select: Selection,
+    rank_select: Selection,
     no_flags: GpuBuffer<u32>,
 }
 
@@ -238,6 +239,7 @@ impl LpmGpu {
             scales: GpuBuffer::new(ctx, "lpm error scales", 2, BufferKind::DeviceLocal)?,
             error_select: Selection::new(ctx, "lpm error quantile")?,
             opacity_select: Selection::new(ctx, "lpm opacity quantile")?,
+            rank_select: Selection::new(ctx, "lpm rank selection")?,
             no_flags: GpuBuffer::new(ctx, "lpm no flags", 1, BufferKind::DeviceLocal)?,
         })
     }
@@ -504,6 +506,63 @@ impl LpmGpu {
         );
         rec.barrier();
         Ok((bx, by))
+    }
+
+    /// Records the exact selection of the element of 0-based rank `rank` (ascending float-key
+    /// order) among the first `count` `values` whose `flags & flag_mask` is non-zero, of which
+    /// there must be more than `rank` (`taking_part`, known to the caller). Afterwards
+    /// [`Self::rank_selection_state`] holds, in the layout of `glsl/lpm/select_state.glsl`, its
+    /// key at `SEL_PREFIX` (4) and at `SEL_RANK` (2) its rank among the elements with exactly
+    /// that key (so `SEL_RANK + 1` of those are at or below `rank`); `SEL_VALID` (1) is 0 when
+    /// `taking_part` is 0.
+    #[allow(clippy::too_many_arguments)]
+    pub fn record_rank_selection(
+        &self,
+        rec: &mut Recorder,
+        values: &GpuBuffer<f32>,
+        flags: &GpuBuffer<u32>,
+        flag_mask: u32,
+        count: u32,
+        taking_part: u32,
+        rank: u32,
+    ) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            values.len() >= count as usize && flags.len() >= count as usize,
+            "LPM rank selection: {count} elements, but the value buffer holds {} and the flag \
+             buffer {}",
+            values.len(),
+            flags.len()
+        );
+        anyhow::ensure!(
+            flag_mask != 0 && rank < taking_part.max(1) && taking_part <= count,
+            "LPM rank selection: rank {rank} among {taking_part} of {count} elements (mask {flag_mask})"
+        );
+        rec.barrier();
+        self.record_selection(
+            rec,
+            &self.rank_select,
+            values,
+            flags,
+            count,
+            flag_mask,
+            PickPush {
+                pass: 0,
+                mode: 0,
+                n: taking_part,
+                rank_lo: rank,
+                frac: 0.0,
+                top_num: 0,
+                top_den: 1,
+                ranks: 1,
+            },
+        );
+        Ok(())
+    }
+
+    /// The state of the last [`Self::record_rank_selection`] (bind it to a kernel that includes
+    /// `select_state.glsl`).
+    pub fn rank_selection_state(&self) -> &GpuBuffer<u32> {
+        &self.rank_select.state
     }
 
     /// The error map of the last [`Self::record_error_blocks`] (its first width·height values are

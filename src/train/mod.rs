@@ -7,5 +7,7 @@ pub mod data;
 pub mod density;
 pub mod loss;
 pub mod nan_check;
+mod lpm_debug;
+pub mod lpm_step;
 pub mod schedule;
 pub mod trainer;

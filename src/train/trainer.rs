@@ -134,6 +134,8 @@ pub struct StepReport {
     pub gaussians: usize,
     pub densified: Option<DensifyOutcome>,
     pub stages: Option<StageTimes>,
+    /// Set at the iterations LPM ran at.
+    pub lpm: Option<super::lpm_step::LpmStepReport>,
 }
 
 /// Per-view evaluation result.
@@ -150,13 +152,13 @@ pub struct Trainer {
     pub extent: f64,
     cameras_host: Vec<CameraGpu>,
     cameras: GpuBuffer<CameraGpu>,
-    images: GpuImages,
+    pub(super) images: GpuImages,
     /// `scene.views` index → slot in `images` (training views only).
     image_of_view: Vec<Option<usize>>,
     pub state: SplatState,
     grads: GpuSplats,
     view_grad_norm: GpuBuffer<f32>,
-    renderer: Renderer,
+    pub(super) renderer: Renderer,
     backward: Backward,
     loss: Loss,
     adam: Adam,
@@ -167,9 +169,11 @@ pub struct Trainer {
     pub views: ViewSchedule,
     pub iteration: u32,
     pub adam_step: u32,
-    rec: Recorder,
+    pub(super) rec: Recorder,
     pool: TimestampPool,
     pub dropped_frames: u32,
+    /// Localized Point Management, fused into the density steps; `None`: ADC only.
+    pub lpm: Option<super::lpm_step::LpmTrainer>,
 }
 
 /// Per-iteration background colour for `Background::Random`: a hash of (seed, iteration), so a
@@ -257,6 +261,7 @@ impl Trainer {
             rec: Recorder::new(ctx)?,
             pool: TimestampPool::new(ctx, 32)?,
             dropped_frames: 0,
+            lpm: None,
             state,
             config,
         })
@@ -267,7 +272,7 @@ impl Trainer {
     }
 
     /// Grows the per-Gaussian buffers the trainer owns to the state's capacity.
-    fn follow_capacity(&mut self) -> anyhow::Result<()> {
+    pub(super) fn follow_capacity(&mut self) -> anyhow::Result<()> {
         let cap = self.state.capacity();
         if self.grads.capacity < cap {
             self.grads = GpuSplats::zeroed(&self.ctx, "grad ", self.state.sh_degree(), 0, cap)?;
@@ -282,6 +287,17 @@ impl Trainer {
         })?;
         self.grads.count = self.state.count();
         Ok(())
+    }
+
+    /// Where the ground truth of training view `view` lives on the GPU.
+    pub(super) fn image_slot(&self, view: usize) -> anyhow::Result<super::data::ImageSlot> {
+        let slot = self
+            .image_of_view
+            .get(view)
+            .copied()
+            .flatten()
+            .context("trainer: not a training view")?;
+        Ok(self.images.slots[slot])
     }
 
     /// Runs one training iteration (waits for it).
@@ -424,6 +440,7 @@ impl Trainer {
             gaussians: count,
             densified: None,
             stages,
+            lpm: None,
         };
 
         if densifies {
@@ -433,13 +450,26 @@ impl Trainer {
                 prune_large: cfg.schedule.prunes_large(it),
                 iteration: it,
             };
-            let outcome = self
-                .density
-                .step(&mut self.rec, &mut self.state, &args, None)?;
+            // Taken out while it runs, as it drives the trainer's buffers; put back below.
+            let mut lpm = if self.lpm.as_ref().is_some_and(|l| l.config.runs_at(it)) {
+                self.lpm.take()
+            } else {
+                None
+            };
+            let outcome = match lpm.as_mut() {
+                Some(l) => l.densify(self, view, bg, &args)?,
+                None => self.density.step(&mut self.rec, &mut self.state, &args, None)?,
+            };
             self.follow_capacity()?;
             if cfg.schedule.resets_opacity(it) {
                 self.density
                     .record_opacity_reset(&mut self.rec, &self.state)?;
+            }
+            if let Some(l) = lpm.as_mut() {
+                report.lpm = Some(l.finish(self)?);
+            }
+            if lpm.is_some() {
+                self.lpm = lpm;
             }
             self.rec.submit_and_wait()?;
             report.gaussians = self.state.count();

@@ -1,0 +1,673 @@
+//! Localized Point Management inside the trainer (LPM.md steps 1–9), fused into the
+//! density-control step of the iterations it runs at.
+//!
+//! One LPM step, for the view V rendered this iteration (its image is still in the renderer):
+//! 1. error map → per-block error counts on the GPU ([`LpmGpu::record_error_blocks`]; only the
+//!    counts come back) → regions on the host;
+//! 2. a neighbour V' of V at random, the cached correspondences of (V, V') → paired regions →
+//!    zones ([`zones_for_step`]) → zone records uploaded;
+//! 3. membership of the current Gaussians, a threshold scale (× `threshold_ratio` inside zones,
+//!    `glsl/lpm/threshold_scale.comp`) given to ADC's own `record_decide`, so densification
+//!    inside zones goes through the same clone / split code; then density-aware pruning: as many
+//!    of the lowest-opacity plain survivors as the lowered threshold added
+//!    (`glsl/lpm/lowered_count.comp`, an exact rank selection, `glsl/lpm/prune_lowest.comp`)
+//!    get `DECIDE_REMOVE` before `apply`;
+//! 4. after ADC's `apply` and its global opacity reset: membership of the new Gaussians, the LPM
+//!    opacity reset of the in-front Gaussians ([`LpmGpu::record_opacity_reset`]), and one new
+//!    Gaussian at the centre of every zone with fewer than `add_below` Gaussians inside (appended
+//!    rows, zero Adam moments).
+//!
+//! A step that finds no zone is a plain ADC step. Global ADC runs in every case.
+//!
+//! Time: [`LpmTotals::seconds`] is the wall time of the step (host work and the GPU work it
+//! waits for) minus the time of ADC's own `apply`, i.e. what LPM adds to the iteration.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::Context;
+use rand::SeedableRng;
+
+use super::adam::SplatState;
+use super::density::{DensifyArgs, DensifyOutcome};
+use super::trainer::Trainer;
+use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext};
+use crate::lpm::gpu::{block_grid, ErrorImages, LpmGpu};
+use crate::lpm::membership::OpacityResetSettings;
+use crate::lpm::{
+    regions, zones_for_step, Correspondences, MatchSettings, RegionSettings, ZoneRecord,
+    ZoneSettings,
+};
+use crate::scene::{Image, Scene, View};
+use crate::shaders;
+use crate::splats::gpu::grown_capacity;
+use crate::splats::SH_C0;
+
+const WG: u32 = 256;
+
+/// Everything that decides what LPM does (LPM.md's numbers by default).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LpmConfig {
+    /// LPM runs at iterations `from < t < until` that are multiples of `interval` and are also
+    /// densify iterations (it is fused with the density step).
+    pub interval: u32,
+    pub from: u32,
+    pub until: u32,
+    /// Gradient-threshold multiplier inside zones.
+    pub threshold_ratio: f32,
+    /// Add a Gaussian at the centre of sparse zones.
+    pub add_points: bool,
+    /// Reset the opacity of the Gaussians in front of zones.
+    pub reset: bool,
+    /// A zone with fewer Gaussians inside than this gets a new one.
+    pub add_below: u32,
+    /// Opacity of added Gaussians.
+    pub add_opacity: f64,
+    pub regions: RegionSettings,
+    pub reset_settings: OpacityResetSettings,
+    pub zones: ZoneSettings,
+    pub matching: MatchSettings,
+    /// Seed of the per-step neighbour pick.
+    pub seed: u64,
+    /// Dump PNGs of every LPM step here.
+    pub debug_dir: Option<PathBuf>,
+}
+
+impl Default for LpmConfig {
+    fn default() -> Self {
+        Self {
+            interval: 100,
+            from: 500,
+            until: 15_000,
+            threshold_ratio: 0.5,
+            add_points: true,
+            reset: true,
+            add_below: 3,
+            add_opacity: 0.1,
+            regions: RegionSettings::default(),
+            reset_settings: OpacityResetSettings::default(),
+            zones: ZoneSettings::default(),
+            matching: MatchSettings::default(),
+            seed: 0,
+            debug_dir: None,
+        }
+    }
+}
+
+impl LpmConfig {
+    /// Whether LPM runs at `iteration` (the trainer also requires a densify iteration).
+    pub fn runs_at(&self, iteration: u32) -> bool {
+        self.interval > 0
+            && iteration > self.from
+            && iteration < self.until
+            && iteration.is_multiple_of(self.interval)
+    }
+
+    pub fn validate(&self) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            self.threshold_ratio > 0.0 && self.threshold_ratio.is_finite(),
+            "LPM threshold ratio {} must be positive (0.5 halves the threshold inside zones)",
+            self.threshold_ratio
+        );
+        anyhow::ensure!(
+            self.add_opacity > 0.0 && self.add_opacity < 1.0,
+            "LPM added-point opacity {} must lie in (0, 1)",
+            self.add_opacity
+        );
+        anyhow::ensure!(
+            self.regions.quantile.is_finite() && (0.0..=1.0).contains(&self.regions.quantile),
+            "LPM error quantile {} must lie in [0, 1] (default 0.4)",
+            self.regions.quantile
+        );
+        self.reset_settings.top_basis_points()?;
+        self.reset_settings.reset_logit()?;
+        Ok(())
+    }
+
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "interval": self.interval, "from": self.from, "until": self.until,
+            "threshold_ratio": self.threshold_ratio, "add_points": self.add_points,
+            "reset": self.reset, "add_below": self.add_below, "add_opacity": self.add_opacity,
+            "error_quantile": self.regions.quantile, "block": self.regions.block,
+            "keep_fraction": self.regions.keep_fraction,
+            "reset_quantile": self.reset_settings.quantile,
+            "reset_opacity": self.reset_settings.opacity,
+            "zone_geometry": format!("{:?}", self.zones.geometry),
+            "neighbour_angle_deg": self.matching.neighbours.max_angle_deg,
+        })
+    }
+}
+
+/// What one LPM step did.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct LpmStepReport {
+    pub iteration: u32,
+    pub view: usize,
+    pub reference: Option<usize>,
+    pub regions: usize,
+    pub paired: usize,
+    pub zones: usize,
+    /// Gaussians densified only because of the lowered threshold.
+    pub lowered: u32,
+    /// Extra (density-aware) prunes.
+    pub pruned: u32,
+    /// Gaussians whose opacity LPM reset.
+    pub reset: u32,
+    pub added: u32,
+    pub seconds: f64,
+}
+
+/// Sums over the run.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct LpmTotals {
+    pub steps: u32,
+    pub steps_with_zones: u32,
+    pub zones: u64,
+    pub lowered: u64,
+    pub pruned: u64,
+    pub reset: u64,
+    pub added: u64,
+    pub seconds: f64,
+}
+
+impl LpmTotals {
+    fn add(&mut self, r: &LpmStepReport) {
+        self.steps += 1;
+        self.steps_with_zones += (r.zones > 0) as u32;
+        self.zones += r.zones as u64;
+        self.lowered += r.lowered as u64;
+        self.pruned += r.pruned as u64;
+        self.reset += r.reset as u64;
+        self.added += r.added as u64;
+        self.seconds += r.seconds;
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct ScalePush {
+    count: u32,
+    ratio: f32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct CountPush {
+    count: u32,
+}
+
+/// The step in progress between [`LpmTrainer::densify`] and [`LpmTrainer::finish`].
+struct Pending {
+    report: LpmStepReport,
+    records: Vec<ZoneRecord>,
+    start: Instant,
+    /// Time spent in ADC's own apply (not LPM's).
+    adc_seconds: f64,
+}
+
+/// LPM state owned by the trainer.
+pub struct LpmTrainer {
+    pub config: LpmConfig,
+    ctx: Arc<GpuContext>,
+    gpu: LpmGpu,
+    corr: Correspondences,
+    views: Vec<View>,
+    /// Ground truth per scene view (training views only), for zone colours and debug images.
+    gt: Vec<Option<Image>>,
+    rng: rand_pcg::Pcg64,
+    threshold_scale: ComputePipeline,
+    lowered_count: ComputePipeline,
+    prune_lowest: ComputePipeline,
+    block_counts: GpuBuffer<u32>,
+    zones: GpuBuffer<ZoneRecord>,
+    zone_inside: GpuBuffer<u32>,
+    flags: GpuBuffer<u32>,
+    scale: GpuBuffer<f32>,
+    candidates: GpuBuffer<u32>,
+    counters: GpuBuffer<u32>,
+    pending: Option<Pending>,
+    pub totals: LpmTotals,
+}
+
+impl LpmTrainer {
+    /// `train_images[k]` is the image of `scene.train[k]` (as given to the trainer);
+    /// `corr` comes from [`crate::lpm::load_or_build`] with `config.matching`.
+    pub fn new(
+        ctx: &Arc<GpuContext>,
+        scene: &Scene,
+        train_images: &[Image],
+        corr: Correspondences,
+        config: LpmConfig,
+    ) -> anyhow::Result<Self> {
+        config.validate()?;
+        anyhow::ensure!(
+            train_images.len() == scene.train.len(),
+            "LPM: {} images for {} training views",
+            train_images.len(),
+            scene.train.len()
+        );
+        let mut gt = vec![None; scene.views.len()];
+        let (mut max_px, mut max_blocks) = (1u32, 1u32);
+        for (k, &v) in scene.train.iter().enumerate() {
+            let (w, h) = (train_images[k].width, train_images[k].height);
+            max_px = max_px.max(w * h);
+            let (bx, by) = block_grid(w, h, config.regions.block.max(1));
+            max_blocks = max_blocks.max(bx * by);
+            gt[v] = Some(train_images[k].clone());
+        }
+        let pipe = |name: &str, spv: &[u8], buffers: u32, push: usize| {
+            ComputePipeline::new(ctx, name, spv, buffers, push as u32, WG, &[])
+        };
+        use std::mem::size_of;
+        let per = |name: &str| GpuBuffer::<u32>::new(ctx, name, 1024, BufferKind::DeviceLocal);
+        Ok(Self {
+            ctx: ctx.clone(),
+            gpu: LpmGpu::new(ctx, max_px)?,
+            corr,
+            views: scene.views.clone(),
+            gt,
+            rng: rand_pcg::Pcg64::seed_from_u64(config.seed ^ 0x4c50_4d5f_7374_6570),
+            threshold_scale: pipe(
+                "lpm/threshold_scale",
+                shaders::LPM_THRESHOLD_SCALE,
+                2,
+                size_of::<ScalePush>(),
+            )?,
+            lowered_count: pipe(
+                "lpm/lowered_count",
+                shaders::LPM_LOWERED_COUNT,
+                3,
+                size_of::<CountPush>(),
+            )?,
+            prune_lowest: pipe(
+                "lpm/prune_lowest",
+                shaders::LPM_PRUNE_LOWEST,
+                5,
+                size_of::<CountPush>(),
+            )?,
+            block_counts: GpuBuffer::new(
+                ctx,
+                "lpm block counts",
+                max_blocks as usize,
+                BufferKind::DeviceLocal,
+            )?,
+            zones: GpuBuffer::new(ctx, "lpm zones", 16, BufferKind::DeviceLocal)?,
+            zone_inside: per("lpm zone inside")?,
+            flags: per("lpm flags")?,
+            scale: GpuBuffer::new(ctx, "lpm threshold scale", 1024, BufferKind::DeviceLocal)?,
+            candidates: per("lpm prune candidates")?,
+            counters: GpuBuffer::new(ctx, "lpm counters", 4, BufferKind::DeviceLocal)?,
+            pending: None,
+            totals: LpmTotals::default(),
+            config,
+        })
+    }
+
+    /// Per-Gaussian scratch for `n` Gaussians (nothing recorded may use the old buffers).
+    fn ensure_gaussians(&mut self, n: usize) -> anyhow::Result<()> {
+        if self.flags.len() >= n {
+            return Ok(());
+        }
+        let cap = grown_capacity(n);
+        let ctx = &self.ctx;
+        self.flags = GpuBuffer::new(ctx, "lpm flags", cap, BufferKind::DeviceLocal)?;
+        self.scale = GpuBuffer::new(ctx, "lpm threshold scale", cap, BufferKind::DeviceLocal)?;
+        self.candidates =
+            GpuBuffer::new(ctx, "lpm prune candidates", cap, BufferKind::DeviceLocal)?;
+        Ok(())
+    }
+
+    fn ensure_zones(&mut self, n: usize) -> anyhow::Result<()> {
+        if self.zones.len() < n {
+            let cap = n.next_power_of_two();
+            self.zones = GpuBuffer::new(&self.ctx, "lpm zones", cap, BufferKind::DeviceLocal)?;
+        }
+        if self.zone_inside.len() < n {
+            self.zone_inside = GpuBuffer::new(
+                &self.ctx,
+                "lpm zone inside",
+                n.next_power_of_two(),
+                BufferKind::DeviceLocal,
+            )?;
+        }
+        Ok(())
+    }
+
+    /// Steps 1–3 and ADC's densify-and-prune (with the lowered threshold inside zones and the
+    /// density-aware pruning). `t.rec` must be begun; on return it is begun and empty, as after
+    /// [`super::density::DensityControl::step`]. `bg` is the background this iteration's render
+    /// of `view` used.
+    pub(super) fn densify(
+        &mut self,
+        t: &mut Trainer,
+        view: usize,
+        bg: [f32; 3],
+        args: &DensifyArgs,
+    ) -> anyhow::Result<DensifyOutcome> {
+        let start = Instant::now();
+        let mut report = LpmStepReport {
+            iteration: args.iteration,
+            view,
+            ..Default::default()
+        };
+        // 1. Error blocks of this iteration's render.
+        let slot = t.image_slot(view)?;
+        let (w, h) = (slot.width, slot.height);
+        let (bx, by) = self.gpu.record_error_blocks(
+            &mut t.rec,
+            &ErrorImages {
+                render: &t.renderer.frame.image,
+                gt: &t.images.buffers[slot.buffer],
+                gt_offset: slot.offset_px,
+                width: w,
+                height: h,
+                background: bg,
+            },
+            &self.config.regions,
+            &self.block_counts,
+        )?;
+        t.rec.submit_and_wait()?;
+        t.rec.begin()?;
+        let counts = self.block_counts.read_range(0, (bx * by) as usize)?;
+        let mask = regions::BlockMask::from_error_counts(
+            w,
+            h,
+            self.config.regions.block,
+            &counts,
+            self.config.regions.keep_fraction,
+        )?;
+        let regions = regions::regions_from_blocks(&mask);
+        report.regions = regions.len();
+
+        // 2. Neighbour, pairing, zones.
+        let reference = self.corr.neighbours.pick(view, &mut self.rng);
+        report.reference = reference;
+        let step = match reference {
+            Some(r) if !regions.is_empty() => {
+                let (xy_v, xy_r) = self.corr.oriented(view, r).unwrap_or((&[], &[]));
+                let gt = self.gt[view]
+                    .as_ref()
+                    .context("LPM: the current view has no ground truth")?;
+                zones_for_step(
+                    &self.views[view],
+                    &self.views[r],
+                    &regions,
+                    xy_v,
+                    xy_r,
+                    gt,
+                    &self.config.zones,
+                )
+            }
+            _ => Default::default(),
+        };
+        report.paired = step.pairing.paired;
+        let records: Vec<ZoneRecord> = step
+            .records
+            .into_iter()
+            .filter(|z| z.radius.is_finite() && z.center.iter().all(|c| c.is_finite()))
+            .collect();
+        report.zones = records.len();
+        if let Some(dir) = self.config.debug_dir.clone() {
+            super::lpm_debug::dump_step(
+                &dir,
+                args.iteration,
+                &self.gpu,
+                &mask,
+                &self.views,
+                &self.gt,
+                view,
+                reference,
+                &step.zones,
+                &regions,
+                self.corr.oriented(view, reference.unwrap_or(view)),
+            )?;
+        }
+        if records.is_empty() {
+            let a0 = Instant::now();
+            let outcome = t.density.step(&mut t.rec, &mut t.state, args, None)?;
+            self.pending = Some(Pending {
+                report,
+                records,
+                start,
+                adc_seconds: a0.elapsed().as_secs_f64(),
+            });
+            return Ok(outcome);
+        }
+
+        // 3. Membership, lowered threshold inside zones, density-aware pruning.
+        let count = t.state.count();
+        self.ensure_gaussians(t.state.capacity().max(count))?;
+        self.ensure_zones(records.len())?;
+        self.zones.upload(&records)?;
+        let nz = records.len() as u32;
+        self.gpu.record_membership(
+            &mut t.rec,
+            &t.state.params.positions,
+            count as u32,
+            &self.zones,
+            nz,
+            &self.flags,
+            &self.zone_inside,
+        )?;
+        t.rec.dispatch(
+            &self.threshold_scale,
+            &[&self.flags, &self.scale],
+            &ScalePush {
+                count: count as u32,
+                ratio: self.config.threshold_ratio,
+            },
+            self.ctx.groups_1d(count as u64, WG),
+        );
+        t.density
+            .record_decide(&mut t.rec, &t.state, args, Some(&self.scale))?;
+        t.rec.fill(&self.counters, 0);
+        t.rec.barrier();
+        t.rec.dispatch(
+            &self.lowered_count,
+            &[t.density.decisions(), &self.candidates, &self.counters],
+            &CountPush {
+                count: count as u32,
+            },
+            self.ctx.groups_1d(count as u64, WG),
+        );
+        t.rec.submit_and_wait()?;
+        t.rec.begin()?;
+        let c = self.counters.read_range(0, 2)?;
+        report.lowered = c[0];
+        let k = c[0].min(c[1]);
+        if k > 0 {
+            self.gpu.record_rank_selection(
+                &mut t.rec,
+                &t.state.params.opacity_logits,
+                &self.candidates,
+                1,
+                count as u32,
+                c[1],
+                k - 1,
+            )?;
+            t.rec.dispatch(
+                &self.prune_lowest,
+                &[
+                    &self.candidates,
+                    &t.state.params.opacity_logits,
+                    self.gpu.rank_selection_state(),
+                    t.density.decisions(),
+                    &self.counters,
+                ],
+                &CountPush {
+                    count: count as u32,
+                },
+                self.ctx.groups_1d(count as u64, WG),
+            );
+            t.rec.barrier();
+            report.pruned = k;
+        }
+        let a0 = Instant::now();
+        let outcome = t.density.apply(&mut t.rec, &mut t.state, args)?;
+        self.pending = Some(Pending {
+            report,
+            records,
+            start,
+            adc_seconds: a0.elapsed().as_secs_f64(),
+        });
+        Ok(outcome)
+    }
+
+    /// Step 4, after ADC's apply and its global opacity reset (recorded in `t.rec`, which this
+    /// submits): membership of the new Gaussians, the LPM opacity reset, added points. Leaves
+    /// `t.rec` begun and empty.
+    pub(super) fn finish(&mut self, t: &mut Trainer) -> anyhow::Result<LpmStepReport> {
+        let mut p = self.pending.take().context("LPM: finish without densify")?;
+        let nz = p.records.len() as u32;
+        let count = t.state.count();
+        if nz > 0 && (self.config.reset || self.config.add_points) {
+            self.ensure_gaussians(t.state.capacity().max(count))?;
+            self.gpu.record_membership(
+                &mut t.rec,
+                &t.state.params.positions,
+                count as u32,
+                &self.zones,
+                nz,
+                &self.flags,
+                &self.zone_inside,
+            )?;
+            if self.config.reset {
+                self.gpu.record_opacity_reset(
+                    &mut t.rec,
+                    &self.flags,
+                    &t.state.params.opacity_logits,
+                    count as u32,
+                    &self.config.reset_settings,
+                )?;
+            }
+        }
+        t.rec.submit_and_wait()?;
+        t.rec.begin()?;
+        if nz > 0 && self.config.reset {
+            p.report.reset = self.gpu.read_opacity_reset_stats()?.reset;
+        }
+        if nz > 0 && self.config.add_points {
+            let inside = self.zone_inside.read_range(0, nz as usize)?;
+            let rows: Vec<NewGaussian> = p
+                .records
+                .iter()
+                .zip(&inside)
+                .filter(|(z, &n)| n < self.config.add_below && z.radius > 0.0)
+                .map(|(z, _)| NewGaussian {
+                    position: z.center,
+                    scale: z.radius / 3.0,
+                    color: z.color,
+                    opacity: self.config.add_opacity,
+                })
+                .collect();
+            append_gaussians(t, &rows)?;
+            p.report.added = rows.len() as u32;
+        }
+        p.report.seconds = (p.start.elapsed().as_secs_f64() - p.adc_seconds).max(0.0);
+        self.totals.add(&p.report);
+        Ok(p.report)
+    }
+}
+
+/// A Gaussian to append: isotropic, SH DC only, fresh optimizer state.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NewGaussian {
+    pub position: [f32; 3],
+    /// World-space standard deviation (all three axes).
+    pub scale: f32,
+    /// Linear RGB in [0, 1].
+    pub color: [f32; 3],
+    pub opacity: f64,
+}
+
+/// Appends `rows` after the trainer's current Gaussians (rows `count..count + n`), growing the
+/// state (and the density statistics, gradients, renderer) when the capacity is short. Their
+/// Adam moments and density statistics are zero. `t.rec` must be begun and empty; it is left so.
+pub fn append_gaussians(t: &mut Trainer, rows: &[NewGaussian]) -> anyhow::Result<()> {
+    if rows.is_empty() {
+        return Ok(());
+    }
+    let ctx = t.ctx.clone();
+    let n = t.state.count();
+    let new = n + rows.len();
+    if new > t.state.capacity() {
+        let cap = grown_capacity(new);
+        let mut dst = SplatState::allocate(&ctx, t.state.sh_degree(), cap)?;
+        {
+            let src = [
+                t.state.params.groups(),
+                t.state.m.groups(),
+                t.state.v.groups(),
+            ];
+            let dsts = [dst.params.groups(), dst.m.groups(), dst.v.groups()];
+            for (s, d) in src.iter().zip(dsts.iter()) {
+                for k in 0..6 {
+                    t.rec.copy(s[k].0, d[k].0, n * s[k].1);
+                }
+            }
+        }
+        t.rec.submit_and_wait()?;
+        t.rec.begin()?;
+        dst.set_count(n);
+        std::mem::swap(&mut t.state, &mut dst);
+        t.density.ensure_capacity(cap)?;
+    }
+    let m = rows.len();
+    let rest = t.state.params.groups()[5].1;
+    let logit = |p: f64| (p / (1.0 - p)).ln() as f32;
+    let mut data: [Vec<f32>; 6] = Default::default();
+    for r in rows {
+        anyhow::ensure!(
+            r.position.iter().all(|v| v.is_finite()) && r.scale > 0.0 && r.scale.is_finite(),
+            "LPM: refusing to add a Gaussian at {:?} with scale {}",
+            r.position,
+            r.scale
+        );
+        data[0].extend(r.position);
+        data[1].extend([r.scale.ln(); 3]);
+        data[2].extend([1.0, 0.0, 0.0, 0.0]);
+        data[3].push(logit(r.opacity));
+        data[4].extend(r.color.map(|c| ((c as f64 - 0.5) / SH_C0) as f32));
+        data[5].extend(std::iter::repeat_n(0.0, rest));
+    }
+    let strides = [3usize, 3, 4, 1, 3, rest];
+    let staging: Vec<Option<GpuBuffer<f32>>> = data
+        .iter()
+        .map(|d| {
+            if d.is_empty() {
+                return Ok(None);
+            }
+            let b = GpuBuffer::new(&ctx, "lpm new rows", d.len(), BufferKind::Upload)?;
+            b.upload(d)?;
+            Ok(Some(b))
+        })
+        .collect::<anyhow::Result<_>>()?;
+    let zeros_len = m * strides.iter().max().copied().unwrap_or(1).max(1);
+    let zeros = GpuBuffer::new(&ctx, "lpm zero moments", zeros_len, BufferKind::Upload)?;
+    zeros.upload(&vec![0.0f32; zeros_len])?;
+    {
+        let (p, mm, v) = (
+            t.state.params.groups(),
+            t.state.m.groups(),
+            t.state.v.groups(),
+        );
+        for k in 0..6 {
+            let s = strides[k];
+            if s == 0 {
+                continue;
+            }
+            if let Some(b) = &staging[k] {
+                t.rec.copy_region(b, 0, p[k].0, n * s, m * s);
+            }
+            t.rec.copy_region(&zeros, 0, mm[k].0, n * s, m * s);
+            t.rec.copy_region(&zeros, 0, v[k].0, n * s, m * s);
+        }
+    }
+    t.rec.submit_and_wait()?;
+    t.rec.begin()?;
+    t.state.set_count(new);
+    t.follow_capacity()?;
+    Ok(())
+}
