@@ -458,7 +458,9 @@ impl Trainer {
             };
             let outcome = match lpm.as_mut() {
                 Some(l) => l.densify(self, view, bg, &args)?,
-                None => self.density.step(&mut self.rec, &mut self.state, &args, None)?,
+                None => self
+                    .density
+                    .step(&mut self.rec, &mut self.state, &args, None)?,
             };
             self.follow_capacity()?;
             if cfg.schedule.resets_opacity(it) {
