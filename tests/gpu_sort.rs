@@ -162,3 +162,32 @@ fn sort_and_scan_under_subgroup_size_16() {
         "child ran the wrong tests:\n{text}"
     );
 }
+
+#[test]
+fn sixteen_million_pairs_sorted_reversed_and_equal() {
+    // 2^24 pairs of 64-bit keys fill exactly a 128 MiB binding (lavapipe's limit). Patterns the
+    // issue names: already sorted, reverse sorted and all-equal keys (stability: values must stay
+    // in input order), on the 16 bits a 4K image's tile ids need.
+    let ctx = ctx();
+    let n = 1usize << 24;
+    if (n as u64) * 8 > ctx.info.max_storage_buffer_range {
+        eprintln!("skipped: this device cannot bind 128 MiB");
+        return;
+    }
+    let sorter = RadixSort::new(&ctx, n as u64).unwrap();
+    let bits = 16;
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(16);
+    let patterns: [(&str, Box<dyn Fn(usize) -> u64>); 3] = [
+        ("sorted", Box::new(|i| (i >> 8) as u64)),
+        ("reversed", Box::new(move |i| ((n - 1 - i) >> 8) as u64)),
+        ("equal", Box::new(|_| 0xBEEF)),
+    ];
+    for (name, f) in patterns.iter() {
+        let keys: Vec<u64> = (0..n).map(f).collect();
+        eprintln!("{name}");
+        check_sort(&ctx, &sorter, &keys, bits);
+    }
+    let keys: Vec<u64> = (0..n).map(|_| rng.gen::<u64>() & 0xFFFF).collect();
+    check_sort(&ctx, &sorter, &keys, bits);
+    ctx.check_validation().unwrap();
+}

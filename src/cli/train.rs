@@ -565,6 +565,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         "setup_seconds": load_s,
         "dropped_frames": trainer.dropped_frames,
         "device": ctx.info.name,
+        "gpu_memory_mib": ctx.memory_in_use().1 as f64 / (1u64 << 20) as f64,
         "stages": if config.timestamps { stage_shares(&stages) } else { serde_json::Value::Null },
         "lpm": trainer.lpm.as_ref().map(|l| lpm_summary(&l.totals, train_s, config.iterations)),
     });
