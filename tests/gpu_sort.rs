@@ -177,6 +177,7 @@ fn sixteen_million_pairs_sorted_reversed_and_equal() {
     let sorter = RadixSort::new(&ctx, n as u64).unwrap();
     let bits = 16;
     let mut rng = rand_pcg::Pcg64::seed_from_u64(16);
+    #[allow(clippy::type_complexity)]
     let patterns: [(&str, Box<dyn Fn(usize) -> u64>); 3] = [
         ("sorted", Box::new(|i| (i >> 8) as u64)),
         ("reversed", Box::new(move |i| ((n - 1 - i) >> 8) as u64)),
