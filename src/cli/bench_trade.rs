@@ -6,6 +6,7 @@
 
 use crate::cli::train::{background_from, build_lpm, initial_model, mean_metrics, prepare_output};
 use crate::cli::SceneArgs;
+use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use lpmsplat::error::write_atomic;
@@ -36,6 +37,15 @@ pub struct TradeArgs {
     /// Frames timed for the FPS of each result (1352×1014).
     #[arg(long, default_value_t = 20)]
     pub fps_frames: usize,
+    /// The runs to compare, comma separated, in table order: adc, adc-threshold-1e-4, adc+lpm,
+    /// lpm-no-add, lpm-no-reset (aliases: adc-1e-4, lpm). Default: all five.
+    #[arg(long, value_delimiter = ',')]
+    pub runs: Vec<String>,
+    /// Run the variants one after another instead of interleaving their iterations. Interleaving
+    /// (the default) keeps every run's time measured under the same machine load, so the time
+    /// ratios hold on a noisy machine; sequential needs the memory of one run only.
+    #[arg(long)]
+    pub sequential: bool,
 }
 
 #[derive(Debug, Clone, serde::Serialize)]
@@ -53,7 +63,7 @@ pub struct TradeRow {
     pub fps_1352x1014: f64,
 }
 
-const RUNS: [(&str, [u8; 3]); 5] = [
+pub const RUNS: [(&str, [u8; 3]); 5] = [
     ("adc", [40, 40, 40]),
     ("adc-threshold-1e-4", [200, 120, 0]),
     ("adc+lpm", [220, 30, 30]),
@@ -66,6 +76,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
         args.iterations > 0,
         "bench trade: --iterations 0. Fix: pass at least 1"
     );
+    let selected = selected_runs(&args.runs)?;
     let scene = Scene::load(&args.scene.scene, &args.scene.load_options()?)?;
     anyhow::ensure!(
         !scene.test.is_empty(),
@@ -100,67 +111,92 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
         base.schedule.opacity_reset_interval,
         ctx.info.name
     );
-    let mut rows = Vec::new();
-    for (k, (name, colour)) in RUNS.iter().enumerate() {
+    let mut runs = Vec::new();
+    for &k in &selected {
+        let name = RUNS[k].0;
         let mut cfg = base.clone();
-        if *name == "adc-threshold-1e-4" {
+        if name == "adc-threshold-1e-4" {
             cfg.density.grad_threshold = 1e-4;
         }
         let lpm = (k >= 2).then(|| LpmConfig {
             from: cfg.schedule.densify_from,
             until: cfg.schedule.densify_until,
-            add_points: *name != "lpm-no-add",
-            reset: *name != "lpm-no-reset",
+            add_points: name != "lpm-no-add",
+            reset: name != "lpm-no-reset",
             seed: args.seed,
             ..LpmConfig::default()
         });
-        let mut t = Trainer::new(&ctx, &scene, &train_images, &init, cfg)?;
-        if let Some(c) = lpm {
-            t.lpm = Some(build_lpm(&ctx, &scene, &train_images, c, &args.out)?);
+        runs.push(Run {
+            k,
+            cfg,
+            lpm,
+            trainer: None,
+            seconds: 0.0,
+        });
+    }
+    let total = args.iterations as u64 * runs.len() as u64;
+    let bar = ProgressBar::new(total);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{bar:30} {pos}/{len} {msg} [{elapsed_precise} < {eta_precise}]",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let plain = !std::io::IsTerminal::is_terminal(&std::io::stderr());
+    let mut last_line = Instant::now();
+    let mut done = 0u64;
+    let mut rows = Vec::new();
+    // Interleaved: every run advances one iteration per round, so each run's summed step time
+    // sees the same load. Sequential: one run to the end, evaluated and dropped, then the next.
+    let groups: Vec<Vec<usize>> = if args.sequential {
+        (0..runs.len()).map(|i| vec![i]).collect()
+    } else {
+        vec![(0..runs.len()).collect()]
+    };
+    for group in groups {
+        for &i in &group {
+            let r = &mut runs[i];
+            let mut t = Trainer::new(&ctx, &scene, &train_images, &init, r.cfg.clone())?;
+            if let Some(c) = r.lpm.clone() {
+                t.lpm = Some(build_lpm(&ctx, &scene, &train_images, c, &args.out)?);
+            }
+            r.trainer = Some(t);
         }
-        let bar = ProgressBar::new(args.iterations as u64);
-        bar.set_style(
-            ProgressStyle::with_template(&format!(
-                "[{}/{}] {name:<20} {{bar:30}} {{pos}}/{{len}} {{msg}} [{{elapsed_precise}} < {{eta_precise}}]",
-                k + 1,
-                RUNS.len()
-            ))
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-        );
-        let t0 = Instant::now();
         for _ in 0..args.iterations {
-            let r = t.step()?;
-            if r.iteration % 20 == 0 || r.iteration == args.iterations {
-                bar.set_position(r.iteration as u64);
-                bar.set_message(format!("L1 {:.4} | {} Gaussians", r.l1, r.gaussians));
+            for &i in &group {
+                let r = &mut runs[i];
+                let t = r.trainer.as_mut().expect("trainer built above");
+                let t0 = Instant::now();
+                t.step()?;
+                r.seconds += t0.elapsed().as_secs_f64();
+            }
+            done += group.len() as u64;
+            if done.is_multiple_of(20) || done == total {
+                let msg = group
+                    .iter()
+                    .map(|&i| {
+                        let r = &runs[i];
+                        let t = r.trainer.as_ref().expect("trainer built above");
+                        format!("{} {}", RUNS[r.k].0, t.state.count())
+                    })
+                    .collect::<Vec<_>>()
+                    .join(" | ");
+                bar.set_position(done);
+                bar.set_message(format!("Gaussians: {msg}"));
+                if plain && (last_line.elapsed().as_secs() >= 10 || done == total) {
+                    eprintln!("[{done}/{total}] Gaussians: {msg}");
+                    last_line = Instant::now();
+                }
             }
         }
-        let train_s = t0.elapsed().as_secs_f64();
-        bar.finish();
-        let (m, _) = t.evaluate(&scene, &scene.test, &test_images)?;
-        let (psnr, ssim) = mean_metrics(&m);
-        let model = t.model()?;
-        let lpm_s = t.lpm.as_ref().map_or(0.0, |l| l.totals.seconds);
-        let fps = fps_of(&ctx, &model, &scene, args.fps_frames)?;
-        let row = TradeRow {
-            run: name.to_string(),
-            colour: *colour,
-            psnr,
-            ssim,
-            lpips: "n/a (no weights)".into(),
-            gaussians: model.len(),
-            train_seconds: train_s,
-            ms_per_iteration: 1e3 * train_s / args.iterations as f64,
-            lpm_ms_per_iteration: 1e3 * lpm_s / args.iterations as f64,
-            lpm_share: lpm_s / train_s.max(1e-12),
-            fps_1352x1014: fps,
-        };
-        eprintln!(
-            "  {name}: PSNR {psnr:.3} dB, SSIM {ssim:.4}, {} Gaussians, {train_s:.1} s, {fps:.1} FPS",
-            row.gaussians
-        );
-        rows.push(row);
+        for &i in &group {
+            let r = &mut runs[i];
+            let t = r.trainer.take().expect("trainer built above");
+            rows.push(finish_run(&ctx, &scene, &test_images, r, t, args)?);
+        }
     }
+    bar.finish_and_clear();
+    rows.sort_by_key(|r| RUNS.iter().position(|(n, _)| *n == r.run));
     let table = table(&rows, &ctx.info.name, args);
     print!("{table}");
     write_atomic(&args.out.join("trade.md"), |f| {
@@ -182,6 +218,82 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
     println!("wrote {}", args.out.display());
     ctx.check_validation()?;
     Ok(())
+}
+
+struct Run {
+    k: usize,
+    cfg: TrainConfig,
+    lpm: Option<LpmConfig>,
+    trainer: Option<Trainer>,
+    seconds: f64,
+}
+
+/// Indices into [`RUNS`] for the `--runs` list (all when empty), in table order.
+pub fn selected_runs(names: &[String]) -> anyhow::Result<Vec<usize>> {
+    if names.is_empty() {
+        return Ok((0..RUNS.len()).collect());
+    }
+    let mut out = Vec::new();
+    for n in names {
+        let canonical = match n.trim() {
+            "adc-1e-4" => "adc-threshold-1e-4",
+            "lpm" => "adc+lpm",
+            other => other,
+        };
+        let k = RUNS
+            .iter()
+            .position(|(r, _)| *r == canonical)
+            .with_context(|| {
+                format!(
+                    "bench trade --runs: unknown run {n:?}. Fix: choose from {}",
+                    RUNS.iter().map(|r| r.0).collect::<Vec<_>>().join(", ")
+                )
+            })?;
+        anyhow::ensure!(
+            !out.contains(&k),
+            "bench trade --runs: {n:?} is listed twice. Fix: name each run once"
+        );
+        out.push(k);
+    }
+    out.sort_unstable();
+    Ok(out)
+}
+
+/// Evaluates a finished run on the test views and times its result at 1352×1014.
+fn finish_run(
+    ctx: &std::sync::Arc<GpuContext>,
+    scene: &Scene,
+    test_images: &[images::Image],
+    r: &Run,
+    mut t: Trainer,
+    args: &TradeArgs,
+) -> anyhow::Result<TradeRow> {
+    let (name, colour) = RUNS[r.k];
+    let (m, _) = t.evaluate(scene, &scene.test, test_images)?;
+    let (psnr, ssim) = mean_metrics(&m);
+    let model = t.model()?;
+    let lpm_s = t.lpm.as_ref().map_or(0.0, |l| l.totals.seconds);
+    drop(t);
+    let fps = fps_of(ctx, &model, scene, args.fps_frames)?;
+    let train_s = r.seconds;
+    let row = TradeRow {
+        run: name.to_string(),
+        colour,
+        psnr,
+        ssim,
+        lpips: "n/a (no weights)".into(),
+        gaussians: model.len(),
+        train_seconds: train_s,
+        ms_per_iteration: 1e3 * train_s / args.iterations as f64,
+        lpm_ms_per_iteration: 1e3 * lpm_s / args.iterations as f64,
+        lpm_share: lpm_s / train_s.max(1e-12),
+        fps_1352x1014: fps,
+    };
+    eprintln!(
+        "  {name}: PSNR {psnr:.3} dB, SSIM {ssim:.4}, {} Gaussians, {train_s:.1} s, {fps:.1} FPS",
+        row.gaussians
+    );
+    Ok(row)
 }
 
 /// Median FPS of `model` rendered at 1352×1014 from the first test view's pose.
@@ -213,17 +325,33 @@ fn fps_of(
 }
 
 fn table(rows: &[TradeRow], device: &str, args: &TradeArgs) -> String {
+    let resolution = args
+        .scene
+        .resolution
+        .map_or("full resolution".to_string(), |r| format!("-r {r}"));
     let mut s = format!(
-        "bench trade: {} -r {:?}, {} iterations, {device}\n\n\
-         | run | colour | PSNR | SSIM | LPIPS | Gaussians | train s | ms/it | LPM ms/it (share) | FPS 1352×1014 |\n\
-         |---|---|---|---|---|---|---|---|---|---|\n",
+        "bench trade: {} {resolution}, {} iterations, {device}\n\n{}\n\n\
+         | run | colour | PSNR | ΔPSNR vs adc | SSIM | LPIPS | Gaussians | train s | time vs adc | ms/it | LPM ms/it (share) | FPS 1352×1014 |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|\n",
         args.scene.scene.display(),
-        args.scene.resolution,
-        args.iterations
+        args.iterations,
+        if args.sequential {
+            "Runs were sequential: compare their times only on an otherwise idle machine."
+        } else {
+            "Runs were interleaved one iteration at a time, so their times saw the same machine load."
+        }
     );
+    let adc = rows.iter().find(|r| r.run == "adc");
     for r in rows {
+        let (dpsnr, dtime) = match adc {
+            Some(a) => (
+                format!("{:+.3}", r.psnr - a.psnr),
+                format!("{:.3}×", r.train_seconds / a.train_seconds.max(1e-12)),
+            ),
+            None => ("n/a".into(), "n/a".into()),
+        };
         s += &format!(
-            "| {} | #{:02x}{:02x}{:02x} | {:.3} | {:.4} | {} | {} | {:.1} | {:.2} | {:.3} ({:.2} %) | {:.1} |\n",
+            "| {} | #{:02x}{:02x}{:02x} | {:.3} | {dpsnr} | {:.4} | {} | {} | {:.1} | {dtime} | {:.2} | {:.3} ({:.2} %) | {:.1} |\n",
             r.run,
             r.colour[0],
             r.colour[1],

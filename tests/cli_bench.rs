@@ -1,0 +1,130 @@
+//! `bench trade` and `bench fps` end to end through the CLI, under the validation layer: the files
+//! they promise exist and hold consistent numbers, and bad `--runs` lists are refused clearly.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn data(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(name)
+}
+
+fn lpmsplat() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_lpmsplat"));
+    c.env("LPMSPLAT_VALIDATION", "1");
+    c
+}
+
+fn output(c: &mut Command) -> (bool, String) {
+    let out = c.output().unwrap();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    (out.status.success(), text)
+}
+
+#[test]
+fn bench_trade_interleaved_writes_table_json_and_plot() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("trade");
+    let (ok, text) = output(
+        lpmsplat()
+            .args(["bench", "trade"])
+            .arg(data("lund_door_small"))
+            .args(["-r", "8", "--iterations", "40", "--fps-frames", "1"])
+            .args(["--runs", "lpm,adc", "-o"])
+            .arg(&out),
+    );
+    assert!(ok, "{text}");
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("trade.json")).unwrap()).unwrap();
+    let runs = json["runs"].as_array().unwrap();
+    // Table order, whatever order --runs named them in.
+    let names: Vec<&str> = runs.iter().map(|r| r["run"].as_str().unwrap()).collect();
+    assert_eq!(names, ["adc", "adc+lpm"]);
+    for r in runs {
+        let psnr = r["psnr"].as_f64().unwrap();
+        assert!(psnr.is_finite() && psnr > 5.0, "{r}");
+        assert!(r["gaussians"].as_u64().unwrap() > 0, "{r}");
+        let secs = r["train_seconds"].as_f64().unwrap();
+        let ms = r["ms_per_iteration"].as_f64().unwrap();
+        assert!((ms - 1e3 * secs / 40.0).abs() < 1e-6 * ms.max(1.0), "{r}");
+        assert!(r["fps_1352x1014"].as_f64().unwrap() > 0.0, "{r}");
+        let share = r["lpm_share"].as_f64().unwrap();
+        assert!((0.0..1.0).contains(&share), "{r}");
+    }
+    assert_eq!(runs[0]["lpm_ms_per_iteration"].as_f64().unwrap(), 0.0);
+    let md = std::fs::read_to_string(out.join("trade.md")).unwrap();
+    assert!(
+        md.contains("interleaved") && md.contains("| adc+lpm |"),
+        "{md}"
+    );
+    assert!(
+        md.contains("| adc | #282828 |") && md.contains("+0.000"),
+        "{md}"
+    );
+    let png = image::open(out.join("trade.png")).unwrap();
+    assert_eq!((png.width(), png.height()), (800, 300));
+}
+
+#[test]
+fn bench_trade_rejects_unknown_or_repeated_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    for (runs, needle) in [("adc,fancy", "unknown run"), ("adc,adc", "twice")] {
+        let out = dir.path().join(runs.replace(',', "_"));
+        let (ok, text) = output(
+            lpmsplat()
+                .args(["bench", "trade"])
+                .arg(data("lund_door_small"))
+                .args(["-r", "8", "--iterations", "5", "--runs", runs, "-o"])
+                .arg(&out),
+        );
+        assert!(!ok, "{runs}: {text}");
+        assert!(text.contains(needle) && text.contains("Fix:"), "{text}");
+        assert!(!out.join("trade.json").exists());
+    }
+}
+
+#[test]
+fn bench_fps_reports_each_count_as_json() {
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("fps.json");
+    let (ok, text) = output(
+        lpmsplat()
+            .args(["bench", "fps", "--gaussians", "500,3000"])
+            .args([
+                "--width", "96", "--height", "64", "--frames", "3", "--warmup", "1",
+            ])
+            .arg("--json")
+            .arg(&json),
+    );
+    assert!(ok, "{text}");
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    let rows = v.as_array().unwrap();
+    assert_eq!(rows.len(), 2);
+    for (r, n) in rows.iter().zip([500, 3000]) {
+        assert_eq!(r["gaussians"], n);
+        assert_eq!(
+            (r["width"].as_u64(), r["height"].as_u64()),
+            (Some(96), Some(64))
+        );
+        let ms = r["frame_ms_median"].as_f64().unwrap();
+        assert!(ms > 0.0 && (r["fps_median"].as_f64().unwrap() * ms - 1e3).abs() < 1e-6);
+        assert!(r["frame_ms_min"].as_f64().unwrap() <= ms);
+        assert!(ms <= r["frame_ms_max"].as_f64().unwrap());
+        assert!(r["intersections"].as_u64().unwrap() > 0);
+        let stages: Vec<&str> = r["stages_ms"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|s| s[0].as_str().unwrap())
+            .collect();
+        assert!(
+            stages.contains(&"rasterize") && stages.contains(&"tile sort"),
+            "{r}"
+        );
+    }
+}
