@@ -25,10 +25,20 @@ use std::time::Instant;
 pub struct TradeArgs {
     #[command(flatten)]
     pub scene: SceneArgs,
-    /// Iterations per run. The density / LPM calendar (500..15000, resets every 3000 of 30000)
-    /// is scaled to this length.
+    /// Iterations per run.
     #[arg(long, default_value_t = 30_000)]
     pub iterations: u32,
+    /// The run length whose calendar is followed: the reference's density / LPM calendar
+    /// (densify 500..15000, resets every 3000, position learning-rate decay over 30000) is
+    /// scaled by CALENDAR / 30000. Default: --iterations (a complete, compressed schedule);
+    /// `--calendar 30000 --iterations 7000` is the reference schedule stopped at 7k.
+    #[arg(long)]
+    pub calendar: Option<u32>,
+    /// Also evaluate every run at these iterations (comma separated); the final iteration is
+    /// always evaluated. trade.json / trade.md / trade.png are rewritten after each, so an
+    /// interrupted benchmark keeps the rows it reached.
+    #[arg(long, value_delimiter = ',')]
+    pub eval_at: Vec<u32>,
     /// Output folder for trade.json, trade.md and trade.png.
     #[arg(long, short = 'o', default_value = "bench_trade")]
     pub out: PathBuf,
@@ -51,6 +61,7 @@ pub struct TradeArgs {
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct TradeRow {
     pub run: String,
+    pub iteration: u32,
     pub colour: [u8; 3],
     pub psnr: f64,
     pub ssim: f64,
@@ -88,7 +99,21 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
     let test_images = images::load_images(&scene, &scene.test)?;
     let init = initial_model(&scene, None, 100_000, args.seed, 3)?;
     let ctx = GpuContext::new(gpu)?;
-    let scale = |t: u32| ((t as u64 * args.iterations as u64) / 30_000) as u32;
+    let calendar = args.calendar.unwrap_or(args.iterations);
+    anyhow::ensure!(
+        calendar > 0,
+        "bench trade: --calendar 0. Fix: pass the run length whose schedule to follow"
+    );
+    let mut eval_at: Vec<u32> = args
+        .eval_at
+        .iter()
+        .copied()
+        .filter(|&i| i > 0 && i < args.iterations)
+        .chain([args.iterations])
+        .collect();
+    eval_at.sort_unstable();
+    eval_at.dedup();
+    let scale = |t: u32| ((t as u64 * calendar as u64) / 30_000) as u32;
     let mut base = TrainConfig {
         iterations: args.iterations,
         seed: args.seed,
@@ -98,10 +123,10 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
     base.schedule.densify_from = scale(500);
     base.schedule.densify_until = scale(15_000);
     base.schedule.opacity_reset_interval = (scale(3000) / 100).max(1) * 100;
-    base.lr.position_max_steps = args.iterations;
+    base.lr.position_max_steps = calendar;
     eprintln!(
-        "bench trade: {} ({} train / {} test views), {} iterations per run, densify {}..{}, \
-         reset every {}, on {}",
+        "bench trade: {} ({} train / {} test views), {} iterations per run on the calendar of \
+         {calendar}: densify {}..{}, reset every {}, on {}",
         args.scene.scene.display(),
         scene.train.len(),
         scene.test.len(),
@@ -162,7 +187,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
             }
             r.trainer = Some(t);
         }
-        for _ in 0..args.iterations {
+        for it in 1..=args.iterations {
             for &i in &group {
                 let r = &mut runs[i];
                 let t = r.trainer.as_mut().expect("trainer built above");
@@ -188,17 +213,34 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                     last_line = Instant::now();
                 }
             }
+            if eval_at.contains(&it) {
+                for &i in &group {
+                    let r = &mut runs[i];
+                    let mut t = r.trainer.take().expect("trainer built above");
+                    let row = bar.suspend(|| {
+                        evaluate_run(&ctx, &scene, &test_images, r, &mut t, it, args)
+                    })?;
+                    r.trainer = Some(t);
+                    rows.push(row);
+                }
+                rows.sort_by_key(|r| (r.iteration, RUNS.iter().position(|(n, _)| *n == r.run)));
+                write_outputs(&rows, &ctx.info.name, args)?;
+            }
         }
         for &i in &group {
-            let r = &mut runs[i];
-            let t = r.trainer.take().expect("trainer built above");
-            rows.push(finish_run(&ctx, &scene, &test_images, r, t, args)?);
+            runs[i].trainer = None;
         }
     }
     bar.finish_and_clear();
-    rows.sort_by_key(|r| RUNS.iter().position(|(n, _)| *n == r.run));
-    let table = table(&rows, &ctx.info.name, args);
-    print!("{table}");
+    print!("{}", table(&rows, &ctx.info.name, args));
+    println!("wrote {}", args.out.display());
+    ctx.check_validation()?;
+    Ok(())
+}
+
+/// Writes trade.md, trade.json and trade.png for the rows so far (atomically).
+fn write_outputs(rows: &[TradeRow], device: &str, args: &TradeArgs) -> anyhow::Result<()> {
+    let table = table(rows, device, args);
     write_atomic(&args.out.join("trade.md"), |f| {
         Ok(f.write_all(table.as_bytes())?)
     })?;
@@ -206,17 +248,17 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
         "scene": args.scene.scene.display().to_string(),
         "resolution": args.scene.resolution,
         "iterations": args.iterations,
-        "device": ctx.info.name,
+        "calendar": args.calendar.unwrap_or(args.iterations),
+        "interleaved": !args.sequential,
+        "device": device,
         "runs": rows,
     });
     let text = serde_json::to_string_pretty(&json)?;
     write_atomic(&args.out.join("trade.json"), |f| {
         Ok(f.write_all(text.as_bytes())?)
     })?;
-    let png = plot(&rows)?;
+    let png = plot(rows)?;
     write_atomic(&args.out.join("trade.png"), |f| Ok(f.write_all(&png)?))?;
-    println!("wrote {}", args.out.display());
-    ctx.check_validation()?;
     Ok(())
 }
 
@@ -259,13 +301,14 @@ pub fn selected_runs(names: &[String]) -> anyhow::Result<Vec<usize>> {
     Ok(out)
 }
 
-/// Evaluates a finished run on the test views and times its result at 1352×1014.
-fn finish_run(
+/// Evaluates a run at iteration `iteration` on the test views and times its model at 1352×1014.
+fn evaluate_run(
     ctx: &std::sync::Arc<GpuContext>,
     scene: &Scene,
     test_images: &[images::Image],
     r: &Run,
-    mut t: Trainer,
+    t: &mut Trainer,
+    iteration: u32,
     args: &TradeArgs,
 ) -> anyhow::Result<TradeRow> {
     let (name, colour) = RUNS[r.k];
@@ -273,24 +316,24 @@ fn finish_run(
     let (psnr, ssim) = mean_metrics(&m);
     let model = t.model()?;
     let lpm_s = t.lpm.as_ref().map_or(0.0, |l| l.totals.seconds);
-    drop(t);
     let fps = fps_of(ctx, &model, scene, args.fps_frames)?;
     let train_s = r.seconds;
     let row = TradeRow {
         run: name.to_string(),
+        iteration,
         colour,
         psnr,
         ssim,
         lpips: "n/a (no weights)".into(),
         gaussians: model.len(),
         train_seconds: train_s,
-        ms_per_iteration: 1e3 * train_s / args.iterations as f64,
-        lpm_ms_per_iteration: 1e3 * lpm_s / args.iterations as f64,
+        ms_per_iteration: 1e3 * train_s / iteration as f64,
+        lpm_ms_per_iteration: 1e3 * lpm_s / iteration as f64,
         lpm_share: lpm_s / train_s.max(1e-12),
         fps_1352x1014: fps,
     };
     eprintln!(
-        "  {name}: PSNR {psnr:.3} dB, SSIM {ssim:.4}, {} Gaussians, {train_s:.1} s, {fps:.1} FPS",
+        "  {name} @ {iteration}: PSNR {psnr:.3} dB, SSIM {ssim:.4}, {} Gaussians, {train_s:.1} s, {fps:.1} FPS",
         row.gaussians
     );
     Ok(row)
@@ -331,8 +374,8 @@ fn table(rows: &[TradeRow], device: &str, args: &TradeArgs) -> String {
         .map_or("full resolution".to_string(), |r| format!("-r {r}"));
     let mut s = format!(
         "bench trade: {} {resolution}, {} iterations, {device}\n\n{}\n\n\
-         | run | colour | PSNR | ΔPSNR vs adc | SSIM | LPIPS | Gaussians | train s | time vs adc | ms/it | LPM ms/it (share) | FPS 1352×1014 |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|\n",
+         | run | iteration | colour | PSNR | ΔPSNR vs adc | SSIM | LPIPS | Gaussians | train s | time vs adc | ms/it | LPM ms/it (share) | FPS 1352×1014 |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
         args.scene.scene.display(),
         args.iterations,
         if args.sequential {
@@ -341,8 +384,10 @@ fn table(rows: &[TradeRow], device: &str, args: &TradeArgs) -> String {
             "Runs were interleaved one iteration at a time, so their times saw the same machine load."
         }
     );
-    let adc = rows.iter().find(|r| r.run == "adc");
     for r in rows {
+        let adc = rows
+            .iter()
+            .find(|a| a.run == "adc" && a.iteration == r.iteration);
         let (dpsnr, dtime) = match adc {
             Some(a) => (
                 format!("{:+.3}", r.psnr - a.psnr),
@@ -351,8 +396,9 @@ fn table(rows: &[TradeRow], device: &str, args: &TradeArgs) -> String {
             None => ("n/a".into(), "n/a".into()),
         };
         s += &format!(
-            "| {} | #{:02x}{:02x}{:02x} | {:.3} | {dpsnr} | {:.4} | {} | {} | {:.1} | {dtime} | {:.2} | {:.3} ({:.2} %) | {:.1} |\n",
+            "| {} | {} | #{:02x}{:02x}{:02x} | {:.3} | {dpsnr} | {:.4} | {} | {} | {:.1} | {dtime} | {:.2} | {:.3} ({:.2} %) | {:.1} |\n",
             r.run,
+            r.iteration,
             r.colour[0],
             r.colour[1],
             r.colour[2],
@@ -371,7 +417,8 @@ fn table(rows: &[TradeRow], device: &str, args: &TradeArgs) -> String {
 }
 
 /// Two panels side by side: PSNR (y) against Gaussian count and against training time (x),
-/// each axis spanning its data with a 10 % margin; a 7-px square marker per run.
+/// each axis spanning its data with a 10 % margin; a 7-px square marker per evaluated row, and a
+/// 1-px line joining a run's rows in iteration order (its trajectory).
 fn plot(rows: &[TradeRow]) -> anyhow::Result<Vec<u8>> {
     let (pw, ph, m) = (400u32, 300u32, 30u32);
     let mut img = image::RgbImage::from_pixel(2 * pw, ph, image::Rgb([255, 255, 255]));
@@ -396,24 +443,42 @@ fn plot(rows: &[TradeRow]) -> anyhow::Result<Vec<u8>> {
         for y in m / 2..ph - m {
             img.put_pixel(ox + m, y, axis);
         }
-        for r in rows {
+        let point = |r: &TradeRow| {
             let x = if panel == 0 {
                 r.gaussians as f64
             } else {
                 r.train_seconds
             };
-            if !r.psnr.is_finite() {
-                continue;
-            }
             let fx = (x - x0) / (x1 - x0);
             let fy = (r.psnr - ys.0) / (ys.1 - ys.0);
-            let px = ox as f64 + m as f64 + fx * (pw - m - m / 2) as f64;
-            let py = (ph - m) as f64 - fy * (ph - m - m / 2) as f64;
-            for dy in -3i64..=3 {
-                for dx in -3i64..=3 {
-                    let (x, y) = (px as i64 + dx, py as i64 + dy);
-                    if x >= 0 && y >= 0 && (x as u32) < 2 * pw && (y as u32) < ph {
-                        img.put_pixel(x as u32, y as u32, image::Rgb(r.colour));
+            (
+                ox as f64 + m as f64 + fx * (pw - m - m / 2) as f64,
+                (ph - m) as f64 - fy * (ph - m - m / 2) as f64,
+            )
+        };
+        let mut put = |x: i64, y: i64, c: [u8; 3]| {
+            if x >= 0 && y >= 0 && (x as u32) < 2 * pw && (y as u32) < ph {
+                img.put_pixel(x as u32, y as u32, image::Rgb(c));
+            }
+        };
+        let finite: Vec<&TradeRow> = rows.iter().filter(|r| r.psnr.is_finite()).collect();
+        for (name, colour) in RUNS {
+            let mut path: Vec<&TradeRow> =
+                finite.iter().copied().filter(|r| r.run == name).collect();
+            path.sort_by_key(|r| r.iteration);
+            for w in path.windows(2) {
+                let ((ax, ay), (bx, by)) = (point(w[0]), point(w[1]));
+                let steps = (bx - ax).abs().max((by - ay).abs()).ceil().max(1.0) as i64;
+                for s in 0..=steps {
+                    let f = s as f64 / steps as f64;
+                    put((ax + f * (bx - ax)) as i64, (ay + f * (by - ay)) as i64, colour);
+                }
+            }
+            for r in path {
+                let (px, py) = point(r);
+                for dy in -3i64..=3 {
+                    for dx in -3i64..=3 {
+                        put(px as i64 + dx, py as i64 + dy, colour);
                     }
                 }
             }
