@@ -35,6 +35,7 @@ fn bench_trade_interleaved_writes_table_json_and_plot() {
             .args(["bench", "trade"])
             .arg(data("lund_door_small"))
             .args(["-r", "8", "--iterations", "40", "--fps-frames", "1"])
+            .args(["--eval-at", "20,0,99", "--calendar", "400"])
             .args(["--runs", "lpm,adc", "-o"])
             .arg(&out),
     );
@@ -42,16 +43,31 @@ fn bench_trade_interleaved_writes_table_json_and_plot() {
     let json: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("trade.json")).unwrap()).unwrap();
     let runs = json["runs"].as_array().unwrap();
-    // Table order, whatever order --runs named them in.
-    let names: Vec<&str> = runs.iter().map(|r| r["run"].as_str().unwrap()).collect();
-    assert_eq!(names, ["adc", "adc+lpm"]);
+    // Rows by iteration, then in table order whatever order --runs named them in; --eval-at
+    // values outside 1..iterations are ignored and the last iteration is always evaluated.
+    let names: Vec<(&str, u64)> = runs
+        .iter()
+        .map(|r| (r["run"].as_str().unwrap(), r["iteration"].as_u64().unwrap()))
+        .collect();
+    assert_eq!(
+        names,
+        [("adc", 20), ("adc+lpm", 20), ("adc", 40), ("adc+lpm", 40)]
+    );
+    assert_eq!(json["calendar"], 400);
+    assert!(
+        runs[2]["train_seconds"].as_f64().unwrap() > runs[0]["train_seconds"].as_f64().unwrap()
+    );
     for r in runs {
+        let iterations = r["iteration"].as_f64().unwrap();
         let psnr = r["psnr"].as_f64().unwrap();
         assert!(psnr.is_finite() && psnr > 5.0, "{r}");
         assert!(r["gaussians"].as_u64().unwrap() > 0, "{r}");
         let secs = r["train_seconds"].as_f64().unwrap();
         let ms = r["ms_per_iteration"].as_f64().unwrap();
-        assert!((ms - 1e3 * secs / 40.0).abs() < 1e-6 * ms.max(1.0), "{r}");
+        assert!(
+            (ms - 1e3 * secs / iterations).abs() < 1e-6 * ms.max(1.0),
+            "{r}"
+        );
         assert!(r["fps_1352x1014"].as_f64().unwrap() > 0.0, "{r}");
         let share = r["lpm_share"].as_f64().unwrap();
         assert!((0.0..1.0).contains(&share), "{r}");
@@ -63,7 +79,7 @@ fn bench_trade_interleaved_writes_table_json_and_plot() {
         "{md}"
     );
     assert!(
-        md.contains("| adc | #282828 |") && md.contains("+0.000"),
+        md.contains("| adc | 20 | #282828 |") && md.contains("+0.000"),
         "{md}"
     );
     let png = image::open(out.join("trade.png")).unwrap();

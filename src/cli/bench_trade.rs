@@ -373,11 +373,12 @@ fn table(rows: &[TradeRow], device: &str, args: &TradeArgs) -> String {
         .resolution
         .map_or("full resolution".to_string(), |r| format!("-r {r}"));
     let mut s = format!(
-        "bench trade: {} {resolution}, {} iterations, {device}\n\n{}\n\n\
+        "bench trade: {} {resolution}, {} iterations on the calendar of {}, {device}\n\n{}\n\n\
          | run | iteration | colour | PSNR | ΔPSNR vs adc | SSIM | LPIPS | Gaussians | train s | time vs adc | ms/it | LPM ms/it (share) | FPS 1352×1014 |\n\
          |---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
         args.scene.scene.display(),
         args.iterations,
+        args.calendar.unwrap_or(args.iterations),
         if args.sequential {
             "Runs were sequential: compare their times only on an otherwise idle machine."
         } else {
@@ -471,7 +472,11 @@ fn plot(rows: &[TradeRow]) -> anyhow::Result<Vec<u8>> {
                 let steps = (bx - ax).abs().max((by - ay).abs()).ceil().max(1.0) as i64;
                 for s in 0..=steps {
                     let f = s as f64 / steps as f64;
-                    put((ax + f * (bx - ax)) as i64, (ay + f * (by - ay)) as i64, colour);
+                    put(
+                        (ax + f * (bx - ax)) as i64,
+                        (ay + f * (by - ay)) as i64,
+                        colour,
+                    );
                 }
             }
             for r in path {
