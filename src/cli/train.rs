@@ -597,11 +597,17 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         let total = stages.total_ms().max(1e-12);
         for (n, ms) in &stages.stages {
             println!(
-                "  {n:<12} {:>6.1}%  ({:.2} ms/it)",
+                "  {n:<16} {:>6.1}%  ({:.2} ms/it)",
                 100.0 * ms / total,
                 ms / trained as f64
             );
         }
+        println!(
+            "  the stages sum to {:.2} ms/it of {:.2} ms/it wall (the rest: host work, \
+             submission, waits, evaluation and checkpoints)",
+            total / trained as f64,
+            1e3 * train_s / trained as f64
+        );
     }
     if let Some(l) = &trainer.lpm {
         let t = &l.totals;

@@ -390,6 +390,9 @@ impl Trainer {
                 count,
             )?;
         }
+        if cfg.timestamps {
+            self.rec.timestamp(&mut self.pool, "density stats");
+        }
         if !densifies {
             self.adam_step += 1;
             let lrs = cfg.lr.at(it, self.extent);
@@ -443,6 +446,7 @@ impl Trainer {
             lpm: None,
         };
 
+        let control_start = std::time::Instant::now();
         if densifies {
             self.rec.begin()?;
             let args = DensifyArgs {
@@ -481,6 +485,16 @@ impl Trainer {
             self.density
                 .record_opacity_reset(&mut self.rec, &self.state)?;
             self.rec.submit_and_wait()?;
+        }
+        // Density control runs in its own submissions with count readbacks, so its cost is the
+        // host wall time of that part (GPU work, waits and host logic), not a GPU interval.
+        if let Some(st) = report.stages.as_mut() {
+            let ms = if densifies || cfg.schedule.resets_opacity(it) {
+                1e3 * control_start.elapsed().as_secs_f64()
+            } else {
+                0.0
+            };
+            st.stages.push(("density control".into(), ms));
         }
         Ok(report)
     }
