@@ -617,3 +617,65 @@ fn ctrl_c_saves_a_checkpoint_and_says_how_to_resume() {
     assert!(ck.iteration > 0 && ck.iteration < 1_000_000);
     assert_eq!(read_ply(&out.join("point_cloud.ply")).unwrap().len(), 200);
 }
+
+/// Evaluation and export see the model as it stands before the iteration's density control
+/// (the reference evaluates and saves before densifying), while the training state densifies.
+#[test]
+fn snapshot_holds_the_model_before_density_control() {
+    let ctx = ctx();
+    let scene = lego();
+    let train = images::load_images(&scene, &scene.train).unwrap();
+    let init = random_init(300, [0.0; 3], [1.3; 3], 3, 0).unwrap();
+    let mut cfg = TrainConfig {
+        iterations: 20,
+        seed: 5,
+        sh_degree: 0,
+        background: Background::Fixed([1.0; 3]),
+        ..TrainConfig::default()
+    };
+    cfg.schedule.densify_from = 2;
+    cfg.schedule.interval = 5;
+    cfg.density.grad_threshold = 2e-6;
+    let mut t = Trainer::new(&ctx, &scene, &train, &init, cfg).unwrap();
+    for _ in 0..9 {
+        t.step().unwrap();
+    }
+    let before = t.model().unwrap();
+    let view = scene.train[0];
+    let render_before = t.render_view(view, [1.0; 3]).unwrap();
+
+    // Iteration 10 densifies (and skips Adam, as the reference does on densify iterations).
+    t.snapshot_next_step();
+    let r = t.step().unwrap();
+    assert!(r.densified.is_some());
+    assert_ne!(t.state.count(), before.len(), "the step did not densify");
+    let snap = t.model().unwrap();
+    assert_eq!(snap.len(), before.len());
+    assert_eq!(t.gaussians(), before.len());
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    let model_bits = |p: &GaussianParams| {
+        let mut v: Vec<f32> = p.positions.iter().flatten().copied().collect();
+        v.extend(p.log_scales.iter().flatten());
+        v.extend(p.rotations.iter().flatten());
+        v.extend(&p.opacity_logits);
+        v.extend(p.sh_dc.iter().flatten());
+        v.extend(&p.sh_rest);
+        bits(&v)
+    };
+    assert_eq!(model_bits(&snap), model_bits(&before));
+    let render_snap = t.render_view(view, [1.0; 3]).unwrap();
+    assert_eq!(bits(&render_snap), bits(&render_before));
+
+    // The next step (no request) evaluates the training state again.
+    t.step().unwrap();
+    assert_eq!(t.model().unwrap().len(), t.state.count());
+    // A request on an iteration without density control copies nothing: the state is the model.
+    t.snapshot_next_step();
+    let r = t.step().unwrap();
+    assert!(r.densified.is_none());
+    assert_eq!(
+        model_bits(&t.model().unwrap()),
+        model_bits(&t.state.params.download().unwrap())
+    );
+    ctx.check_validation().unwrap();
+}

@@ -191,6 +191,9 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
             for &i in &group {
                 let r = &mut runs[i];
                 let t = r.trainer.as_mut().expect("trainer built above");
+                if eval_at.contains(&it) {
+                    t.snapshot_next_step();
+                }
                 let t0 = Instant::now();
                 t.step()?;
                 r.seconds += t0.elapsed().as_secs_f64();

@@ -447,6 +447,12 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     let mut evals = Vec::new();
     let mut ema_loss = None::<f64>;
     for _ in start_iteration..config.iterations {
+        let next = trainer.iteration + 1;
+        if next == config.iterations || (args.eval_every > 0 && next % args.eval_every == 0) {
+            // Evaluate and export the model as it stands before this iteration's density
+            // control, as the reference does.
+            trainer.snapshot_next_step();
+        }
         let r = trainer.step()?;
         if let (Some(check), Some(every)) = (nan_check.as_mut(), args.nan_check) {
             if r.iteration % every == 0 || r.iteration == config.iterations {
@@ -489,7 +495,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
             {
                 last_line = Instant::now();
                 let el = t0.elapsed().as_secs_f64();
-                let rate = r.iteration as f64 / el;
+                let rate = (r.iteration - start_iteration) as f64 / el;
                 eprintln!(
                     "[{}/{}] loss {ema:.4} (L1 {:.4}) | {} Gaussians | {rate:.2} it/s | ETA {:.0} s",
                     r.iteration,

@@ -174,6 +174,12 @@ pub struct Trainer {
     pub dropped_frames: u32,
     /// Localized Point Management, fused into the density steps; `None`: ADC only.
     pub lpm: Option<super::lpm_step::LpmTrainer>,
+    /// Set by [`Trainer::snapshot_next_step`]: the next step copies the model before its
+    /// density control into `snapshot`.
+    snapshot_requested: bool,
+    snapshot: Option<GpuSplats>,
+    /// The iteration whose pre-density-control model `snapshot` holds.
+    snapshot_iteration: Option<u32>,
 }
 
 /// Per-iteration background colour for `Background::Random`: a hash of (seed, iteration), so a
@@ -262,13 +268,58 @@ impl Trainer {
             pool: TimestampPool::new(ctx, 32)?,
             dropped_frames: 0,
             lpm: None,
+            snapshot_requested: false,
+            snapshot: None,
+            snapshot_iteration: None,
             state,
             config,
         })
     }
 
     pub fn gaussians(&self) -> usize {
-        self.state.count()
+        self.eval_params().count
+    }
+
+    /// Asks the next [`Trainer::step`] to keep a copy of the model as it stands before that
+    /// iteration's density control (clone, split, prune, opacity resets, LPM), for evaluation
+    /// and export. The Inria reference evaluates and saves at iteration k before densifying at
+    /// k; a model evaluated right after densification carries clones, samples of splits and
+    /// reset opacities no gradient step has corrected yet, and scores several dB lower. The
+    /// training state itself (and so a checkpoint) is unaffected. Nothing is copied when the
+    /// step runs no density control: the model is then already the one to evaluate.
+    pub fn snapshot_next_step(&mut self) {
+        self.snapshot_requested = true;
+    }
+
+    /// The model evaluation and export use: the snapshot taken in the last step, if any, else
+    /// the training state.
+    pub fn eval_params(&self) -> &GpuSplats {
+        match (&self.snapshot, self.snapshot_iteration) {
+            (Some(s), Some(it)) if it == self.iteration => s,
+            _ => &self.state.params,
+        }
+    }
+
+    /// Records copies of every parameter group of the first `count` Gaussians into the
+    /// snapshot buffers (grown as needed) inside the iteration's command buffer.
+    fn record_snapshot(&mut self, count: usize) -> anyhow::Result<()> {
+        let sh = self.state.sh_degree();
+        if self.snapshot.as_ref().is_none_or(|s| s.capacity < count) {
+            self.snapshot = Some(GpuSplats::zeroed(
+                &self.ctx,
+                "snapshot ",
+                sh,
+                0,
+                grown_capacity(count),
+            )?);
+        }
+        let snap = self.snapshot.as_mut().expect("allocated above");
+        snap.count = count;
+        self.rec.barrier();
+        for ((src, stride), (dst, _)) in self.state.params.groups().into_iter().zip(snap.groups()) {
+            self.rec.copy(src, dst, count * stride);
+        }
+        Ok(())
     }
 
     /// Grows the per-Gaussian buffers the trainer owns to the state's capacity.
@@ -408,6 +459,13 @@ impl Trainer {
         if cfg.timestamps {
             self.rec.timestamp(&mut self.pool, "adam");
         }
+        self.snapshot_iteration = None;
+        if std::mem::take(&mut self.snapshot_requested)
+            && (densifies || cfg.schedule.resets_opacity(it))
+        {
+            self.record_snapshot(count)?;
+            self.snapshot_iteration = Some(it);
+        }
         self.rec
             .copy(&self.loss_out, &self.loss_host, LOSS_SLOT_FLOATS);
         self.rec.submit_and_wait()?;
@@ -515,9 +573,9 @@ impl Trainer {
         Ok(())
     }
 
-    /// The current model.
+    /// The model to evaluate or export (see [`Trainer::eval_params`]).
     pub fn model(&self) -> anyhow::Result<GaussianParams> {
-        self.state.params.download()
+        self.eval_params().download()
     }
 
     /// Renders view `view` of the scene with the current model (RGB interleaved).
@@ -529,8 +587,12 @@ impl Trainer {
             tiles: c.tiles.max(cam.tile_count() as usize),
             ..c
         })?;
+        let params = match (&self.snapshot, self.snapshot_iteration) {
+            (Some(s), Some(it)) if it == self.iteration => s,
+            _ => &self.state.params,
+        };
         self.renderer.render_blocking(
-            &self.state.params,
+            params,
             &self.cameras,
             view as u32,
             &cam,
