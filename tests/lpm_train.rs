@@ -403,3 +403,90 @@ fn lpm_off_is_bit_identical_to_adc() {
     assert!(r.5.iter().all(|s| s.pruned == s.lowered));
     ctx.check_validation().unwrap();
 }
+
+#[test]
+fn lpm_run_resumes_bit_identically_and_checks_its_settings() {
+    // Single-threaded child for a deterministic backward (see lpm_off_is_bit_identical_to_adc).
+    if std::env::var("LP_NUM_THREADS").as_deref() != Ok("1") {
+        let out = std::process::Command::new(std::env::current_exe().unwrap())
+            .env("LP_NUM_THREADS", "1")
+            .args([
+                "--exact",
+                "lpm_run_resumes_bit_identically_and_checks_its_settings",
+                "--test-threads=1",
+            ])
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&out.stdout).to_string()
+            + &String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "child run failed:\n{text}");
+        assert!(
+            text.contains("1 passed"),
+            "child ran the wrong tests:\n{text}"
+        );
+        return;
+    }
+    let ctx = GpuContext::new(&GpuOptions::for_tests()).unwrap();
+    let scene = scene();
+    let gt = ground_truth(&ctx, &scene);
+    let init = initial_model();
+    let attach = |t: &mut Trainer, c: LpmConfig| {
+        t.lpm = Some(LpmTrainer::new(&ctx, &scene, &gt, correspondences(&scene), c).unwrap());
+    };
+    let floats = |t: &Trainer| {
+        let ck = t.checkpoint(&scene).unwrap();
+        let mut v: Vec<u32> = Vec::new();
+        for set in &ck.sets {
+            for group in set {
+                v.extend(group.iter().map(|x| x.to_bits()));
+            }
+        }
+        (ck.count, v)
+    };
+    // Straight: 15 iterations, LPM at every densification (every 5).
+    let mut straight = Trainer::new(&ctx, &scene, &gt, &init, config(2e-5, 5)).unwrap();
+    attach(&mut straight, lpm_config());
+    let mut zones = 0;
+    for _ in 0..15 {
+        zones += straight.step().unwrap().lpm.map_or(0, |r| r.zones);
+    }
+    assert!(
+        zones > 0,
+        "LPM never made a zone: the test would prove nothing"
+    );
+    // 7 iterations, a checkpoint, a restored trainer, 8 more.
+    let mut first = Trainer::new(&ctx, &scene, &gt, &init, config(2e-5, 5)).unwrap();
+    attach(&mut first, lpm_config());
+    for _ in 0..7 {
+        first.step().unwrap();
+    }
+    let ck = first.checkpoint(&scene).unwrap();
+    drop(first);
+    let path = std::path::Path::new("checkpoint.bin");
+    let restore = || Trainer::restore(&ctx, &scene, &gt, config(2e-5, 5), &ck, path).unwrap();
+    let mut resumed = restore();
+    attach(&mut resumed, lpm_config());
+    resumed.check_resumed_lpm(path).unwrap();
+    for _ in 0..8 {
+        resumed.step().unwrap();
+    }
+    assert_eq!(resumed.iteration, 15);
+    assert!(
+        floats(&resumed) == floats(&straight),
+        "the resumed LPM run differs from the straight run"
+    );
+    // Resuming without LPM, or with other LPM settings, is refused with the fix.
+    let e = restore().check_resumed_lpm(path).unwrap_err().to_string();
+    assert!(e.contains("pass --lpm") && e.contains("Fix:"), "{e}");
+    let mut other = restore();
+    attach(
+        &mut other,
+        LpmConfig {
+            threshold_ratio: 0.25,
+            ..lpm_config()
+        },
+    );
+    let e = other.check_resumed_lpm(path).unwrap_err().to_string();
+    assert!(e.contains("lpm.threshold_ratio"), "{e}");
+    ctx.check_validation().unwrap();
+}

@@ -429,6 +429,9 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     if let Some(c) = lpm_config.clone() {
         trainer.lpm = Some(build_lpm(&ctx, &scene, &train_images, c, &args.out)?);
     }
+    if let Some(p) = &args.resume {
+        trainer.check_resumed_lpm(p)?;
+    }
     let load_s = t_load.elapsed().as_secs_f64();
     let start_iteration = trainer.iteration;
     let bar = ProgressBar::new(config.iterations as u64);

@@ -506,8 +506,52 @@ impl Trainer {
                 stats.denom.read_range(0, n)?,
                 stats.max_radii.read_range(0, n)?,
             ],
-            config_json: self.config.to_json().to_string(),
+            config_json: {
+                let mut c = self.config.to_json();
+                // LPM is part of the run's settings: a resumed LPM run must keep LPM on, with
+                // the same settings, and an ADC run must not gain it.
+                c["lpm"] = self
+                    .lpm
+                    .as_ref()
+                    .map_or(serde_json::Value::Null, |l| l.config.to_json());
+                c.to_string()
+            },
         })
+    }
+
+    /// After [`Trainer::restore`] and attaching (or not) LPM: checks that the LPM settings are
+    /// those of the run that wrote the checkpoint at `path`. (LPM keeps no other state between
+    /// steps: its random choices are drawn per iteration, so a resumed run repeats them.)
+    pub fn check_resumed_lpm(&self, path: &Path) -> anyhow::Result<()> {
+        let Some(saved) = &self.resumed_lpm else {
+            return Ok(());
+        };
+        let now = self
+            .lpm
+            .as_ref()
+            .map_or(serde_json::Value::Null, |l| l.config.to_json());
+        let diffs = match (saved.is_null(), now.is_null()) {
+            (true, true) => Vec::new(),
+            (true, false) => vec!["LPM (checkpoint off, now --lpm)".to_string()],
+            (false, true) => vec!["LPM (checkpoint on, now off: pass --lpm)".to_string()],
+            (false, false) => config_differences(saved, &now)
+                .into_iter()
+                .map(|d| format!("lpm.{d}"))
+                .collect(),
+        };
+        if diffs.is_empty() {
+            return Ok(());
+        }
+        bad_input(
+            path,
+            "config.lpm",
+            format!(
+                "the run was trained with other LPM settings: {}",
+                diffs.join("; ")
+            ),
+            "resume with the --lpm flags of the original run, or start a fresh run without \
+             --resume",
+        )
     }
 
     /// Writes the training state to `path` atomically.
@@ -559,6 +603,9 @@ impl Trainer {
                 "the checkpoint is corrupt; use an intact checkpoint.bin",
             )
         })?;
+        let mut saved = saved;
+        // Checked by `check_resumed_lpm` once LPM is attached (absent: an older checkpoint).
+        let saved_lpm = saved.as_object_mut().and_then(|o| o.remove("lpm"));
         let diffs = config_differences(&saved, &config.to_json());
         if !diffs.is_empty() {
             return bad_input(
@@ -595,6 +642,7 @@ impl Trainer {
         upload_stat(&stats.denom, &ck.stats[1])?;
         upload_stat(&stats.max_radii, &ck.stats[2])?;
         t.iteration = ck.iteration;
+        t.resumed_lpm = saved_lpm;
         t.adam_step = ck.adam_step;
         t.dropped_frames = ck.dropped_frames;
         t.views

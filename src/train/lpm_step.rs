@@ -216,7 +216,6 @@ pub struct LpmTrainer {
     views: Vec<View>,
     /// Ground truth per scene view (training views only), for zone colours and debug images.
     gt: Vec<Option<Image>>,
-    rng: rand_pcg::Pcg64,
     threshold_scale: ComputePipeline,
     lowered_count: ComputePipeline,
     prune_lowest: ComputePipeline,
@@ -268,7 +267,6 @@ impl LpmTrainer {
             corr,
             views: scene.views.clone(),
             gt,
-            rng: rand_pcg::Pcg64::seed_from_u64(config.seed ^ 0x4c50_4d5f_7374_6570),
             threshold_scale: pipe(
                 "lpm/threshold_scale",
                 shaders::LPM_THRESHOLD_SCALE,
@@ -382,7 +380,14 @@ impl LpmTrainer {
         report.regions = regions.len();
 
         // 2. Neighbour, pairing, zones.
-        let reference = self.corr.neighbours.pick(view, &mut self.rng);
+        // Drawn from (seed, iteration) rather than a running stream, so a run resumed from a
+        // checkpoint makes the same picks without saving generator state.
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(
+            self.config.seed
+                ^ 0x4c50_4d5f_7374_6570
+                ^ (args.iteration as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15),
+        );
+        let reference = self.corr.neighbours.pick(view, &mut rng);
         report.reference = reference;
         let step = match reference {
             Some(r) if !regions.is_empty() => {

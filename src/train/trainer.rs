@@ -180,6 +180,8 @@ pub struct Trainer {
     snapshot: Option<GpuSplats>,
     /// The iteration whose pre-density-control model `snapshot` holds.
     snapshot_iteration: Option<u32>,
+    /// After a resume: the LPM settings saved in the checkpoint (null: LPM was off).
+    pub(super) resumed_lpm: Option<serde_json::Value>,
 }
 
 /// Per-iteration background colour for `Background::Random`: a hash of (seed, iteration), so a
@@ -271,6 +273,7 @@ impl Trainer {
             snapshot_requested: false,
             snapshot: None,
             snapshot_iteration: None,
+            resumed_lpm: None,
             state,
             config,
         })
