@@ -87,17 +87,32 @@ fn check_sort(ctx: &Arc<GpuContext>, sorter: &RadixSort, keys: &[u64], bits: u32
 fn radix_sort_is_stable_and_matches_host_sort() {
     let ctx = ctx();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
-    let sorter = RadixSort::new(&ctx, 300_000).unwrap();
-    for &(n, bits) in &[
+    // Both block sizes (GPUs take 8 keys per invocation, CPU drivers 64), whatever the device;
+    // the sizes straddle both block lengths (2048 and 16384 keys).
+    let sorters = [
+        RadixSort::with_items(&ctx, 300_000, 8).unwrap(),
+        RadixSort::with_items(&ctx, 300_000, 64).unwrap(),
+    ];
+    assert!(
+        RadixSort::with_items(&ctx, 10, 256).is_err(),
+        "65536-key blocks overflow"
+    );
+    for (&(n, bits), k) in [
         (0usize, 32u32),
         (1, 8),
         (5, 13),
         (2048, 45),
         (2049, 64),
+        (16_384, 20),
+        (16_385, 45),
         (70_001, 45),
         (300_000, 32),
         (50_000, 6),
-    ] {
+    ]
+    .iter()
+    .flat_map(|c| [(c, 0usize), (c, 1)])
+    {
+        let sorter = &sorters[k];
         let mask = if bits >= 64 {
             u64::MAX
         } else {
@@ -114,7 +129,7 @@ fn radix_sort_is_stable_and_matches_host_sort() {
                 }
             })
             .collect();
-        check_sort(&ctx, &sorter, &keys, bits);
+        check_sort(&ctx, sorter, &keys, bits);
     }
     ctx.check_validation().unwrap();
 }

@@ -1,10 +1,14 @@
 #version 460
 #extension GL_KHR_shader_subgroup_arithmetic : require
+#extension GL_EXT_control_flow_attributes : require
 // Radix sort pass, step 3 (scatter): each invocation owns ITEMS consecutive keys of its block,
 // so its rank among equal digits is (keys of that digit in earlier invocations) + (earlier keys
 // of its own): the pass is stable, which LSD radix sort needs. Per-digit counts of the
-// invocations are packed two digits per uint (16-bit fields; a block holds < 65536 keys) and
-// scanned over the workgroup.
+// invocations are packed two digits per uint (16-bit fields; a block holds < 65536 keys).
+// The workgroup prefix of all RADIX/2 packed words takes a single barrier: subgroup scans, the
+// subgroups' totals in shared memory, and each subgroup adds up the totals of the subgroups
+// before it. (One barrier-separated scan per word cost 3·RADIX/2 barriers, and on CPU drivers,
+// which run a workgroup's subgroups as coroutines, barriers were most of the pass.)
 layout(constant_id = 0) const uint WG_SIZE = 256;
 layout(constant_id = 2) const uint ITEMS = 8;
 layout(local_size_x_id = 0) in;
@@ -16,7 +20,8 @@ layout(std430, set = 0, binding = 4) readonly buffer Hist { uint hist[]; };
 layout(std430, set = 0, binding = 5) readonly buffer Count { uint counts[]; };
 layout(push_constant) uniform Push { uint count_index; uint shift; };
 #include "radix_digit.glsl"
-#include "workgroup_scan.glsl"
+// [subgroup · RADIX/2 + word]: each subgroup's totals (room for subgroups of size 1).
+shared uint sg_totals[WG_SIZE * (RADIX / 2u)];
 
 void main() {
     uint n = counts[count_index];
@@ -25,19 +30,42 @@ void main() {
     if (block >= blocks) return;
     uint first = block * WG_SIZE * ITEMS + gl_LocalInvocationIndex * ITEMS;
 
+    // The per-digit arrays are only ever indexed by unrolled loop counters: a digit selects its
+    // slot by comparison. Indexing them by the digit itself would put them in memory (spilled
+    // on GPUs, one scalar access per lane on CPU drivers), which cost more than these selects.
     uint packed[RADIX / 2u];
-    for (uint d = 0u; d < RADIX / 2u; d++) packed[d] = 0u;
+    [[unroll]] for (uint d2 = 0u; d2 < RADIX / 2u; d2++) packed[d2] = 0u;
     for (uint k = 0u; k < ITEMS; k++) {
         uint i = first + k;
         if (i < n) {
             uint d = radix_digit(keys_in[i], shift);
-            packed[d >> 1u] += 1u << ((d & 1u) * 16u);
+            uint one = 1u << ((d & 1u) * 16u);
+            [[unroll]] for (uint d2 = 0u; d2 < RADIX / 2u; d2++) {
+                packed[d2] += (d >> 1u) == d2 ? one : 0u;
+            }
+        }
+    }
+    uint inclusive[RADIX / 2u];
+    [[unroll]] for (uint d2 = 0u; d2 < RADIX / 2u; d2++) {
+        inclusive[d2] = subgroupInclusiveAdd(packed[d2]);
+    }
+    if (gl_SubgroupInvocationID == gl_SubgroupSize - 1u) {
+        [[unroll]] for (uint d2 = 0u; d2 < RADIX / 2u; d2++) {
+            sg_totals[gl_SubgroupID * (RADIX / 2u) + d2] = inclusive[d2];
+        }
+    }
+    barrier();
+    uint before[RADIX / 2u];
+    [[unroll]] for (uint d2 = 0u; d2 < RADIX / 2u; d2++) before[d2] = 0u;
+    // Uniform over the subgroup: a loop, so CPU drivers really skip it for subgroup 0.
+    for (uint sg = 0u; sg < gl_SubgroupID; sg++) {
+        [[unroll]] for (uint d2 = 0u; d2 < RADIX / 2u; d2++) {
+            before[d2] += sg_totals[sg * (RADIX / 2u) + d2];
         }
     }
     uint offsets[RADIX];
-    for (uint d2 = 0u; d2 < RADIX / 2u; d2++) {
-        uint total;
-        uint prefix = workgroup_exclusive_scan(packed[d2], total);
+    [[unroll]] for (uint d2 = 0u; d2 < RADIX / 2u; d2++) {
+        uint prefix = before[d2] + inclusive[d2] - packed[d2];
         offsets[2u * d2] = (prefix & 0xFFFFu) + hist[(2u * d2) * blocks + block];
         offsets[2u * d2 + 1u] = (prefix >> 16u) + hist[(2u * d2 + 1u) * blocks + block];
     }
@@ -46,8 +74,12 @@ void main() {
         if (i < n) {
             uvec2 key = keys_in[i];
             uint d = radix_digit(key, shift);
-            uint dst = offsets[d];
-            offsets[d] = dst + 1u;
+            uint dst = 0u;
+            [[unroll]] for (uint r = 0u; r < RADIX; r++) {
+                bool mine = d == r;
+                dst += mine ? offsets[r] : 0u;
+                offsets[r] += mine ? 1u : 0u;
+            }
             keys_out[dst] = key;
             vals_out[dst] = vals_in[i];
         }
