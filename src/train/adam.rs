@@ -327,7 +327,7 @@ impl Adam {
                 &self.pipe,
                 &[p[k].0, g[k].0, mm[k].0, vv[k].0],
                 &push,
-                ctx.groups_1d(n, WG),
+                ctx.groups_1d(n / 4 + n % 4, WG),
             );
         }
         rec.barrier();
