@@ -606,7 +606,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         let total = stages.total_ms().max(1e-12);
         for (n, ms) in &stages.stages {
             println!(
-                "  {n:<16} {:>6.1}%  ({:.2} ms/it)",
+                "  {n:<20} {:>6.1}%  ({:.2} ms/it)",
                 100.0 * ms / total,
                 ms / trained as f64
             );

@@ -262,6 +262,18 @@ impl Backward {
     /// earlier use of `grad2d` are complete), the zeroing of `grad2d`, the rasterizer backward,
     /// a barrier, the preprocess backward. The caller puts a barrier before reading the outputs.
     pub fn record(&self, ctx: &GpuContext, rec: &mut Recorder, a: &BackwardArgs) -> Result<()> {
+        self.record_timed(ctx, rec, a, None)
+    }
+
+    /// [`Backward::record`] with GPU timestamps "rasterize backward" and "preprocess backward"
+    /// written into `pool` after each half.
+    pub fn record_timed(
+        &self,
+        ctx: &GpuContext,
+        rec: &mut Recorder,
+        a: &BackwardArgs,
+        mut pool: Option<&mut crate::gpu::TimestampPool>,
+    ) -> Result<()> {
         self.check(a)?;
         rec.barrier();
         rec.fill(&self.grad2d, 0);
@@ -287,6 +299,9 @@ impl Backward {
             &raster_push,
             ctx.groups_1d(a.camera.tile_count() as u64, 1),
         );
+        if let Some(p) = pool.as_deref_mut() {
+            rec.timestamp(p, "rasterize backward");
+        }
         rec.barrier();
         let push = PreprocessPush {
             constants: a.constants,
@@ -321,6 +336,9 @@ impl Backward {
                 &push,
                 ctx.groups_1d(a.count as u64, WG),
             );
+        }
+        if let Some(p) = pool {
+            rec.timestamp(p, "preprocess backward");
         }
         Ok(())
     }

@@ -411,7 +411,7 @@ impl Trainer {
             self.rec.timestamp(&mut self.pool, "loss");
         }
         let f = &self.renderer.frame;
-        self.backward.record(
+        self.backward.record_timed(
             &self.ctx,
             &mut self.rec,
             &BackwardArgs {
@@ -432,10 +432,12 @@ impl Trainer {
                 constants,
                 background: bg,
             },
+            if cfg.timestamps {
+                Some(&mut self.pool)
+            } else {
+                None
+            },
         )?;
-        if cfg.timestamps {
-            self.rec.timestamp(&mut self.pool, "backward");
-        }
         if cfg.schedule.accumulates(it) {
             self.density.record_accumulate(
                 &mut self.rec,
