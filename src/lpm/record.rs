@@ -66,8 +66,23 @@ impl ZoneRecord {
     }
 }
 
+/// The colour of a point added at a zone's centre (LPM.md): the ground truth at the centre of
+/// the region's box in the current view, i.e. the pixel containing that point, clamped into the
+/// image. Black for an empty image.
+pub fn center_color(img: &Image, b: &PixelBox) -> [f32; 3] {
+    if img.width == 0 || img.height == 0 || img.rgb.len() < 3 * (img.width * img.height) as usize {
+        return [0.0; 3];
+    }
+    let [cx, cy] = b.center();
+    let x = (cx.floor().max(0.0) as u32).min(img.width - 1);
+    let y = (cy.floor().max(0.0) as u32).min(img.height - 1);
+    let i = 3 * (y * img.width + x) as usize;
+    [img.rgb[i], img.rgb[i + 1], img.rgb[i + 2]]
+}
+
 /// Mean colour of the pixels whose centres lie in `b` (the nearest pixel to its centre when none
-/// does). Black for an empty image.
+/// does). Black for an empty image. (A smoother alternative to [`center_color`]; not used by
+/// the trainer, which follows LPM.md.)
 pub fn mean_color(img: &Image, b: &PixelBox) -> [f32; 3] {
     if img.width == 0 || img.height == 0 || img.rgb.len() < 3 * (img.width * img.height) as usize {
         return [0.0; 3];
@@ -142,11 +157,53 @@ pub fn zones_for_step(
         match zone_from_boxes(v, &p.in_view, r, &p.in_reference, s).zone {
             Some(z) => {
                 out.records
-                    .push(ZoneRecord::new(&z, apex, mean_color(gt, &p.in_view)));
+                    .push(ZoneRecord::new(&z, apex, center_color(gt, &p.in_view)));
                 out.zones.push(z);
             }
             None => out.no_zone += 1,
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn center_color_reads_the_pixel_containing_the_box_centre_clamped_into_the_image() {
+        let (w, h) = (5u32, 3u32);
+        let rgb: Vec<f32> = (0..w * h)
+            .flat_map(|i| [i as f32, 100.0 + i as f32, 200.0 + i as f32])
+            .collect();
+        let img = Image {
+            width: w,
+            height: h,
+            rgb,
+            alpha: None,
+        };
+        let at = |x0: f64, y0: f64, x1: f64, y1: f64| {
+            center_color(&img, &PixelBox { x0, y0, x1, y1 })[0]
+        };
+        // Centre (2.5, 1.5): pixel (2, 1) = index 7.
+        assert_eq!(at(1.0, 1.0, 4.0, 2.0), 7.0);
+        // Centre exactly on a pixel boundary belongs to the pixel to its right / below.
+        assert_eq!(at(0.0, 0.0, 2.0, 2.0), 6.0);
+        // Outside the image: clamped to the nearest edge pixel.
+        assert_eq!(at(-10.0, -10.0, -8.0, -8.0), 0.0);
+        assert_eq!(at(50.0, 50.0, 52.0, 52.0), 14.0);
+        let empty = Image {
+            width: 0,
+            height: 0,
+            rgb: Vec::new(),
+            alpha: None,
+        };
+        let b = PixelBox {
+            x0: 0.0,
+            y0: 0.0,
+            x1: 1.0,
+            y1: 1.0,
+        };
+        assert_eq!(center_color(&empty, &b), [0.0; 3]);
+    }
 }
