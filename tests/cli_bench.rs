@@ -83,7 +83,7 @@ fn bench_trade_interleaved_writes_table_json_and_plot() {
         "{md}"
     );
     let png = image::open(out.join("trade.png")).unwrap();
-    assert_eq!((png.width(), png.height()), (800, 300));
+    assert_eq!((png.width(), png.height()), (840, 300));
 }
 
 #[test]

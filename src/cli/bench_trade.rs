@@ -376,7 +376,9 @@ fn table(rows: &[TradeRow], device: &str, args: &TradeArgs) -> String {
         .resolution
         .map_or("full resolution".to_string(), |r| format!("-r {r}"));
     let mut s = format!(
-        "bench trade: {} {resolution}, {} iterations on the calendar of {}, {device}\n\n{}\n\n\
+        "bench trade: {} {resolution}, {} iterations on the calendar of {}, {device}\n\n{} \
+         trade.png plots PSNR (dB, y) against Gaussians (left) and training seconds (right), in \
+         the colours below, one line per run through its evaluated iterations.\n\n\
          | run | iteration | colour | PSNR | ΔPSNR vs adc | SSIM | LPIPS | Gaussians | train s | time vs adc | ms/it | LPM ms/it (share) | FPS 1352×1014 |\n\
          |---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
         args.scene.scene.display(),
@@ -388,6 +390,7 @@ fn table(rows: &[TradeRow], device: &str, args: &TradeArgs) -> String {
             "Runs were interleaved one iteration at a time, so their times saw the same machine load."
         }
     );
+
     for r in rows {
         let adc = rows
             .iter()
@@ -420,32 +423,118 @@ fn table(rows: &[TradeRow], device: &str, args: &TradeArgs) -> String {
     s
 }
 
-/// Two panels side by side: PSNR (y) against Gaussian count and against training time (x),
-/// each axis spanning its data with a 10 % margin; a 7-px square marker per evaluated row, and a
+/// 3×5 bitmaps of the characters axis labels use (digits, '.', '-'), one row of 3 bits each,
+/// top row first (bit 2 = left column).
+fn glyph(c: char) -> Option<[u8; 5]> {
+    Some(match c {
+        '0' => [7, 5, 5, 5, 7],
+        '1' => [2, 6, 2, 2, 7],
+        '2' => [7, 1, 7, 4, 7],
+        '3' => [7, 1, 7, 1, 7],
+        '4' => [5, 5, 7, 1, 1],
+        '5' => [7, 4, 7, 1, 7],
+        '6' => [7, 4, 7, 5, 7],
+        '7' => [7, 1, 1, 1, 1],
+        '8' => [7, 5, 7, 5, 7],
+        '9' => [7, 5, 7, 1, 7],
+        '.' => [0, 0, 0, 0, 2],
+        '-' => [0, 0, 7, 0, 0],
+        _ => return None,
+    })
+}
+
+/// Draws `text` with its top-left corner at (x, y), each font pixel a 2×2 square.
+fn draw_text(img: &mut image::RgbImage, x: i64, y: i64, text: &str) {
+    let (w, h) = (img.width() as i64, img.height() as i64);
+    for (k, c) in text.chars().enumerate() {
+        let Some(rows) = glyph(c) else { continue };
+        for (r, bits) in rows.iter().enumerate() {
+            for col in 0..3 {
+                if bits & (4 >> col) == 0 {
+                    continue;
+                }
+                for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                    let px = x + 8 * k as i64 + 2 * col + dx;
+                    let py = y + 2 * r as i64 + dy;
+                    if px >= 0 && py >= 0 && px < w && py < h {
+                        img.put_pixel(px as u32, py as u32, image::Rgb([0, 0, 0]));
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Two panels side by side: PSNR in dB (y) against Gaussian count (left) and against training
+/// seconds (right), each axis spanning its data with a 10 % margin and labelled with the data's
+/// smallest and largest values at tick marks; a 7-px square marker per evaluated row, and a
 /// 1-px line joining a run's rows in iteration order (its trajectory).
 fn plot(rows: &[TradeRow]) -> anyhow::Result<Vec<u8>> {
-    let (pw, ph, m) = (400u32, 300u32, 30u32);
+    // Panel size, left margin (y labels), bottom margin (x labels), top/right margin.
+    let (pw, ph, ml, mb, mt) = (420u32, 300u32, 60u32, 30u32, 15u32);
     let mut img = image::RgbImage::from_pixel(2 * pw, ph, image::Rgb([255, 255, 255]));
-    let span = |v: &mut dyn Iterator<Item = f64>| {
-        let (lo, hi) = v.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
+    let range = |v: &mut dyn Iterator<Item = f64>| {
+        v.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
             (a.min(x), b.max(x))
-        });
-        let pad = ((hi - lo) * 0.1).max(1e-9);
-        (lo - pad, hi + pad)
+        })
     };
-    let ys = span(&mut rows.iter().map(|r| r.psnr).filter(|v| v.is_finite()));
-    let xs = [
-        span(&mut rows.iter().map(|r| r.gaussians as f64)),
-        span(&mut rows.iter().map(|r| r.train_seconds)),
+    let pad = |(lo, hi): (f64, f64)| {
+        let p = ((hi - lo) * 0.1).max(1e-9);
+        (lo - p, hi + p)
+    };
+    let finite: Vec<&TradeRow> = rows.iter().filter(|r| r.psnr.is_finite()).collect();
+    let y_data = range(&mut finite.iter().map(|r| r.psnr));
+    let ys = pad(y_data);
+    let x_data = [
+        range(&mut finite.iter().map(|r| r.gaussians as f64)),
+        range(&mut finite.iter().map(|r| r.train_seconds)),
     ];
-    for (panel, &(x0, x1)) in xs.iter().enumerate() {
+    for (panel, &xd) in x_data.iter().enumerate() {
+        let (x0, x1) = pad(xd);
         let ox = panel as u32 * pw;
         let axis = image::Rgb([0, 0, 0]);
-        for x in ox + m..ox + pw - m / 2 {
-            img.put_pixel(x, ph - m, axis);
+        let (left, bottom) = (ox + ml, ph - mb);
+        for x in left..ox + pw - mt {
+            img.put_pixel(x, bottom, axis);
         }
-        for y in m / 2..ph - m {
-            img.put_pixel(ox + m, y, axis);
+        for y in mt..bottom {
+            img.put_pixel(left, y, axis);
+        }
+        let to_px = |x: f64, y: f64| {
+            (
+                left as f64 + (x - x0) / (x1 - x0) * (pw - ml - mt) as f64,
+                bottom as f64 - (y - ys.0) / (ys.1 - ys.0) * (ph - mb - mt) as f64,
+            )
+        };
+        if finite.is_empty() {
+            continue;
+        }
+        // Ticks and labels at the data's extremes.
+        for v in [y_data.0, y_data.1] {
+            let (_, py) = to_px(x0, v);
+            for x in left - 4..left {
+                img.put_pixel(x, py as u32, axis);
+            }
+            let text = format!("{v:.2}");
+            draw_text(
+                &mut img,
+                left as i64 - 6 - 8 * text.len() as i64,
+                py as i64 - 5,
+                &text,
+            );
+        }
+        for v in [xd.0, xd.1] {
+            let (px, _) = to_px(v, ys.0);
+            for y in bottom + 1..bottom + 5 {
+                img.put_pixel(px as u32, y, axis);
+            }
+            let text = if panel == 0 {
+                format!("{v:.0}")
+            } else {
+                format!("{v:.1}")
+            };
+            let half = 4 * text.len() as i64;
+            draw_text(&mut img, px as i64 - half, bottom as i64 + 8, &text);
         }
         let point = |r: &TradeRow| {
             let x = if panel == 0 {
@@ -453,19 +542,13 @@ fn plot(rows: &[TradeRow]) -> anyhow::Result<Vec<u8>> {
             } else {
                 r.train_seconds
             };
-            let fx = (x - x0) / (x1 - x0);
-            let fy = (r.psnr - ys.0) / (ys.1 - ys.0);
-            (
-                ox as f64 + m as f64 + fx * (pw - m - m / 2) as f64,
-                (ph - m) as f64 - fy * (ph - m - m / 2) as f64,
-            )
+            to_px(x, r.psnr)
         };
         let mut put = |x: i64, y: i64, c: [u8; 3]| {
             if x >= 0 && y >= 0 && (x as u32) < 2 * pw && (y as u32) < ph {
                 img.put_pixel(x as u32, y as u32, image::Rgb(c));
             }
         };
-        let finite: Vec<&TradeRow> = rows.iter().filter(|r| r.psnr.is_finite()).collect();
         for (name, colour) in RUNS {
             let mut path: Vec<&TradeRow> =
                 finite.iter().copied().filter(|r| r.run == name).collect();
@@ -496,4 +579,75 @@ fn plot(rows: &[TradeRow]) -> anyhow::Result<Vec<u8>> {
     image::DynamicImage::ImageRgb8(img)
         .write_to(&mut std::io::Cursor::new(&mut out), image::ImageFormat::Png)?;
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(run: &str, iteration: u32, psnr: f64, gaussians: usize, secs: f64) -> TradeRow {
+        let colour = RUNS.iter().find(|r| r.0 == run).unwrap().1;
+        TradeRow {
+            run: run.into(),
+            iteration,
+            colour,
+            psnr,
+            ssim: 0.9,
+            lpips: "n/a".into(),
+            gaussians,
+            train_seconds: secs,
+            ms_per_iteration: 1.0,
+            lpm_ms_per_iteration: 0.0,
+            lpm_share: 0.0,
+            fps_1352x1014: 1.0,
+        }
+    }
+
+    #[test]
+    fn plot_draws_each_run_in_its_colour_with_labelled_axes() {
+        let rows = [
+            row("adc", 1000, 33.937, 44_467, 487.7),
+            row("adc+lpm", 1000, 34.398, 45_529, 482.7),
+            row("adc", 2000, 35.597, 119_237, 1804.3),
+            row("adc+lpm", 2000, 35.632, 119_566, 1779.6),
+        ];
+        let png = plot(&rows).unwrap();
+        let img = image::load_from_memory(&png).unwrap().to_rgb8();
+        assert_eq!((img.width(), img.height()), (840, 300));
+        let count = |c: [u8; 3]| img.pixels().filter(|p| p.0 == c).count();
+        // Four markers of 49 px per panel pair for each run, plus its trajectory lines.
+        for (name, colour) in [RUNS[0], RUNS[2]] {
+            assert!(count(colour) >= 2 * 2 * 49, "{name}: {}", count(colour));
+        }
+        // Labels: black pixels left of the first panel's y axis (x < 60) and below its x axis.
+        let black = |x0: u32, x1: u32, y0: u32, y1: u32| {
+            (x0..x1)
+                .flat_map(|x| (y0..y1).map(move |y| (x, y)))
+                .filter(|&(x, y)| img.get_pixel(x, y).0 == [0, 0, 0])
+                .count()
+        };
+        assert!(black(0, 55, 0, 270) > 40, "no y labels");
+        assert!(black(60, 420, 275, 300) > 40, "no x labels");
+        // A row without a finite PSNR is skipped, not drawn at NaN.
+        let mut bad = rows.to_vec();
+        bad.push(row("lpm-no-add", 2000, f64::NAN, 10, 1.0));
+        let img = image::load_from_memory(&plot(&bad).unwrap())
+            .unwrap()
+            .to_rgb8();
+        assert_eq!(img.pixels().filter(|p| p.0 == RUNS[3].1).count(), 0);
+        if let Ok(dir) = std::env::var("LPMSPLAT_KEEP_PLOT") {
+            std::fs::write(std::path::Path::new(&dir).join("trade_plot.png"), &png).unwrap();
+        }
+    }
+
+    #[test]
+    fn runs_are_selected_by_name_or_alias_in_table_order() {
+        let names = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        assert_eq!(selected_runs(&[]).unwrap(), vec![0, 1, 2, 3, 4]);
+        assert_eq!(
+            selected_runs(&names(&["lpm", "adc-1e-4", "adc"])).unwrap(),
+            vec![0, 1, 2]
+        );
+        assert!(selected_runs(&names(&["adc", "lpm", "adc+lpm"])).is_err());
+    }
 }
