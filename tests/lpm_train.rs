@@ -296,28 +296,32 @@ fn one_lpm_step_fills_the_hole_and_resets_the_occluder_adc_does_neither() {
     ctx.check_validation().unwrap();
 }
 
+/// Bitwise comparisons need a deterministic backward: lavapipe's float atomics add in a
+/// thread-dependent order unless it runs one thread (see the trainer's determinism docs). Unless
+/// this process already runs with LP_NUM_THREADS=1, re-runs test `name` in a child that does
+/// (other drivers ignore the variable), asserts it passed, and returns true: the caller returns.
+fn rerun_single_threaded(name: &str) -> bool {
+    if std::env::var("LP_NUM_THREADS").as_deref() == Ok("1") {
+        return false;
+    }
+    let out = std::process::Command::new(std::env::current_exe().unwrap())
+        .env("LP_NUM_THREADS", "1")
+        .args(["--exact", name, "--test-threads=1"])
+        .output()
+        .unwrap();
+    let text =
+        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "child run failed:\n{text}");
+    assert!(
+        text.contains("1 passed"),
+        "child ran the wrong tests:\n{text}"
+    );
+    true
+}
+
 #[test]
 fn lpm_off_is_bit_identical_to_adc() {
-    // Bitwise comparisons need a deterministic backward: lavapipe's float atomics add in a
-    // thread-dependent order unless it runs one thread (see the trainer's determinism docs), so
-    // this test re-runs itself in a child with LP_NUM_THREADS=1 (other drivers ignore it).
-    if std::env::var("LP_NUM_THREADS").as_deref() != Ok("1") {
-        let out = std::process::Command::new(std::env::current_exe().unwrap())
-            .env("LP_NUM_THREADS", "1")
-            .args([
-                "--exact",
-                "lpm_off_is_bit_identical_to_adc",
-                "--test-threads=1",
-            ])
-            .output()
-            .unwrap();
-        let text = String::from_utf8_lossy(&out.stdout).to_string()
-            + &String::from_utf8_lossy(&out.stderr);
-        assert!(out.status.success(), "child run failed:\n{text}");
-        assert!(
-            text.contains("1 passed"),
-            "child ran the wrong tests:\n{text}"
-        );
+    if rerun_single_threaded("lpm_off_is_bit_identical_to_adc") {
         return;
     }
     let ctx = GpuContext::new(&GpuOptions::for_tests()).unwrap();
@@ -406,24 +410,7 @@ fn lpm_off_is_bit_identical_to_adc() {
 
 #[test]
 fn lpm_run_resumes_bit_identically_and_checks_its_settings() {
-    // Single-threaded child for a deterministic backward (see lpm_off_is_bit_identical_to_adc).
-    if std::env::var("LP_NUM_THREADS").as_deref() != Ok("1") {
-        let out = std::process::Command::new(std::env::current_exe().unwrap())
-            .env("LP_NUM_THREADS", "1")
-            .args([
-                "--exact",
-                "lpm_run_resumes_bit_identically_and_checks_its_settings",
-                "--test-threads=1",
-            ])
-            .output()
-            .unwrap();
-        let text = String::from_utf8_lossy(&out.stdout).to_string()
-            + &String::from_utf8_lossy(&out.stderr);
-        assert!(out.status.success(), "child run failed:\n{text}");
-        assert!(
-            text.contains("1 passed"),
-            "child ran the wrong tests:\n{text}"
-        );
+    if rerun_single_threaded("lpm_run_resumes_bit_identically_and_checks_its_settings") {
         return;
     }
     let ctx = GpuContext::new(&GpuOptions::for_tests()).unwrap();

@@ -192,6 +192,19 @@ fn random_background(seed: u64, iteration: u32) -> [f32; 3] {
     [rng.gen(), rng.gen(), rng.gen()]
 }
 
+/// The snapshot if it was taken at `iteration` (the current one), else `state`.
+fn snapshot_or<'a>(
+    snapshot: &'a Option<GpuSplats>,
+    taken_at: Option<u32>,
+    iteration: u32,
+    state: &'a GpuSplats,
+) -> &'a GpuSplats {
+    match (snapshot, taken_at) {
+        (Some(s), Some(it)) if it == iteration => s,
+        _ => state,
+    }
+}
+
 impl Trainer {
     /// Sets up training of `init` on the training views of `scene` (`train_images[k]` is the
     /// image of `scene.train[k]`).
@@ -297,10 +310,12 @@ impl Trainer {
     /// The model evaluation and export use: the snapshot taken in the last step, if any, else
     /// the training state.
     pub fn eval_params(&self) -> &GpuSplats {
-        match (&self.snapshot, self.snapshot_iteration) {
-            (Some(s), Some(it)) if it == self.iteration => s,
-            _ => &self.state.params,
-        }
+        snapshot_or(
+            &self.snapshot,
+            self.snapshot_iteration,
+            self.iteration,
+            &self.state.params,
+        )
     }
 
     /// Records copies of every parameter group of the first `count` Gaussians into the
@@ -592,10 +607,13 @@ impl Trainer {
             tiles: c.tiles.max(cam.tile_count() as usize),
             ..c
         })?;
-        let params = match (&self.snapshot, self.snapshot_iteration) {
-            (Some(s), Some(it)) if it == self.iteration => s,
-            _ => &self.state.params,
-        };
+        // Field by field (not `eval_params`): the renderer is borrowed mutably below.
+        let params = snapshot_or(
+            &self.snapshot,
+            self.snapshot_iteration,
+            self.iteration,
+            &self.state.params,
+        );
         self.renderer.render_blocking(
             params,
             &self.cameras,
