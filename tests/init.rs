@@ -256,11 +256,13 @@ fn random_init_is_deterministic_and_in_bounds() {
         assert!((lo[k] as f64 - (center[k] - half[k])).abs() < 0.01 * half[k]);
         assert!((hi[k] as f64 - (center[k] + half[k])).abs() < 0.01 * half[k]);
     }
-    // Colours span the range.
-    let rgb: Vec<f32> = a.sh_dc.iter().flatten().map(|&d| sh_dc_to_rgb(d)).collect();
-    let mean = rgb.iter().sum::<f32>() / rgb.len() as f32;
-    assert!((mean - 0.5).abs() < 0.01, "{mean}");
-    assert!(rgb.iter().any(|&v| v < 0.01) && rgb.iter().any(|&v| v > 0.99));
+    // The reference's colours: SH DC uniform in [0, 1/255), so nearly grey but not constant.
+    let dc: Vec<f32> = a.sh_dc.iter().flatten().copied().collect();
+    assert!(dc.iter().all(|&d| (0.0..1.0 / 255.0).contains(&d)));
+    let mean = dc.iter().sum::<f32>() / dc.len() as f32;
+    assert!((mean * 255.0 - 0.5).abs() < 0.01, "{mean}");
+    assert!(dc.iter().any(|&d| d * 255.0 < 0.01) && dc.iter().any(|&d| d * 255.0 > 0.99));
+    assert!(dc.iter().all(|&d| (sh_dc_to_rgb(d) - 0.5).abs() < 1.2e-3));
     // Scales follow the kNN rule: spot-check against brute force.
     let pos64: Vec<[f64; 3]> = a.positions.iter().map(|p| p.map(|v| v as f64)).collect();
     let mut rng = Pcg64::seed_from_u64(5);

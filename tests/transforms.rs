@@ -2,8 +2,9 @@
 //! and (when present) the full ../shared/data/lego.
 
 use lpmsplat::scene::images::{decode_image, load_images, resize_area};
+use lpmsplat::scene::split::axes_convergence_point;
 use lpmsplat::scene::undistort::undistort_image;
-use lpmsplat::scene::{CameraModel, LoadOptions, NerfTestSplit, Scene, SceneFormat};
+use lpmsplat::scene::{CameraModel, LoadOptions, NerfTestSplit, Pose, Scene, SceneFormat};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use serde_json::{json, Value};
@@ -753,4 +754,83 @@ fn full_lego_when_present() {
     let imgs = load_images(&r4, &[r4.train[0]]).unwrap();
     assert_eq!((imgs[0].width, imgs[0].height), (200, 200));
     assert!(imgs[0].alpha.is_some());
+}
+
+/// A world-to-camera pose at `eye` looking at `target` (engine axes: x right, y down, z forward).
+fn look_at(eye: [f64; 3], target: [f64; 3], up: [f64; 3]) -> Pose {
+    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    let cross = |a: [f64; 3], b: [f64; 3]| {
+        [
+            a[1] * b[2] - a[2] * b[1],
+            a[2] * b[0] - a[0] * b[2],
+            a[0] * b[1] - a[1] * b[0],
+        ]
+    };
+    let norm = |a: [f64; 3]| {
+        let n = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
+        a.map(|v| v / n)
+    };
+    let z = norm(sub(target, eye));
+    let x = norm(cross(z, up));
+    let y = cross(z, x);
+    let rotation = [x, y, z];
+    let t = [0, 1, 2].map(|r| -(0..3).map(|k| rotation[r][k] * eye[k]).sum::<f64>());
+    Pose {
+        rotation,
+        translation: t,
+    }
+}
+
+#[test]
+fn random_init_box_surrounds_what_the_cameras_look_at() {
+    let scene = Scene::load(&lego_small(), &LoadOptions::default()).unwrap();
+    // NeRF-synthetic: the reference's box, although the cameras' mean is far above the object.
+    assert_eq!(scene.random_init_box(), ([0.0; 3], 1.3));
+    assert!(scene.center[2] > 1.5, "{:?}", scene.center);
+    // The lego cameras look at the origin, so their axes converge there.
+    let p = axes_convergence_point(&scene.views, &scene.train).unwrap();
+    assert!(p.iter().all(|v| v.abs() < 1e-3), "{p:?}");
+
+    // Another format: cameras on a hemisphere (all above the target, as in the lego capture)
+    // looking at `target`, slightly off, so the least-squares point is still near it.
+    let target = [3.0, -2.0, 5.0];
+    let mut rng = Pcg64::seed_from_u64(9);
+    let mut s = scene.clone();
+    s.format = SceneFormat::Nerfstudio;
+    for v in s.views.iter_mut() {
+        let az: f64 = rng.gen_range(0.0..std::f64::consts::TAU);
+        let el: f64 = rng.gen_range(0.2..1.4);
+        let eye = [
+            target[0] + 4.0 * el.cos() * az.cos(),
+            target[1] + 4.0 * el.cos() * az.sin(),
+            target[2] + 4.0 * el.sin(),
+        ];
+        let aim = target.map(|t| t + rng.gen_range(-0.05..0.05));
+        v.pose = look_at(eye, aim, [0.0, 0.0, 1.0]);
+    }
+    let (center, extent) = lpmsplat::scene::split::camera_extent(&s.views, &s.train);
+    s.center = center;
+    s.extent = extent;
+    assert!(
+        center[2] - target[2] > 1.5,
+        "the cameras' mean is above the target"
+    );
+    let (c, half) = s.random_init_box();
+    let dist = (0..3)
+        .map(|k| (c[k] - target[k]).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    assert!(dist < 0.1, "box centre {c:?} should be near {target:?}");
+    assert!((half - extent / 1.1 * 0.5).abs() < 1e-12);
+
+    // Forward-facing cameras (parallel axes): no convergence point, so the cameras' mean.
+    for (i, v) in s.views.iter_mut().enumerate() {
+        let eye = [i as f64 * 0.3, 0.1 * (i % 3) as f64, 0.0];
+        v.pose = look_at(eye, [eye[0], eye[1], 10.0], [0.0, -1.0, 0.0]);
+    }
+    assert!(axes_convergence_point(&s.views, &s.train).is_none());
+    let (center, extent) = lpmsplat::scene::split::camera_extent(&s.views, &s.train);
+    s.center = center;
+    s.extent = extent;
+    assert_eq!(s.random_init_box().0, center);
 }

@@ -283,14 +283,8 @@ pub fn initial_model(
     match &scene.points {
         Some(points) if !points.is_empty() => splats::init::from_sfm(points, sh_degree),
         _ => {
-            // The reference's NeRF-synthetic box is ±1.3 around the origin; scale it with the
-            // cameras' extent for other scenes without points.
-            let half = if scene.background == Some([1.0; 3]) {
-                1.3
-            } else {
-                scene.extent / 1.1 * 0.5
-            };
-            splats::init::random_init(init_points, scene.center, [half; 3], seed, sh_degree)
+            let (center, half) = scene.random_init_box();
+            splats::init::random_init(init_points, center, [half; 3], seed, sh_degree)
         }
     }
 }

@@ -130,6 +130,9 @@ impl Default for LoadOptions {
     }
 }
 
+/// Half side of the reference's random-initialisation box for NeRF-synthetic scenes.
+pub const NERF_SYNTHETIC_INIT_HALF_SIDE: f64 = 1.3;
+
 /// A loaded scene (metadata only; pixels are read by [`images::load_images`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Scene {
@@ -153,6 +156,29 @@ pub struct Scene {
 }
 
 impl Scene {
+    /// The box random initial points are drawn in, for scenes without SfM points: its centre
+    /// and half side.
+    ///
+    /// NeRF-synthetic scenes use the reference's box, ±1.3 around the origin, where their
+    /// objects are by construction. Other scenes centre the box where the training cameras'
+    /// optical axes converge, with half side half the cameras' radius; the cameras' mean is a
+    /// poor centre for a capture from one side (the lego cameras' mean is 2.3 units above the
+    /// object, and a box there left the object without a single initial point), so it is only
+    /// the fallback when the axes do not converge within the cameras' extent.
+    pub fn random_init_box(&self) -> ([f64; 3], f64) {
+        if self.format == SceneFormat::NerfSynthetic {
+            return ([0.0; 3], NERF_SYNTHETIC_INIT_HALF_SIDE);
+        }
+        let half = self.extent / 1.1 * 0.5;
+        let center = split::axes_convergence_point(&self.views, &self.train)
+            .filter(|p| {
+                let d2: f64 = (0..3).map(|k| (p[k] - self.center[k]).powi(2)).sum();
+                d2.sqrt() <= self.extent
+            })
+            .unwrap_or(self.center);
+        (center, half)
+    }
+
     /// Loads the scene in `root`, detecting its format.
     pub fn load(root: &Path, opts: &LoadOptions) -> anyhow::Result<Scene> {
         if !root.exists() {

@@ -43,3 +43,51 @@ pub fn camera_extent(views: &[View], indices: &[usize]) -> ([f64; 3], f64) {
     let extent = 1.1 * max_dist;
     (mean, if extent > 0.0 { extent } else { 1e-6 })
 }
+
+/// The point nearest, in the least-squares sense, to the optical axes of the views in
+/// `indices`: where an object-centred capture looks. `None` when the axes are (nearly)
+/// parallel, as in a forward-facing capture, and no such point is defined.
+pub fn axes_convergence_point(views: &[View], indices: &[usize]) -> Option<[f64; 3]> {
+    // Minimise Σ |(I − d dᵀ)(p − c)|²: the normal equations are (Σ P) p = Σ P c with
+    // P = I − d dᵀ, the projector orthogonal to the axis d.
+    let mut a = [[0.0f64; 3]; 3];
+    let mut b = [0.0f64; 3];
+    for &i in indices {
+        let c = views[i].pose.center();
+        let d = views[i].pose.optical_axis();
+        let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        if n.is_nan() || n <= 0.0 {
+            continue;
+        }
+        let d = d.map(|v| v / n);
+        for r in 0..3 {
+            for k in 0..3 {
+                let p = if r == k { 1.0 } else { 0.0 } - d[r] * d[k];
+                a[r][k] += p;
+                b[r] += p * c[k];
+            }
+        }
+    }
+    let det = |m: &[[f64; 3]; 3]| {
+        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+            - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+    };
+    let d = det(&a);
+    // Σ P has eigenvalues in [0, n]; parallel axes leave one near 0, so compare the
+    // determinant with the scale of the matrix cubed.
+    let scale = (a[0][0] + a[1][1] + a[2][2]) / 3.0;
+    if d.is_nan() || d.abs() <= 1e-6 * scale.powi(3) {
+        return None;
+    }
+    // Cramer's rule.
+    let mut p = [0.0; 3];
+    for (col, v) in p.iter_mut().enumerate() {
+        let mut m = a;
+        for r in 0..3 {
+            m[r][col] = b[r];
+        }
+        *v = det(&m) / d;
+    }
+    p.iter().all(|v| v.is_finite()).then_some(p)
+}

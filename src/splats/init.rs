@@ -86,10 +86,10 @@ pub fn from_sfm(points: &SfmPoints, sh_degree: u32) -> anyhow::Result<GaussianPa
 }
 
 /// `n` Gaussians at uniformly random positions in the axis-aligned box `center ± half_extent`,
-/// with uniformly random 8-bit colours, then sized and coloured as in [`from_sfm_points`].
+/// sized as in [`from_sfm_points`], with the reference's nearly grey colours: each SH DC
+/// coefficient uniform in [0, 1/255), so every colour starts within 0.0012 of 0.5 (C0/255).
 /// The same seed gives the same model. (The reference uses 100k points in ±1.3 for
-/// NeRF-synthetic; its colours are nearly grey, ours span the full range — training overwrites
-/// them within a few hundred iterations either way.)
+/// NeRF-synthetic; see `Scene::random_init_box`.)
 pub fn random_init(
     n: usize,
     center: [f64; 3],
@@ -105,11 +105,13 @@ pub fn random_init(
     }
     let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
     let mut positions = Vec::with_capacity(n);
-    let mut colors = Vec::with_capacity(n);
+    let mut sh_dc = Vec::with_capacity(n);
     for _ in 0..n {
         let u: [f64; 3] = rng.gen();
         positions.push([0, 1, 2].map(|a| center[a] + (2.0 * u[a] - 1.0) * half_extent[a]));
-        colors.push(rng.gen::<[u8; 3]>());
+        sh_dc.push(rng.gen::<[f32; 3]>().map(|v| v / 255.0));
     }
-    from_sfm_points(&positions, &colors, sh_degree)
+    let mut params = from_sfm_points(&positions, &vec![[0u8; 3]; n], sh_degree)?;
+    params.sh_dc = sh_dc;
+    Ok(params)
 }
