@@ -492,6 +492,8 @@ fn cli_train_resume_eval_end_to_end() {
     let config: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("config.json")).unwrap()).unwrap();
     assert_eq!(config["iterations"], 6);
+    assert_eq!(config["init_points"], 300);
+    assert!(config.get("resumed_from").is_none());
     assert_eq!(
         Checkpoint::read(&out.join("checkpoint.bin"))
             .unwrap()
@@ -506,6 +508,12 @@ fn cli_train_resume_eval_end_to_end() {
     let text = run_ok(c.args(["--iterations", "10", "--resume"]).arg(&ck));
     assert!(text.contains("at iteration 6"), "{text}");
     assert_eq!(Checkpoint::read(&ck).unwrap().iteration, 10);
+    // The resumed run's config says where it resumed, not a bogus initial count.
+    let config: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("config.json")).unwrap()).unwrap();
+    assert!(config.get("init_points").is_none(), "{config}");
+    assert_eq!(config["resumed_from"]["iteration"], 6);
+    assert_eq!(config["resumed_from"]["gaussians"], 300);
     let mut c = lpmsplat();
     common(&mut c);
     let e = run_err(

@@ -415,6 +415,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         }
         _ => Trainer::new(&ctx, &scene, &train_images, &init, config.clone())?,
     };
+    let resumed_at = resumed.as_ref().map(|ck| (ck.iteration, init.len()));
     drop(resumed);
     let mut nan_check = match args.nan_check {
         Some(_) => Some(NonFiniteCheck::new(&ctx)?),
@@ -579,7 +580,17 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     let mut cfg = config.to_json();
     cfg["scene"] = serde_json::json!(args.scene.scene.display().to_string());
     cfg["resolution"] = serde_json::json!(args.scene.resolution);
-    cfg["init_points"] = serde_json::json!(init.len());
+    match (resumed_at, &args.resume) {
+        // The checkpoint's model is not the run's initialisation: say where the run resumed.
+        (Some((iteration, gaussians)), Some(p)) => {
+            cfg["resumed_from"] = serde_json::json!({
+                "checkpoint": p.display().to_string(),
+                "iteration": iteration,
+                "gaussians": gaussians,
+            });
+        }
+        _ => cfg["init_points"] = serde_json::json!(init.len()),
+    }
     cfg["lpm"] = lpm_config
         .as_ref()
         .map_or(serde_json::Value::Null, |c| c.to_json());
