@@ -73,6 +73,13 @@ fn bench_trade_interleaved_writes_table_json_and_plot() {
         assert!((0.0..1.0).contains(&share), "{r}");
     }
     assert_eq!(runs[0]["lpm_ms_per_iteration"].as_f64().unwrap(), 0.0);
+    // Each run's final model is written, the size its row reports.
+    for r in &runs[2..] {
+        let ply = out.join(format!("{}.ply", r["run"].as_str().unwrap()));
+        let model = lpmsplat::splats::read_ply(&ply).unwrap();
+        assert_eq!(model.len() as u64, r["gaussians"].as_u64().unwrap(), "{r}");
+    }
+    assert!(!out.join("adc-threshold-1e-4.ply").exists());
     let md = std::fs::read_to_string(out.join("trade.md")).unwrap();
     assert!(
         md.contains("interleaved") && md.contains("| adc+lpm |"),

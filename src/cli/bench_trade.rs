@@ -15,6 +15,7 @@ use lpmsplat::render::forward::{FrameSettings, Renderer};
 use lpmsplat::render::layout::{CameraGpu, RenderConstants};
 use lpmsplat::scene::{images, Scene};
 use lpmsplat::splats::gpu::GpuSplats;
+use lpmsplat::splats::write_ply;
 use lpmsplat::train::lpm_step::LpmConfig;
 use lpmsplat::train::trainer::{TrainConfig, Trainer};
 use std::io::Write;
@@ -320,6 +321,10 @@ fn evaluate_run(
     let model = t.model()?;
     let lpm_s = t.lpm.as_ref().map_or(0.0, |l| l.totals.seconds);
     let fps = fps_of(ctx, &model, scene, args.fps_frames)?;
+    if iteration == args.iterations {
+        // The final models, to view or `eval` later: `adc+lpm.ply` and so on.
+        write_ply(&args.out.join(format!("{name}.ply")), &model)?;
+    }
     let train_s = r.seconds;
     let row = TradeRow {
         run: name.to_string(),
