@@ -94,15 +94,74 @@ fn bench_trade_interleaved_writes_table_json_and_plot() {
 }
 
 #[test]
+fn bench_trade_with_several_seeds_reports_means_and_paired_differences() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("trade");
+    let (ok, text) = output(
+        lpmsplat()
+            .args(["bench", "trade"])
+            .arg(data("lund_door_small"))
+            .args(["-r", "8", "--iterations", "12", "--fps-frames", "1"])
+            .args(["--seeds", "2", "--seed", "5", "--runs", "adc,lpm", "-o"])
+            .arg(&out),
+    );
+    assert!(ok, "{text}");
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("trade.json")).unwrap()).unwrap();
+    let runs = json["runs"].as_array().unwrap();
+    let keys: Vec<(&str, u64)> = runs
+        .iter()
+        .map(|r| (r["run"].as_str().unwrap(), r["seed"].as_u64().unwrap()))
+        .collect();
+    assert_eq!(
+        keys,
+        [("adc", 5), ("adc", 6), ("adc+lpm", 5), ("adc+lpm", 6)]
+    );
+    // The seed reaches training: the two ADC runs differ.
+    assert_ne!(runs[0]["psnr"], runs[1]["psnr"]);
+    let summary = json["summary"].as_array().unwrap();
+    assert_eq!(summary.len(), 2);
+    let psnr = |i: usize| runs[i]["psnr"].as_f64().unwrap();
+    let (adc, lpm) = (&summary[0], &summary[1]);
+    assert_eq!(adc["seeds"], 2);
+    assert!((adc["psnr"].as_f64().unwrap() - 0.5 * (psnr(0) + psnr(1))).abs() < 1e-9);
+    let d = [psnr(2) - psnr(0), psnr(3) - psnr(1)];
+    let mean = 0.5 * (d[0] + d[1]);
+    assert!(
+        (lpm["delta_psnr"].as_f64().unwrap() - mean).abs() < 1e-9,
+        "{lpm}"
+    );
+    // se = sd / √2 = |d0 − d1| / 2 for two values.
+    let se = (d[0] - d[1]).abs() / 2.0;
+    assert!(
+        (lpm["delta_psnr_se"].as_f64().unwrap() - se).abs() < 1e-9,
+        "{lpm}"
+    );
+    for name in ["adc-seed5", "adc-seed6", "adc+lpm-seed5", "adc+lpm-seed6"] {
+        assert!(out.join(format!("{name}.ply")).is_file(), "{name}");
+    }
+    let md = std::fs::read_to_string(out.join("trade.md")).unwrap();
+    assert!(
+        md.contains("mean over 2 seeds (5..6)") && md.contains(" ± "),
+        "{md}"
+    );
+}
+
+#[test]
 fn bench_trade_rejects_unknown_or_repeated_runs() {
     let dir = tempfile::tempdir().unwrap();
-    for (runs, needle) in [("adc,fancy", "unknown run"), ("adc,adc", "twice")] {
+    for (runs, seeds, needle) in [
+        ("adc,fancy", "1", "unknown run"),
+        ("adc,adc", "1", "twice"),
+        ("adc", "0", "--seeds 0"),
+    ] {
         let out = dir.path().join(runs.replace(',', "_"));
         let (ok, text) = output(
             lpmsplat()
                 .args(["bench", "trade"])
                 .arg(data("lund_door_small"))
-                .args(["-r", "8", "--iterations", "5", "--runs", runs, "-o"])
+                .args(["-r", "8", "--iterations", "5", "--runs", runs])
+                .args(["--seeds", seeds, "-o"])
                 .arg(&out),
         );
         assert!(!ok, "{runs}: {text}");

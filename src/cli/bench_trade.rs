@@ -43,8 +43,16 @@ pub struct TradeArgs {
     /// Output folder for trade.json, trade.md and trade.png.
     #[arg(long, short = 'o', default_value = "bench_trade")]
     pub out: PathBuf,
+    /// The first seed; with --seeds K the runs use seeds SEED..SEED+K.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Train every variant with K seeds (initialisation where it is random, view order,
+    /// split samples, LPM's neighbour picks) and report mean ± standard deviation, and the gain
+    /// over ADC as the mean ± standard error of the per-seed differences (ADC and the variant
+    /// share each seed). Run-to-run spread on scenes with few test views is several tenths of a
+    /// dB, so a single seed cannot separate effects that small.
+    #[arg(long, default_value_t = 1)]
+    pub seeds: u32,
     /// Frames timed for the FPS of each result (1352×1014).
     #[arg(long, default_value_t = 20)]
     pub fps_frames: usize,
@@ -62,6 +70,7 @@ pub struct TradeArgs {
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct TradeRow {
     pub run: String,
+    pub seed: u64,
     pub iteration: u32,
     pub colour: [u8; 3],
     pub psnr: f64,
@@ -88,6 +97,10 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
         args.iterations > 0,
         "bench trade: --iterations 0. Fix: pass at least 1"
     );
+    anyhow::ensure!(
+        args.seeds > 0,
+        "bench trade: --seeds 0. Fix: pass at least 1"
+    );
     let selected = selected_runs(&args.runs)?;
     let scene = Scene::load(&args.scene.scene, &args.scene.load_options()?)?;
     anyhow::ensure!(
@@ -98,7 +111,11 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
     prepare_output(&args.out)?;
     let train_images = images::load_images(&scene, &scene.train)?;
     let test_images = images::load_images(&scene, &scene.test)?;
-    let init = initial_model(&scene, None, 100_000, args.seed, 3)?;
+    let seeds: Vec<u64> = (0..args.seeds as u64).map(|i| args.seed + i).collect();
+    let inits = seeds
+        .iter()
+        .map(|&seed| initial_model(&scene, None, 100_000, seed, 3))
+        .collect::<anyhow::Result<Vec<_>>>()?;
     let ctx = GpuContext::new(gpu)?;
     let calendar = args.calendar.unwrap_or(args.iterations);
     anyhow::ensure!(
@@ -139,26 +156,31 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
     );
     let mut runs = Vec::new();
     for &k in &selected {
-        let name = RUNS[k].0;
-        let mut cfg = base.clone();
-        if name == "adc-threshold-1e-4" {
-            cfg.density.grad_threshold = 1e-4;
+        for (si, &seed) in seeds.iter().enumerate() {
+            let name = RUNS[k].0;
+            let mut cfg = base.clone();
+            cfg.seed = seed;
+            if name == "adc-threshold-1e-4" {
+                cfg.density.grad_threshold = 1e-4;
+            }
+            let lpm = (k >= 2).then(|| LpmConfig {
+                from: cfg.schedule.densify_from,
+                until: cfg.schedule.densify_until,
+                add_points: name != "lpm-no-add",
+                reset: name != "lpm-no-reset",
+                seed,
+                ..LpmConfig::default()
+            });
+            runs.push(Run {
+                k,
+                seed,
+                init: si,
+                cfg,
+                lpm,
+                trainer: None,
+                seconds: 0.0,
+            });
         }
-        let lpm = (k >= 2).then(|| LpmConfig {
-            from: cfg.schedule.densify_from,
-            until: cfg.schedule.densify_until,
-            add_points: name != "lpm-no-add",
-            reset: name != "lpm-no-reset",
-            seed: args.seed,
-            ..LpmConfig::default()
-        });
-        runs.push(Run {
-            k,
-            cfg,
-            lpm,
-            trainer: None,
-            seconds: 0.0,
-        });
     }
     let total = args.iterations as u64 * runs.len() as u64;
     let bar = ProgressBar::new(total);
@@ -182,7 +204,8 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
     for group in groups {
         for &i in &group {
             let r = &mut runs[i];
-            let mut t = Trainer::new(&ctx, &scene, &train_images, &init, r.cfg.clone())?;
+            let init = &inits[r.init];
+            let mut t = Trainer::new(&ctx, &scene, &train_images, init, r.cfg.clone())?;
             if let Some(c) = r.lpm.clone() {
                 t.lpm = Some(build_lpm(&ctx, &scene, &train_images, c, &args.out)?);
             }
@@ -206,7 +229,11 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                     .map(|&i| {
                         let r = &runs[i];
                         let t = r.trainer.as_ref().expect("trainer built above");
-                        format!("{} {}", RUNS[r.k].0, t.state.count())
+                        if seeds.len() > 1 {
+                            format!("{}/{} {}", RUNS[r.k].0, r.seed, t.state.count())
+                        } else {
+                            format!("{} {}", RUNS[r.k].0, t.state.count())
+                        }
                     })
                     .collect::<Vec<_>>()
                     .join(" | ");
@@ -227,7 +254,13 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                     r.trainer = Some(t);
                     rows.push(row);
                 }
-                rows.sort_by_key(|r| (r.iteration, RUNS.iter().position(|(n, _)| *n == r.run)));
+                rows.sort_by_key(|r| {
+                    (
+                        r.iteration,
+                        RUNS.iter().position(|(n, _)| *n == r.run),
+                        r.seed,
+                    )
+                });
                 write_outputs(&rows, &ctx.info.name, args)?;
             }
         }
@@ -236,7 +269,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
         }
     }
     bar.finish_and_clear();
-    print!("{}", table(&rows, &ctx.info.name, args));
+    print!("{}", table(&summarize(&rows), &ctx.info.name, args));
     println!("wrote {}", args.out.display());
     ctx.check_validation()?;
     Ok(())
@@ -244,7 +277,8 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
 
 /// Writes trade.md, trade.json and trade.png for the rows so far (atomically).
 fn write_outputs(rows: &[TradeRow], device: &str, args: &TradeArgs) -> anyhow::Result<()> {
-    let table = table(rows, device, args);
+    let summary = summarize(rows);
+    let table = table(&summary, device, args);
     write_atomic(&args.out.join("trade.md"), |f| {
         Ok(f.write_all(table.as_bytes())?)
     })?;
@@ -255,19 +289,24 @@ fn write_outputs(rows: &[TradeRow], device: &str, args: &TradeArgs) -> anyhow::R
         "calendar": args.calendar.unwrap_or(args.iterations),
         "interleaved": !args.sequential,
         "device": device,
+        "seeds": args.seeds,
+        "summary": summary,
         "runs": rows,
     });
     let text = serde_json::to_string_pretty(&json)?;
     write_atomic(&args.out.join("trade.json"), |f| {
         Ok(f.write_all(text.as_bytes())?)
     })?;
-    let png = plot(rows)?;
+    let png = plot(&summary.iter().map(Summary::as_row).collect::<Vec<_>>())?;
     write_atomic(&args.out.join("trade.png"), |f| Ok(f.write_all(&png)?))?;
     Ok(())
 }
 
 struct Run {
     k: usize,
+    seed: u64,
+    /// Index of the run's initial model (one per seed).
+    init: usize,
     cfg: TrainConfig,
     lpm: Option<LpmConfig>,
     trainer: Option<Trainer>,
@@ -322,12 +361,19 @@ fn evaluate_run(
     let lpm_s = t.lpm.as_ref().map_or(0.0, |l| l.totals.seconds);
     let fps = fps_of(ctx, &model, scene, args.fps_frames)?;
     if iteration == args.iterations {
-        // The final models, to view or `eval` later: `adc+lpm.ply` and so on.
-        write_ply(&args.out.join(format!("{name}.ply")), &model)?;
+        // The final models, to view or `eval` later: `adc+lpm.ply` (`adc+lpm-seed1.ply` with
+        // several seeds) and so on.
+        let file = if args.seeds > 1 {
+            format!("{name}-seed{}.ply", r.seed)
+        } else {
+            format!("{name}.ply")
+        };
+        write_ply(&args.out.join(file), &model)?;
     }
     let train_s = r.seconds;
     let row = TradeRow {
         run: name.to_string(),
+        seed: r.seed,
         iteration,
         colour,
         psnr,
@@ -339,6 +385,11 @@ fn evaluate_run(
         lpm_ms_per_iteration: 1e3 * lpm_s / iteration as f64,
         lpm_share: lpm_s / train_s.max(1e-12),
         fps_1352x1014: fps,
+    };
+    let name = if args.seeds > 1 {
+        format!("{name} (seed {})", r.seed)
+    } else {
+        name.to_string()
     };
     eprintln!(
         "  {name} @ {iteration}: PSNR {psnr:.3} dB, SSIM {ssim:.4}, {} Gaussians, {train_s:.1} s, {fps:.1} FPS",
@@ -375,15 +426,143 @@ fn fps_of(
     Ok(1.0 / ms[ms.len() / 2])
 }
 
-fn table(rows: &[TradeRow], device: &str, args: &TradeArgs) -> String {
+/// One variant at one iteration, over its seeds.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Summary {
+    pub run: String,
+    pub iteration: u32,
+    pub colour: [u8; 3],
+    pub seeds: usize,
+    pub psnr: f64,
+    /// Sample standard deviation over the seeds (0 with one seed).
+    pub psnr_sd: f64,
+    /// Mean over the seeds of (this run's PSNR − ADC's PSNR with the same seed); `None` when
+    /// ADC was not run.
+    pub delta_psnr: Option<f64>,
+    /// Standard error of that mean (sd / √seeds; `None` with fewer than two seeds).
+    pub delta_psnr_se: Option<f64>,
+    pub ssim: f64,
+    pub ssim_sd: f64,
+    pub lpips: String,
+    pub gaussians: f64,
+    pub train_seconds: f64,
+    /// Mean train seconds over ADC's mean train seconds at the same iteration.
+    pub time_vs_adc: Option<f64>,
+    pub ms_per_iteration: f64,
+    pub lpm_ms_per_iteration: f64,
+    pub lpm_share: f64,
+    pub fps_1352x1014: f64,
+}
+
+impl Summary {
+    /// The means as a row (for the plot).
+    fn as_row(&self) -> TradeRow {
+        TradeRow {
+            run: self.run.clone(),
+            seed: 0,
+            iteration: self.iteration,
+            colour: self.colour,
+            psnr: self.psnr,
+            ssim: self.ssim,
+            lpips: self.lpips.clone(),
+            gaussians: self.gaussians.round() as usize,
+            train_seconds: self.train_seconds,
+            ms_per_iteration: self.ms_per_iteration,
+            lpm_ms_per_iteration: self.lpm_ms_per_iteration,
+            lpm_share: self.lpm_share,
+            fps_1352x1014: self.fps_1352x1014,
+        }
+    }
+}
+
+/// Mean and sample standard deviation (0 for fewer than two values).
+fn mean_sd(v: &[f64]) -> (f64, f64) {
+    let n = v.len() as f64;
+    let mean = v.iter().sum::<f64>() / n;
+    if v.len() < 2 {
+        return (mean, 0.0);
+    }
+    let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    (mean, var.sqrt())
+}
+
+/// Groups `rows` by (run, iteration), in the rows' order of first appearance.
+pub fn summarize(rows: &[TradeRow]) -> Vec<Summary> {
+    let mut keys: Vec<(&str, u32)> = Vec::new();
+    for r in rows {
+        if !keys.contains(&(r.run.as_str(), r.iteration)) {
+            keys.push((r.run.as_str(), r.iteration));
+        }
+    }
+    let group = |run: &str, it: u32| -> Vec<&TradeRow> {
+        rows.iter()
+            .filter(|r| r.run == run && r.iteration == it)
+            .collect()
+    };
+    keys.iter()
+        .map(|&(run, it)| {
+            let g = group(run, it);
+            let adc = group("adc", it);
+            let col = |f: &dyn Fn(&TradeRow) -> f64| g.iter().map(|r| f(r)).collect::<Vec<_>>();
+            let (psnr, psnr_sd) = mean_sd(&col(&|r| r.psnr));
+            let (ssim, ssim_sd) = mean_sd(&col(&|r| r.ssim));
+            // Paired differences: the ADC run with the same seed.
+            let diffs: Vec<f64> = g
+                .iter()
+                .filter_map(|r| {
+                    adc.iter()
+                        .find(|a| a.seed == r.seed)
+                        .map(|a| r.psnr - a.psnr)
+                })
+                .collect();
+            let (delta_psnr, delta_psnr_se) = if diffs.is_empty() {
+                (None, None)
+            } else {
+                let (m, sd) = mean_sd(&diffs);
+                (
+                    Some(m),
+                    (diffs.len() > 1).then(|| sd / (diffs.len() as f64).sqrt()),
+                )
+            };
+            let train_seconds = mean_sd(&col(&|r| r.train_seconds)).0;
+            let time_vs_adc = (!adc.is_empty()).then(|| {
+                let a: Vec<f64> = adc.iter().map(|r| r.train_seconds).collect();
+                train_seconds / mean_sd(&a).0.max(1e-12)
+            });
+            Summary {
+                run: run.to_string(),
+                iteration: it,
+                colour: g[0].colour,
+                seeds: g.len(),
+                psnr,
+                psnr_sd,
+                delta_psnr,
+                delta_psnr_se,
+                ssim,
+                ssim_sd,
+                lpips: g[0].lpips.clone(),
+                gaussians: mean_sd(&col(&|r| r.gaussians as f64)).0,
+                train_seconds,
+                time_vs_adc,
+                ms_per_iteration: mean_sd(&col(&|r| r.ms_per_iteration)).0,
+                lpm_ms_per_iteration: mean_sd(&col(&|r| r.lpm_ms_per_iteration)).0,
+                lpm_share: mean_sd(&col(&|r| r.lpm_share)).0,
+                fps_1352x1014: mean_sd(&col(&|r| r.fps_1352x1014)).0,
+            }
+        })
+        .collect()
+}
+
+fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
     let resolution = args
         .scene
         .resolution
         .map_or("full resolution".to_string(), |r| format!("-r {r}"));
+    let several = rows.iter().any(|r| r.seeds > 1);
     let mut s = format!(
         "bench trade: {} {resolution}, {} iterations on the calendar of {}, {device}\n\n{} \
          trade.png plots PSNR (dB, y) against Gaussians (left) and training seconds (right), in \
-         the colours below, one line per run through its evaluated iterations.\n\n\
+         the colours below, one line per run through its evaluated iterations.{}\n\n\
          | run | iteration | colour | PSNR | ΔPSNR vs adc | SSIM | LPIPS | Gaussians | train s | time vs adc | ms/it | LPM ms/it (share) | FPS 1352×1014 |\n\
          |---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
         args.scene.scene.display(),
@@ -393,29 +572,47 @@ fn table(rows: &[TradeRow], device: &str, args: &TradeArgs) -> String {
             "Runs were sequential: compare their times only on an otherwise idle machine."
         } else {
             "Runs were interleaved one iteration at a time, so their times saw the same machine load."
+        },
+        if several {
+            format!(
+                " Each row is the mean over {} seeds ({}..{}): PSNR and SSIM ± their standard \
+                 deviation, ΔPSNR ± the standard error of the per-seed differences from ADC, \
+                 the rest means; the plot shows the means.",
+                args.seeds,
+                args.seed,
+                args.seed + args.seeds as u64 - 1
+            )
+        } else {
+            String::new()
         }
     );
-
     for r in rows {
-        let adc = rows
-            .iter()
-            .find(|a| a.run == "adc" && a.iteration == r.iteration);
-        let (dpsnr, dtime) = match adc {
-            Some(a) => (
-                format!("{:+.3}", r.psnr - a.psnr),
-                format!("{:.3}×", r.train_seconds / a.train_seconds.max(1e-12)),
-            ),
-            None => ("n/a".into(), "n/a".into()),
+        let pm = |sd: f64, digits: usize| {
+            if several {
+                format!(" ± {sd:.digits$}")
+            } else {
+                String::new()
+            }
         };
+        let dpsnr = match (r.delta_psnr, r.delta_psnr_se) {
+            (Some(d), Some(se)) => format!("{d:+.3} ± {se:.3}"),
+            (Some(d), None) => format!("{d:+.3}"),
+            _ => "n/a".into(),
+        };
+        let dtime = r
+            .time_vs_adc
+            .map_or("n/a".to_string(), |t| format!("{t:.3}×"));
         s += &format!(
-            "| {} | {} | #{:02x}{:02x}{:02x} | {:.3} | {dpsnr} | {:.4} | {} | {} | {:.1} | {dtime} | {:.2} | {:.3} ({:.2} %) | {:.1} |\n",
+            "| {} | {} | #{:02x}{:02x}{:02x} | {:.3}{} | {dpsnr} | {:.4}{} | {} | {:.0} | {:.1} | {dtime} | {:.2} | {:.3} ({:.2} %) | {:.1} |\n",
             r.run,
             r.iteration,
             r.colour[0],
             r.colour[1],
             r.colour[2],
             r.psnr,
+            pm(r.psnr_sd, 3),
             r.ssim,
+            pm(r.ssim_sd, 4),
             r.lpips,
             r.gaussians,
             r.train_seconds,
@@ -594,6 +791,7 @@ mod tests {
         let colour = RUNS.iter().find(|r| r.0 == run).unwrap().1;
         TradeRow {
             run: run.into(),
+            seed: 0,
             iteration,
             colour,
             psnr,
@@ -643,6 +841,37 @@ mod tests {
         if let Ok(dir) = std::env::var("LPMSPLAT_KEEP_PLOT") {
             std::fs::write(std::path::Path::new(&dir).join("trade_plot.png"), &png).unwrap();
         }
+    }
+
+    #[test]
+    fn summary_pairs_each_seed_with_adc() {
+        let mut rows = vec![];
+        for (seed, adc, lpm) in [(0, 30.0, 30.5), (1, 31.0, 31.3), (2, 29.0, 29.7)] {
+            let mut a = row("adc", 100, adc, 1000 + seed as usize, 10.0);
+            a.seed = seed;
+            let mut l = row("adc+lpm", 100, lpm, 1100, 11.0);
+            l.seed = seed;
+            rows.push(a);
+            rows.push(l);
+        }
+        let mut lone = row("lpm-no-add", 100, 28.0, 900, 12.0);
+        lone.seed = 7;
+        rows.push(lone);
+        let s = summarize(&rows);
+        assert_eq!(s.len(), 3);
+        let (adc, lpm, lone) = (&s[0], &s[1], &s[2]);
+        assert_eq!((adc.run.as_str(), adc.seeds), ("adc", 3));
+        assert!((adc.psnr - 30.0).abs() < 1e-12);
+        assert!((adc.psnr_sd - 1.0).abs() < 1e-12);
+        assert!((adc.gaussians - 1001.0).abs() < 1e-12);
+        assert_eq!(adc.delta_psnr, Some(0.0));
+        // Differences 0.5, 0.3, 0.7: mean 0.5, sd 0.2, se 0.2/√3.
+        assert!((lpm.delta_psnr.unwrap() - 0.5).abs() < 1e-9);
+        assert!((lpm.delta_psnr_se.unwrap() - 0.2 / 3f64.sqrt()).abs() < 1e-9);
+        assert!((lpm.time_vs_adc.unwrap() - 1.1).abs() < 1e-12);
+        // No ADC run with its seed: no difference to report.
+        assert_eq!((lone.delta_psnr, lone.delta_psnr_se), (None, None));
+        assert_eq!(lone.psnr_sd, 0.0);
     }
 
     #[test]
