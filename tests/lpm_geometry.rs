@@ -653,6 +653,7 @@ fn zone_records_layout_and_step() {
         &xy0,
         &xy1,
         &gt,
+        [0.0; 3],
         &ZoneSettings::default(),
     );
     assert_eq!(out.pairing.regions, 2);
@@ -978,6 +979,7 @@ fn zone_step_time_is_small() {
             &xy0,
             &xy1,
             &gt,
+            [0.0; 3],
             &ZoneSettings::default(),
         )
         .records

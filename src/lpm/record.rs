@@ -68,8 +68,11 @@ impl ZoneRecord {
 
 /// The colour of a point added at a zone's centre (LPM.md): the ground truth at the centre of
 /// the region's box in the current view, i.e. the pixel containing that point, clamped into the
-/// image. Black for an empty image.
-pub fn center_color(img: &Image, b: &PixelBox) -> [f32; 3] {
+/// image. An image with alpha is composited on `background` (the one the step's render used),
+/// because that is the colour the training loss compares against: a transparent pixel of a
+/// NeRF-synthetic image stores black, but its target is the background. Black for an empty
+/// image.
+pub fn center_color(img: &Image, b: &PixelBox, background: [f32; 3]) -> [f32; 3] {
     if img.width == 0 || img.height == 0 || img.rgb.len() < 3 * (img.width * img.height) as usize {
         return [0.0; 3];
     }
@@ -77,7 +80,8 @@ pub fn center_color(img: &Image, b: &PixelBox) -> [f32; 3] {
     let x = (cx.floor().max(0.0) as u32).min(img.width - 1);
     let y = (cy.floor().max(0.0) as u32).min(img.height - 1);
     let i = 3 * (y * img.width + x) as usize;
-    [img.rgb[i], img.rgb[i + 1], img.rgb[i + 2]]
+    let a = img.alpha_at(x, y);
+    [0, 1, 2].map(|c| img.rgb[i + c] * a + background[c] * (1.0 - a))
 }
 
 /// Mean colour of the pixels whose centres lie in `b` (the nearest pixel to its centre when none
@@ -129,7 +133,8 @@ pub struct StepZones {
 }
 
 /// Steps 5–6 and the records for one (V, V') pair. `xy_view[i]` in `view` matches `xy_ref[i]` in
-/// `reference`; `gt` is V's ground truth (for the zone colour).
+/// `reference`; `gt` is V's ground truth and `background` the render's (for the zone colour).
+#[allow(clippy::too_many_arguments)] // the step's inputs, each used once; a struct would only rename them
 pub fn zones_for_step(
     view: &View,
     reference: &View,
@@ -137,6 +142,7 @@ pub fn zones_for_step(
     xy_view: &[[f32; 2]],
     xy_ref: &[[f32; 2]],
     gt: &Image,
+    background: [f32; 3],
     s: &ZoneSettings,
 ) -> StepZones {
     let (pairs, pairing) = pair_regions(regions, xy_view, xy_ref);
@@ -156,8 +162,11 @@ pub fn zones_for_step(
     for p in &pairs {
         match zone_from_boxes(v, &p.in_view, r, &p.in_reference, s).zone {
             Some(z) => {
-                out.records
-                    .push(ZoneRecord::new(&z, apex, center_color(gt, &p.in_view)));
+                out.records.push(ZoneRecord::new(
+                    &z,
+                    apex,
+                    center_color(gt, &p.in_view, background),
+                ));
                 out.zones.push(z);
             }
             None => out.no_zone += 1,
@@ -183,7 +192,7 @@ mod tests {
             alpha: None,
         };
         let at = |x0: f64, y0: f64, x1: f64, y1: f64| {
-            center_color(&img, &PixelBox { x0, y0, x1, y1 })[0]
+            center_color(&img, &PixelBox { x0, y0, x1, y1 }, [0.5; 3])[0]
         };
         // Centre (2.5, 1.5): pixel (2, 1) = index 7.
         assert_eq!(at(1.0, 1.0, 4.0, 2.0), 7.0);
@@ -204,6 +213,28 @@ mod tests {
             x1: 1.0,
             y1: 1.0,
         };
-        assert_eq!(center_color(&empty, &b), [0.0; 3]);
+        assert_eq!(center_color(&empty, &b, [1.0; 3]), [0.0; 3]);
+    }
+
+    #[test]
+    fn center_color_composites_an_alpha_image_on_the_background() {
+        // Pixel 0 transparent black (as NeRF-synthetic stores it), pixel 1 a quarter opaque red.
+        let img = Image {
+            width: 2,
+            height: 1,
+            rgb: vec![0.0, 0.0, 0.0, 1.0, 0.0, 0.0],
+            alpha: Some(vec![0.0, 0.25]),
+        };
+        let b = |x0: f64| PixelBox {
+            x0,
+            y0: 0.0,
+            x1: x0 + 1.0,
+            y1: 1.0,
+        };
+        assert_eq!(center_color(&img, &b(0.0), [1.0; 3]), [1.0; 3]);
+        assert_eq!(
+            center_color(&img, &b(1.0), [0.2, 0.4, 0.8]),
+            [0.25 + 0.75 * 0.2, 0.75 * 0.4, 0.75 * 0.8]
+        );
     }
 }

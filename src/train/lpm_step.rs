@@ -402,6 +402,7 @@ impl LpmTrainer {
                     xy_v,
                     xy_r,
                     gt,
+                    bg,
                     &self.config.zones,
                 )
             }
