@@ -26,6 +26,11 @@ fn output(c: &mut Command) -> (bool, String) {
     (out.status.success(), text)
 }
 
+/// The trade.json a `bench trade` run wrote into `out`.
+fn trade_json(out: &std::path::Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(out.join("trade.json")).unwrap()).unwrap()
+}
+
 #[test]
 fn bench_trade_interleaved_writes_table_json_and_plot() {
     let dir = tempfile::tempdir().unwrap();
@@ -40,8 +45,7 @@ fn bench_trade_interleaved_writes_table_json_and_plot() {
             .arg(&out),
     );
     assert!(ok, "{text}");
-    let json: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("trade.json")).unwrap()).unwrap();
+    let json = trade_json(&out);
     let runs = json["runs"].as_array().unwrap();
     // Rows by iteration, then in table order whatever order --runs named them in; --eval-at
     // values outside 1..iterations are ignored and the last iteration is always evaluated.
@@ -106,8 +110,7 @@ fn bench_trade_with_several_seeds_reports_means_and_paired_differences() {
             .arg(&out),
     );
     assert!(ok, "{text}");
-    let json: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("trade.json")).unwrap()).unwrap();
+    let json = trade_json(&out);
     let runs = json["runs"].as_array().unwrap();
     let keys: Vec<(&str, u64)> = runs
         .iter()
