@@ -43,7 +43,7 @@ pub struct TradeArgs {
     /// Output folder for trade.json, trade.md and trade.png.
     #[arg(long, short = 'o', default_value = "bench_trade")]
     pub out: PathBuf,
-    /// The first seed; with --seeds K the runs use seeds SEED..SEED+K.
+    /// The first seed; with --seeds K the runs use seeds SEED to SEED+K−1.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Train every variant with K seeds (initialisation where it is random, view order,
