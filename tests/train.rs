@@ -479,7 +479,14 @@ fn cli_train_resume_eval_end_to_end() {
     };
     let mut c = lpmsplat();
     common(&mut c);
-    run_ok(c.args(["--iterations", "6", "--checkpoint-every", "3"]));
+    run_ok(c.args([
+        "--iterations",
+        "6",
+        "--checkpoint-every",
+        "3",
+        "--eval-every",
+        "2",
+    ]));
     let model = read_ply(&out.join("point_cloud.ply")).unwrap();
     assert_eq!(model.len(), 300);
     for v in ["r_0", "r_33", "r_66"] {
@@ -489,6 +496,26 @@ fn cli_train_resume_eval_end_to_end() {
         serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
     assert_eq!(metrics["per_view"].as_array().unwrap().len(), 3);
     assert!(metrics["psnr"].as_f64().unwrap().is_finite());
+    // The periodic evaluations (2 and 4; 6 is the final one) keep their per-view scores, whose
+    // mean is the evaluation's PSNR.
+    let evals = metrics["evaluations"].as_array().unwrap();
+    assert_eq!(
+        evals
+            .iter()
+            .map(|e| e["iteration"].as_u64().unwrap())
+            .collect::<Vec<_>>(),
+        [2, 4]
+    );
+    for e in evals {
+        let views = e["per_view"].as_array().unwrap();
+        assert_eq!(views.len(), 3, "{e}");
+        let mean = views
+            .iter()
+            .map(|v| v["psnr"].as_f64().unwrap())
+            .sum::<f64>()
+            / 3.0;
+        assert!((mean - e["psnr"].as_f64().unwrap()).abs() < 1e-9, "{e}");
+    }
     let config: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("config.json")).unwrap()).unwrap();
     assert_eq!(config["iterations"], 6);
@@ -580,6 +607,35 @@ fn cli_train_resume_eval_end_to_end() {
     assert_eq!(ev["per_view"].as_array().unwrap().len(), 3);
     let img = images::decode_image(&sbs.join("r_0.png")).unwrap();
     assert_eq!((img.width, img.height), (200, 100));
+    assert_eq!(ev["split"], "test");
+
+    // eval --split train scores the 8 training views instead (none of the 3 val views).
+    let json_train = dir.path().join("eval_train.json");
+    run_ok(
+        lpmsplat()
+            .arg("eval")
+            .arg(&scene)
+            .arg("--ply")
+            .arg(out.join("point_cloud.ply"))
+            .args(["--split", "train", "--json"])
+            .arg(&json_train),
+    );
+    let ev_train: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&json_train).unwrap()).unwrap();
+    assert_eq!(ev_train["split"], "train");
+    let train_views = ev_train["per_view"].as_array().unwrap();
+    assert_eq!(train_views.len(), 8);
+    let test_names: Vec<&str> = ev["per_view"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v["view"].as_str().unwrap())
+        .collect();
+    for v in train_views {
+        let name = v["view"].as_str().unwrap();
+        assert!(!test_names.contains(&name), "{name} is a test view");
+        assert!(v["psnr"].as_f64().unwrap().is_finite(), "{v}");
+    }
 }
 
 #[test]

@@ -21,8 +21,8 @@ use std::path::PathBuf;
 const LPIPS_NOTE: &str = "LPIPS not computed: it needs pretrained network weights \
     (AlexNet/VGG) that lpmsplat does not ship";
 
-/// Evaluates a trained PLY on the test split. Reports PSNR and SSIM (11×11 Gaussian window, σ
-/// 1.5) per test image and their mean. LPIPS is not computed: it needs pretrained network
+/// Evaluates a trained PLY on the test split (or, with `--split train`, on the training views).
+/// Reports PSNR and SSIM (11×11 Gaussian window, σ 1.5) per image and their mean. LPIPS is not computed: it needs pretrained network
 /// weights that lpmsplat does not ship.
 #[derive(Args, Debug)]
 pub struct EvalArgs {
@@ -41,6 +41,25 @@ pub struct EvalArgs {
     /// Write `<view>.png` side-by-side images (render | ground truth) into this folder.
     #[arg(long)]
     pub side_by_side: Option<PathBuf>,
+    /// The views to score: the held-out `test` views, or the `train` views the model was fitted
+    /// to. Scoring both tells overfitting (train rising while test falls) from a failure to fit.
+    #[arg(long, value_enum, default_value_t = EvalSplit::Test)]
+    pub split: EvalSplit,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EvalSplit {
+    Test,
+    Train,
+}
+
+impl EvalSplit {
+    fn name(self) -> &'static str {
+        match self {
+            EvalSplit::Test => "test",
+            EvalSplit::Train => "train",
+        }
+    }
 }
 
 fn side_by_side(render: &[f32], gt: &Image) -> Image {
@@ -66,12 +85,17 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
             "--background random: evaluation needs a fixed colour. Fix: pass black, white or r,g,b"
         ),
     };
+    let views: &[usize] = match args.split {
+        EvalSplit::Test => &scene.test,
+        EvalSplit::Train => &scene.train,
+    };
     anyhow::ensure!(
-        !scene.test.is_empty(),
-        "{}: the scene has no test views to evaluate on. Fix: use a scene with a test split \
+        !views.is_empty(),
+        "{}: the scene has no {} views to evaluate on. Fix: use a scene with a test split \
          (COLMAP scenes hold out every 8th image; NeRF-synthetic needs transforms_test.json or \
-         transforms_val.json)",
-        args.scene.scene.display()
+         transforms_val.json), or pass --split train",
+        args.scene.scene.display(),
+        args.split.name()
     );
     let params = read_ply(&args.ply)?;
     anyhow::ensure!(
@@ -87,11 +111,10 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
             )
         })?;
     }
-    let gts = images::load_images(&scene, &scene.test)?;
+    let gts = images::load_images(&scene, views)?;
     let ctx = GpuContext::new(gpu)?;
     let splats = GpuSplats::upload(&ctx, &params, params.len())?;
-    let cams: Vec<CameraGpu> = scene
-        .test
+    let cams: Vec<CameraGpu> = views
         .iter()
         .map(|&i| CameraGpu::new(&scene.views[i].camera, &scene.views[i].pose))
         .collect();
@@ -106,7 +129,7 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
         constants: RenderConstants::default(),
     };
     let mut per_view = Vec::new();
-    for (k, &v) in scene.test.iter().enumerate() {
+    for (k, &v) in views.iter().enumerate() {
         let c = renderer.capacity();
         renderer.ensure_capacity(Capacity {
             pixels: c.pixels.max((cams[k].width() * cams[k].height()) as usize),
@@ -150,7 +173,8 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
             "ply": args.ply.display().to_string(),
             "gaussians": params.len(),
             "background": bg,
-            "test_views": per_view.len(),
+            "split": args.split.name(),
+            "views": per_view.len(),
             "psnr": psnr,
             "ssim": ssim,
             "lpips": serde_json::Value::Null,

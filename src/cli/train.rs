@@ -521,7 +521,13 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
             } else {
                 bar.println(line);
             }
-            evals.push(serde_json::json!({"iteration": r.iteration, "psnr": p, "ssim": s, "gaussians": trainer.gaussians()}));
+            evals.push(serde_json::json!({
+                "iteration": r.iteration,
+                "psnr": p,
+                "ssim": s,
+                "gaussians": trainer.gaussians(),
+                "per_view": m,
+            }));
         }
     }
     bar.finish();
