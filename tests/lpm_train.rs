@@ -230,6 +230,19 @@ fn one_lpm_step_fills_the_hole_and_resets_the_occluder_adc_does_neither() {
             );
         }
         let r = t.step().unwrap();
+        if let (Some(l), Some(rep)) = (&t.lpm, &r.lpm) {
+            // The run's totals count the step's regions, pairs and zones.
+            let tot = l.totals;
+            assert_eq!(tot.steps, 1);
+            assert_eq!(
+                (tot.regions, tot.paired, tot.zones),
+                (rep.regions as u64, rep.paired as u64, rep.zones as u64)
+            );
+            assert!(
+                tot.zones <= tot.paired && tot.paired <= tot.regions,
+                "{tot:?}"
+            );
+        }
         (t.model().unwrap(), r)
     };
 

@@ -632,10 +632,13 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     if let Some(l) = &trainer.lpm {
         let t = &l.totals;
         println!(
-            "  LPM: {} steps ({} with zones), {} zones, {} densified by the lowered threshold, {} \
-             extra prunes, {} opacity resets, {} added; {:.2} s = {:.2} % of training ({:.3} ms/it)",
+            "  LPM: {} steps ({} with zones), {} error regions, {} paired, {} zones, {} densified \
+             by the lowered threshold, {} extra prunes, {} opacity resets, {} added; {:.2} s = \
+             {:.2} % of training ({:.3} ms/it)",
             t.steps,
             t.steps_with_zones,
+            t.regions,
+            t.paired,
             t.zones,
             t.lowered,
             t.pruned,
@@ -669,7 +672,8 @@ pub fn lpm_summary(
     iterations: u32,
 ) -> serde_json::Value {
     serde_json::json!({
-        "steps": t.steps, "steps_with_zones": t.steps_with_zones, "zones": t.zones,
+        "steps": t.steps, "steps_with_zones": t.steps_with_zones, "regions": t.regions,
+        "paired": t.paired, "zones": t.zones,
         "lowered": t.lowered, "pruned_extra": t.pruned, "opacity_reset": t.reset,
         "added": t.added, "seconds": t.seconds,
         "share_of_training": t.seconds / train_seconds.max(1e-12),

@@ -164,6 +164,10 @@ pub struct LpmStepReport {
 pub struct LpmTotals {
     pub steps: u32,
     pub steps_with_zones: u32,
+    /// Error regions found, and how many of them were paired with a region of the neighbour
+    /// view; each pair makes one zone (so `zones` ≤ `paired` ≤ `regions`).
+    pub regions: u64,
+    pub paired: u64,
     pub zones: u64,
     pub lowered: u64,
     pub pruned: u64,
@@ -176,6 +180,8 @@ impl LpmTotals {
     fn add(&mut self, r: &LpmStepReport) {
         self.steps += 1;
         self.steps_with_zones += (r.zones > 0) as u32;
+        self.regions += r.regions as u64;
+        self.paired += r.paired as u64;
         self.zones += r.zones as u64;
         self.lowered += r.lowered as u64;
         self.pruned += r.pruned as u64;
