@@ -77,6 +77,26 @@ fn bench_trade_interleaved_writes_table_json_and_plot() {
         assert!((0.0..1.0).contains(&share), "{r}");
     }
     assert_eq!(runs[0]["lpm_ms_per_iteration"].as_f64().unwrap(), 0.0);
+    // LPM's activity: none for ADC; for LPM at most one added Gaussian per zone.
+    for r in runs {
+        let f = |k: &str| r[k].as_f64().unwrap();
+        if r["run"] == "adc" {
+            assert_eq!(
+                [
+                    f("lpm_zones"),
+                    f("lpm_lowered"),
+                    f("lpm_added"),
+                    f("lpm_reset")
+                ],
+                [0.0; 4]
+            );
+        } else {
+            assert!(
+                f("lpm_added") <= f("lpm_zones") && f("lpm_reset") >= 0.0,
+                "{r}"
+            );
+        }
+    }
     // Each run's final model is written, the size its row reports.
     for r in &runs[2..] {
         let ply = out.join(format!("{}.ply", r["run"].as_str().unwrap()));
@@ -86,7 +106,9 @@ fn bench_trade_interleaved_writes_table_json_and_plot() {
     assert!(!out.join("adc-threshold-1e-4.ply").exists());
     let md = std::fs::read_to_string(out.join("trade.md")).unwrap();
     assert!(
-        md.contains("interleaved") && md.contains("| adc+lpm |"),
+        md.contains("interleaved")
+            && md.contains("| adc+lpm |")
+            && md.contains("LPM zones · densified · added · reset"),
         "{md}"
     );
     assert!(

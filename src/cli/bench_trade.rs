@@ -81,6 +81,12 @@ pub struct TradeRow {
     pub ms_per_iteration: f64,
     pub lpm_ms_per_iteration: f64,
     pub lpm_share: f64,
+    /// What LPM did up to this iteration (zeros for ADC runs): zones found, Gaussians densified
+    /// only because of the lowered threshold, Gaussians added at zone centres, opacities reset.
+    pub lpm_zones: f64,
+    pub lpm_lowered: f64,
+    pub lpm_added: f64,
+    pub lpm_reset: f64,
     pub fps_1352x1014: f64,
 }
 
@@ -358,7 +364,8 @@ fn evaluate_run(
     let (m, _) = t.evaluate(scene, &scene.test, test_images)?;
     let (psnr, ssim) = mean_metrics(&m);
     let model = t.model()?;
-    let lpm_s = t.lpm.as_ref().map_or(0.0, |l| l.totals.seconds);
+    let lpm_totals = t.lpm.as_ref().map(|l| l.totals).unwrap_or_default();
+    let lpm_s = lpm_totals.seconds;
     let fps = fps_of(ctx, &model, scene, args.fps_frames)?;
     if iteration == args.iterations {
         // The final models, to view or `eval` later: `adc+lpm.ply` (`adc+lpm-seed1.ply` with
@@ -384,6 +391,10 @@ fn evaluate_run(
         ms_per_iteration: 1e3 * train_s / iteration as f64,
         lpm_ms_per_iteration: 1e3 * lpm_s / iteration as f64,
         lpm_share: lpm_s / train_s.max(1e-12),
+        lpm_zones: lpm_totals.zones as f64,
+        lpm_lowered: lpm_totals.lowered as f64,
+        lpm_added: lpm_totals.added as f64,
+        lpm_reset: lpm_totals.reset as f64,
         fps_1352x1014: fps,
     };
     let name = if args.seeds > 1 {
@@ -451,6 +462,10 @@ pub struct Summary {
     pub ms_per_iteration: f64,
     pub lpm_ms_per_iteration: f64,
     pub lpm_share: f64,
+    pub lpm_zones: f64,
+    pub lpm_lowered: f64,
+    pub lpm_added: f64,
+    pub lpm_reset: f64,
     pub fps_1352x1014: f64,
 }
 
@@ -470,6 +485,10 @@ impl Summary {
             ms_per_iteration: self.ms_per_iteration,
             lpm_ms_per_iteration: self.lpm_ms_per_iteration,
             lpm_share: self.lpm_share,
+            lpm_zones: self.lpm_zones,
+            lpm_lowered: self.lpm_lowered,
+            lpm_added: self.lpm_added,
+            lpm_reset: self.lpm_reset,
             fps_1352x1014: self.fps_1352x1014,
         }
     }
@@ -547,6 +566,10 @@ pub fn summarize(rows: &[TradeRow]) -> Vec<Summary> {
                 ms_per_iteration: mean_sd(&col(&|r| r.ms_per_iteration)).0,
                 lpm_ms_per_iteration: mean_sd(&col(&|r| r.lpm_ms_per_iteration)).0,
                 lpm_share: mean_sd(&col(&|r| r.lpm_share)).0,
+                lpm_zones: mean_sd(&col(&|r| r.lpm_zones)).0,
+                lpm_lowered: mean_sd(&col(&|r| r.lpm_lowered)).0,
+                lpm_added: mean_sd(&col(&|r| r.lpm_added)).0,
+                lpm_reset: mean_sd(&col(&|r| r.lpm_reset)).0,
                 fps_1352x1014: mean_sd(&col(&|r| r.fps_1352x1014)).0,
             }
         })
@@ -563,8 +586,8 @@ fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
         "bench trade: {} {resolution}, {} iterations on the calendar of {}, {device}\n\n{} \
          trade.png plots PSNR (dB, y) against Gaussians (left) and training seconds (right), in \
          the colours below, one line per run through its evaluated iterations.{}\n\n\
-         | run | iteration | colour | PSNR | ΔPSNR vs adc | SSIM | LPIPS | Gaussians | train s | time vs adc | ms/it | LPM ms/it (share) | FPS 1352×1014 |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+         | run | iteration | colour | PSNR | ΔPSNR vs adc | SSIM | LPIPS | Gaussians | train s | time vs adc | ms/it | LPM ms/it (share) | LPM zones · densified · added · reset | FPS 1352×1014 |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
         args.scene.scene.display(),
         args.iterations,
         args.calendar.unwrap_or(args.iterations),
@@ -602,8 +625,16 @@ fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
         let dtime = r
             .time_vs_adc
             .map_or("n/a".to_string(), |t| format!("{t:.3}×"));
+        let lpm_activity = if r.run.contains("lpm") {
+            format!(
+                "{:.0} · {:.0} · {:.0} · {:.0}",
+                r.lpm_zones, r.lpm_lowered, r.lpm_added, r.lpm_reset
+            )
+        } else {
+            "—".to_string()
+        };
         s += &format!(
-            "| {} | {} | #{:02x}{:02x}{:02x} | {:.3}{} | {dpsnr} | {:.4}{} | {} | {:.0} | {:.1} | {dtime} | {:.2} | {:.3} ({:.2} %) | {:.1} |\n",
+            "| {} | {} | #{:02x}{:02x}{:02x} | {:.3}{} | {dpsnr} | {:.4}{} | {} | {:.0} | {:.1} | {dtime} | {:.2} | {:.3} ({:.2} %) | {} | {:.1} |\n",
             r.run,
             r.iteration,
             r.colour[0],
@@ -619,6 +650,7 @@ fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
             r.ms_per_iteration,
             r.lpm_ms_per_iteration,
             100.0 * r.lpm_share,
+            lpm_activity,
             r.fps_1352x1014
         );
     }
@@ -802,6 +834,10 @@ mod tests {
             ms_per_iteration: 1.0,
             lpm_ms_per_iteration: 0.0,
             lpm_share: 0.0,
+            lpm_zones: 0.0,
+            lpm_lowered: 0.0,
+            lpm_added: 0.0,
+            lpm_reset: 0.0,
             fps_1352x1014: 1.0,
         }
     }
