@@ -58,6 +58,7 @@ fn bench_trade_interleaved_writes_table_json_and_plot() {
         [("adc", 20), ("adc+lpm", 20), ("adc", 40), ("adc+lpm", 40)]
     );
     assert_eq!(json["calendar"], 400);
+    assert_eq!(json["lpm_block"], 16);
     assert!(
         runs[2]["train_seconds"].as_f64().unwrap() > runs[0]["train_seconds"].as_f64().unwrap()
     );
@@ -129,10 +130,13 @@ fn bench_trade_with_several_seeds_reports_means_and_paired_differences() {
             .arg(data("lund_door_small"))
             .args(["-r", "8", "--iterations", "12", "--fps-frames", "1"])
             .args(["--seeds", "2", "--seed", "5", "--runs", "adc,lpm", "-o"])
-            .arg(&out),
+            .arg(&out)
+            .args(["--lpm-block", "8", "--lpm-block-fraction", "0.5"]),
     );
     assert!(ok, "{text}");
     let json = trade_json(&out);
+    assert_eq!(json["lpm_block"], 8);
+    assert_eq!(json["lpm_block_fraction"], 0.5);
     let runs = json["runs"].as_array().unwrap();
     let keys: Vec<(&str, u64)> = runs
         .iter()

@@ -490,3 +490,26 @@ fn lpm_run_resumes_bit_identically_and_checks_its_settings() {
     assert!(e.contains("lpm.threshold_ratio"), "{e}");
     ctx.check_validation().unwrap();
 }
+
+#[test]
+fn lpm_config_rejects_impossible_block_settings() {
+    let with = |block: u32, fraction: f32| {
+        let mut c = LpmConfig::default();
+        c.regions.block = block;
+        c.regions.keep_fraction = fraction;
+        c.validate()
+    };
+    with(16, 0.85).unwrap();
+    with(4, 0.0).unwrap();
+    with(256, 0.999).unwrap();
+    for (block, fraction, flag) in [
+        (0, 0.85, "--lpm-block"),
+        (257, 0.85, "--lpm-block"),
+        (16, 1.0, "--lpm-block-fraction"),
+        (16, -0.1, "--lpm-block-fraction"),
+        (16, f32::NAN, "--lpm-block-fraction"),
+    ] {
+        let e = with(block, fraction).unwrap_err().to_string();
+        assert!(e.contains(flag), "{block} {fraction}: {e}");
+    }
+}

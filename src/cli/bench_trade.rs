@@ -65,6 +65,12 @@ pub struct TradeArgs {
     /// ratios hold on a noisy machine; sequential needs the memory of one run only.
     #[arg(long)]
     pub sequential: bool,
+    /// LPM runs: error-region block side in pixels (as `train --lpm-block`).
+    #[arg(long, default_value_t = 16)]
+    pub lpm_block: u32,
+    /// LPM runs: fraction of error pixels that keeps a block (as `train --lpm-block-fraction`).
+    #[arg(long, default_value_t = 0.85)]
+    pub lpm_block_fraction: f32,
 }
 
 #[derive(Debug, Clone, serde::Serialize)]
@@ -169,14 +175,22 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
             if name == "adc-threshold-1e-4" {
                 cfg.density.grad_threshold = 1e-4;
             }
-            let lpm = (k >= 2).then(|| LpmConfig {
-                from: cfg.schedule.densify_from,
-                until: cfg.schedule.densify_until,
-                add_points: name != "lpm-no-add",
-                reset: name != "lpm-no-reset",
-                seed,
-                ..LpmConfig::default()
+            let lpm = (k >= 2).then(|| {
+                let mut c = LpmConfig {
+                    from: cfg.schedule.densify_from,
+                    until: cfg.schedule.densify_until,
+                    add_points: name != "lpm-no-add",
+                    reset: name != "lpm-no-reset",
+                    seed,
+                    ..LpmConfig::default()
+                };
+                c.regions.block = args.lpm_block;
+                c.regions.keep_fraction = args.lpm_block_fraction;
+                c
             });
+            if let Some(c) = &lpm {
+                c.validate()?;
+            }
             runs.push(Run {
                 k,
                 seed,
@@ -296,6 +310,8 @@ fn write_outputs(rows: &[TradeRow], device: &str, args: &TradeArgs) -> anyhow::R
         "interleaved": !args.sequential,
         "device": device,
         "seeds": args.seeds,
+        "lpm_block": args.lpm_block,
+        "lpm_block_fraction": args.lpm_block_fraction,
         "summary": summary,
         "runs": rows,
     });
@@ -583,7 +599,8 @@ fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
         .map_or("full resolution".to_string(), |r| format!("-r {r}"));
     let several = rows.iter().any(|r| r.seeds > 1);
     let mut s = format!(
-        "bench trade: {} {resolution}, {} iterations on the calendar of {}, {device}\n\n{} \
+        "bench trade: {} {resolution}, {} iterations on the calendar of {}, {device}; LPM \
+         error blocks of {} px kept above {} error pixels\n\n{} \
          trade.png plots PSNR (dB, y) against Gaussians (left) and training seconds (right), in \
          the colours below, one line per run through its evaluated iterations.{}\n\n\
          | run | iteration | colour | PSNR | ΔPSNR vs adc | SSIM | LPIPS | Gaussians | train s | time vs adc | ms/it | LPM ms/it (share) | LPM zones · densified · added · reset | FPS 1352×1014 |\n\
@@ -591,6 +608,8 @@ fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
         args.scene.scene.display(),
         args.iterations,
         args.calendar.unwrap_or(args.iterations),
+        args.lpm_block,
+        args.lpm_block_fraction,
         if args.sequential {
             "Runs were sequential: compare their times only on an otherwise idle machine."
         } else {

@@ -124,6 +124,14 @@ pub struct LpmArgs {
     /// Error pixels: above this quantile of the error map.
     #[arg(long, default_value_t = 0.4)]
     pub lpm_error_quantile: f32,
+    /// Error regions are built from square blocks of this many pixels a side (the paper's 16).
+    /// At low resolution a 16-pixel block is a large part of the image and error rarely fills
+    /// one: smaller blocks make LPM find regions there.
+    #[arg(long, default_value_t = 16)]
+    pub lpm_block: u32,
+    /// A block is kept when more than this fraction of its pixels are error pixels.
+    #[arg(long, default_value_t = 0.85)]
+    pub lpm_block_fraction: f32,
     /// Opacity reset: in-front Gaussians at or above this quantile of the opacities inside zones.
     #[arg(long, default_value_t = 0.7)]
     pub lpm_reset_quantile: f64,
@@ -170,6 +178,8 @@ impl LpmArgs {
             ..LpmConfig::default()
         };
         c.regions.quantile = self.lpm_error_quantile;
+        c.regions.block = self.lpm_block;
+        c.regions.keep_fraction = self.lpm_block_fraction;
         c.reset_settings.quantile = self.lpm_reset_quantile;
         c.matching.neighbours.max_angle_deg = self.lpm_neighbour_angle;
         c.matching.neighbours.seed = seed;

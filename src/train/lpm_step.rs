@@ -120,6 +120,18 @@ impl LpmConfig {
             "LPM error quantile {} must lie in [0, 1] (default 0.4)",
             self.regions.quantile
         );
+        anyhow::ensure!(
+            (1..=256).contains(&self.regions.block),
+            "LPM block size {} (--lpm-block) must lie in 1..=256 pixels (default 16)",
+            self.regions.block
+        );
+        anyhow::ensure!(
+            self.regions.keep_fraction.is_finite()
+                && (0.0..1.0).contains(&self.regions.keep_fraction),
+            "LPM block fraction {} (--lpm-block-fraction) must lie in [0, 1) (default 0.85: a block is kept when more \
+             than 85 % of its pixels are error pixels)",
+            self.regions.keep_fraction
+        );
         self.reset_settings.top_basis_points()?;
         self.reset_settings.reset_logit()?;
         Ok(())
