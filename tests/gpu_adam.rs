@@ -127,22 +127,55 @@ fn hundred_steps_match_the_host_reference() {
     let mut hp = flat(&params);
     let mut hm: [Vec<f32>; 6] = std::array::from_fn(|k| vec![0.0; hp[k].len()]);
     let mut hv = hm.clone();
+    // The magnitude each value was computed from, for devices that may fuse multiply-adds
+    // (SPIR-V allows contraction) and round / and sqrt within a few ulp: a moment that cancels
+    // to near zero, or a parameter that crosses zero, carries rounding errors of the size of
+    // its operands, not of itself. m and v: the largest |g| (resp. g²) seen, which bounds every
+    // intermediate; parameters: the larger end value plus the learning rates summed (Adam's
+    // step |m̂ / (√v̂ + ε)| is of order 1).
+    let mut scale_p: [Vec<f32>; 6] =
+        std::array::from_fn(|k| hp[k].iter().map(|x| x.abs()).collect());
+    let mut scale_m: [Vec<f32>; 6] = std::array::from_fn(|k| vec![0.0; hp[k].len()]);
+    let mut scale_v = scale_m.clone();
     for t in 1..=steps {
         let lr = lrs.at(t, extent).0;
         for k in 0..6 {
             let len = hp[k].len();
             let g = &all[k][(t as usize - 1) * len..t as usize * len];
             adam_host_step(&adam.hyper, &mut hp[k], g, &mut hm[k], &mut hv[k], lr[k], t);
+            for i in 0..len {
+                scale_p[k][i] += lr[k] as f32;
+                scale_m[k][i] = scale_m[k][i].max(g[i].abs());
+                scale_v[k][i] = scale_v[k][i].max(g[i] * g[i]);
+            }
+        }
+    }
+    for k in 0..6 {
+        for (s, p) in scale_p[k].iter_mut().zip(&hp[k]) {
+            *s = s.max(p.abs());
         }
     }
     let mut worst = 0u32;
-    for (set, host) in [(&state.params, &hp), (&state.m, &hm), (&state.v, &hv)] {
+    let mut worst_scaled = 0f32;
+    for (set, host, scale) in [
+        (&state.params, &hp, &scale_p),
+        (&state.m, &hm, &scale_m),
+        (&state.v, &hv, &scale_v),
+    ] {
         for (k, (buf, stride)) in set.groups().into_iter().enumerate() {
             let got = buf.read().unwrap();
             let len = n * stride;
             for i in 0..len {
                 assert!(got[i].is_finite(), "group {k} element {i} not finite");
                 worst = worst.max(ulps(got[i], host[k][i]));
+                if scale[k][i] > 0.0 {
+                    worst_scaled = worst_scaled.max((got[i] - host[k][i]).abs() / scale[k][i]);
+                } else {
+                    assert_eq!(
+                        got[i], host[k][i],
+                        "group {k} element {i}: nothing moved it"
+                    );
+                }
             }
             assert!(
                 got[len..capacity * stride]
@@ -153,7 +186,8 @@ fn hundred_steps_match_the_host_reference() {
         }
     }
     eprintln!(
-        "Adam GPU vs host after {steps} steps: max {worst} ulp ({})",
+        "Adam GPU vs host after {steps} steps: max {worst} ulp, max {worst_scaled:e} of the \
+         operands' magnitude ({})",
         ctx.info.name
     );
     if exact {
@@ -162,7 +196,12 @@ fn hundred_steps_match_the_host_reference() {
             "lavapipe rounds / and sqrt correctly: expected bit-exact"
         );
     } else {
-        assert!(worst <= 64, "max {worst} ulp");
+        // Measured on an H100 (NVIDIA 580): 32896 ulp at worst, on values near zero; 2e-5 of the
+        // operands' magnitude is about 170 ulp of it over 100 steps.
+        assert!(
+            worst_scaled <= 2e-5,
+            "max {worst_scaled:e} of the operands' magnitude ({worst} ulp)"
+        );
     }
     // The parameters moved, including rows that had zero gradient at the last step.
     let moved = hp[0]

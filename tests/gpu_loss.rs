@@ -202,7 +202,10 @@ fn gpu_loss_is_deterministic_and_zero_gradient_at_the_optimum() {
     // Render == composited ground truth: L1 = 0, SSIM = 1 and the gradient vanishes (L1's
     // subgradient is taken as 0 there, and SSIM is at its maximum).
     let same = run_gpu(&ctx, &loss, &gt, &gt_px, w, h, bg, 0.2);
-    assert_eq!(same.terms[0], 0.0);
+    // Exactly 0 on lavapipe; a GPU may fuse the kernel's compositing multiply-add (SPIR-V allows
+    // contraction), so its composite of the stored ground truth can differ from the host's in
+    // the last bit (measured on an H100: L1 = 1.9e-8).
+    assert!(same.terms[0].abs() < 1e-6, "L1 {}", same.terms[0]);
     assert!((same.terms[1] - 1.0).abs() < 1e-5, "SSIM {}", same.terms[1]);
     assert!(same.terms[2].abs() < 1e-5, "loss {}", same.terms[2]);
     let n = (w * h * 3) as f32;

@@ -332,6 +332,29 @@ fn rerun_single_threaded(name: &str) -> bool {
     true
 }
 
+/// Largest absolute difference between two equally long runs' parameter words (as f32 bits),
+/// or None when the runs differ in size.
+fn max_difference(a: &[u32], b: &[u32]) -> Option<f32> {
+    (a.len() == b.len()).then(|| {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (f32::from_bits(*x) - f32::from_bits(*y)).abs())
+            .fold(0.0, f32::max)
+    })
+}
+
+/// Whether run `b` matches run `a`: bit for bit where two identical runs are bitwise equal
+/// (`noise` = None: lavapipe with one thread), else within 4× the difference between two
+/// identical runs (`noise` = Some: GPUs, whose float atomics add in a varying order even with
+/// LP_NUM_THREADS=1, which they ignore; measured on an H100: the ADC runs differ after 12
+/// iterations).
+fn matches(a: &[u32], b: &[u32], noise: Option<f32>) -> bool {
+    match noise {
+        None => a == b,
+        Some(n) => max_difference(a, b).is_some_and(|d| d <= 4.0 * n),
+    }
+}
+
 #[test]
 fn lpm_off_is_bit_identical_to_adc() {
     if rerun_single_threaded("lpm_off_is_bit_identical_to_adc") {
@@ -376,7 +399,22 @@ fn lpm_off_is_bit_identical_to_adc() {
         Vec<LpmStepReport>,
     )| { (r.0.clone(), r.1.clone(), r.2.clone(), r.3.clone(), r.4) };
     let base = model(&run(None));
-    assert_eq!(base, model(&run(None)), "the ADC trainer is deterministic");
+    let again = model(&run(None));
+    // All parameter words of a run, for the noise-calibrated comparison.
+    let words = |m: &(Vec<u32>, Vec<u32>, Vec<u32>, Vec<u32>, usize)| {
+        [m.0.clone(), m.1.clone(), m.2.clone(), m.3.clone()].concat()
+    };
+    let noise = if base == again {
+        None
+    } else {
+        assert_eq!(base.4, again.4, "two identical ADC runs differ in size");
+        let n = max_difference(&words(&base), &words(&again)).unwrap();
+        eprintln!("this device's identical ADC runs differ by up to {n:e}: comparing within 4x");
+        Some(n)
+    };
+    let same = |m: &(Vec<u32>, Vec<u32>, Vec<u32>, Vec<u32>, usize)| {
+        base.4 == m.4 && matches(&words(&base), &words(m), noise)
+    };
     // An LPM whose window never opens must not perturb anything.
     let never = LpmConfig {
         from: 1000,
@@ -385,7 +423,10 @@ fn lpm_off_is_bit_identical_to_adc() {
     };
     let r = run(Some(never));
     assert!(r.5.is_empty());
-    assert_eq!(base, model(&r));
+    assert!(
+        same(&model(&r)),
+        "an LPM outside its window changed the run"
+    );
     // LPM running through the fused path (error blocks, zones, membership, threshold-scale
     // buffer, decide, lowered count) with a ratio of 1 and no addition or reset decides exactly
     // what ADC decides.
@@ -401,11 +442,14 @@ fn lpm_off_is_bit_identical_to_adc() {
         .5
         .iter()
         .all(|s| s.zones > 0 && s.lowered == 0 && s.pruned == 0));
-    assert_eq!(base, model(&r));
+    assert!(
+        same(&model(&r)),
+        "a neutral LPM decided differently from ADC"
+    );
     // And LPM that does run changes the model (so the comparison above can fail).
     let r = run(Some(lpm_config()));
     eprintln!("{:?}", r.5);
-    assert_ne!(base, model(&r));
+    assert!(!same(&model(&r)), "an active LPM left the run unchanged");
     // Density-aware pruning removes exactly as many as the lowered threshold added.
     assert!(r.5.iter().all(|s| s.pruned == s.lowered));
     // A threshold scale that makes every seen Gaussian inside a zone densify exercises the
@@ -444,16 +488,29 @@ fn lpm_run_resumes_bit_identically_and_checks_its_settings() {
         (ck.count, v)
     };
     // Straight: 15 iterations, LPM at every densification (every 5).
-    let mut straight = Trainer::new(&ctx, &scene, &gt, &init, config(2e-5, 5)).unwrap();
-    attach(&mut straight, lpm_config());
-    let mut zones = 0;
-    for _ in 0..15 {
-        zones += straight.step().unwrap().lpm.map_or(0, |r| r.zones);
-    }
-    assert!(
-        zones > 0,
-        "LPM never made a zone: the test would prove nothing"
-    );
+    let straight_run = || {
+        let mut t = Trainer::new(&ctx, &scene, &gt, &init, config(2e-5, 5)).unwrap();
+        attach(&mut t, lpm_config());
+        let mut zones = 0;
+        for _ in 0..15 {
+            zones += t.step().unwrap().lpm.map_or(0, |r| r.zones);
+        }
+        assert!(
+            zones > 0,
+            "LPM never made a zone: the test would prove nothing"
+        );
+        floats(&t)
+    };
+    let straight = straight_run();
+    let again = straight_run();
+    let noise = if straight == again {
+        None
+    } else {
+        assert_eq!(straight.0, again.0, "two identical LPM runs differ in size");
+        let n = max_difference(&straight.1, &again.1).unwrap();
+        eprintln!("this device's identical LPM runs differ by up to {n:e}: comparing within 4x");
+        Some(n)
+    };
     // 7 iterations, a checkpoint, a restored trainer, 8 more.
     let mut first = Trainer::new(&ctx, &scene, &gt, &init, config(2e-5, 5)).unwrap();
     attach(&mut first, lpm_config());
@@ -471,8 +528,9 @@ fn lpm_run_resumes_bit_identically_and_checks_its_settings() {
         resumed.step().unwrap();
     }
     assert_eq!(resumed.iteration, 15);
+    let got = floats(&resumed);
     assert!(
-        floats(&resumed) == floats(&straight),
+        got.0 == straight.0 && matches(&straight.1, &got.1, noise),
         "the resumed LPM run differs from the straight run"
     );
     // Resuming without LPM, or with other LPM settings, is refused with the fix.
