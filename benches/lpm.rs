@@ -31,19 +31,20 @@ fn random_zones(rng: &mut impl Rng, count: usize) -> Vec<ZoneRecord> {
             let theta = rng.gen_range(0.0..std::f32::consts::TAU);
             let z: f32 = rng.gen_range(-1.0..1.0);
             let r = (1.0 - z * z).sqrt();
+            let radius = rng.gen_range(0.02..0.2);
             ZoneRecord {
                 center: [
                     rng.gen_range(-1.0..1.0),
                     rng.gen_range(-1.0..1.0),
                     rng.gen_range(-1.0..1.0),
                 ],
-                radius: rng.gen_range(0.02..0.2),
+                radius,
                 camera_center: [3.0 * r * theta.cos(), 3.0 * r * theta.sin(), 3.0 * z],
                 shape: ZONE_SPHERE,
                 color: [0.5; 3],
                 _pad0: 0.0,
                 half_extents: [0.0; 3],
-                _pad1: 0.0,
+                cone_radius: radius,
             }
         })
         .collect()

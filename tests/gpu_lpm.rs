@@ -8,10 +8,11 @@ use lpmsplat::lpm::gpu::{
     block_grid, error_block_counts, unpack_ground_truth, ErrorImages, LpmGpu,
 };
 use lpmsplat::lpm::membership::{
-    apply_opacity_reset, membership, OpacityResetSettings, ZoneTest, FLAG_INSIDE, FLAG_IN_FRONT,
+    apply_opacity_reset, membership, OpacityResetSettings, ZoneTest, FLAG_INSIDE, FLAG_IN_BALL,
+    FLAG_IN_FRONT,
 };
 use lpmsplat::lpm::regions::{block_mask, error_map, quantile, BlockMask};
-use lpmsplat::lpm::{RegionSettings, Zone, ZoneRecord};
+use lpmsplat::lpm::{ConeRadius, RegionSettings, Zone, ZoneRecord};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use std::sync::Arc;
@@ -44,13 +45,15 @@ fn random_zones(rng: &mut Pcg64, n: usize) -> Vec<ZoneRecord> {
     let mut zones = vec![
         // Dyadic values: the boundary points below are exactly on the sphere / box.
         sphere([0.5, 0.25, -0.75], 0.5, [4.0, 0.25, -0.75]),
-        ZoneRecord::new(
+        // The authors' cone: its ball (radius 0.5) leaves the box's corners out.
+        ZoneRecord::with_cone(
             &Zone::Box {
                 min: [-1.5, -0.5, 0.25],
                 max: [-0.5, 0.5, 1.25],
             },
             [-1.0, 0.0, 5.0],
             [0.1; 3],
+            ConeRadius::SmallestHalfExtent,
         ),
         // Camera inside its zone (h < r), camera at the centre (h = 0), zero radius.
         sphere([0.0, 0.0, 0.0], 1.5, [0.3, -0.2, 0.1]),
@@ -77,7 +80,14 @@ fn random_zones(rng: &mut Pcg64, n: usize) -> Vec<ZoneRecord> {
                 min: [c[0] - h[0], c[1] - h[1], c[2] - h[2]],
                 max: [c[0] + h[0], c[1] + h[1], c[2] + h[2]],
             };
-            zones.push(ZoneRecord::new(&z, cam, [0.2; 3]));
+            // Half the boxes take the authors' cone (smallest half-extent), which also makes
+            // FLAG_IN_BALL differ from FLAG_INSIDE.
+            let cone = if rng.gen_bool(0.5) {
+                ConeRadius::SmallestHalfExtent
+            } else {
+                ConeRadius::Bounding
+            };
+            zones.push(ZoneRecord::with_cone(&z, cam, [0.2; 3], cone));
         } else {
             zones.push(sphere(c, r, cam));
         }
@@ -125,7 +135,9 @@ fn check_against_f64_definition(positions: &[f32], zones: &[ZoneRecord]) -> (usi
         let t = ZoneTest::new(z);
         let c = f32s(z.center.map(|x| x as f64)).map(|x| x as f64);
         let o = z.camera_center.map(|x| x as f64);
-        let r = z.radius as f64;
+        // The in-front cone's base is the zone's cone radius (its bounding radius unless the
+        // authors' smallest half-extent was asked for).
+        let r = z.cone_radius as f64;
         let a = [c[0] - o[0], c[1] - o[1], c[2] - o[2]];
         let h = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
         for p in positions.chunks_exact(3) {
@@ -147,9 +159,16 @@ fn check_against_f64_definition(positions: &[f32], zones: &[ZoneRecord]) -> (usi
             assert_eq!(got, expect, "in front: zone {z:?}, point {x:?}");
             checked += 1;
             front += got as usize;
+            let d = ((x[0] - c[0]).powi(2) + (x[1] - c[1]).powi(2) + (x[2] - c[2]).powi(2)).sqrt();
+            if (d - r).abs() > 1e-5 {
+                assert_eq!(
+                    t.in_ball([p[0], p[1], p[2]]),
+                    d <= r,
+                    "in ball: {z:?} {x:?}"
+                );
+            }
             if z.shape == 0 {
-                let d =
-                    ((x[0] - c[0]).powi(2) + (x[1] - c[1]).powi(2) + (x[2] - c[2]).powi(2)).sqrt();
+                let r = z.radius as f64;
                 if (d - r).abs() > 1e-5 {
                     assert_eq!(
                         t.contains([p[0], p[1], p[2]]),
@@ -228,6 +247,15 @@ fn membership_matches_cpu_exactly() {
                 "inside {inside}, in front {front}"
             );
             assert!(flags[..5].iter().all(|&f| f & FLAG_INSIDE != 0));
+            // The authors' cone makes the ball a strict subset of its box (zone 1's corner).
+            let ball = flags.iter().filter(|&&f| f & FLAG_IN_BALL != 0).count();
+            let t = ZoneTest::new(&zones[1]);
+            let corner = [-1.5, 0.5, 1.25];
+            let box_not_ball = (t.contains(corner) && !t.in_ball(corner)) as usize;
+            assert!(
+                ball > 100 && box_not_ball > 0,
+                "ball {ball}, {box_not_ball}"
+            );
             let (checked, front) = check_against_f64_definition(&positions[..3 * 2000], zones);
             assert!(
                 checked > 10_000 && front > 50,
@@ -266,6 +294,7 @@ fn opacity_reset_matches_cpu_exactly() {
     let paper = OpacityResetSettings::default();
     let authors = OpacityResetSettings {
         quantile: 0.3,
+        threshold_set: FLAG_IN_BALL,
         ..paper
     };
     // (Gaussians, P(inside), quantised logits with ties, settings)
@@ -285,6 +314,7 @@ fn opacity_reset_matches_cpu_exactly() {
             .map(|_| {
                 ((rng.gen_bool(p_in) as u32) * FLAG_INSIDE)
                     | ((rng.gen_bool(0.4) as u32) * FLAG_IN_FRONT)
+                    | ((rng.gen_bool(p_in) as u32) * FLAG_IN_BALL)
             })
             .collect();
         let logits: Vec<f32> = (0..total)
@@ -600,4 +630,60 @@ fn lpm_passes_under_subgroup_size_16() {
         text.contains("3 passed"),
         "child ran the wrong tests:\n{text}"
     );
+}
+
+/// The weighted rank selection (the authors' density-aware pruning ranks the model after
+/// densification, where a cloned or split Gaussian's opacity appears twice) against a CPU sort
+/// of the expanded multiset; unweighted with the same flags as a control.
+#[test]
+fn weighted_rank_selection_matches_the_expanded_multiset() {
+    use lpmsplat::lpm::membership::float_key;
+    let ctx = ctx();
+    let lpm = LpmGpu::new(&ctx, 1).unwrap();
+    let mut rng = Pcg64::seed_from_u64(73);
+    for &(n, ties) in &[(20_011usize, false), (5_003, true), (3, false)] {
+        let weights: Vec<u32> = (0..n + TAIL).map(|_| rng.gen_range(0..3u32)).collect();
+        let values: Vec<f32> = (0..n + TAIL)
+            .map(|_| {
+                let x: f32 = rng.gen_range(-8.0..8.0);
+                if ties {
+                    (x * 4.0).round() / 4.0
+                } else {
+                    x
+                }
+            })
+            .collect();
+        let vb = GpuBuffer::from_slice(&ctx, "values", &values).unwrap();
+        let wb = GpuBuffer::from_slice(&ctx, "weights", &weights).unwrap();
+        for weighted in [true, false] {
+            let mut keys: Vec<u32> = (0..n)
+                .flat_map(|i| {
+                    let w = if weighted {
+                        weights[i]
+                    } else {
+                        (weights[i] != 0) as u32
+                    };
+                    std::iter::repeat_n(float_key(values[i]), w as usize)
+                })
+                .collect();
+            keys.sort_unstable();
+            if keys.is_empty() {
+                continue;
+            }
+            let total = keys.len() as u32;
+            for rank in [0, total / 3, total - 1] {
+                let mut rec = Recorder::new(&ctx).unwrap();
+                lpm.record_rank_selection(&mut rec, &vb, &wb, 3, weighted, n as u32, total, rank)
+                    .unwrap();
+                rec.submit_and_wait().unwrap();
+                let st = lpm.rank_selection_state().read().unwrap();
+                assert_eq!(st[1], 1, "selection valid");
+                assert_eq!(
+                    st[4], keys[rank as usize],
+                    "rank {rank} of {total} (weighted {weighted}, n {n})"
+                );
+            }
+        }
+    }
+    ctx.check_validation().unwrap();
 }

@@ -7,12 +7,15 @@ use lpmsplat::lpm::epipolar::{fundamental, symmetric_epipolar_distance};
 use lpmsplat::lpm::neighbours::{
     optical_axis_angle, select_neighbours, NeighbourKind, NeighbourSettings,
 };
+use lpmsplat::lpm::pairing::RegionPair;
 use lpmsplat::lpm::pairing::{pair_regions, PixelBox};
+use lpmsplat::lpm::regions::RegionSettings;
 use lpmsplat::lpm::regions::{
     block_mask, error_map, quantile, regions_from_blocks, BlockMask, Region,
 };
+use lpmsplat::lpm::zones::{triangulated_zone, zone_for_pair};
 use lpmsplat::lpm::zones::{zone_from_boxes, CameraView, Zone, ZoneGeometry, ZoneSettings};
-use lpmsplat::lpm::{zones_for_step, ZoneRecord};
+use lpmsplat::lpm::{zones_for_step, ConeRadius, ZoneRecord};
 use lpmsplat::scene::{CameraModel, Image, PinholeCamera, Pose, View};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
@@ -381,7 +384,10 @@ fn grid_zone_radius(r: &Rig, boxes: &[PixelBox; 2], half: f64, n: usize) -> Opti
 #[test]
 fn sphere_zone_contains_the_ball_and_matches_the_exact_cone_intersection() {
     let mut rng = Pcg64::seed_from_u64(3);
-    let s = ZoneSettings::default();
+    let s = ZoneSettings {
+        geometry: ZoneGeometry::Sphere,
+        ..Default::default()
+    };
     let mut checked = 0;
     for trial in 0..12 {
         let sep = [25.0, 40.0, 60.0, 90.0][trial % 4];
@@ -507,7 +513,10 @@ fn sphere_zone_degrades_gracefully_with_match_noise() {
                 &pairs[0].in_view,
                 cv(1),
                 &pairs[0].in_reference,
-                &ZoneSettings::default(),
+                &ZoneSettings {
+                    geometry: ZoneGeometry::Sphere,
+                    ..Default::default()
+                },
             );
             let Some(Zone::Sphere(z)) = out.zone else {
                 panic!("no zone at sigma {sigma}")
@@ -654,7 +663,11 @@ fn zone_records_layout_and_step() {
         &xy1,
         &gt,
         [0.0; 3],
-        &ZoneSettings::default(),
+        &ZoneSettings {
+            geometry: ZoneGeometry::Sphere,
+            ..Default::default()
+        },
+        ConeRadius::Bounding,
     );
     assert_eq!(out.pairing.regions, 2);
     assert_eq!(out.pairing.no_matches, 1);
@@ -981,6 +994,7 @@ fn zone_step_time_is_small() {
             &gt,
             [0.0; 3],
             &ZoneSettings::default(),
+            ConeRadius::Bounding,
         )
         .records
         .len();
@@ -993,4 +1007,209 @@ fn zone_step_time_is_small() {
     );
     assert!(zones > 0);
     assert!(per_step < 0.05, "{per_step} s per step");
+}
+
+// ---------------------------------------------------------------- triangulated (local) zones
+
+/// Two cameras 4 units from a plane patch, `sep_deg` apart around it (a small baseline).
+fn small_baseline(sep_deg: f64) -> [(PinholeCamera, Pose); 2] {
+    let cam = camera(640, 480, 500.0);
+    let half = 0.5 * sep_deg.to_radians();
+    [-half, half].map(|a| {
+        let eye = DVec3::new(4.0 * a.sin(), -4.0 * a.cos(), 0.3);
+        (cam, look_at(eye, DVec3::ZERO))
+    })
+}
+
+/// Matches of points on a disc of radius `rho` in the plane y = 0 around the origin.
+fn disc_matches(
+    cams: &[(PinholeCamera, Pose); 2],
+    rho: f64,
+    n: usize,
+) -> Vec<([f64; 2], [f64; 2])> {
+    let mut rng = Pcg64::seed_from_u64(17);
+    (0..n)
+        .map(|_| {
+            let (r, a): (f64, f64) = (rho * rng.gen::<f64>().sqrt(), rng.gen_range(0.0..6.3));
+            let p = DVec3::new(r * a.cos(), 0.0, r * a.sin());
+            let m = [0, 1].map(|v| project(&cams[v].0, &cams[v].1, p).unwrap());
+            (m[0], m[1])
+        })
+        .collect()
+}
+
+#[test]
+fn triangulated_zone_stays_on_the_surface_where_the_cone_zone_spans_the_depth() {
+    let cams = small_baseline(6.0);
+    let cv = |v: usize| CameraView {
+        camera: &cams[v].0,
+        pose: &cams[v].1,
+    };
+    let rho = 0.1;
+    let matches = disc_matches(&cams, rho, 40);
+    let s = ZoneSettings::default();
+    assert_eq!(s.geometry, ZoneGeometry::Triangulated, "the default zone");
+    let out = triangulated_zone(cv(0), cv(1), &matches, &s);
+    let Some(Zone::Sphere(z)) = out.zone else {
+        panic!("no zone: {out:?}")
+    };
+    assert_eq!((out.points, out.rejected), (40, 0));
+    // Centred on the disc, enclosing it, and no larger than the disc plus the margin.
+    assert!(DVec3::from(z.center).length() < 0.2 * rho, "{z:?}");
+    assert!(
+        z.radius >= 0.9 * rho && z.radius <= (1.0 + s.margin) * rho * 1.001,
+        "{z:?}"
+    );
+
+    // The same matches through the pair's boxes: the cone intersection's sphere.
+    let xy_v: Vec<[f32; 2]> = matches
+        .iter()
+        .map(|m| [m.0[0] as f32, m.0[1] as f32])
+        .collect();
+    let xy_r: Vec<[f32; 2]> = matches
+        .iter()
+        .map(|m| [m.1[0] as f32, m.1[1] as f32])
+        .collect();
+    let region = Region {
+        x0: 0,
+        y0: 0,
+        x1: 640,
+        y1: 480,
+    };
+    let (pairs, _) = pair_regions(&[region], &xy_v, &xy_r);
+    let pair: &RegionPair = &pairs[0];
+    assert_eq!(pair.matched.len(), 40);
+    let sphere = zone_for_pair(
+        cv(0),
+        cv(1),
+        pair,
+        &xy_v,
+        &xy_r,
+        &ZoneSettings {
+            geometry: ZoneGeometry::Sphere,
+            ..s
+        },
+    );
+    let Some(Zone::Sphere(big)) = sphere.zone else {
+        panic!("no sphere zone")
+    };
+    // At 6° the cones' lens reaches far along the viewing direction: much larger zone.
+    assert!(
+        big.radius > 5.0 * z.radius,
+        "sphere {} vs triangulated {}",
+        big.radius,
+        z.radius
+    );
+    // zone_for_pair with the default geometry is the triangulated zone from the pair's matches.
+    let via_pair = zone_for_pair(cv(0), cv(1), pair, &xy_v, &xy_r, &s);
+    let Some(Zone::Sphere(zp)) = via_pair.zone else {
+        panic!()
+    };
+    assert!((zp.radius - z.radius).abs() < 1e-5 * z.radius);
+}
+
+#[test]
+fn triangulated_zone_drops_a_mismatch_and_keeps_a_minimum_size() {
+    let cams = small_baseline(10.0);
+    let cv = |v: usize| CameraView {
+        camera: &cams[v].0,
+        pose: &cams[v].1,
+    };
+    let rho = 0.1;
+    let mut matches = disc_matches(&cams, rho, 30);
+    // A mismatch along the epipolar line: the view-1 point of something twice as far away.
+    let far = DVec3::new(0.02, 4.0, 0.01);
+    let m0 = project(&cams[0].0, &cams[0].1, far).unwrap();
+    // Move along camera 0's ray to depth 8: same pixel in view 0, another pixel in view 1.
+    let o = DVec3::from(cams[0].1.center());
+    let d = (far - o).normalize();
+    let wrong = o + 8.0 * d;
+    let m1 = project(&cams[1].0, &cams[1].1, wrong).unwrap();
+    matches.push((m0, m1));
+    let s = ZoneSettings::default();
+    let out = triangulated_zone(cv(0), cv(1), &matches, &s);
+    let Some(Zone::Sphere(z)) = out.zone else {
+        panic!("no zone")
+    };
+    assert_eq!(out.rejected, 1, "{out:?}");
+    assert!(z.radius <= (1.0 + s.margin) * rho * 1.001, "{z:?}");
+
+    // Two matches of almost the same point: the zone takes the floor of min_radius_px pixels
+    // of view 0 at its depth (about 4 units, f = 500: 4 px ≈ 0.032).
+    let p = DVec3::new(0.0, 0.0, 0.0);
+    let q = DVec3::new(1e-6, 0.0, 0.0);
+    let two: Vec<([f64; 2], [f64; 2])> = [p, q]
+        .iter()
+        .map(|x| {
+            (
+                project(&cams[0].0, &cams[0].1, *x).unwrap(),
+                project(&cams[1].0, &cams[1].1, *x).unwrap(),
+            )
+        })
+        .collect();
+    let Some(Zone::Sphere(small)) = triangulated_zone(cv(0), cv(1), &two, &s).zone else {
+        panic!()
+    };
+    let depth = cams[0].1.transform(small.center)[2];
+    let floor = s.min_radius_px * depth / cams[0].0.fx.max(cams[0].0.fy);
+    assert!(
+        (small.radius - floor).abs() < 1e-9 * floor.max(1.0),
+        "{} vs {floor}",
+        small.radius
+    );
+
+    // The same camera twice: every ray pair is parallel, no point survives, no zone.
+    let out = triangulated_zone(cv(0), cv(0), &two, &s);
+    assert!(out.zone.is_none() && out.rejected == 2, "{out:?}");
+    // Given boxes only, the triangulated geometry finds nothing (it needs the matches).
+    let b = PixelBox {
+        x0: 1.0,
+        y0: 1.0,
+        x1: 9.0,
+        y1: 9.0,
+    };
+    assert!(zone_from_boxes(cv(0), &b, cv(1), &b, &s).zone.is_none());
+}
+
+#[test]
+fn block_size_follows_the_image_size_unless_given() {
+    let auto = RegionSettings::default();
+    assert_eq!(auto.block, 0);
+    assert_eq!(auto.resolved(1000, 1000).block, 16);
+    assert_eq!(auto.resolved(1600, 1200).block, 22);
+    assert_eq!(auto.resolved(979, 546).block, 12);
+    assert_eq!(auto.resolved(800, 533).block, 10);
+    assert_eq!(auto.resolved(162, 242).block, 4, "at least 4 px");
+    let fixed = RegionSettings { block: 16, ..auto };
+    assert_eq!(fixed.resolved(162, 242).block, 16);
+    assert_eq!(fixed.resolved(162, 242).keep_fraction, auto.keep_fraction);
+}
+
+#[test]
+fn authors_cone_radius_is_the_smallest_half_extent() {
+    let z = Zone::Box {
+        min: [0.0, 0.0, 0.0],
+        max: [2.0, 0.5, 1.0],
+    };
+    let paper = ZoneRecord::with_cone(&z, [5.0, 0.0, 0.0], [0.0; 3], ConeRadius::Bounding);
+    let authors = ZoneRecord::with_cone(
+        &z,
+        [5.0, 0.0, 0.0],
+        [0.0; 3],
+        ConeRadius::SmallestHalfExtent,
+    );
+    assert!((paper.cone_radius - paper.radius).abs() < 1e-7);
+    assert_eq!(authors.cone_radius, 0.25);
+    assert_eq!(authors.radius, paper.radius);
+    let sphere = Zone::Sphere(lpmsplat::lpm::enclosing_sphere::Sphere {
+        center: [0.0; 3],
+        radius: 0.7,
+    });
+    let s = ZoneRecord::with_cone(
+        &sphere,
+        [5.0, 0.0, 0.0],
+        [0.0; 3],
+        ConeRadius::SmallestHalfExtent,
+    );
+    assert!((s.cone_radius - 0.7).abs() < 1e-7);
 }

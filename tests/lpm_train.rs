@@ -7,10 +7,10 @@
 use glam::DVec3;
 use lpmsplat::gpu::{GpuContext, GpuOptions};
 use lpmsplat::lpm::neighbours::{select_neighbours, NeighbourSettings};
-use lpmsplat::lpm::{Correspondences, PairMatches};
+use lpmsplat::lpm::{Correspondences, PairMatches, ZoneGeometry};
 use lpmsplat::scene::{CameraModel, Image, PinholeCamera, Pose, Scene, SceneFormat, View};
 use lpmsplat::splats::GaussianParams;
-use lpmsplat::train::lpm_step::{LpmConfig, LpmStepReport, LpmTrainer};
+use lpmsplat::train::lpm_step::{LpmConfig, LpmStepReport, LpmTrainer, PruneMode};
 use lpmsplat::train::trainer::{Background, TrainConfig, Trainer};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
@@ -205,12 +205,20 @@ fn config(grad_threshold: f32, interval: u32) -> TrainConfig {
 }
 
 fn lpm_config() -> LpmConfig {
-    LpmConfig {
+    let mut c = LpmConfig {
         interval: 1,
+        reset_interval: 1,
         from: 0,
         until: 1000,
         ..LpmConfig::default()
-    }
+    };
+    // This scene was built for the paper's cone-intersection sphere at 16-pixel blocks: the
+    // occluder's footprint (radius about 6 px) holds no 16-px block of 85 % error pixels, and
+    // it is reset because a neighbouring region's sphere zone (large at this baseline) puts it
+    // in front. `default_rules_add_a_point_in_the_hole` covers the default local zones.
+    c.regions.block = 16;
+    c.zones.geometry = ZoneGeometry::Sphere;
+    c
 }
 
 #[test]
@@ -453,21 +461,39 @@ fn lpm_off_is_bit_identical_to_adc() {
         "a neutral LPM decided differently from ADC"
     );
     // And LPM that does run changes the model (so the comparison above can fail).
-    let r = run(Some(lpm_config()));
+    let additive = LpmConfig {
+        prune: PruneMode::Additive,
+        ..lpm_config()
+    };
+    let r = run(Some(additive.clone()));
     eprintln!("{:?}", r.5);
     assert!(!same(&model(&r)), "an active LPM left the run unchanged");
-    // Density-aware pruning removes exactly as many as the lowered threshold added.
+    // Additive density-aware pruning removes exactly as many as the lowered threshold added.
     assert!(r.5.iter().all(|s| s.pruned == s.lowered));
     // A threshold scale that makes every seen Gaussian inside a zone densify exercises the
     // lowered-threshold count and the exact lowest-opacity selection.
     let low = LpmConfig {
         threshold_ratio: 1e-3,
-        ..lpm_config()
+        ..additive
     };
-    let r = run(Some(low));
+    let r = run(Some(low.clone()));
     eprintln!("{:?}", r.5);
     assert!(r.5.iter().any(|s| s.lowered > 0));
     assert!(r.5.iter().all(|s| s.pruned == s.lowered));
+    // Without pruning nothing extra goes; the authors' rule (the k-th smallest opacity of the
+    // densified model, ties included, OR-ed into ADC's mask) prunes where k > 0.
+    let off = run(Some(LpmConfig {
+        prune: PruneMode::Off,
+        ..low.clone()
+    }));
+    assert!(off.5.iter().all(|s| s.pruned == 0) && off.5.iter().any(|s| s.lowered > 0));
+    let authors = run(Some(LpmConfig {
+        prune: PruneMode::Authors,
+        ..low
+    }));
+    eprintln!("{:?}", authors.5);
+    assert!(authors.5.iter().any(|s| s.lowered > 0 && s.pruned > 0));
+    assert!(authors.4 < off.4, "the authors' pruning removed nothing");
     ctx.check_validation().unwrap();
 }
 
@@ -571,8 +597,9 @@ fn lpm_config_rejects_impossible_block_settings() {
     with(16, 0.85).unwrap();
     with(4, 0.0).unwrap();
     with(256, 0.999).unwrap();
+    // 0: the block follows the image size.
+    with(0, 0.85).unwrap();
     for (block, fraction, flag) in [
-        (0, 0.85, "--lpm-block"),
         (257, 0.85, "--lpm-block"),
         (16, 1.0, "--lpm-block-fraction"),
         (16, -0.1, "--lpm-block-fraction"),
@@ -581,4 +608,181 @@ fn lpm_config_rejects_impossible_block_settings() {
         let e = with(block, fraction).unwrap_err().to_string();
         assert!(e.contains(flag), "{block} {fraction}: {e}");
     }
+}
+
+/// The authors' rules skip ADC on a density step that finds no zone (here: no correspondences,
+/// so no region pairs). Nothing is rebuilt, so the iteration's optimizer step runs: the run's
+/// parameters equal a run whose density window never opens. Our rules keep ADC running.
+#[test]
+fn authors_rules_skip_adc_without_a_zone_and_still_take_the_optimizer_step() {
+    if rerun_single_threaded(
+        "authors_rules_skip_adc_without_a_zone_and_still_take_the_optimizer_step",
+    ) {
+        return;
+    }
+    let ctx = GpuContext::new(&GpuOptions::for_tests()).unwrap();
+    let scene = scene();
+    let gt = ground_truth(&ctx, &scene);
+    let init = initial_model();
+    let no_matches = || {
+        let mut c = correspondences(&scene);
+        for p in &mut c.pairs {
+            p.xy_a.clear();
+            p.xy_b.clear();
+        }
+        c
+    };
+    let run = |cfg: TrainConfig, lpm: Option<LpmConfig>| {
+        let mut t = Trainer::new(&ctx, &scene, &gt, &init, cfg).unwrap();
+        if let Some(c) = lpm {
+            t.lpm = Some(LpmTrainer::new(&ctx, &scene, &gt, no_matches(), c).unwrap());
+        }
+        let mut reports = Vec::new();
+        for _ in 0..12 {
+            reports.extend(t.step().unwrap().lpm);
+        }
+        (t.model().unwrap(), reports)
+    };
+    let mut authors = LpmConfig::authors();
+    authors.interval = 5;
+    authors.from = 0;
+    authors.until = 1000;
+    let (skipped, reports) = run(config(2e-5, 5), Some(authors.clone()));
+    assert_eq!(reports.iter().filter(|r| !r.reset_only).count(), 2);
+    assert!(reports
+        .iter()
+        .all(|r| r.zones == 0 && (r.reset_only || r.skipped_adc)));
+    assert_eq!(
+        skipped.len(),
+        init.len(),
+        "ADC ran on a step without a zone"
+    );
+    // Same as never densifying: every iteration took its optimizer step.
+    let mut closed = config(2e-5, 5);
+    closed.schedule.densify_from = 1000;
+    let (plain, _) = run(closed, None);
+    let bits = |m: &GaussianParams| {
+        let mut v: Vec<u32> = bytemuck::cast_slice::<_, f32>(&m.positions)
+            .iter()
+            .chain(&m.opacity_logits)
+            .chain(bytemuck::cast_slice::<_, f32>(&m.sh_dc))
+            .map(|x| x.to_bits())
+            .collect();
+        v.push(m.len() as u32);
+        v
+    };
+    let (a, b) = (bits(&skipped), bits(&plain));
+    let noise = if ctx.info.device_type.starts_with("CPU") {
+        None
+    } else {
+        let mut closed = config(2e-5, 5);
+        closed.schedule.densify_from = 1000;
+        max_difference(&b, &bits(&run(closed, None).0))
+    };
+    assert!(
+        matches(&a, &b, noise),
+        "a skipped ADC step is not a plain optimizer step"
+    );
+    // Our rules: ADC runs on the same steps and densifies.
+    let ours = LpmConfig {
+        skip_adc_without_zone: false,
+        ..authors
+    };
+    let (densified, reports) = run(config(2e-5, 5), Some(ours));
+    assert!(reports.iter().all(|r| !r.skipped_adc));
+    assert!(densified.len() > init.len(), "ADC did not densify");
+    ctx.check_validation().unwrap();
+}
+
+/// LPM's opacity reset follows its own interval: on an iteration without a density step it
+/// runs alone (zones, membership, reset), and a density step off that interval does not reset.
+#[test]
+fn lpm_reset_runs_on_its_own_interval() {
+    let ctx = GpuContext::new(&GpuOptions::for_tests()).unwrap();
+    let scene = scene();
+    let gt = ground_truth(&ctx, &scene);
+    let init = initial_model();
+    let run = |reset_interval: u32| {
+        let mut t = Trainer::new(&ctx, &scene, &gt, &init, config(1e9, 2)).unwrap();
+        let c = LpmConfig {
+            interval: 2,
+            reset_interval,
+            add_points: false,
+            ..lpm_config()
+        };
+        t.lpm = Some(LpmTrainer::new(&ctx, &scene, &gt, correspondences(&scene), c).unwrap());
+        let r1 = t.step().unwrap();
+        let occ = |m: &GaussianParams| {
+            let i = (0..m.len())
+                .find(|&i| dist(m.positions[i], OCCLUDER) < 0.05)
+                .unwrap();
+            m.opacity_logits[i]
+        };
+        let after1 = occ(&t.model().unwrap());
+        let r2 = t.step().unwrap();
+        (r1, after1, r2, t.lpm.as_ref().unwrap().steps.len())
+    };
+    // Every iteration: iteration 1 (no density step) resets alone, iteration 2 with the density
+    // step.
+    let (r1, occ1, r2, steps) = run(1);
+    let l1 = r1.lpm.expect("a reset-only LPM step at iteration 1");
+    assert!(
+        r1.densified.is_none() && l1.reset_only && l1.zones >= 1 && l1.reset >= 1,
+        "{l1:?}"
+    );
+    assert!(
+        (occ1 - logit(0.01)).abs() < 1e-4,
+        "occluder logit {occ1} not reset"
+    );
+    let l2 = r2.lpm.expect("LPM at iteration 2");
+    assert!(!l2.reset_only && r2.densified.is_some());
+    assert_eq!(steps, 2);
+    // Every 4: iteration 1 does nothing, the density step at 2 does not reset.
+    let (r1, occ1, r2, steps) = run(4);
+    assert!(r1.lpm.is_none());
+    assert!(
+        (occ1 - logit(0.01)).abs() > 1.0,
+        "occluder reset at iteration 1: {occ1}"
+    );
+    let l2 = r2.lpm.expect("LPM's density part at iteration 2");
+    assert_eq!(l2.reset, 0, "{l2:?}");
+    assert_eq!(steps, 1);
+    ctx.check_validation().unwrap();
+}
+
+/// The default rules (triangulated zones, automatic block size) on the same scene: the hole's
+/// zone is built from the matches inside it, lies on the plane, holds no Gaussian, and gets one
+/// at its centre; every zone is local (far smaller than the scene).
+#[test]
+fn default_rules_add_a_point_in_the_hole() {
+    let ctx = GpuContext::new(&GpuOptions::for_tests()).unwrap();
+    let scene = scene();
+    let gt = ground_truth(&ctx, &scene);
+    let init = initial_model();
+    let mut t = Trainer::new(&ctx, &scene, &gt, &init, config(1e9, 1)).unwrap();
+    let c = LpmConfig {
+        interval: 1,
+        from: 0,
+        until: 1000,
+        ..LpmConfig::default()
+    };
+    assert_eq!(c.zones.geometry, ZoneGeometry::Triangulated);
+    t.lpm = Some(LpmTrainer::new(&ctx, &scene, &gt, correspondences(&scene), c).unwrap());
+    let rep = t.step().unwrap().lpm.expect("LPM ran at iteration 1");
+    eprintln!("{rep:?}");
+    assert_eq!(rep.block, 4, "automatic block at 160×120");
+    assert!(rep.zones >= 1 && rep.added >= 1, "{rep:?}");
+    assert!(
+        rep.radius_mean > 0.0 && rep.radius_max >= rep.radius_mean,
+        "{rep:?}"
+    );
+    let m = t.model().unwrap();
+    let added: Vec<[f32; 3]> = (init.len()..m.len()).map(|i| m.positions[i]).collect();
+    assert!(
+        added
+            .iter()
+            .any(|p| dist(*p, HOLE) < HOLE_RADIUS && p[2].abs() < 0.05),
+        "no Gaussian added on the plane in the hole: {added:?}"
+    );
+    ctx.check_validation().unwrap();
 }

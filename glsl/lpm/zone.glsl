@@ -8,7 +8,7 @@ struct Zone {
     vec3 color;
     float pad0;
     vec3 half_extents;    // box only
-    float pad1;
+    float cone_radius;    // base radius of the in-front cone, radius of the FLAG_IN_BALL ball
 };
 const uint ZONE_SPHERE = 0u;
 const uint ZONE_BOX = 1u;
@@ -16,3 +16,4 @@ const uint ZONE_BOX = 1u;
 // Bits of the per-Gaussian membership flags (src/lpm/membership.rs has the same constants).
 const uint FLAG_INSIDE = 1u;
 const uint FLAG_IN_FRONT = 2u;
+const uint FLAG_IN_BALL = 4u;  // within cone_radius of a zone's centre (the authors' reset set)

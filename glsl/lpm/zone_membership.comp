@@ -6,11 +6,13 @@
 // whether it lies "in front of" any zone; per zone, how many centres lie inside it.
 //
 // flags[i]: bit 0 (FLAG_INSIDE) inside at least one zone, bit 1 (FLAG_IN_FRONT) in front of at
-// least one zone; the other bits are 0.
+// least one zone, bit 2 (FLAG_IN_BALL) within the cone radius of a zone's centre; the other
+// bits are 0.
 //
 // Inside: sphere |x − c|² ≤ r², box |x_k − c_k| ≤ h_k on each axis (boundary included).
-// In front (LPM.md step 7), with apex o = camera_center, v = x − o, a = c − o, and the zone's
-// bounding sphere (c, r): angle(v, a) ≤ atan(r / |a|) and |v| ≤ |a| − r (|v| ≤ |a| when |a| ≤ r).
+// In front (LPM.md step 7), with apex o = camera_center, v = x − o, a = c − o, and the ball
+// (c, r) with r = the zone's cone_radius (its bounding radius, or the authors' smallest box
+// half-extent): angle(v, a) ≤ atan(r / |a|) and |v| ≤ |a| − r (|v| ≤ |a| when |a| ≤ r).
 // Written without sqrt, atan or division, with V = v·v, A = a·a, D = v·a, R = r²:
 //   angle:    D ≥ 0 and D²(A + R) ≥ A² V       (cos² of the angle ≥ cos² of atan(r/h) = A/(A+R))
 //   distance: A > R:  W = A − V − R ≥ 0 and 4 R V ≤ W²   (|v| + r ≤ h squared twice)
@@ -38,7 +40,7 @@ layout(push_constant) uniform Push { uint count; uint zone_count; };
 shared vec4 s_sphere[ZONE_BATCH];  // centre, r²
 shared vec4 s_half[ZONE_BATCH];    // box half extents
 shared vec4 s_apex[ZONE_BATCH];    // camera centre o, A = |c − o|²
-shared vec4 s_axis[ZONE_BATCH];    // a = c − o
+shared vec4 s_axis[ZONE_BATCH];    // a = c − o, w: cone radius²
 shared uint s_shape[ZONE_BATCH];
 shared uint s_inside[ZONE_BATCH];
 
@@ -56,11 +58,20 @@ bool inside_zone(vec3 x, uint j) {
     return d2 <= s.w;
 }
 
+bool in_ball(vec3 x, uint j) {
+    vec4 s = s_sphere[j];
+    precise float dx = x.x - s.x;
+    precise float dy = x.y - s.y;
+    precise float dz = x.z - s.z;
+    precise float d2 = dx * dx + dy * dy + dz * dz;
+    return d2 <= s_axis[j].w;
+}
+
 bool in_front(vec3 x, uint j) {
     vec4 o = s_apex[j];
     vec3 a = s_axis[j].xyz;
     float A = o.w;
-    float R = s_sphere[j].w;
+    float R = s_axis[j].w;
     precise float vx = x.x - o.x;
     precise float vy = x.y - o.y;
     precise float vz = x.z - o.z;
@@ -105,7 +116,8 @@ void main() {
             s_sphere[j] = vec4(z.center, R);
             s_half[j] = vec4(z.half_extents, 0.0);
             s_apex[j] = vec4(z.camera_center, A);
-            s_axis[j] = vec4(ax, ay, az, 0.0);
+            precise float C = z.cone_radius * z.cone_radius;
+            s_axis[j] = vec4(ax, ay, az, C);
             s_shape[j] = z.shape;
             s_inside[j] = 0u;
         }
@@ -119,6 +131,7 @@ void main() {
                     c++;
                 }
                 if ((f[k] & FLAG_IN_FRONT) == 0u && in_front(x[k], j)) f[k] |= FLAG_IN_FRONT;
+                if ((f[k] & FLAG_IN_BALL) == 0u && in_ball(x[k], j)) f[k] |= FLAG_IN_BALL;
             }
             if (subgroupAny(c != 0u)) {
                 uint s = subgroupAdd(c);

@@ -11,12 +11,17 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions};
+use lpmsplat::lpm::ZoneGeometry;
 use lpmsplat::render::forward::{FrameSettings, Renderer};
 use lpmsplat::render::layout::{CameraGpu, RenderConstants};
 use lpmsplat::scene::{images, Scene};
 use lpmsplat::splats::gpu::GpuSplats;
 use lpmsplat::splats::write_ply;
-use lpmsplat::train::lpm_step::LpmConfig;
+use lpmsplat::train::lpm_step::{LpmConfig, PruneMode};
+
+fn parse_prune(s: &str) -> anyhow::Result<PruneMode> {
+    PruneMode::parse(s)
+}
 use lpmsplat::train::trainer::{TrainConfig, Trainer};
 use std::io::Write;
 use std::path::PathBuf;
@@ -57,7 +62,8 @@ pub struct TradeArgs {
     #[arg(long, default_value_t = 20)]
     pub fps_frames: usize,
     /// The runs to compare, comma separated, in table order: adc, adc-threshold-1e-4, adc+lpm,
-    /// lpm-no-add, lpm-no-reset (aliases: adc-1e-4, lpm). Default: all five.
+    /// lpm-no-add, lpm-no-reset, lpm-authors (the authors' rules), lpm-sphere (the paper's
+    /// cone-intersection zone) (aliases: adc-1e-4, lpm). Default: the first five.
     #[arg(long, value_delimiter = ',')]
     pub runs: Vec<String>,
     /// Run the variants one after another instead of interleaving their iterations. Interleaving
@@ -65,9 +71,13 @@ pub struct TradeArgs {
     /// ratios hold on a noisy machine; sequential needs the memory of one run only.
     #[arg(long)]
     pub sequential: bool,
-    /// LPM runs: error-region block side in pixels (as `train --lpm-block`).
-    #[arg(long, default_value_t = 16)]
+    /// LPM runs: error-region block side in pixels (as `train --lpm-block`; 0 follows the
+    /// image size).
+    #[arg(long, default_value_t = 0)]
     pub lpm_block: u32,
+    /// LPM runs: density-aware pruning (as `train --lpm-prune`; default: each rule set's own).
+    #[arg(long, value_parser = parse_prune)]
+    pub lpm_prune: Option<PruneMode>,
     /// LPM runs: fraction of error pixels that keeps a block (as `train --lpm-block-fraction`).
     #[arg(long, default_value_t = 0.85)]
     pub lpm_block_fraction: f32,
@@ -96,12 +106,16 @@ pub struct TradeRow {
     pub fps_1352x1014: f64,
 }
 
-pub const RUNS: [(&str, [u8; 3]); 5] = [
+pub const RUNS: [(&str, [u8; 3]); 7] = [
     ("adc", [40, 40, 40]),
     ("adc-threshold-1e-4", [200, 120, 0]),
     ("adc+lpm", [220, 30, 30]),
     ("lpm-no-add", [30, 120, 220]),
     ("lpm-no-reset", [30, 170, 60]),
+    // `train --lpm-rules authors`: the authors' code's rules exactly.
+    ("lpm-authors", [150, 60, 200]),
+    // Our rules with the paper's cone-intersection sphere instead of the triangulated zone.
+    ("lpm-sphere", [120, 90, 40]),
 ];
 
 pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
@@ -176,14 +190,22 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                 cfg.density.grad_threshold = 1e-4;
             }
             let lpm = (k >= 2).then(|| {
-                let mut c = LpmConfig {
-                    from: cfg.schedule.densify_from,
-                    until: cfg.schedule.densify_until,
-                    add_points: name != "lpm-no-add",
-                    reset: name != "lpm-no-reset",
-                    seed,
-                    ..LpmConfig::default()
+                let mut c = if name == "lpm-authors" {
+                    LpmConfig::authors()
+                } else {
+                    LpmConfig::default()
                 };
+                c.from = cfg.schedule.densify_from;
+                c.until = cfg.schedule.densify_until;
+                c.add_points &= name != "lpm-no-add";
+                c.reset = name != "lpm-no-reset";
+                c.seed = seed;
+                if name == "lpm-sphere" {
+                    c.zones.geometry = ZoneGeometry::Sphere;
+                }
+                if let Some(p) = args.lpm_prune {
+                    c.prune = p;
+                }
                 c.regions.block = args.lpm_block;
                 c.regions.keep_fraction = args.lpm_block_fraction;
                 c
@@ -338,7 +360,7 @@ struct Run {
 /// Indices into [`RUNS`] for the `--runs` list (all when empty), in table order.
 pub fn selected_runs(names: &[String]) -> anyhow::Result<Vec<usize>> {
     if names.is_empty() {
-        return Ok((0..RUNS.len()).collect());
+        return Ok((0..5).collect());
     }
     let mut out = Vec::new();
     for n in names {

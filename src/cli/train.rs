@@ -11,7 +11,7 @@ use lpmsplat::gpu::{GpuContext, GpuOptions, StageTimes};
 use lpmsplat::lpm::{self, ZoneGeometry};
 use lpmsplat::scene::{images, Image, Scene};
 use lpmsplat::splats::{self, read_ply, write_ply, GaussianParams};
-use lpmsplat::train::lpm_step::{LpmConfig, LpmTrainer};
+use lpmsplat::train::lpm_step::{LpmConfig, LpmTrainer, PruneMode};
 use lpmsplat::train::nan_check::NonFiniteCheck;
 use lpmsplat::train::trainer::{Background, TrainConfig, Trainer, ViewMetrics};
 use std::io::Write;
@@ -124,23 +124,44 @@ pub struct LpmArgs {
     /// Error pixels: above this quantile of the error map.
     #[arg(long, default_value_t = 0.4)]
     pub lpm_error_quantile: f32,
-    /// Error regions are built from square blocks of this many pixels a side (the paper's 16).
-    /// At low resolution a 16-pixel block is a large part of the image and error rarely fills
-    /// one: smaller blocks make LPM find regions there.
-    #[arg(long, default_value_t = 16)]
+    /// Error regions are built from square blocks of this many pixels a side. 0 (default):
+    /// follow the image size, 16 px at one megapixel (the paper's block at its resolution)
+    /// scaled with the image diagonal, at least 4 px. At low resolution a 16-pixel block is a
+    /// large part of the image and error rarely fills one.
+    #[arg(long, default_value_t = 0)]
     pub lpm_block: u32,
     /// A block is kept when more than this fraction of its pixels are error pixels.
     #[arg(long, default_value_t = 0.85)]
     pub lpm_block_fraction: f32,
-    /// Opacity reset: in-front Gaussians at or above this quantile of the opacities inside zones.
-    #[arg(long, default_value_t = 0.7)]
-    pub lpm_reset_quantile: f64,
+    /// Which rules LPM follows: `ours` (local triangulated zones, the paper's point addition,
+    /// the authors' pruning, ADC on every density step) or `authors` (the authors' code
+    /// exactly: box zones, the in-front cone and the reset set on a ball of the box's smallest
+    /// half-extent, the top 70 % reset, pruning OR-ed into ADC's mask, no point addition, no
+    /// ADC on steps without a zone). The flags below override single rules.
+    #[arg(long, default_value = "ours", value_parser = ["ours", "authors"])]
+    pub lpm_rules: String,
+    /// Opacity reset: in-front Gaussians at or above this quantile of the opacities inside zones
+    /// (0.3 = the top 70 %, the authors' k = int(0.7 n); default 0.3 under both rules).
+    #[arg(long)]
+    pub lpm_reset_quantile: Option<f64>,
+    /// LPM's opacity reset runs every N iterations inside its window, also where the density
+    /// step does not (the authors' reset_interval: 100; 200 suggested indoors).
+    #[arg(long, default_value_t = 100)]
+    pub lpm_reset_interval: u32,
+    /// Density-aware pruning: authors (the k-th smallest opacity after densification OR-ed
+    /// into ADC's mask), additive (exactly k more of the faintest untouched Gaussians), off.
+    #[arg(long, value_parser = ["authors", "additive", "off"])]
+    pub lpm_prune: Option<String>,
+    /// Skip ADC on density steps where LPM finds no zone (true under `--lpm-rules authors`).
+    #[arg(long)]
+    pub lpm_skip_adc: Option<bool>,
     /// Largest optical-axis angle between neighbour views, degrees (90 suggested indoors).
     #[arg(long, default_value_t = 45.0)]
     pub lpm_neighbour_angle: f64,
-    /// Zone geometry: sphere (paper), ray-pairs, authors-box (the authors' code).
-    #[arg(long, default_value = "sphere", value_parser = ["sphere", "ray-pairs", "authors-box"])]
-    pub lpm_zone: String,
+    /// Zone geometry: triangulated (ours: the enclosing sphere of the triangulated matches),
+    /// sphere (the paper: the cone intersection's enclosing sphere), ray-pairs, authors-box.
+    #[arg(long, value_parser = ["triangulated", "sphere", "ray-pairs", "authors-box"])]
+    pub lpm_zone: Option<String>,
     /// Dump PNGs of every LPM step (error map, kept blocks, paired regions, zones) here.
     #[arg(long)]
     pub lpm_debug: Option<PathBuf>,
@@ -166,31 +187,53 @@ impl LpmArgs {
             "--lpm-neighbour-angle {}: must be in (0, 180] degrees",
             self.lpm_neighbour_angle
         );
-        let mut c = LpmConfig {
-            interval: self.lpm_interval,
-            from: self.lpm_from,
-            until: self.lpm_until,
-            threshold_ratio: self.lpm_threshold_ratio,
-            add_points: !self.lpm_no_add,
-            reset: !self.lpm_no_reset,
-            seed,
-            debug_dir: self.lpm_debug.clone(),
-            ..LpmConfig::default()
+        let mut c = match self.lpm_rules.as_str() {
+            "authors" => LpmConfig::authors(),
+            _ => LpmConfig::default(),
         };
+        c.interval = self.lpm_interval;
+        c.from = self.lpm_from;
+        c.until = self.lpm_until;
+        c.threshold_ratio = self.lpm_threshold_ratio;
+        c.add_points &= !self.lpm_no_add;
+        c.reset = !self.lpm_no_reset;
+        c.seed = seed;
+        c.debug_dir = self.lpm_debug.clone();
+        c.reset_interval = self.lpm_reset_interval;
         c.regions.quantile = self.lpm_error_quantile;
         c.regions.block = self.lpm_block;
         c.regions.keep_fraction = self.lpm_block_fraction;
-        c.reset_settings.quantile = self.lpm_reset_quantile;
+        if let Some(q) = self.lpm_reset_quantile {
+            c.reset_settings.quantile = q;
+        }
+        if let Some(p) = &self.lpm_prune {
+            c.prune = PruneMode::parse(p)?;
+        }
+        if let Some(skip) = self.lpm_skip_adc {
+            c.skip_adc_without_zone = skip;
+        }
         c.matching.neighbours.max_angle_deg = self.lpm_neighbour_angle;
         c.matching.neighbours.seed = seed;
-        c.zones.geometry = match self.lpm_zone.as_str() {
-            "ray-pairs" => ZoneGeometry::SphereRayPairs,
-            "authors-box" => ZoneGeometry::AuthorsBox,
-            _ => ZoneGeometry::Sphere,
-        };
+        if let Some(z) = &self.lpm_zone {
+            c.zones.geometry = parse_zone(z)?;
+        }
         c.validate()?;
         Ok(Some(c))
     }
+}
+
+/// A zone geometry by its command-line name.
+pub fn parse_zone(name: &str) -> anyhow::Result<ZoneGeometry> {
+    Ok(match name {
+        "triangulated" => ZoneGeometry::Triangulated,
+        "sphere" => ZoneGeometry::Sphere,
+        "ray-pairs" => ZoneGeometry::SphereRayPairs,
+        "authors-box" => ZoneGeometry::AuthorsBox,
+        other => anyhow::bail!(
+            "LPM zone geometry {other:?} is unknown. Fix: choose triangulated, sphere, ray-pairs \
+             or authors-box"
+        ),
+    })
 }
 
 /// Builds the LPM state for a trainer: correspondences from the cache in `cache_dir` (built and
@@ -587,7 +630,11 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         "device": ctx.info.name,
         "gpu_memory_mib": ctx.memory_in_use().1 as f64 / (1u64 << 20) as f64,
         "stages": if config.timestamps { stage_shares(&stages) } else { serde_json::Value::Null },
-        "lpm": trainer.lpm.as_ref().map(|l| lpm_summary(&l.totals, train_s, config.iterations)),
+        "lpm": trainer.lpm.as_ref().map(|l| {
+            let mut j = lpm_summary(&l.totals, train_s, config.iterations);
+            j["per_step"] = l.steps.iter().map(|r| r.to_json()).collect();
+            j
+        }),
     });
     let text = serde_json::to_string_pretty(&metrics)?;
     write_atomic(&args.out.join("metrics.json"), |f| {
@@ -685,7 +732,8 @@ pub fn lpm_summary(
         "steps": t.steps, "steps_with_zones": t.steps_with_zones, "regions": t.regions,
         "paired": t.paired, "zones": t.zones,
         "lowered": t.lowered, "pruned_extra": t.pruned, "opacity_reset": t.reset,
-        "added": t.added, "seconds": t.seconds,
+        "added": t.added, "inside": t.inside, "radius_mean_rel": t.radius_mean,
+        "radius_max_rel": t.radius_max, "skipped_adc": t.skipped_adc, "seconds": t.seconds,
         "share_of_training": t.seconds / train_seconds.max(1e-12),
         "ms_per_iteration": 1e3 * t.seconds / iterations.max(1) as f64,
     })

@@ -53,6 +53,7 @@ struct HistPush {
     pass: u32,
     flag_mask: u32,
     ranks: u32,
+    weighted: u32,
 }
 
 #[repr(C)]
@@ -302,6 +303,7 @@ impl LpmGpu {
         flags: &GpuBuffer<u32>,
         count: u32,
         flag_mask: u32,
+        weighted: bool,
         pick: PickPush,
     ) {
         rec.fill(&sel.state, 0);
@@ -319,6 +321,7 @@ impl LpmGpu {
                     pass,
                     flag_mask,
                     ranks: pick.ranks,
+                    weighted: weighted as u32,
                 },
                 groups,
             );
@@ -335,7 +338,7 @@ impl LpmGpu {
 
     /// Records the LPM opacity reset over the first `count` Gaussians, given the flags of
     /// [`Self::record_membership`]: the threshold is selected among the logits of the Gaussians
-    /// with `FLAG_INSIDE`, and every `FLAG_IN_FRONT` Gaussian at or above it gets
+    /// with `s.threshold_set` (`FLAG_INSIDE` or `FLAG_IN_BALL`), and every `FLAG_IN_FRONT` Gaussian at or above it gets
     /// `logit(s.opacity)` (see [`OpacityResetSettings`]). Read the outcome with
     /// [`Self::read_opacity_reset_stats`] after the submission has completed.
     pub fn record_opacity_reset(
@@ -362,7 +365,8 @@ impl LpmGpu {
             opacity_logits,
             flags,
             count,
-            super::membership::FLAG_INSIDE,
+            s.threshold_set,
+            false,
             PickPush {
                 pass: 0,
                 mode: 1,
@@ -481,6 +485,7 @@ impl LpmGpu {
             &self.no_flags,
             pixels,
             0,
+            false,
             PickPush {
                 pass: 0,
                 mode: 0,
@@ -514,7 +519,8 @@ impl LpmGpu {
     /// [`Self::rank_selection_state`] holds, in the layout of `glsl/lpm/select_state.glsl`, its
     /// key at `SEL_PREFIX` (4) and at `SEL_RANK` (2) its rank among the elements with exactly
     /// that key (so `SEL_RANK + 1` of those are at or below `rank`); `SEL_VALID` (1) is 0 when
-    /// `taking_part` is 0.
+    /// `taking_part` is 0. With `weighted`, element i counts `flags[i]` times (a multiset;
+    /// `taking_part` is then the sum of the weights, at most 2·`count`).
     #[allow(clippy::too_many_arguments)]
     pub fn record_rank_selection(
         &self,
@@ -522,6 +528,7 @@ impl LpmGpu {
         values: &GpuBuffer<f32>,
         flags: &GpuBuffer<u32>,
         flag_mask: u32,
+        weighted: bool,
         count: u32,
         taking_part: u32,
         rank: u32,
@@ -534,7 +541,9 @@ impl LpmGpu {
             flags.len()
         );
         anyhow::ensure!(
-            flag_mask != 0 && rank < taking_part.max(1) && taking_part <= count,
+            flag_mask != 0
+                && rank < taking_part.max(1)
+                && taking_part as u64 <= count as u64 * (1 + weighted as u64),
             "LPM rank selection: rank {rank} among {taking_part} of {count} elements (mask {flag_mask})"
         );
         rec.barrier();
@@ -545,6 +554,7 @@ impl LpmGpu {
             flags,
             count,
             flag_mask,
+            weighted,
             PickPush {
                 pass: 0,
                 mode: 0,

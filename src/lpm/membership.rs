@@ -15,11 +15,15 @@ use super::record::{ZoneRecord, ZONE_BOX};
 pub const FLAG_INSIDE: u32 = 1;
 /// Bit 1: its centre is in front of at least one zone.
 pub const FLAG_IN_FRONT: u32 = 2;
+/// Bit 2: its centre is within the cone radius of a zone's centre (the set whose opacities give
+/// the reset threshold under the authors' rules).
+pub const FLAG_IN_BALL: u32 = 4;
 
 /// One zone prepared for the tests, with the shader's per-zone precomputation.
 ///
-/// Inside: sphere `|x − c|² ≤ r²`, box `|x_k − c_k| ≤ h_k` per axis. In front (the cone from the
-/// zone's `camera_center` o to its bounding sphere (c, r)): with v = x − o, a = c − o, V = v·v,
+/// Inside: sphere `|x − c|² ≤ r²`, box `|x_k − c_k| ≤ h_k` per axis. In ball: `|x − c|² ≤ ρ²`
+/// with ρ the zone's `cone_radius`. In front (the cone from the zone's `camera_center` o to the
+/// ball (c, r = ρ)): with v = x − o, a = c − o, V = v·v,
 /// A = a·a, D = v·a, R = r²: `D ≥ 0`, `D²(A + R) ≥ A²V` (angle(v, a) ≤ atan(r/|a|)), and
 /// `|v| ≤ |a| − r` as `W = A − V − R ≥ 0 ∧ 4RV ≤ W²` when A > R, else `V ≤ A` (|v| ≤ |a|).
 /// Points at the apex (V = 0) and zones centred on their camera (A = 0) have no defined angle and
@@ -33,6 +37,8 @@ pub struct ZoneTest {
     apex: [f32; 3],
     axis: [f32; 3],
     a2: f32,
+    /// cone_radius².
+    c2: f32,
 }
 
 impl ZoneTest {
@@ -48,7 +54,14 @@ impl ZoneTest {
             apex: o,
             axis,
             a2: axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2],
+            c2: z.cone_radius * z.cone_radius,
         }
+    }
+
+    pub fn in_ball(&self, x: [f32; 3]) -> bool {
+        let c = self.center;
+        let (dx, dy, dz) = (x[0] - c[0], x[1] - c[1], x[2] - c[2]);
+        dx * dx + dy * dy + dz * dz <= self.c2
     }
 
     pub fn contains(&self, x: [f32; 3]) -> bool {
@@ -63,7 +76,7 @@ impl ZoneTest {
     pub fn in_front(&self, x: [f32; 3]) -> bool {
         let o = self.apex;
         let a = self.axis;
-        let (big_a, big_r) = (self.a2, self.r2);
+        let (big_a, big_r) = (self.a2, self.c2);
         let (vx, vy, vz) = (x[0] - o[0], x[1] - o[1], x[2] - o[2]);
         let v = vx * vx + vy * vy + vz * vz;
         let d = vx * a[0] + vy * a[1] + vz * a[2];
@@ -86,7 +99,7 @@ impl ZoneTest {
 /// Flags of every Gaussian and the number of centres inside each zone.
 #[derive(Debug, Clone, PartialEq, Eq, Default)]
 pub struct Membership {
-    /// One per Gaussian: [`FLAG_INSIDE`] | [`FLAG_IN_FRONT`].
+    /// One per Gaussian: [`FLAG_INSIDE`] | [`FLAG_IN_FRONT`] | [`FLAG_IN_BALL`].
     pub flags: Vec<u32>,
     /// One per zone: centres inside it (a centre inside two zones counts in both).
     pub inside_counts: Vec<u32>,
@@ -108,6 +121,9 @@ pub fn membership(positions: &[f32], zones: &[ZoneRecord]) -> Membership {
                 }
                 if f & FLAG_IN_FRONT == 0 && t.in_front(x) {
                     f |= FLAG_IN_FRONT;
+                }
+                if f & FLAG_IN_BALL == 0 && t.in_ball(x) {
+                    f |= FLAG_IN_BALL;
                 }
             }
             f
@@ -151,6 +167,10 @@ pub struct OpacityResetSettings {
     pub quantile: f64,
     /// The opacity given to reset Gaussians.
     pub opacity: f64,
+    /// The membership flag of the Gaussians whose opacities give the threshold:
+    /// [`FLAG_INSIDE`] (inside a zone, LPM.md) or [`FLAG_IN_BALL`] (within the zone's cone radius
+    /// of its centre: the authors' code, a ball of the box's smallest half-extent).
+    pub threshold_set: u32,
 }
 
 impl Default for OpacityResetSettings {
@@ -158,13 +178,19 @@ impl Default for OpacityResetSettings {
         Self {
             quantile: 0.7,
             opacity: 0.01,
+            threshold_set: FLAG_INSIDE,
         }
     }
 }
 
 impl OpacityResetSettings {
-    /// 1 − quantile in basis points.
+    /// 1 − quantile in basis points (and a check of the threshold set).
     pub fn top_basis_points(&self) -> anyhow::Result<u32> {
+        anyhow::ensure!(
+            self.threshold_set == FLAG_INSIDE || self.threshold_set == FLAG_IN_BALL,
+            "LPM opacity reset: threshold set {} is neither FLAG_INSIDE nor FLAG_IN_BALL",
+            self.threshold_set
+        );
         anyhow::ensure!(
             self.quantile.is_finite() && (0.0..=1.0).contains(&self.quantile),
             "LPM opacity reset: quantile {} is outside [0, 1]; use a value such as 0.7",
@@ -205,7 +231,7 @@ pub fn opacity_threshold_key(
     let mut keys: Vec<u32> = logits
         .iter()
         .zip(flags)
-        .filter(|(_, &f)| f & FLAG_INSIDE != 0)
+        .filter(|(_, &f)| f & s.threshold_set != 0)
         .map(|(&l, _)| float_key(l))
         .collect();
     let n = keys.len() as u64;

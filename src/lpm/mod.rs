@@ -25,7 +25,7 @@ pub mod zones;
 
 pub use correspondences::PairMatches;
 pub use neighbours::{NeighbourSettings, Neighbours};
-pub use record::{zones_for_step, StepZones, ZoneRecord};
+pub use record::{zones_for_step, ConeRadius, StepZones, ZoneRecord};
 pub use regions::{BlockMask, Region, RegionSettings};
 pub use zones::{Zone, ZoneGeometry, ZoneSettings};
 

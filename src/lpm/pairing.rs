@@ -42,7 +42,7 @@ impl PixelBox {
 }
 
 /// An error region with its paired boxes.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct RegionPair {
     /// The error box in V.
     pub region: Region,
@@ -51,6 +51,9 @@ pub struct RegionPair {
     /// R_e': bounding box of their matches, in V'.
     pub in_reference: PixelBox,
     pub matches: usize,
+    /// Indices (into the step's `xy_view` / `xy_ref`) of the matches inside `region`: the
+    /// correspondences the triangulated zone is built from.
+    pub matched: Vec<u32>,
 }
 
 /// What happened to the regions of one step (for the summary).
@@ -94,6 +97,7 @@ pub fn pair_regions(
                     in_view: bv,
                     in_reference: br,
                     matches: inside.len(),
+                    matched: inside.iter().map(|&i| i as u32).collect(),
                 });
             }
             _ => stats.zero_area += 1,

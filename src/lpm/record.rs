@@ -2,7 +2,7 @@
 
 use super::pairing::{pair_regions, PairingStats, PixelBox};
 use super::regions::Region;
-use super::zones::{zone_from_boxes, CameraView, Zone, ZoneSettings};
+use super::zones::{zone_for_pair, CameraView, Zone, ZoneSettings};
 use crate::scene::{Image, View};
 
 /// Shape code in [`ZoneRecord::shape`].
@@ -20,7 +20,7 @@ pub const ZONE_BOX: u32 = 1;
 ///     vec3  color;         // 32  mean ground-truth colour of R_e, linear [0, 1]
 ///     float _pad0;         // 44
 ///     vec3  half_extents;  // 48  box only (zero for spheres)
-///     float _pad1;         // 60
+///     float cone_radius;   // 60  radius of the in-front cone's base and of the reset's ball
 /// };
 /// ```
 /// In std430 a `vec3` is 16-byte aligned and a following scalar fills its fourth slot, so the
@@ -35,11 +35,32 @@ pub struct ZoneRecord {
     pub color: [f32; 3],
     pub _pad0: f32,
     pub half_extents: [f32; 3],
-    pub _pad1: f32,
+    pub cone_radius: f32,
+}
+
+/// Which radius the in-front cone (and the ball whose Gaussians set the reset threshold under
+/// the authors' rules) takes around the zone's centre.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Hash)]
+pub enum ConeRadius {
+    /// The zone's bounding sphere (LPM.md step 7: the cone to the zone sphere).
+    #[default]
+    Bounding,
+    /// The authors' code: the box's smallest half-extent (a sphere's own radius).
+    SmallestHalfExtent,
 }
 
 impl ZoneRecord {
+    /// A record whose cone radius is the bounding radius ([`ConeRadius::Bounding`]).
     pub fn new(zone: &Zone, camera_center: [f64; 3], color: [f32; 3]) -> ZoneRecord {
+        Self::with_cone(zone, camera_center, color, ConeRadius::Bounding)
+    }
+
+    pub fn with_cone(
+        zone: &Zone,
+        camera_center: [f64; 3],
+        color: [f32; 3],
+        cone: ConeRadius,
+    ) -> ZoneRecord {
         let f = |v: [f64; 3]| [v[0] as f32, v[1] as f32, v[2] as f32];
         let s = zone.bounding_sphere();
         let (shape, half) = match *zone {
@@ -53,6 +74,10 @@ impl ZoneRecord {
                 ],
             ),
         };
+        let cone_radius = match (cone, *zone) {
+            (ConeRadius::SmallestHalfExtent, Zone::Box { .. }) => half[0].min(half[1]).min(half[2]),
+            _ => s.radius,
+        };
         ZoneRecord {
             center: f(s.center),
             radius: s.radius as f32,
@@ -61,7 +86,7 @@ impl ZoneRecord {
             color,
             _pad0: 0.0,
             half_extents: f(half),
-            _pad1: 0.0,
+            cone_radius: cone_radius as f32,
         }
     }
 }
@@ -127,6 +152,8 @@ pub fn mean_color(img: &Image, b: &PixelBox) -> [f32; 3] {
 pub struct StepZones {
     pub records: Vec<ZoneRecord>,
     pub zones: Vec<Zone>,
+    /// The region pair each zone came from (same order as `zones`).
+    pub pairs: Vec<super::pairing::RegionPair>,
     pub pairing: PairingStats,
     /// Paired regions for which no intersection point survived.
     pub no_zone: usize,
@@ -144,6 +171,7 @@ pub fn zones_for_step(
     gt: &Image,
     background: [f32; 3],
     s: &ZoneSettings,
+    cone: ConeRadius,
 ) -> StepZones {
     let (pairs, pairing) = pair_regions(regions, xy_view, xy_ref);
     let v = CameraView {
@@ -160,14 +188,16 @@ pub fn zones_for_step(
     };
     let apex = view.pose.center();
     for p in &pairs {
-        match zone_from_boxes(v, &p.in_view, r, &p.in_reference, s).zone {
+        match zone_for_pair(v, r, p, xy_view, xy_ref, s).zone {
             Some(z) => {
-                out.records.push(ZoneRecord::new(
+                out.records.push(ZoneRecord::with_cone(
                     &z,
                     apex,
                     center_color(gt, &p.in_view, background),
+                    cone,
                 ));
                 out.zones.push(z);
+                out.pairs.push(p.clone());
             }
             None => out.no_zone += 1,
         }

@@ -10,7 +10,7 @@
 pub struct RegionSettings {
     /// A pixel is an error pixel when its error is strictly above this quantile of the map.
     pub quantile: f32,
-    /// Block side in pixels.
+    /// Block side in pixels; 0: follow the image size ([`RegionSettings::resolved`]).
     pub block: u32,
     /// A block is kept when strictly more than this fraction of its pixels are error pixels.
     pub keep_fraction: f32,
@@ -20,9 +20,32 @@ impl Default for RegionSettings {
     fn default() -> Self {
         Self {
             quantile: 0.4,
-            block: 16,
+            block: 0,
             keep_fraction: 0.85,
         }
+    }
+}
+
+/// The block side the paper uses (16 px) at the resolution it works at (about 1 megapixel).
+pub const REFERENCE_BLOCK: u32 = 16;
+pub const REFERENCE_PIXELS: f64 = 1.0e6;
+/// The smallest automatic block side: below 4×4 a block is a handful of noisy pixels.
+pub const MIN_AUTO_BLOCK: u32 = 4;
+
+impl RegionSettings {
+    /// The settings for a `width`×`height` image: an explicit `block` as it is; `block` 0 follows
+    /// the image size, 16 px at one megapixel scaled with the diagonal (so a block covers the
+    /// same share of the image at every resolution), at least 4 px. An 85 % error block of 16 px
+    /// is a small region at 1 MP but a sixth of the height at 162×242, where it almost never
+    /// occurs.
+    pub fn resolved(&self, width: u32, height: u32) -> RegionSettings {
+        let block = if self.block > 0 {
+            self.block
+        } else {
+            let scale = (width as f64 * height as f64 / REFERENCE_PIXELS).sqrt();
+            ((REFERENCE_BLOCK as f64 * scale).round() as u32).clamp(MIN_AUTO_BLOCK, 256)
+        };
+        RegionSettings { block, ..*self }
     }
 }
 

@@ -34,10 +34,10 @@ use super::density::{DensifyArgs, DensifyOutcome};
 use super::trainer::Trainer;
 use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext};
 use crate::lpm::gpu::{block_grid, ErrorImages, LpmGpu};
-use crate::lpm::membership::OpacityResetSettings;
+use crate::lpm::membership::{OpacityResetSettings, FLAG_IN_BALL};
 use crate::lpm::{
-    regions, zones_for_step, Correspondences, MatchSettings, RegionSettings, ZoneRecord,
-    ZoneSettings,
+    regions, zones_for_step, ConeRadius, Correspondences, MatchSettings, RegionSettings,
+    ZoneGeometry, ZoneRecord, ZoneSettings,
 };
 use crate::scene::{Image, Scene, View};
 use crate::shaders;
@@ -72,6 +72,54 @@ pub struct LpmConfig {
     pub seed: u64,
     /// Dump PNGs of every LPM step here.
     pub debug_dir: Option<PathBuf>,
+    /// The LPM opacity reset runs at iterations `from < t < until` that are multiples of this,
+    /// whether or not the density step runs there (the authors' own `reset_interval`: 100, 200
+    /// suggested indoors).
+    pub reset_interval: u32,
+    /// Density-aware pruning after the lowered-threshold densification.
+    pub prune: PruneMode,
+    /// The radius of the in-front cone (and, with `reset_settings.threshold_set ==
+    /// FLAG_IN_BALL`, of the ball whose opacities give the reset threshold).
+    pub cone: ConeRadius,
+    /// On a density step where LPM finds no zone, skip ADC as well (the authors' code: its
+    /// densify-and-prune only runs when a zone exists); the iteration's optimizer step then
+    /// runs as on any other iteration. Off: global ADC runs on every density step.
+    pub skip_adc_without_zone: bool,
+}
+
+/// Density-aware pruning (LPM.md step 8).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Hash)]
+pub enum PruneMode {
+    /// The authors' code: k = the Gaussians densified only because of the lowered threshold;
+    /// over the model after densification (clones and split children included, faint ones too)
+    /// every Gaussian whose opacity is at or below the k-th smallest is pruned, OR-ed with ADC's
+    /// own prune (so it largely overlaps the faint-Gaussian prune).
+    #[default]
+    Authors,
+    /// Remove exactly k more Gaussians: the k faintest of those ADC keeps untouched.
+    Additive,
+    /// No extra pruning.
+    Off,
+}
+
+impl PruneMode {
+    pub fn parse(s: &str) -> anyhow::Result<PruneMode> {
+        Ok(match s {
+            "authors" => PruneMode::Authors,
+            "additive" => PruneMode::Additive,
+            "off" => PruneMode::Off,
+            other => anyhow::bail!(
+                "LPM pruning {other:?} is unknown. Fix: choose authors, additive or off"
+            ),
+        })
+    }
+    pub fn name(&self) -> &'static str {
+        match self {
+            PruneMode::Authors => "authors",
+            PruneMode::Additive => "additive",
+            PruneMode::Off => "off",
+        }
+    }
 }
 
 impl Default for LpmConfig {
@@ -86,22 +134,58 @@ impl Default for LpmConfig {
             add_below: 3,
             add_opacity: 0.1,
             regions: RegionSettings::default(),
-            reset_settings: OpacityResetSettings::default(),
+            // The authors' top 70 % (k = int(0.7 n)) rather than LPM.md's 0.7 quantile: the
+            // paper's reading was never measured to help, so the authors' rule is the default.
+            reset_settings: OpacityResetSettings {
+                quantile: 0.3,
+                ..OpacityResetSettings::default()
+            },
             zones: ZoneSettings::default(),
             matching: MatchSettings::default(),
             seed: 0,
             debug_dir: None,
+            reset_interval: 100,
+            prune: PruneMode::Authors,
+            cone: ConeRadius::Bounding,
+            skip_adc_without_zone: false,
         }
     }
 }
 
 impl LpmConfig {
-    /// Whether LPM runs at `iteration` (the trainer also requires a densify iteration).
+    /// The authors' code's rules exactly (LPM.md step 6–9, "Authors' code"): box zones from
+    /// perimeter rays, the in-front cone and the reset's threshold set on a ball of the box's
+    /// smallest half-extent, the top 70 % of those opacities (k = ⌊0.7 n⌋), pruning OR-ed into
+    /// ADC's mask, no point addition, and no ADC on steps without a zone.
+    pub fn authors() -> LpmConfig {
+        let mut c = LpmConfig {
+            add_points: false,
+            prune: PruneMode::Authors,
+            cone: ConeRadius::SmallestHalfExtent,
+            skip_adc_without_zone: true,
+            ..LpmConfig::default()
+        };
+        c.zones.geometry = ZoneGeometry::AuthorsBox;
+        c.reset_settings.threshold_set = FLAG_IN_BALL;
+        c
+    }
+
+    /// Whether LPM's density part runs at `iteration` (the trainer also requires a densify
+    /// iteration).
     pub fn runs_at(&self, iteration: u32) -> bool {
         self.interval > 0
             && iteration > self.from
             && iteration < self.until
             && iteration.is_multiple_of(self.interval)
+    }
+
+    /// Whether LPM's opacity reset runs at `iteration`.
+    pub fn resets_at(&self, iteration: u32) -> bool {
+        self.reset
+            && self.reset_interval > 0
+            && iteration > self.from
+            && iteration < self.until
+            && iteration.is_multiple_of(self.reset_interval)
     }
 
     pub fn validate(&self) -> anyhow::Result<()> {
@@ -121,9 +205,15 @@ impl LpmConfig {
             self.regions.quantile
         );
         anyhow::ensure!(
-            (1..=256).contains(&self.regions.block),
-            "LPM block size {} (--lpm-block) must lie in 1..=256 pixels (default 16)",
+            self.regions.block <= 256,
+            "LPM block size {} (--lpm-block) must lie in 1..=256 pixels, or 0 for the default (16 \
+             pixels at 1 megapixel, scaled with the image's diagonal)",
             self.regions.block
+        );
+        anyhow::ensure!(
+            self.reset_interval > 0 || !self.reset,
+            "LPM reset interval 0 (--lpm-reset-interval): use a positive interval, or \
+             --lpm-no-reset to turn the reset off"
         );
         anyhow::ensure!(
             self.regions.keep_fraction.is_finite()
@@ -146,7 +236,17 @@ impl LpmConfig {
             "keep_fraction": self.regions.keep_fraction,
             "reset_quantile": self.reset_settings.quantile,
             "reset_opacity": self.reset_settings.opacity,
+            "reset_threshold_set": if self.reset_settings.threshold_set == FLAG_IN_BALL {
+                "ball"
+            } else {
+                "inside"
+            },
+            "reset_interval": self.reset_interval,
+            "prune": self.prune.name(),
+            "cone_radius": format!("{:?}", self.cone),
+            "skip_adc_without_zone": self.skip_adc_without_zone,
             "zone_geometry": format!("{:?}", self.zones.geometry),
+            "zone_margin": self.zones.margin,
             "neighbour_angle_deg": self.matching.neighbours.max_angle_deg,
         })
     }
@@ -161,14 +261,39 @@ pub struct LpmStepReport {
     pub regions: usize,
     pub paired: usize,
     pub zones: usize,
+    /// The error-region block side used at this step (pixels).
+    pub block: u32,
+    /// Zone radii relative to the scene extent (bounding radius / extent): mean and largest.
+    pub radius_mean: f64,
+    pub radius_max: f64,
+    /// Gaussian centres inside zones, summed over the zones (before densification).
+    pub inside: u64,
     /// Gaussians densified only because of the lowered threshold.
     pub lowered: u32,
-    /// Extra (density-aware) prunes.
+    /// Extra (density-aware) prunes: Gaussians removed by that rule that ADC kept.
     pub pruned: u32,
     /// Gaussians whose opacity LPM reset.
     pub reset: u32,
     pub added: u32,
+    /// ADC was skipped (no zone, `skip_adc_without_zone`).
+    pub skipped_adc: bool,
+    /// This step ran only the opacity reset (a reset iteration without LPM's density part).
+    pub reset_only: bool,
     pub seconds: f64,
+}
+
+impl LpmStepReport {
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "iteration": self.iteration, "view": self.view, "reference": self.reference,
+            "regions": self.regions, "paired": self.paired, "zones": self.zones,
+            "block": self.block, "radius_mean_rel": self.radius_mean,
+            "radius_max_rel": self.radius_max, "inside": self.inside,
+            "lowered": self.lowered, "pruned_extra": self.pruned, "opacity_reset": self.reset,
+            "added": self.added, "skipped_adc": self.skipped_adc, "reset_only": self.reset_only,
+            "seconds": self.seconds,
+        })
+    }
 }
 
 /// Sums over the run.
@@ -185,6 +310,13 @@ pub struct LpmTotals {
     pub pruned: u64,
     pub reset: u64,
     pub added: u64,
+    /// Gaussian centres inside zones (summed over steps and zones).
+    pub inside: u64,
+    /// Mean over all zones of their radius relative to the scene extent.
+    pub radius_mean: f64,
+    pub radius_max: f64,
+    /// Density steps whose ADC was skipped (no zone).
+    pub skipped_adc: u32,
     pub seconds: f64,
 }
 
@@ -192,6 +324,14 @@ impl LpmTotals {
     fn add(&mut self, r: &LpmStepReport) {
         self.steps += 1;
         self.steps_with_zones += (r.zones > 0) as u32;
+        if r.zones > 0 {
+            let before = self.zones as f64;
+            self.radius_mean = (self.radius_mean * before + r.radius_mean * r.zones as f64)
+                / (before + r.zones as f64);
+        }
+        self.radius_max = self.radius_max.max(r.radius_max);
+        self.inside += r.inside;
+        self.skipped_adc += r.skipped_adc as u32;
         self.regions += r.regions as u64;
         self.paired += r.paired as u64;
         self.zones += r.zones as u64;
@@ -212,8 +352,9 @@ struct ScalePush {
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct CountPush {
+struct ModePush {
     count: u32,
+    mode: u32,
 }
 
 /// The step in progress between [`LpmTrainer::densify`] and [`LpmTrainer::finish`].
@@ -246,6 +387,8 @@ pub struct LpmTrainer {
     counters: GpuBuffer<u32>,
     pending: Option<Pending>,
     pub totals: LpmTotals,
+    /// Every step's report, in order (the per-step telemetry of `metrics.json`).
+    pub steps: Vec<LpmStepReport>,
 }
 
 impl LpmTrainer {
@@ -270,7 +413,7 @@ impl LpmTrainer {
         for (k, &v) in scene.train.iter().enumerate() {
             let (w, h) = (train_images[k].width, train_images[k].height);
             max_px = max_px.max(w * h);
-            let (bx, by) = block_grid(w, h, config.regions.block.max(1));
+            let (bx, by) = block_grid(w, h, config.regions.resolved(w, h).block);
             max_blocks = max_blocks.max(bx * by);
             gt[v] = Some(train_images[k].clone());
         }
@@ -295,13 +438,13 @@ impl LpmTrainer {
                 "lpm/lowered_count",
                 shaders::LPM_LOWERED_COUNT,
                 3,
-                size_of::<CountPush>(),
+                size_of::<ModePush>(),
             )?,
             prune_lowest: pipe(
                 "lpm/prune_lowest",
                 shaders::LPM_PRUNE_LOWEST,
                 5,
-                size_of::<CountPush>(),
+                size_of::<ModePush>(),
             )?,
             block_counts: GpuBuffer::new(
                 ctx,
@@ -317,6 +460,7 @@ impl LpmTrainer {
             counters: GpuBuffer::new(ctx, "lpm counters", 4, BufferKind::DeviceLocal)?,
             pending: None,
             totals: LpmTotals::default(),
+            steps: Vec::new(),
             config,
         })
     }
@@ -351,26 +495,27 @@ impl LpmTrainer {
         Ok(())
     }
 
-    /// Steps 1–3 and ADC's densify-and-prune (with the lowered threshold inside zones and the
-    /// density-aware pruning). `t.rec` must be begun; on return it is begun and empty, as after
-    /// [`super::density::DensityControl::step`]. `bg` is the background this iteration's render
-    /// of `view` used.
-    pub(super) fn densify(
+    /// Steps 1–2 for the view rendered this iteration: error blocks → regions → a neighbour →
+    /// zones, and the debug dump. `t.rec` must be begun; it is left begun and empty. The report
+    /// holds the counts and radii; the records are the finite zones.
+    fn find_zones(
         &mut self,
         t: &mut Trainer,
         view: usize,
         bg: [f32; 3],
-        args: &DensifyArgs,
-    ) -> anyhow::Result<DensifyOutcome> {
-        let start = Instant::now();
+        iteration: u32,
+        extent: f64,
+    ) -> anyhow::Result<(LpmStepReport, Vec<ZoneRecord>)> {
         let mut report = LpmStepReport {
-            iteration: args.iteration,
+            iteration,
             view,
             ..Default::default()
         };
         // 1. Error blocks of this iteration's render.
         let slot = t.image_slot(view)?;
         let (w, h) = (slot.width, slot.height);
+        let settings = self.config.regions.resolved(w, h);
+        report.block = settings.block;
         let (bx, by) = self.gpu.record_error_blocks(
             &mut t.rec,
             &ErrorImages {
@@ -381,7 +526,7 @@ impl LpmTrainer {
                 height: h,
                 background: bg,
             },
-            &self.config.regions,
+            &settings,
             &self.block_counts,
         )?;
         t.rec.submit_and_wait()?;
@@ -390,9 +535,9 @@ impl LpmTrainer {
         let mask = regions::BlockMask::from_error_counts(
             w,
             h,
-            self.config.regions.block,
+            settings.block,
             &counts,
-            self.config.regions.keep_fraction,
+            settings.keep_fraction,
         )?;
         let regions = regions::regions_from_blocks(&mask);
         report.regions = regions.len();
@@ -403,7 +548,7 @@ impl LpmTrainer {
         let mut rng = rand_pcg::Pcg64::seed_from_u64(
             self.config.seed
                 ^ 0x4c50_4d5f_7374_6570
-                ^ (args.iteration as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15),
+                ^ (iteration as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15),
         );
         let reference = self.corr.neighbours.pick(view, &mut rng);
         report.reference = reference;
@@ -422,6 +567,7 @@ impl LpmTrainer {
                     gt,
                     bg,
                     &self.config.zones,
+                    self.config.cone,
                 )
             }
             _ => Default::default(),
@@ -433,10 +579,18 @@ impl LpmTrainer {
             .filter(|z| z.radius.is_finite() && z.center.iter().all(|c| c.is_finite()))
             .collect();
         report.zones = records.len();
+        if !records.is_empty() {
+            let rel: Vec<f64> = records
+                .iter()
+                .map(|z| z.radius as f64 / extent.max(1e-30))
+                .collect();
+            report.radius_mean = rel.iter().sum::<f64>() / rel.len() as f64;
+            report.radius_max = rel.iter().copied().fold(0.0, f64::max);
+        }
         if let Some(dir) = self.config.debug_dir.clone() {
             super::lpm_debug::dump_step(
                 &dir,
-                args.iteration,
+                iteration,
                 &self.gpu,
                 &mask,
                 &self.views,
@@ -448,9 +602,52 @@ impl LpmTrainer {
                 self.corr.oriented(view, reference.unwrap_or(view)),
             )?;
         }
+        Ok((report, records))
+    }
+
+    /// Uploads `records` and records the membership of the first `count` Gaussians.
+    fn record_zone_membership(
+        &mut self,
+        t: &mut Trainer,
+        records: &[ZoneRecord],
+    ) -> anyhow::Result<()> {
+        let count = t.state.count();
+        self.ensure_gaussians(t.state.capacity().max(count))?;
+        self.ensure_zones(records.len())?;
+        self.zones.upload(records)?;
+        self.gpu.record_membership(
+            &mut t.rec,
+            &t.state.params.positions,
+            count as u32,
+            &self.zones,
+            records.len() as u32,
+            &self.flags,
+            &self.zone_inside,
+        )
+    }
+
+    /// Steps 1–3 and ADC's densify-and-prune (with the lowered threshold inside zones and the
+    /// density-aware pruning). `t.rec` must be begun; on return it is begun and empty, as after
+    /// [`super::density::DensityControl::step`]. `bg` is the background this iteration's render
+    /// of `view` used. With `skip_adc_without_zone` and no zone, nothing changes and the
+    /// outcome says `skipped`.
+    pub(super) fn densify(
+        &mut self,
+        t: &mut Trainer,
+        view: usize,
+        bg: [f32; 3],
+        args: &DensifyArgs,
+    ) -> anyhow::Result<DensifyOutcome> {
+        let start = Instant::now();
+        let (mut report, records) = self.find_zones(t, view, bg, args.iteration, args.extent)?;
         if records.is_empty() {
             let a0 = Instant::now();
-            let outcome = t.density.step(&mut t.rec, &mut t.state, args, None)?;
+            let outcome = if self.config.skip_adc_without_zone {
+                report.skipped_adc = true;
+                DensifyOutcome::unchanged(t.state.count(), t.state.capacity())
+            } else {
+                t.density.step(&mut t.rec, &mut t.state, args, None)?
+            };
             self.pending = Some(Pending {
                 report,
                 records,
@@ -462,19 +659,7 @@ impl LpmTrainer {
 
         // 3. Membership, lowered threshold inside zones, density-aware pruning.
         let count = t.state.count();
-        self.ensure_gaussians(t.state.capacity().max(count))?;
-        self.ensure_zones(records.len())?;
-        self.zones.upload(&records)?;
-        let nz = records.len() as u32;
-        self.gpu.record_membership(
-            &mut t.rec,
-            &t.state.params.positions,
-            count as u32,
-            &self.zones,
-            nz,
-            &self.flags,
-            &self.zone_inside,
-        )?;
+        self.record_zone_membership(t, &records)?;
         t.rec.dispatch(
             &self.threshold_scale,
             &[&self.flags, &self.scale],
@@ -488,25 +673,38 @@ impl LpmTrainer {
             .record_decide(&mut t.rec, &t.state, args, Some(&self.scale))?;
         t.rec.fill(&self.counters, 0);
         t.rec.barrier();
+        let authors = self.config.prune == PruneMode::Authors;
         t.rec.dispatch(
             &self.lowered_count,
             &[t.density.decisions(), &self.candidates, &self.counters],
-            &CountPush {
+            &ModePush {
                 count: count as u32,
+                mode: authors as u32,
             },
             self.ctx.groups_1d(count as u64, WG),
         );
         t.rec.submit_and_wait()?;
         t.rec.begin()?;
         let c = self.counters.read_range(0, 2)?;
+        report.inside = self
+            .zone_inside
+            .read_range(0, records.len())?
+            .iter()
+            .map(|&n| n as u64)
+            .sum();
         report.lowered = c[0];
         let k = c[0].min(c[1]);
-        if k > 0 {
+        let prunes = self.config.prune != PruneMode::Off && k > 0;
+        if prunes {
+            // Additive: rank k − 1 among the untouched survivors, exactly k of them removed.
+            // Authors: rank k − 1 of the model after densification (weights 1 or 2), every
+            // Gaussian at or below it removed.
             self.gpu.record_rank_selection(
                 &mut t.rec,
                 &t.state.params.opacity_logits,
                 &self.candidates,
-                1,
+                3,
+                authors,
                 count as u32,
                 c[1],
                 k - 1,
@@ -520,33 +718,39 @@ impl LpmTrainer {
                     t.density.decisions(),
                     &self.counters,
                 ],
-                &CountPush {
+                &ModePush {
                     count: count as u32,
+                    mode: authors as u32,
                 },
                 self.ctx.groups_1d(count as u64, WG),
             );
             t.rec.barrier();
-            report.pruned = k;
         }
         let a0 = Instant::now();
         let outcome = t.density.apply(&mut t.rec, &mut t.state, args)?;
+        let adc_seconds = a0.elapsed().as_secs_f64();
+        if prunes {
+            // prune_lowest counts the Gaussians it took from ADC's survivors in counters[3].
+            report.pruned = self.counters.read_range(3, 1)?[0];
+        }
         self.pending = Some(Pending {
             report,
             records,
             start,
-            adc_seconds: a0.elapsed().as_secs_f64(),
+            adc_seconds,
         });
         Ok(outcome)
     }
 
     /// Step 4, after ADC's apply and its global opacity reset (recorded in `t.rec`, which this
-    /// submits): membership of the new Gaussians, the LPM opacity reset, added points. Leaves
-    /// `t.rec` begun and empty.
+    /// submits): membership of the new Gaussians, the LPM opacity reset (when `reset_interval`
+    /// falls on this iteration), added points. Leaves `t.rec` begun and empty.
     pub(super) fn finish(&mut self, t: &mut Trainer) -> anyhow::Result<LpmStepReport> {
         let mut p = self.pending.take().context("LPM: finish without densify")?;
         let nz = p.records.len() as u32;
         let count = t.state.count();
-        if nz > 0 && (self.config.reset || self.config.add_points) {
+        let resets = nz > 0 && self.config.resets_at(p.report.iteration);
+        if nz > 0 && (resets || self.config.add_points) {
             self.ensure_gaussians(t.state.capacity().max(count))?;
             self.gpu.record_membership(
                 &mut t.rec,
@@ -557,7 +761,7 @@ impl LpmTrainer {
                 &self.flags,
                 &self.zone_inside,
             )?;
-            if self.config.reset {
+            if resets {
                 self.gpu.record_opacity_reset(
                     &mut t.rec,
                     &self.flags,
@@ -569,7 +773,7 @@ impl LpmTrainer {
         }
         t.rec.submit_and_wait()?;
         t.rec.begin()?;
-        if nz > 0 && self.config.reset {
+        if resets {
             p.report.reset = self.gpu.read_opacity_reset_stats()?.reset;
         }
         if nz > 0 && self.config.add_points {
@@ -591,7 +795,53 @@ impl LpmTrainer {
         }
         p.report.seconds = (p.start.elapsed().as_secs_f64() - p.adc_seconds).max(0.0);
         self.totals.add(&p.report);
+        self.steps.push(p.report.clone());
         Ok(p.report)
+    }
+
+    /// The opacity reset alone, on a reset iteration where LPM's density part does not run
+    /// (`reset_interval` not a multiple of the density interval, or past the densification
+    /// window): zones of this iteration's render, membership, reset. Runs after the
+    /// iteration's optimizer step, so the reset logits are not moved by it until the next
+    /// iteration (the authors reset just before their optimizer step; one Adam step on a logit
+    /// is at most the opacity learning rate). `t.rec` must not be begun; it is left idle.
+    pub(super) fn reset_only(
+        &mut self,
+        t: &mut Trainer,
+        view: usize,
+        bg: [f32; 3],
+        iteration: u32,
+        extent: f64,
+    ) -> anyhow::Result<LpmStepReport> {
+        let start = Instant::now();
+        t.rec.begin()?;
+        let (mut report, records) = self.find_zones(t, view, bg, iteration, extent)?;
+        report.reset_only = true;
+        if !records.is_empty() {
+            let count = t.state.count();
+            self.record_zone_membership(t, &records)?;
+            self.gpu.record_opacity_reset(
+                &mut t.rec,
+                &self.flags,
+                &t.state.params.opacity_logits,
+                count as u32,
+                &self.config.reset_settings,
+            )?;
+            t.rec.submit_and_wait()?;
+            report.inside = self
+                .zone_inside
+                .read_range(0, records.len())?
+                .iter()
+                .map(|&n| n as u64)
+                .sum();
+            report.reset = self.gpu.read_opacity_reset_stats()?.reset;
+        } else {
+            t.rec.submit_and_wait()?;
+        }
+        report.seconds = start.elapsed().as_secs_f64();
+        self.totals.add(&report);
+        self.steps.push(report.clone());
+        Ok(report)
     }
 }
 

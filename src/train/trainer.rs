@@ -465,16 +465,7 @@ impl Trainer {
             self.rec.timestamp(&mut self.pool, "density stats");
         }
         if !densifies {
-            self.adam_step += 1;
-            let lrs = cfg.lr.at(it, self.extent);
-            self.adam.record_state(
-                &self.ctx,
-                &mut self.rec,
-                &self.state,
-                &self.grads,
-                self.adam_step,
-                &lrs,
-            )?;
+            self.record_adam_step(it)?;
         }
         if cfg.timestamps {
             self.rec.timestamp(&mut self.pool, "adam");
@@ -555,6 +546,11 @@ impl Trainer {
             if lpm.is_some() {
                 self.lpm = lpm;
             }
+            if outcome.skipped {
+                // Nothing was rebuilt, so this iteration's gradients still belong to the model:
+                // its optimizer step runs as on any other iteration.
+                self.record_adam_step(it)?;
+            }
             self.rec.submit_and_wait()?;
             report.gaussians = self.state.count();
             report.densified = Some(outcome);
@@ -563,6 +559,14 @@ impl Trainer {
             self.density
                 .record_opacity_reset(&mut self.rec, &self.state)?;
             self.rec.submit_and_wait()?;
+        }
+        // LPM's reset on its own interval, where its density part did not run.
+        if report.lpm.is_none() && self.lpm.as_ref().is_some_and(|l| l.config.resets_at(it)) {
+            if let Some(mut l) = self.lpm.take() {
+                let r = l.reset_only(self, view, bg, it, self.extent);
+                self.lpm = Some(l);
+                report.lpm = Some(r?);
+            }
         }
         // Density control runs in its own submissions with count readbacks, so its cost is the
         // host wall time of that part (GPU work, waits and host logic), not a GPU interval.
@@ -575,6 +579,20 @@ impl Trainer {
             st.stages.push(("density control".into(), ms));
         }
         Ok(report)
+    }
+
+    /// Records iteration `it`'s Adam step into `self.rec` (begun).
+    fn record_adam_step(&mut self, it: u32) -> anyhow::Result<()> {
+        self.adam_step += 1;
+        let lrs = self.config.lr.at(it, self.extent);
+        self.adam.record_state(
+            &self.ctx,
+            &mut self.rec,
+            &self.state,
+            &self.grads,
+            self.adam_step,
+            &lrs,
+        )
     }
 
     /// The renderer's intersection capacity (saved in checkpoints: a frame that overflows it

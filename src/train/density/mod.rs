@@ -204,6 +204,25 @@ pub struct DensifyOutcome {
     /// projected, …) must grow to `capacity` too.
     pub grew: bool,
     pub capacity: usize,
+    /// The strategy left the model and its statistics untouched on this density iteration (the
+    /// authors' LPM skips ADC when it finds no zone): the iteration's optimizer step still runs.
+    pub skipped: bool,
+}
+
+impl DensifyOutcome {
+    /// A step that changed nothing (`skipped`).
+    pub fn unchanged(count: usize, capacity: usize) -> DensifyOutcome {
+        DensifyOutcome {
+            before: count,
+            after: count,
+            kept: count,
+            clones: 0,
+            split_children: 0,
+            grew: false,
+            capacity,
+            skipped: true,
+        }
+    }
 }
 
 /// Per-Gaussian statistics accumulated between steps (capacity-sized, Gaussian `i` at `i`).
@@ -555,6 +574,7 @@ impl DensityControl {
                 split_children: 0,
                 grew: false,
                 capacity: state.capacity(),
+                skipped: false,
             });
         }
 
@@ -670,6 +690,7 @@ impl DensityControl {
             split_children: after - kept_and_clones,
             grew,
             capacity,
+            skipped: false,
         })
     }
 
