@@ -58,7 +58,10 @@ fn bench_trade_interleaved_writes_table_json_and_plot() {
         [("adc", 20), ("adc+lpm", 20), ("adc", 40), ("adc+lpm", 40)]
     );
     assert_eq!(json["calendar"], 400);
-    assert_eq!(json["lpm_block"], 0, "the block follows the image size by default");
+    assert_eq!(
+        json["lpm_block"], 0,
+        "the block follows the image size by default"
+    );
     assert!(
         runs[2]["train_seconds"].as_f64().unwrap() > runs[0]["train_seconds"].as_f64().unwrap()
     );

@@ -622,7 +622,7 @@ fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
     let several = rows.iter().any(|r| r.seeds > 1);
     let mut s = format!(
         "bench trade: {} {resolution}, {} iterations on the calendar of {}, {device}; LPM \
-         error blocks of {} px kept above {} error pixels\n\n{} \
+         error blocks of {} kept above {} error pixels\n\n{} \
          trade.png plots PSNR (dB, y) against Gaussians (left) and training seconds (right), in \
          the colours below, one line per run through its evaluated iterations.{}\n\n\
          | run | iteration | colour | PSNR | ΔPSNR vs adc | SSIM | LPIPS | Gaussians | train s | time vs adc | ms/it | LPM ms/it (share) | LPM zones · densified · added · reset | FPS 1352×1014 |\n\
@@ -630,7 +630,11 @@ fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
         args.scene.scene.display(),
         args.iterations,
         args.calendar.unwrap_or(args.iterations),
-        args.lpm_block,
+        if args.lpm_block == 0 {
+            "the image's size (16 px at 1 MP, scaled with the diagonal, at least 4)".to_string()
+        } else {
+            format!("{} px", args.lpm_block)
+        },
         args.lpm_block_fraction,
         if args.sequential {
             "Runs were sequential: compare their times only on an otherwise idle machine."
