@@ -90,13 +90,18 @@ fn bench_trade_interleaved_writes_table_json_and_plot() {
                     f("lpm_zones"),
                     f("lpm_lowered"),
                     f("lpm_added"),
-                    f("lpm_reset")
+                    f("lpm_reset"),
+                    f("lpm_pruned"),
+                    f("lpm_radius")
                 ],
-                [0.0; 4]
+                [0.0; 6]
             );
         } else {
             assert!(
-                f("lpm_added") <= f("lpm_zones") && f("lpm_reset") >= 0.0,
+                f("lpm_added") <= f("lpm_zones")
+                    && f("lpm_reset") >= 0.0
+                    && f("lpm_pruned") >= 0.0
+                    && (f("lpm_zones") == 0.0 || f("lpm_radius") > 0.0),
                 "{r}"
             );
         }
@@ -112,7 +117,7 @@ fn bench_trade_interleaved_writes_table_json_and_plot() {
     assert!(
         md.contains("interleaved")
             && md.contains("| adc+lpm |")
-            && md.contains("LPM zones · densified · added · reset"),
+            && md.contains("LPM zones · densified · pruned · added · reset · zone radius"),
         "{md}"
     );
     assert!(

@@ -103,6 +103,9 @@ pub struct TradeRow {
     pub lpm_lowered: f64,
     pub lpm_added: f64,
     pub lpm_reset: f64,
+    /// Extra (density-aware) prunes, and the zones' mean radius relative to the scene extent.
+    pub lpm_pruned: f64,
+    pub lpm_radius: f64,
     pub fps_1352x1014: f64,
 }
 
@@ -433,6 +436,8 @@ fn evaluate_run(
         lpm_lowered: lpm_totals.lowered as f64,
         lpm_added: lpm_totals.added as f64,
         lpm_reset: lpm_totals.reset as f64,
+        lpm_pruned: lpm_totals.pruned as f64,
+        lpm_radius: lpm_totals.radius_mean,
         fps_1352x1014: fps,
     };
     let name = if args.seeds > 1 {
@@ -504,6 +509,9 @@ pub struct Summary {
     pub lpm_lowered: f64,
     pub lpm_added: f64,
     pub lpm_reset: f64,
+    /// Extra (density-aware) prunes, and the zones' mean radius relative to the scene extent.
+    pub lpm_pruned: f64,
+    pub lpm_radius: f64,
     pub fps_1352x1014: f64,
 }
 
@@ -527,6 +535,8 @@ impl Summary {
             lpm_lowered: self.lpm_lowered,
             lpm_added: self.lpm_added,
             lpm_reset: self.lpm_reset,
+            lpm_pruned: self.lpm_pruned,
+            lpm_radius: self.lpm_radius,
             fps_1352x1014: self.fps_1352x1014,
         }
     }
@@ -608,6 +618,8 @@ pub fn summarize(rows: &[TradeRow]) -> Vec<Summary> {
                 lpm_lowered: mean_sd(&col(&|r| r.lpm_lowered)).0,
                 lpm_added: mean_sd(&col(&|r| r.lpm_added)).0,
                 lpm_reset: mean_sd(&col(&|r| r.lpm_reset)).0,
+                lpm_pruned: mean_sd(&col(&|r| r.lpm_pruned)).0,
+                lpm_radius: mean_sd(&col(&|r| r.lpm_radius)).0,
                 fps_1352x1014: mean_sd(&col(&|r| r.fps_1352x1014)).0,
             }
         })
@@ -625,7 +637,7 @@ fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
          error blocks of {} kept above {} error pixels\n\n{} \
          trade.png plots PSNR (dB, y) against Gaussians (left) and training seconds (right), in \
          the colours below, one line per run through its evaluated iterations.{}\n\n\
-         | run | iteration | colour | PSNR | ΔPSNR vs adc | SSIM | LPIPS | Gaussians | train s | time vs adc | ms/it | LPM ms/it (share) | LPM zones · densified · added · reset | FPS 1352×1014 |\n\
+         | run | iteration | colour | PSNR | ΔPSNR vs adc | SSIM | LPIPS | Gaussians | train s | time vs adc | ms/it | LPM ms/it (share) | LPM zones · densified · pruned · added · reset · zone radius / extent | FPS 1352×1014 |\n\
          |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
         args.scene.scene.display(),
         args.iterations,
@@ -672,8 +684,8 @@ fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
             .map_or("n/a".to_string(), |t| format!("{t:.3}×"));
         let lpm_activity = if r.run.contains("lpm") {
             format!(
-                "{:.0} · {:.0} · {:.0} · {:.0}",
-                r.lpm_zones, r.lpm_lowered, r.lpm_added, r.lpm_reset
+                "{:.0} · {:.0} · {:.0} · {:.0} · {:.0} · {:.3}",
+                r.lpm_zones, r.lpm_lowered, r.lpm_pruned, r.lpm_added, r.lpm_reset, r.lpm_radius
             )
         } else {
             "—".to_string()
@@ -883,6 +895,8 @@ mod tests {
             lpm_lowered: 0.0,
             lpm_added: 0.0,
             lpm_reset: 0.0,
+            lpm_pruned: 0.0,
+            lpm_radius: 0.0,
             fps_1352x1014: 1.0,
         }
     }
