@@ -605,6 +605,28 @@ impl LpmTrainer {
         Ok((report, records))
     }
 
+    /// Records the LPM opacity reset of the current Gaussians from the flags of the last
+    /// membership pass.
+    fn record_reset(&self, t: &mut Trainer) -> anyhow::Result<()> {
+        self.gpu.record_opacity_reset(
+            &mut t.rec,
+            &self.flags,
+            &t.state.params.opacity_logits,
+            t.state.count() as u32,
+            &self.config.reset_settings,
+        )
+    }
+
+    /// Gaussian centres inside the first `zones` zones, summed (after a completed membership).
+    fn inside_total(&self, zones: usize) -> anyhow::Result<u64> {
+        Ok(self
+            .zone_inside
+            .read_range(0, zones)?
+            .iter()
+            .map(|&n| n as u64)
+            .sum())
+    }
+
     /// Uploads `records` and records the membership of the first `count` Gaussians.
     fn record_zone_membership(
         &mut self,
@@ -686,12 +708,7 @@ impl LpmTrainer {
         t.rec.submit_and_wait()?;
         t.rec.begin()?;
         let c = self.counters.read_range(0, 2)?;
-        report.inside = self
-            .zone_inside
-            .read_range(0, records.len())?
-            .iter()
-            .map(|&n| n as u64)
-            .sum();
+        report.inside = self.inside_total(records.len())?;
         report.lowered = c[0];
         let k = c[0].min(c[1]);
         let prunes = self.config.prune != PruneMode::Off && k > 0;
@@ -762,13 +779,7 @@ impl LpmTrainer {
                 &self.zone_inside,
             )?;
             if resets {
-                self.gpu.record_opacity_reset(
-                    &mut t.rec,
-                    &self.flags,
-                    &t.state.params.opacity_logits,
-                    count as u32,
-                    &self.config.reset_settings,
-                )?;
+                self.record_reset(t)?;
             }
         }
         t.rec.submit_and_wait()?;
@@ -818,22 +829,10 @@ impl LpmTrainer {
         let (mut report, records) = self.find_zones(t, view, bg, iteration, extent)?;
         report.reset_only = true;
         if !records.is_empty() {
-            let count = t.state.count();
             self.record_zone_membership(t, &records)?;
-            self.gpu.record_opacity_reset(
-                &mut t.rec,
-                &self.flags,
-                &t.state.params.opacity_logits,
-                count as u32,
-                &self.config.reset_settings,
-            )?;
+            self.record_reset(t)?;
             t.rec.submit_and_wait()?;
-            report.inside = self
-                .zone_inside
-                .read_range(0, records.len())?
-                .iter()
-                .map(|&n| n as u64)
-                .sum();
+            report.inside = self.inside_total(records.len())?;
             report.reset = self.gpu.read_opacity_reset_stats()?.reset;
         } else {
             t.rec.submit_and_wait()?;
