@@ -122,6 +122,7 @@ fn main() -> anyhow::Result<()> {
                             splats: &splats,
                             grads: &grads,
                             view_grad_norm: &vgn,
+                            pixel_count: None,
                             count: n,
                             sh_degree: params.sh_degree,
                             constants: settings.constants,

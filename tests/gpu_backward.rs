@@ -82,11 +82,13 @@ struct GpuResult {
     sh_dc: Vec<f32>,
     sh_rest: Vec<f32>,
     view_grad_norm: Vec<f32>,
+    /// With pixel counting on: the per-splat counts, and the reference's.
+    pixel_count: Option<(Vec<u32>, Vec<u32>)>,
     float_atomics: bool,
 }
 
 fn run_gpu(ctx: &Arc<GpuContext>, mode: AtomicMode, s: &Scene) -> (GpuResult, Gradients) {
-    run_gpu_pixels(ctx, mode, None, s)
+    run_gpu_pixels(ctx, mode, None, false, s)
 }
 
 /// As `run_gpu`, with `pixels` per invocation of the rasterizer backward instead of the
@@ -95,6 +97,7 @@ fn run_gpu_pixels(
     ctx: &Arc<GpuContext>,
     mode: AtomicMode,
     pixels: Option<u32>,
+    count_pixels: bool,
     s: &Scene,
 ) -> (GpuResult, Gradients) {
     let forward = reference::render(
@@ -150,6 +153,12 @@ fn run_gpu_pixels(
         None => Backward::with_atomics(ctx, 1, mode).unwrap(),
     };
     bwd.reserve(ctx, n).unwrap();
+    if count_pixels {
+        bwd = bwd.with_pixel_counts(ctx).unwrap();
+    }
+    // Poisoned: the pass must zero the first `count` and leave the rest.
+    let pixel_count =
+        GpuBuffer::<u32>::from_slice(ctx, "pixel count", &vec![u32::MAX; n + SPARE]).unwrap();
     let mut rec = Recorder::new(ctx).unwrap();
     for (buf, _) in grads.groups() {
         rec.fill(buf, NAN_BITS);
@@ -174,6 +183,7 @@ fn run_gpu_pixels(
             splats: &splats,
             grads: &grads,
             view_grad_norm: &view_grad_norm,
+            pixel_count: count_pixels.then_some(&pixel_count),
             count: n,
             sh_degree: s.degree as u32,
             constants,
@@ -194,6 +204,14 @@ fn run_gpu_pixels(
         sh_dc: all(&grads.sh_dc),
         sh_rest: all(&grads.sh_rest),
         view_grad_norm: all(&view_grad_norm),
+        pixel_count: count_pixels.then(|| {
+            let got = pixel_count.read().unwrap();
+            assert!(
+                got[n..].iter().all(|&c| c == u32::MAX),
+                "pixel_count: written past count"
+            );
+            (got[..n].to_vec(), forward.raster.pixel_count.clone())
+        }),
         float_atomics: bwd.uses_float_atomics(),
     };
     // Past `count`: untouched (still NaN).
@@ -348,10 +366,33 @@ fn check_scene(ctx: &Arc<GpuContext>, label: &str, s: &Scene) {
         check_against_reference(&format!("{label} ({mode:?})"), s, &got, &want);
     }
     // The other pixels-per-invocation layouts (1 is what GPUs run).
+    // With Pixel-GS's pixel counting on: the same gradients, and the counts.
     for pixels in [1, 4] {
-        let (got, want) = run_gpu_pixels(ctx, AtomicMode::Auto, Some(pixels), s);
-        check_against_reference(&format!("{label} ({pixels} px/invocation)"), s, &got, &want);
+        let (got, want) = run_gpu_pixels(ctx, AtomicMode::Auto, Some(pixels), true, s);
+        let label = format!("{label} ({pixels} px/invocation, counting pixels)");
+        check_against_reference(&label, s, &got, &want);
+        check_pixel_counts(&label, &got);
     }
+}
+
+/// The GPU's per-splat pixel counts against the reference's. The GPU tests alpha ≥ 1/255 in
+/// f32 on f32-rounded splats, the reference in f64: a pair right at the threshold may fall on
+/// either side, so a few single-pixel differences are allowed (none in most scenes).
+fn check_pixel_counts(label: &str, got: &GpuResult) {
+    let (gpu, want) = got.pixel_count.as_ref().expect("counted");
+    let total: u64 = want.iter().map(|&c| c as u64).sum();
+    let off: u64 = gpu
+        .iter()
+        .zip(want)
+        .map(|(&g, &w)| (g as i64 - w as i64).unsigned_abs())
+        .sum();
+    assert!(
+        off <= 2 + total / 1000,
+        "{label}: pixel counts differ by {off} over {total} (GPU {:?}… reference {:?}…)",
+        &gpu[..gpu.len().min(8)],
+        &want[..want.len().min(8)]
+    );
+    assert!(total > 0, "{label}: no splat contributed to any pixel");
 }
 
 #[test]
@@ -717,6 +758,7 @@ fn record_refuses_mismatched_arguments() {
         splats: &splats,
         grads: &grads,
         view_grad_norm: &vgn,
+        pixel_count: None,
         count,
         sh_degree,
         constants: RenderConstants::default(),

@@ -10,7 +10,7 @@ use lpmsplat::train::adam::SplatState;
 use lpmsplat::train::density::reference::{self, HostState, HostStats};
 use lpmsplat::train::density::rng::fold_seed;
 use lpmsplat::train::density::{
-    reset_logit, DensifyArgs, DensityConfig, DensityControl, Thresholds, DECIDE_CLONE,
+    reset_logit, DensifyArgs, DensityConfig, DensityControl, Statistic, Thresholds, DECIDE_CLONE,
     DECIDE_REMOVE, DECIDE_SPLIT,
 };
 use rand::{Rng, SeedableRng};
@@ -521,7 +521,7 @@ fn statistics_accumulate_only_visible_gaussians() {
         let mut rec = Recorder::new(&ctx).unwrap();
         // Count smaller than the buffers on one view: the rest must stay untouched.
         let count = if view == 2 { n - 100 } else { n };
-        dc.record_accumulate(&mut rec, &norms, &proj, count)
+        dc.record_accumulate(&mut rec, &norms, &proj, None, 1.0, count)
             .unwrap();
         rec.submit_and_wait().unwrap();
         host.accumulate(&nv[..count], &radii[..count]);
@@ -536,8 +536,174 @@ fn statistics_accumulate_only_visible_gaussians() {
     // Too many Gaussians for the buffers is refused.
     let mut rec = Recorder::new(&ctx).unwrap();
     assert!(dc
-        .record_accumulate(&mut rec, &norms, &proj, n + 1)
+        .record_accumulate(&mut rec, &norms, &proj, None, 1.0, n + 1)
         .is_err());
+    ctx.check_validation().unwrap();
+}
+
+/// Pixel-GS's statistic on random views: bit-equal to the host reference, max radii as ADC's.
+#[test]
+fn pixel_weighted_statistics_match_the_host_reference() {
+    let ctx = ctx();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(31);
+    let n = 4_000;
+    let extent = 3.5f64;
+    let cfg = DensityConfig {
+        statistic: Statistic::pixel_gs(),
+        ..Default::default()
+    };
+    let (mode, depth_scale) = cfg.statistic.kernel_mode(extent).unwrap();
+    assert_eq!(mode, 1);
+    assert_eq!(depth_scale, (1.0 / (0.37f64 * extent)) as f32);
+    let dc = DensityControl::new(&ctx, n, cfg).unwrap();
+    let mut host = HostStats::zeros(n);
+    let norms = GpuBuffer::<f32>::new(&ctx, "norms", n, BufferKind::DeviceLocal).unwrap();
+    let counts = GpuBuffer::<u32>::new(&ctx, "pixel counts", n, BufferKind::DeviceLocal).unwrap();
+    let proj =
+        GpuBuffer::<ProjectedGpu>::new(&ctx, "projected", n, BufferKind::DeviceLocal).unwrap();
+    for _view in 0..4 {
+        let nv: Vec<f32> = (0..n).map(|_| rng.gen_range(0.0..1e-3)).collect();
+        let radii: Vec<f32> = (0..n)
+            .map(|_| {
+                if rng.gen_bool(0.3) {
+                    0.0
+                } else {
+                    rng.gen_range(1..40) as f32
+                }
+            })
+            .collect();
+        // Counts 0 (visible but past every pixel's last contributor) to large; depths on both
+        // sides of 0.37·extent, so the factor is clamped at 1 for some.
+        let pc: Vec<u32> = (0..n).map(|_| rng.gen_range(0..3000)).collect();
+        let depth: Vec<f32> = (0..n).map(|_| rng.gen_range(0.01..4.0)).collect();
+        let projected: Vec<ProjectedGpu> = (0..n)
+            .map(|i| ProjectedGpu {
+                radius: radii[i],
+                depth: depth[i],
+                ..bytemuck::Zeroable::zeroed()
+            })
+            .collect();
+        norms.upload(&nv).unwrap();
+        counts.upload(&pc).unwrap();
+        proj.upload(&projected).unwrap();
+        let mut rec = Recorder::new(&ctx).unwrap();
+        dc.record_accumulate(&mut rec, &norms, &proj, Some(&counts), extent, n)
+            .unwrap();
+        rec.submit_and_wait().unwrap();
+        host.accumulate_pixel_weighted(&nv, &radii, &pc, &depth, depth_scale);
+    }
+    assert_eq!(
+        bits(&dc.stats().grad_accum.read().unwrap()),
+        bits(&host.grad_accum)
+    );
+    assert_eq!(dc.stats().denom.read().unwrap(), host.denom);
+    assert_eq!(dc.stats().max_radii.read().unwrap(), host.max_radii);
+    // The pixel-weighted statistic without counts is refused with the fix.
+    let mut rec = Recorder::new(&ctx).unwrap();
+    let e = dc
+        .record_accumulate(&mut rec, &norms, &proj, None, extent, n)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("pixel counts"), "{e}");
+    ctx.check_validation().unwrap();
+}
+
+/// What Pixel-GS changes: a large Gaussian with a strong gradient in the one view where it
+/// covers many pixels, and a weak one in several views where it covers a few (seen edge-on or
+/// far away), stays below the threshold under ADC's per-view average and crosses it under the
+/// pixel-weighted one; the same Gaussian close to the cameras is held back by the depth factor.
+/// GPU decisions equal the host reference's under both statistics.
+#[test]
+fn pixel_weighting_densifies_large_gaussians_adc_averages_away() {
+    let ctx = ctx();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(32);
+    let extent = 2.0f64;
+    let n = 3;
+    let mut params = random_params(&mut rng, n, 0, extent as f32);
+    for i in 0..n {
+        params.log_scales[i] = [(0.005 * extent as f32).ln(); 3]; // clone-sized
+        params.opacity_logits[i] = 1.0;
+    }
+    // Gaussian 0: far (depth 3 > 0.37·2), the profile above. 1: the same at depth 0.2 (φ ≈ 0.07).
+    // 2: a small Gaussian with a uniform gradient just above the threshold in every view.
+    // Views: (pixel counts, gradient norms) per Gaussian.
+    let views: [([u32; 3], [f32; 3]); 5] = [
+        ([400, 400, 20], [8e-4, 8e-4, 3e-4]),
+        ([2, 2, 20], [1e-5, 1e-5, 3e-4]),
+        ([2, 2, 20], [1e-5, 1e-5, 3e-4]),
+        ([2, 2, 20], [1e-5, 1e-5, 3e-4]),
+        ([2, 2, 20], [1e-5, 1e-5, 3e-4]),
+    ];
+    let depth = [3.0f32, 0.2, 3.0];
+    let args = DensifyArgs {
+        extent,
+        prune_large: false,
+        iteration: 500,
+    };
+    let mut densified = Vec::new();
+    for statistic in [Statistic::Gradient, Statistic::pixel_gs()] {
+        let cfg = DensityConfig {
+            statistic,
+            ..Default::default()
+        };
+        let mut dc = DensityControl::new(&ctx, 8, cfg).unwrap();
+        let host_state = HostState {
+            m: random_moments(&mut rng, n, 0, false),
+            v: random_moments(&mut rng, n, 0, true),
+            params: params.clone(),
+        };
+        let state = upload_state(&ctx, &host_state, 8);
+        let mut host = HostStats::zeros(n);
+        let (_, depth_scale) = statistic.kernel_mode(extent).unwrap();
+        let norms = GpuBuffer::<f32>::new(&ctx, "norms", n, BufferKind::DeviceLocal).unwrap();
+        let counts = GpuBuffer::<u32>::new(&ctx, "counts", n, BufferKind::DeviceLocal).unwrap();
+        let proj =
+            GpuBuffer::<ProjectedGpu>::new(&ctx, "projected", n, BufferKind::DeviceLocal).unwrap();
+        let radii = [30.0f32; 3];
+        proj.upload(
+            &(0..n)
+                .map(|i| ProjectedGpu {
+                    radius: radii[i],
+                    depth: depth[i],
+                    ..bytemuck::Zeroable::zeroed()
+                })
+                .collect::<Vec<_>>(),
+        )
+        .unwrap();
+        for (pc, nv) in &views {
+            norms.upload(nv).unwrap();
+            counts.upload(pc).unwrap();
+            let mut rec = Recorder::new(&ctx).unwrap();
+            dc.record_accumulate(&mut rec, &norms, &proj, Some(&counts), extent, n)
+                .unwrap();
+            rec.submit_and_wait().unwrap();
+            match statistic {
+                Statistic::Gradient => host.accumulate(nv, &radii),
+                _ => host.accumulate_pixel_weighted(nv, &radii, pc, &depth, depth_scale),
+            }
+        }
+        let mut rec = Recorder::new(&ctx).unwrap();
+        dc.record_decide(&mut rec, &state, &args, None).unwrap();
+        rec.submit_and_wait().unwrap();
+        let gpu = dc.decisions().read_range(0, n).unwrap();
+        let want = reference::decide(
+            &Thresholds::new(&cfg, &args).unwrap(),
+            &host,
+            &host_state.params,
+            None,
+        );
+        assert_eq!(
+            gpu, want,
+            "{statistic:?}: GPU decisions vs the host reference"
+        );
+        densified.push(
+            gpu.iter()
+                .map(|d| d & DECIDE_CLONE != 0)
+                .collect::<Vec<_>>(),
+        );
+    }
+    assert_eq!(densified[0], vec![false, false, true], "ADC");
+    assert_eq!(densified[1], vec![true, false, true], "Pixel-GS");
     ctx.check_validation().unwrap();
 }
 

@@ -7,16 +7,25 @@
 use glam::DVec3;
 use lpmsplat::gpu::{GpuContext, GpuOptions};
 use lpmsplat::lpm::neighbours::{select_neighbours, NeighbourSettings};
+use lpmsplat::lpm::strategy::{LpmConfig, LpmStepReport, LpmStrategy, PruneMode};
 use lpmsplat::lpm::{Correspondences, PairMatches, ZoneGeometry};
 use lpmsplat::scene::{CameraModel, Image, PinholeCamera, Pose, Scene, SceneFormat, View};
 use lpmsplat::splats::GaussianParams;
-use lpmsplat::train::lpm_step::{LpmConfig, LpmStepReport, LpmTrainer, PruneMode};
-use lpmsplat::train::trainer::{Background, TrainConfig, Trainer};
+use lpmsplat::train::trainer::{Background, StepReport, TrainConfig, Trainer};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use std::sync::Arc;
 
 const W: u32 = 160;
+
+/// The LPM step report of a trainer iteration, if LPM reported one.
+fn lpm_report(r: &StepReport) -> Option<LpmStepReport> {
+    r.event::<LpmStepReport>().cloned()
+}
+
+fn lpm_of(t: &Trainer) -> Option<&LpmStrategy> {
+    t.strategy_as::<LpmStrategy>()
+}
 const H: u32 = 120;
 const HOLE: [f32; 3] = [-0.9, -0.5, 0.0];
 const HOLE_RADIUS: f32 = 0.8;
@@ -233,12 +242,12 @@ fn one_lpm_step_fills_the_hole_and_resets_the_occluder_adc_does_neither() {
     let run = |lpm: bool| {
         let mut t = Trainer::new(&ctx, &scene, &gt, &init, config(1e9, 1)).unwrap();
         if lpm {
-            t.lpm = Some(
-                LpmTrainer::new(&ctx, &scene, &gt, correspondences(&scene), lpm_config()).unwrap(),
-            );
+            t.set_strategy(Box::new(
+                LpmStrategy::new(&ctx, &scene, &gt, correspondences(&scene), lpm_config()).unwrap(),
+            ));
         }
         let r = t.step().unwrap();
-        if let (Some(l), Some(rep)) = (&t.lpm, &r.lpm) {
+        if let (Some(l), Some(rep)) = (lpm_of(&t), lpm_report(&r)) {
             // The run's totals count the step's regions, pairs and zones.
             let tot = l.totals;
             assert_eq!(tot.steps, 1);
@@ -255,7 +264,7 @@ fn one_lpm_step_fills_the_hole_and_resets_the_occluder_adc_does_neither() {
     };
 
     let (adc, r_adc) = run(false);
-    assert!(r_adc.lpm.is_none());
+    assert!(lpm_report(&r_adc).is_none());
     assert_eq!(
         adc.len(),
         n0,
@@ -278,7 +287,7 @@ fn one_lpm_step_fills_the_hole_and_resets_the_occluder_adc_does_neither() {
     );
 
     let (lpm, r) = run(true);
-    let rep = r.lpm.expect("LPM ran at iteration 1");
+    let rep = lpm_report(&r).expect("LPM ran at iteration 1");
     eprintln!("{rep:?}");
     assert!(
         rep.zones >= 2,
@@ -376,14 +385,16 @@ fn lpm_off_is_bit_identical_to_adc() {
     let run = |lpm: Option<LpmConfig>| {
         let mut t = Trainer::new(&ctx, &scene, &gt, &init, config(2e-5, 5)).unwrap();
         if let Some(c) = lpm {
-            t.lpm = Some(LpmTrainer::new(&ctx, &scene, &gt, correspondences(&scene), c).unwrap());
+            t.set_strategy(Box::new(
+                LpmStrategy::new(&ctx, &scene, &gt, correspondences(&scene), c).unwrap(),
+            ));
         }
         let mut densified = 0;
         let mut reports = Vec::new();
         for _ in 0..12 {
             let r = t.step().unwrap();
             densified += r.densified.is_some() as u32;
-            reports.extend(r.lpm);
+            reports.extend(lpm_report(&r));
         }
         assert_eq!(densified, 2);
         let m = t.model().unwrap();
@@ -507,7 +518,9 @@ fn lpm_run_resumes_bit_identically_and_checks_its_settings() {
     let gt = ground_truth(&ctx, &scene);
     let init = initial_model();
     let attach = |t: &mut Trainer, c: LpmConfig| {
-        t.lpm = Some(LpmTrainer::new(&ctx, &scene, &gt, correspondences(&scene), c).unwrap());
+        t.set_strategy(Box::new(
+            LpmStrategy::new(&ctx, &scene, &gt, correspondences(&scene), c).unwrap(),
+        ));
     };
     let floats = |t: &Trainer| {
         let ck = t.checkpoint(&scene).unwrap();
@@ -525,7 +538,7 @@ fn lpm_run_resumes_bit_identically_and_checks_its_settings() {
         attach(&mut t, lpm_config());
         let mut zones = 0;
         for _ in 0..15 {
-            zones += t.step().unwrap().lpm.map_or(0, |r| r.zones);
+            zones += lpm_report(&t.step().unwrap()).map_or(0, |r| r.zones);
         }
         assert!(
             zones > 0,
@@ -560,7 +573,7 @@ fn lpm_run_resumes_bit_identically_and_checks_its_settings() {
     let restore = || Trainer::restore(&ctx, &scene, &gt, config(2e-5, 5), &ck, path).unwrap();
     let mut resumed = restore();
     attach(&mut resumed, lpm_config());
-    resumed.check_resumed_lpm(path).unwrap();
+    resumed.check_resumed_strategy(path).unwrap();
     for _ in 0..8 {
         resumed.step().unwrap();
     }
@@ -571,8 +584,14 @@ fn lpm_run_resumes_bit_identically_and_checks_its_settings() {
         "the resumed LPM run differs from the straight run"
     );
     // Resuming without LPM, or with other LPM settings, is refused with the fix.
-    let e = restore().check_resumed_lpm(path).unwrap_err().to_string();
-    assert!(e.contains("pass --lpm") && e.contains("Fix:"), "{e}");
+    let e = restore()
+        .check_resumed_strategy(path)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("checkpoint lpm, now adc") && e.contains("--lpm") && e.contains("Fix:"),
+        "{e}"
+    );
     let mut other = restore();
     attach(
         &mut other,
@@ -581,7 +600,7 @@ fn lpm_run_resumes_bit_identically_and_checks_its_settings() {
             ..lpm_config()
         },
     );
-    let e = other.check_resumed_lpm(path).unwrap_err().to_string();
+    let e = other.check_resumed_strategy(path).unwrap_err().to_string();
     assert!(e.contains("lpm.threshold_ratio"), "{e}");
     ctx.check_validation().unwrap();
 }
@@ -635,11 +654,13 @@ fn authors_rules_skip_adc_without_a_zone_and_still_take_the_optimizer_step() {
     let run = |cfg: TrainConfig, lpm: Option<LpmConfig>| {
         let mut t = Trainer::new(&ctx, &scene, &gt, &init, cfg).unwrap();
         if let Some(c) = lpm {
-            t.lpm = Some(LpmTrainer::new(&ctx, &scene, &gt, no_matches(), c).unwrap());
+            t.set_strategy(Box::new(
+                LpmStrategy::new(&ctx, &scene, &gt, no_matches(), c).unwrap(),
+            ));
         }
         let mut reports = Vec::new();
         for _ in 0..12 {
-            reports.extend(t.step().unwrap().lpm);
+            reports.extend(lpm_report(&t.step().unwrap()));
         }
         (t.model().unwrap(), reports)
     };
@@ -710,7 +731,9 @@ fn lpm_reset_runs_on_its_own_interval() {
             add_points: false,
             ..lpm_config()
         };
-        t.lpm = Some(LpmTrainer::new(&ctx, &scene, &gt, correspondences(&scene), c).unwrap());
+        t.set_strategy(Box::new(
+            LpmStrategy::new(&ctx, &scene, &gt, correspondences(&scene), c).unwrap(),
+        ));
         let r1 = t.step().unwrap();
         let occ = |m: &GaussianParams| {
             let i = (0..m.len())
@@ -720,12 +743,12 @@ fn lpm_reset_runs_on_its_own_interval() {
         };
         let after1 = occ(&t.model().unwrap());
         let r2 = t.step().unwrap();
-        (r1, after1, r2, t.lpm.as_ref().unwrap().steps.len())
+        (r1, after1, r2, lpm_of(&t).unwrap().steps.len())
     };
     // Every iteration: iteration 1 (no density step) resets alone, iteration 2 with the density
     // step.
     let (r1, occ1, r2, steps) = run(1);
-    let l1 = r1.lpm.expect("a reset-only LPM step at iteration 1");
+    let l1 = lpm_report(&r1).expect("a reset-only LPM step at iteration 1");
     assert!(
         r1.densified.is_none() && l1.reset_only && l1.zones >= 1 && l1.reset >= 1,
         "{l1:?}"
@@ -734,17 +757,17 @@ fn lpm_reset_runs_on_its_own_interval() {
         (occ1 - logit(0.01)).abs() < 1e-4,
         "occluder logit {occ1} not reset"
     );
-    let l2 = r2.lpm.expect("LPM at iteration 2");
+    let l2 = lpm_report(&r2).expect("LPM at iteration 2");
     assert!(!l2.reset_only && r2.densified.is_some());
     assert_eq!(steps, 2);
     // Every 4: iteration 1 does nothing, the density step at 2 does not reset.
     let (r1, occ1, r2, steps) = run(4);
-    assert!(r1.lpm.is_none());
+    assert!(lpm_report(&r1).is_none());
     assert!(
         (occ1 - logit(0.01)).abs() > 1.0,
         "occluder reset at iteration 1: {occ1}"
     );
-    let l2 = r2.lpm.expect("LPM's density part at iteration 2");
+    let l2 = lpm_report(&r2).expect("LPM's density part at iteration 2");
     assert_eq!(l2.reset, 0, "{l2:?}");
     assert_eq!(steps, 1);
     ctx.check_validation().unwrap();
@@ -767,8 +790,10 @@ fn default_rules_add_a_point_in_the_hole() {
         ..LpmConfig::default()
     };
     assert_eq!(c.zones.geometry, ZoneGeometry::Triangulated);
-    t.lpm = Some(LpmTrainer::new(&ctx, &scene, &gt, correspondences(&scene), c).unwrap());
-    let rep = t.step().unwrap().lpm.expect("LPM ran at iteration 1");
+    t.set_strategy(Box::new(
+        LpmStrategy::new(&ctx, &scene, &gt, correspondences(&scene), c).unwrap(),
+    ));
+    let rep = lpm_report(&t.step().unwrap()).expect("LPM ran at iteration 1");
     eprintln!("{rep:?}");
     assert_eq!(rep.block, 4, "automatic block at 160×120");
     assert!(rep.zones >= 1 && rep.added >= 1, "{rep:?}");

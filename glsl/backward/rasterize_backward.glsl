@@ -24,6 +24,11 @@
 // Output: grad2d[g·9 + k], k = 0..8: dL/d(mean_x, mean_y, conic_a, conic_b, conic_c, r, g, b,
 // opacity), accumulated atomically (the caller zeroes the buffer first).
 //
+// With COUNT_PIXELS (specialisation constant 4) the pass also counts, per splat, the pixels it
+// contributed to (those past the alpha test and in front of the pixel's last contributor: the
+// forward's blended set), added to pixel_count[g] (binding 8, zeroed by the caller): Pixel-GS's
+// n_v(i). The count rides in the shared sums as a tenth float (exact: at most 256 per tile).
+//
 // HAS_FLOAT_ATOMICS (a #define of the including file) says whether the SPIR-V may declare
 // the float atomic-add capability; USE_FLOAT_ATOMICS (specialisation constant 2) picks the
 // float atomicAdd (1) or a compare-and-swap loop on the bits (0) at pipeline creation.
@@ -39,6 +44,7 @@ layout(constant_id = 0) const uint WG_SIZE = 256;  // must be TILE·TILE / PIXEL
 layout(constant_id = 1) const uint SUBGROUP_SIZE = 32;
 layout(constant_id = 2) const uint USE_FLOAT_ATOMICS = 0;
 layout(constant_id = 3) const uint PIXELS = 1;  // pixels per invocation: 1, 2, 4, 8 or 16
+layout(constant_id = 4) const uint COUNT_PIXELS = 0;  // 1: count contributing pixels per splat
 layout(local_size_x_id = 0) in;
 
 #include "camera.glsl"
@@ -47,6 +53,8 @@ layout(local_size_x_id = 0) in;
 
 const uint TILE = 16u;
 const uint GRAD2D_STRIDE = 9u;
+// Floats per (splat, subgroup) in the shared sums: the gradients, then the pixel count.
+const uint ACC_STRIDE = GRAD2D_STRIDE + COUNT_PIXELS;
 
 layout(std430, set = 0, binding = 0) readonly buffer Cameras { Camera cameras[]; };
 layout(std430, set = 0, binding = 1) readonly buffer ProjectedBuf { Projected projected[]; };
@@ -56,6 +64,7 @@ layout(std430, set = 0, binding = 4) readonly buffer FinalT { float final_t[]; }
 layout(std430, set = 0, binding = 5) readonly buffer LastIndex { uint last_index[]; };
 layout(std430, set = 0, binding = 6) readonly buffer DlDImage { float dl_dimage[]; };
 layout(std430, set = 0, binding = 7) buffer Grad2dBits { uint grad2d_bits[]; };
+layout(std430, set = 0, binding = 8) buffer PixelCount { uint pixel_count[]; };
 #if HAS_FLOAT_ATOMICS
 // The same binding seen as floats, for the native float atomicAdd.
 layout(std430, set = 0, binding = 7) buffer Grad2dFloat { float grad2d_f[]; };
@@ -87,10 +96,10 @@ void atomic_add_float(uint idx, float v) {
 
 
 // Splats per batch: every invocation stages one, and the per-subgroup sums of a batch must fit
-// in s_acc (ACC_FLOATS / (subgroups · 9) splats).
+// in s_acc (ACC_FLOATS / (subgroups · ACC_STRIDE) splats).
 const uint ACC_FLOATS = 4608u;
 const uint NUM_SG = WG_SIZE / SUBGROUP_SIZE;
-const uint BATCH_BY_ACC = ACC_FLOATS / (NUM_SG * GRAD2D_STRIDE);
+const uint BATCH_BY_ACC = ACC_FLOATS / (NUM_SG * ACC_STRIDE);
 const uint BATCH = WG_SIZE < BATCH_BY_ACC ? WG_SIZE : BATCH_BY_ACC;
 
 // Pixel k of invocation li, as an index into the 16×16 tile (row-major): invocation li is lane
@@ -107,7 +116,7 @@ shared uint s_id[BATCH];
 shared vec4 s_mean_opacity[BATCH];  // mean_x, mean_y, opacity, half width of the reach
 shared vec4 s_conic[BATCH];         // a, b, c, half height of the reach
 shared vec4 s_rgb[BATCH];           // r, g, b, splat_q_cut
-// [(splat in batch · NUM_SG + subgroup) · 9 + k]: the subgroup's gradient sums.
+// [(splat in batch · NUM_SG + subgroup) · ACC_STRIDE + k]: the subgroup's sums.
 shared float s_acc[ACC_FLOATS];
 // [subgroup · BATCH + i]: the batch entries that may touch the subgroup's pixels, in order.
 shared uint s_list[ACC_FLOATS / GRAD2D_STRIDE];
@@ -196,8 +205,8 @@ void main() {
         // Zero sums for the entries this subgroup skips (e >= sg_max_last, i.e. j < j_first).
         uint j_first = min(batch, max_last - done - min(sg_max_last, max_last - done));
         for (uint j = gl_SubgroupInvocationID; j < j_first; j += gl_SubgroupSize) {
-            uint a = (j * NUM_SG + gl_SubgroupID) * GRAD2D_STRIDE;
-            [[unroll]] for (uint c = 0u; c < GRAD2D_STRIDE; c++) s_acc[a + c] = 0.0;
+            uint a = (j * NUM_SG + gl_SubgroupID) * ACC_STRIDE;
+            for (uint c = 0u; c < ACC_STRIDE; c++) s_acc[a + c] = 0.0;
         }
         // Compact (in order) the entries from j_first on whose reach meets the subgroup's box;
         // the others get zero sums.
@@ -216,8 +225,8 @@ void main() {
             if (meets) {
                 s_list[list_base + n_list + subgroupBallotExclusiveBitCount(ballot)] = j;
             } else if (j < batch) {
-                uint a = (j * NUM_SG + gl_SubgroupID) * GRAD2D_STRIDE;
-                [[unroll]] for (uint c = 0u; c < GRAD2D_STRIDE; c++) s_acc[a + c] = 0.0;
+                uint a = (j * NUM_SG + gl_SubgroupID) * ACC_STRIDE;
+                for (uint c = 0u; c < ACC_STRIDE; c++) s_acc[a + c] = 0.0;
             }
             n_list += subgroupBallotBitCount(ballot);
         }
@@ -233,6 +242,7 @@ void main() {
             vec3 g_conic = vec3(0.0);
             vec3 g_rgb = vec3(0.0);
             float g_opacity = 0.0;
+            float n_pixels = 0.0;
             [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
                 if (e >= last[k]) continue;
                 vec2 d = mo.xy - centre[k];
@@ -249,6 +259,7 @@ void main() {
                 float alpha = clamped ? pc.rc.alpha_max : raw;
                 // Skip 3: alpha < alpha_min contributed nothing (not in smooth mode).
                 if (!smooth_mode && alpha < pc.rc.alpha_min) continue;
+                n_pixels += 1.0;
                 // One division per pixel and splat (divisions are slow on CPUs).
                 float inv_one_minus = 1.0 / (1.0 - alpha);
                 t[k] *= inv_one_minus;
@@ -271,8 +282,9 @@ void main() {
             g_conic = subgroupAdd(g_conic);
             g_rgb = subgroupAdd(g_rgb);
             g_opacity = subgroupAdd(g_opacity);
+            if (COUNT_PIXELS != 0u) n_pixels = subgroupAdd(n_pixels);
             if (subgroupElect()) {
-                uint a = (j * NUM_SG + gl_SubgroupID) * GRAD2D_STRIDE;
+                uint a = (j * NUM_SG + gl_SubgroupID) * ACC_STRIDE;
                 s_acc[a + 0u] = g_mean.x;
                 s_acc[a + 1u] = g_mean.y;
                 s_acc[a + 2u] = g_conic.x;
@@ -282,16 +294,22 @@ void main() {
                 s_acc[a + 6u] = g_rgb.y;
                 s_acc[a + 7u] = g_rgb.z;
                 s_acc[a + 8u] = g_opacity;
+                if (COUNT_PIXELS != 0u) s_acc[a + 9u] = n_pixels;
             }
         }
         barrier();
-        // One invocation per splat of the batch: the subgroups' sums, then nine atomics.
+        // One invocation per splat of the batch: the subgroups' sums, then nine atomics (and
+        // the pixel count's).
         for (uint j = li; j < batch; j += WG_SIZE) {
-            float sum[GRAD2D_STRIDE];
-            [[unroll]] for (uint c = 0u; c < GRAD2D_STRIDE; c++) sum[c] = 0.0;
+            float sum[GRAD2D_STRIDE + 1u];
+            [[unroll]] for (uint c = 0u; c <= GRAD2D_STRIDE; c++) sum[c] = 0.0;
             for (uint sg = 0u; sg < NUM_SG; sg++) {
-                uint a = (j * NUM_SG + sg) * GRAD2D_STRIDE;
+                uint a = (j * NUM_SG + sg) * ACC_STRIDE;
                 [[unroll]] for (uint c = 0u; c < GRAD2D_STRIDE; c++) sum[c] += s_acc[a + c];
+                if (COUNT_PIXELS != 0u) sum[GRAD2D_STRIDE] += s_acc[a + GRAD2D_STRIDE];
+            }
+            if (COUNT_PIXELS != 0u && sum[GRAD2D_STRIDE] != 0.0) {
+                atomicAdd(pixel_count[s_id[j]], uint(sum[GRAD2D_STRIDE]));
             }
             uint base = s_id[j] * GRAD2D_STRIDE;
             [[unroll]] for (uint c = 0u; c < GRAD2D_STRIDE; c++) {

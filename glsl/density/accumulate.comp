@@ -1,7 +1,15 @@
 #version 460
 // Per-iteration densification statistics: for each Gaussian visible in this view (radius > 0),
-// add its NDC mean-gradient norm to `grad_accum`, count the view in `denom`, and keep the largest
-// screen radius in `max_radii`. Culled Gaussians are left untouched.
+// add this view's share to `grad_accum` and `denom`, and keep the largest screen radius in
+// `max_radii`. Culled Gaussians are left untouched.
+//   mode 0 (3DGS): grad_accum += |dL/d mean2d| (NDC), denom += 1;
+//   mode 1 (Pixel-GS): with n = the pixels the Gaussian contributed to in this view and
+//     phi = min(1, (depth · depth_scale)²), depth_scale = 1 / (0.37 · extent):
+//     grad_accum += n · phi · |dL/d mean2d|, denom += n. So the views where a Gaussian covers
+//     many pixels weigh more, and near-camera Gaussians (floaters) get a smaller statistic;
+//     the optimisation's own gradients are untouched.
+// `precise`: the host reference (src/train/density/reference.rs) repeats these f32 operations
+// in this order, without fused multiply-adds, and must match bit for bit.
 layout(local_size_x_id = 0) in;
 #include "projected.glsl"
 #include "decisions.glsl"
@@ -10,14 +18,28 @@ layout(std430, set = 0, binding = 1) readonly buffer Proj { Projected projected[
 layout(std430, set = 0, binding = 2) buffer Accum { float grad_accum[]; };
 layout(std430, set = 0, binding = 3) buffer Denom { float denom[]; };
 layout(std430, set = 0, binding = 4) buffer MaxRadii { float max_radii[]; };
-layout(push_constant) uniform Push { uint count; };
+layout(std430, set = 0, binding = 5) readonly buffer PixelCount { uint pixel_count[]; };
+layout(push_constant) uniform Push {
+    uint count;
+    uint mode;
+    float depth_scale;
+};
 
 void main() {
     uint i = linear_index();
     if (i >= count) return;
     float r = projected[i].radius;
     if (!(r > 0.0)) return;
-    grad_accum[i] += view_grad_norm[i];
-    denom[i] += 1.0;
+    if (mode == 1u) {
+        precise float n = float(pixel_count[i]);
+        precise float z = projected[i].depth * depth_scale;
+        precise float phi = min(1.0, z * z);
+        precise float add = n * phi * view_grad_norm[i];
+        grad_accum[i] = grad_accum[i] + add;
+        denom[i] = denom[i] + n;
+    } else {
+        grad_accum[i] += view_grad_norm[i];
+        denom[i] += 1.0;
+    }
     max_radii[i] = max(max_radii[i], r);
 }

@@ -11,13 +11,13 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions};
+use lpmsplat::lpm::strategy::{LpmConfig, LpmStrategy, PruneMode};
 use lpmsplat::lpm::ZoneGeometry;
 use lpmsplat::render::forward::{FrameSettings, Renderer};
 use lpmsplat::render::layout::{CameraGpu, RenderConstants};
 use lpmsplat::scene::{images, Scene};
 use lpmsplat::splats::gpu::GpuSplats;
 use lpmsplat::splats::write_ply;
-use lpmsplat::train::lpm_step::{LpmConfig, PruneMode};
 
 fn parse_prune(s: &str) -> anyhow::Result<PruneMode> {
     PruneMode::parse(s)
@@ -252,7 +252,13 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
             let init = &inits[r.init];
             let mut t = Trainer::new(&ctx, &scene, &train_images, init, r.cfg.clone())?;
             if let Some(c) = r.lpm.clone() {
-                t.lpm = Some(build_lpm(&ctx, &scene, &train_images, c, &args.out)?);
+                t.set_strategy(Box::new(build_lpm(
+                    &ctx,
+                    &scene,
+                    &train_images,
+                    c,
+                    &args.out,
+                )?));
             }
             r.trainer = Some(t);
         }
@@ -405,7 +411,10 @@ fn evaluate_run(
     let (m, _) = t.evaluate(scene, &scene.test, test_images)?;
     let (psnr, ssim) = mean_metrics(&m);
     let model = t.model()?;
-    let lpm_totals = t.lpm.as_ref().map(|l| l.totals).unwrap_or_default();
+    let lpm_totals = t
+        .strategy_as::<LpmStrategy>()
+        .map(|l| l.totals)
+        .unwrap_or_default();
     let lpm_s = lpm_totals.seconds;
     let fps = fps_of(ctx, &model, scene, args.fps_frames)?;
     if iteration == args.iterations {

@@ -8,10 +8,10 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuContext, GpuOptions, StageTimes};
+use lpmsplat::lpm::strategy::{LpmConfig, LpmStrategy, PruneMode};
 use lpmsplat::lpm::{self, ZoneGeometry};
 use lpmsplat::scene::{images, Image, Scene};
 use lpmsplat::splats::{self, read_ply, write_ply, GaussianParams};
-use lpmsplat::train::lpm_step::{LpmConfig, LpmTrainer, PruneMode};
 use lpmsplat::train::nan_check::NonFiniteCheck;
 use lpmsplat::train::trainer::{Background, TrainConfig, Trainer, ViewMetrics};
 use std::io::Write;
@@ -244,7 +244,7 @@ pub fn build_lpm(
     train_images: &[Image],
     config: LpmConfig,
     cache_dir: &Path,
-) -> anyhow::Result<LpmTrainer> {
+) -> anyhow::Result<LpmStrategy> {
     let loader = |i: usize| -> anyhow::Result<Image> {
         match scene.train.iter().position(|&v| v == i) {
             Some(k) => Ok(train_images[k].clone()),
@@ -254,7 +254,7 @@ pub fn build_lpm(
     let cache = cache_dir.join(lpm::CACHE_FILE_NAME);
     let (corr, summary) = lpm::load_or_build(scene, &config.matching, &cache, &loader, None)?;
     eprintln!("LPM correspondences: {summary}");
-    LpmTrainer::new(ctx, scene, train_images, corr, config)
+    LpmStrategy::new(ctx, scene, train_images, corr, config)
 }
 
 pub fn background_from(arg: Option<&str>, scene: &Scene) -> anyhow::Result<Background> {
@@ -475,10 +475,16 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         None => None,
     };
     if let Some(c) = lpm_config.clone() {
-        trainer.lpm = Some(build_lpm(&ctx, &scene, &train_images, c, &args.out)?);
+        trainer.set_strategy(Box::new(build_lpm(
+            &ctx,
+            &scene,
+            &train_images,
+            c,
+            &args.out,
+        )?));
     }
     if let Some(p) = &args.resume {
-        trainer.check_resumed_lpm(p)?;
+        trainer.check_resumed_strategy(p)?;
     }
     let load_s = t_load.elapsed().as_secs_f64();
     let start_iteration = trainer.iteration;
@@ -630,7 +636,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         "device": ctx.info.name,
         "gpu_memory_mib": ctx.memory_in_use().1 as f64 / (1u64 << 20) as f64,
         "stages": if config.timestamps { stage_shares(&stages) } else { serde_json::Value::Null },
-        "lpm": trainer.lpm.as_ref().map(|l| {
+        "lpm": trainer.strategy_as::<LpmStrategy>().map(|l| {
             let mut j = lpm_summary(&l.totals, train_s, config.iterations);
             j["per_step"] = l.steps.iter().map(|r| r.to_json()).collect();
             j
@@ -686,7 +692,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
             1e3 * train_s / trained as f64
         );
     }
-    if let Some(l) = &trainer.lpm {
+    if let Some(l) = trainer.strategy_as::<LpmStrategy>() {
         let t = &l.totals;
         println!(
             "  LPM: {} steps ({} with zones), {} error regions, {} paired, {} zones, {} densified \
@@ -724,7 +730,7 @@ pub fn mean_metrics(m: &[ViewMetrics]) -> (f64, f64) {
 
 /// LPM totals for `metrics.json`.
 pub fn lpm_summary(
-    t: &lpmsplat::train::lpm_step::LpmTotals,
+    t: &lpmsplat::lpm::strategy::LpmTotals,
     train_seconds: f64,
     iterations: u32,
 ) -> serde_json::Value {

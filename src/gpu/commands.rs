@@ -213,6 +213,25 @@ impl Recorder {
     }
 
     /// Fills a buffer of 32-bit elements with `value` (a transfer command).
+    /// Fills the first `count` elements of `buf` with the 32-bit word `value` (a no-op for 0).
+    pub fn fill_range<T: Pod>(&mut self, buf: &GpuBuffer<T>, count: usize, value: u32) {
+        self.check_recording();
+        let size = (count.min(buf.len()) * std::mem::size_of::<T>()) as u64;
+        assert_eq!(
+            std::mem::size_of::<T>() % 4,
+            0,
+            "fill needs 4-byte elements"
+        );
+        if size == 0 {
+            return;
+        }
+        unsafe {
+            self.ctx
+                .device
+                .cmd_fill_buffer(self.cmd, buf.buffer, 0, size, value)
+        };
+    }
+
     pub fn fill<T: Pod>(&mut self, buf: &GpuBuffer<T>, value: u32) {
         self.check_recording();
         assert_eq!(

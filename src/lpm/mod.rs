@@ -9,9 +9,12 @@
 //!   then [`record::zones_for_step`] gives the [`ZoneRecord`]s to upload.
 //!
 //! The GPU half (steps 1–2 and 7–8) is [`gpu::LpmGpu`]; [`membership`] is its CPU twin.
+//! [`strategy::LpmStrategy`] puts it all together as a density strategy of the trainer
+//! (`crate::train::strategy`), wrapping ADC.
 
 pub mod cache;
 pub mod correspondences;
+mod debug_dump;
 pub mod enclosing_sphere;
 pub mod epipolar;
 pub mod features;
@@ -21,6 +24,7 @@ pub mod neighbours;
 pub mod pairing;
 pub mod record;
 pub mod regions;
+pub mod strategy;
 pub mod zones;
 
 pub use correspondences::PairMatches;

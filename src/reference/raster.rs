@@ -81,6 +81,8 @@ pub struct RasterOutput {
     pub last_contributor: Vec<u32>,
     /// Number of splats that contributed (not skipped) to the pixel.
     pub contributors: Vec<u32>,
+    /// Per Gaussian: the pixels it contributed to (Pixel-GS's n_v(i)).
+    pub pixel_count: Vec<u32>,
 }
 
 /// One splat evaluated at one pixel centre.
@@ -164,6 +166,7 @@ pub fn rasterize(
         final_transmittance: vec![1.0; n],
         last_contributor: vec![0; n],
         contributors: vec![0; n],
+        pixel_count: vec![0; projected.len()],
     };
     for j in 0..camera.height {
         for i in 0..camera.width {
@@ -189,6 +192,7 @@ pub fn rasterize(
                 t = next_t;
                 out.last_contributor[pix] = k as u32 + 1;
                 out.contributors[pix] += 1;
+                out.pixel_count[g as usize] += 1;
             }
             for ch in 0..3 {
                 out.image[pix][ch] = color[ch] + t * background[ch];

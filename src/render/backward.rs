@@ -134,6 +134,9 @@ pub struct BackwardArgs<'a> {
     pub grads: &'a GpuSplats,
     /// Output: f32 per Gaussian.
     pub view_grad_norm: &'a GpuBuffer<f32>,
+    /// Output (when given): u32 per Gaussian, the number of pixels it contributed to
+    /// (Pixel-GS's n_v(i)); zeroed by the pass. Needs [`Backward::with_pixel_counts`].
+    pub pixel_count: Option<&'a GpuBuffer<u32>>,
     pub count: usize,
     /// Active SH degree of the forward pass (≤ `splats.sh_degree`).
     pub sh_degree: u32,
@@ -144,6 +147,11 @@ pub struct BackwardArgs<'a> {
 /// The backward pass's pipelines and its intermediate per-Gaussian buffer.
 pub struct Backward {
     raster: ComputePipeline,
+    /// The rasterizer backward that also counts pixels per splat (built on request).
+    raster_counting: Option<ComputePipeline>,
+    /// Bound at binding 8 when no pixel counts are asked for (never written).
+    no_counts: GpuBuffer<u32>,
+    pixels: u32,
     preprocess: ComputePipeline,
     grad2d: GpuBuffer<f32>,
     capacity: usize,
@@ -182,28 +190,7 @@ impl Backward {
             ctx.info.subgroup_size
         );
         let float_atomics = mode == AtomicMode::Auto && ctx.info.float_atomic_add;
-        // A device without float atomics gets SPIR-V that does not declare the capability.
-        let raster = if ctx.info.float_atomic_add {
-            ComputePipeline::new(
-                ctx,
-                "backward/rasterize_backward",
-                shaders::BACKWARD_RASTERIZE_BACKWARD,
-                8,
-                std::mem::size_of::<RasterPush>() as u32,
-                wg,
-                &[float_atomics as u32, pixels],
-            )?
-        } else {
-            ComputePipeline::new(
-                ctx,
-                "backward/rasterize_backward_cas",
-                shaders::BACKWARD_RASTERIZE_BACKWARD_CAS,
-                8,
-                std::mem::size_of::<RasterPush>() as u32,
-                wg,
-                &[0, pixels],
-            )?
-        };
+        let raster = Self::raster_pipeline(ctx, float_atomics, pixels, false)?;
         let preprocess = ComputePipeline::new(
             ctx,
             "backward/preprocess_backward",
@@ -216,11 +203,60 @@ impl Backward {
         let capacity = capacity.max(1);
         Ok(Self {
             raster,
+            raster_counting: None,
+            no_counts: GpuBuffer::new(ctx, "no pixel counts", 1, BufferKind::DeviceLocal)?,
+            pixels,
             preprocess,
             grad2d: Self::alloc_grad2d(ctx, capacity)?,
             capacity,
             float_atomics,
         })
+    }
+
+    /// The rasterizer backward pipeline; `count_pixels` adds the per-splat pixel count.
+    fn raster_pipeline(
+        ctx: &Arc<GpuContext>,
+        float_atomics: bool,
+        pixels: u32,
+        count_pixels: bool,
+    ) -> Result<ComputePipeline> {
+        let wg = WG / pixels.max(1);
+        let spec = [float_atomics as u32, pixels, count_pixels as u32];
+        let push = std::mem::size_of::<RasterPush>() as u32;
+        // A device without float atomics gets SPIR-V that does not declare the capability.
+        if ctx.info.float_atomic_add {
+            ComputePipeline::new(
+                ctx,
+                "backward/rasterize_backward",
+                shaders::BACKWARD_RASTERIZE_BACKWARD,
+                9,
+                push,
+                wg,
+                &spec,
+            )
+        } else {
+            ComputePipeline::new(
+                ctx,
+                "backward/rasterize_backward_cas",
+                shaders::BACKWARD_RASTERIZE_BACKWARD_CAS,
+                9,
+                push,
+                wg,
+                &spec,
+            )
+        }
+    }
+
+    /// Also builds the pixel-counting variant of the rasterizer backward, so that
+    /// [`BackwardArgs::pixel_count`] may be given (Pixel-GS's statistic needs it).
+    pub fn with_pixel_counts(mut self, ctx: &Arc<GpuContext>) -> Result<Self> {
+        self.raster_counting = Some(Self::raster_pipeline(
+            ctx,
+            self.float_atomics,
+            self.pixels,
+            true,
+        )?);
+        Ok(self)
     }
 
     fn alloc_grad2d(ctx: &Arc<GpuContext>, capacity: usize) -> Result<GpuBuffer<f32>> {
@@ -275,8 +311,19 @@ impl Backward {
         mut pool: Option<&mut crate::gpu::TimestampPool>,
     ) -> Result<()> {
         self.check(a)?;
+        let (raster, counts) = match (a.pixel_count, &self.raster_counting) {
+            (None, _) => (&self.raster, &self.no_counts),
+            (Some(c), Some(p)) => (p, c),
+            (Some(_), None) => anyhow::bail!(
+                "GPU backward: pixel counts were asked for, but this Backward was built without \
+                 them; build it with Backward::with_pixel_counts"
+            ),
+        };
         rec.barrier();
         rec.fill(&self.grad2d, 0);
+        if a.pixel_count.is_some() {
+            rec.fill_range(counts, a.count, 0);
+        }
         rec.barrier();
         let raster_push = RasterPush {
             constants: a.constants,
@@ -285,7 +332,7 @@ impl Backward {
             _pad: [0; 3],
         };
         rec.dispatch(
-            &self.raster,
+            raster,
             &[
                 a.cameras,
                 a.projected,
@@ -295,6 +342,7 @@ impl Backward {
                 a.last_index,
                 a.dl_dimage,
                 &self.grad2d,
+                counts,
             ],
             &raster_push,
             ctx.groups_1d(a.camera.tile_count() as u64, 1),
@@ -376,6 +424,11 @@ impl Backward {
         for (name, len, need) in [
             ("projected", a.projected.len(), n),
             ("view_grad_norm", a.view_grad_norm.len(), n),
+            (
+                "pixel_count",
+                a.pixel_count.map_or(usize::MAX, |c| c.len()),
+                n,
+            ),
             (
                 "tile_ranges",
                 a.tile_ranges.len(),

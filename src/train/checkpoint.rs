@@ -508,49 +508,49 @@ impl Trainer {
             ],
             config_json: {
                 let mut c = self.config.to_json();
-                // LPM is part of the run's settings: a resumed LPM run must keep LPM on, with
-                // the same settings, and an ADC run must not gain it.
-                c["lpm"] = self
-                    .lpm
-                    .as_ref()
-                    .map_or(serde_json::Value::Null, |l| l.config.to_json());
+                // The density strategy is part of the run's settings: a resumed run must keep
+                // it, with the same settings (an ADC run must not gain LPM, nor lose it).
+                c["strategy"] = self.strategy().settings_json();
                 c.to_string()
             },
         })
     }
 
-    /// After [`Trainer::restore`] and attaching (or not) LPM: checks that the LPM settings are
-    /// those of the run that wrote the checkpoint at `path`. (LPM keeps no other state between
-    /// steps: its random choices are drawn per iteration, so a resumed run repeats them.)
-    pub fn check_resumed_lpm(&self, path: &Path) -> anyhow::Result<()> {
-        let Some(saved) = &self.resumed_lpm else {
+    /// After [`Trainer::restore`] and [`Trainer::set_strategy`]: checks that the strategy and
+    /// its settings are those of the run that wrote the checkpoint at `path`. (Strategies keep
+    /// no other state between steps: LPM draws its random choices per iteration, so a resumed
+    /// run repeats them.)
+    pub fn check_resumed_strategy(&self, path: &Path) -> anyhow::Result<()> {
+        let Some(saved) = &self.resumed_strategy else {
             return Ok(());
         };
-        let now = self
-            .lpm
-            .as_ref()
-            .map_or(serde_json::Value::Null, |l| l.config.to_json());
-        let diffs = match (saved.is_null(), now.is_null()) {
-            (true, true) => Vec::new(),
-            (true, false) => vec!["LPM (checkpoint off, now --lpm)".to_string()],
-            (false, true) => vec!["LPM (checkpoint on, now off: pass --lpm)".to_string()],
-            (false, false) => config_differences(saved, &now)
-                .into_iter()
-                .map(|d| format!("lpm.{d}"))
-                .collect(),
+        let now = self.strategy().settings_json();
+        // A strategy's settings are one object named after it ({"lpm": {...}}); null is ADC.
+        let describe = |v: &serde_json::Value| match v.as_object() {
+            Some(o) => o.keys().cloned().collect::<Vec<_>>().join("+"),
+            None => "adc".to_string(),
+        };
+        let diffs = if describe(saved) != describe(&now) {
+            vec![format!(
+                "density strategy (checkpoint {}, now {})",
+                describe(saved),
+                describe(&now)
+            )]
+        } else {
+            config_differences(saved, &now)
         };
         if diffs.is_empty() {
             return Ok(());
         }
         bad_input(
             path,
-            "config.lpm",
+            "config.strategy",
             format!(
-                "the run was trained with other LPM settings: {}",
+                "the run was trained with another density strategy or other settings: {}",
                 diffs.join("; ")
             ),
-            "resume with the --lpm flags of the original run, or start a fresh run without \
-             --resume",
+            "resume with the density flags of the original run (--lpm and its options, \
+             --model), or start a fresh run without --resume",
         )
     }
 
@@ -604,8 +604,19 @@ impl Trainer {
             )
         })?;
         let mut saved = saved;
-        // Checked by `check_resumed_lpm` once LPM is attached (absent: an older checkpoint).
-        let saved_lpm = saved.as_object_mut().and_then(|o| o.remove("lpm"));
+        // Checked by `check_resumed_strategy` once the strategy is set. Checkpoints written
+        // before strategies were plug-ins keep LPM's settings bare under "lpm".
+        let saved_strategy = saved.as_object_mut().and_then(|o| {
+            o.remove("strategy").or_else(|| {
+                o.remove("lpm").map(|v| {
+                    if v.is_null() {
+                        v
+                    } else {
+                        serde_json::json!({ "lpm": v })
+                    }
+                })
+            })
+        });
         let diffs = config_differences(&saved, &config.to_json());
         if !diffs.is_empty() {
             return bad_input(
@@ -642,7 +653,7 @@ impl Trainer {
         upload_stat(&stats.denom, &ck.stats[1])?;
         upload_stat(&stats.max_radii, &ck.stats[2])?;
         t.iteration = ck.iteration;
-        t.resumed_lpm = saved_lpm;
+        t.resumed_strategy = saved_strategy;
         t.adam_step = ck.adam_step;
         t.dropped_frames = ck.dropped_frames;
         t.views

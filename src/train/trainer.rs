@@ -27,9 +27,10 @@ use anyhow::Context;
 
 use super::adam::{Adam, SplatState};
 use super::data::{scene_cameras, GpuImages, ViewSchedule};
-use super::density::{DensifyArgs, DensifyOutcome, DensityConfig, DensityControl};
+use super::density::{DensifyArgs, DensifyOutcome, DensityConfig, DensityControl, Statistic};
 use super::loss::{Loss, LOSS_SLOT_FLOATS};
 use super::schedule::{sh_degree_at, DensitySchedule, LearningRates};
+use super::strategy::{Adc, DensityContext, DensityStrategy, IterationView, StrategyEvent};
 use crate::gpu::{BufferKind, GpuBuffer, GpuContext, Recorder, StageTimes, TimestampPool};
 use crate::render::backward::{Backward, BackwardArgs};
 use crate::render::forward::{Capacity, FrameSettings, Renderer};
@@ -98,7 +99,7 @@ impl TrainConfig {
         let lr = &self.lr;
         let d = &self.density;
         let s = &self.schedule;
-        serde_json::json!({
+        let mut j = serde_json::json!({
             "iterations": self.iterations,
             "seed": self.seed,
             "sh_degree": self.sh_degree,
@@ -119,7 +120,14 @@ impl TrainConfig {
                 "interval": s.interval, "opacity_reset_interval": s.opacity_reset_interval,
                 "white_background_reset": s.white_background,
             },
-        })
+        });
+        // Only when not the 3DGS default, so checkpoints from before the key still resume.
+        if let Statistic::PixelWeighted { depth_threshold } = d.statistic {
+            j["density"]["statistic"] = serde_json::json!({
+                "kind": d.statistic.name(), "depth_threshold": depth_threshold,
+            });
+        }
+        j
     }
 }
 
@@ -134,8 +142,15 @@ pub struct StepReport {
     pub gaussians: usize,
     pub densified: Option<DensifyOutcome>,
     pub stages: Option<StageTimes>,
-    /// Set at the iterations LPM ran at.
-    pub lpm: Option<super::lpm_step::LpmStepReport>,
+    /// What the density strategy reported at this iteration, if anything.
+    pub strategy: Option<Arc<dyn StrategyEvent>>,
+}
+
+impl StepReport {
+    /// The strategy's event of this iteration as its own type (e.g. LPM's step report).
+    pub fn event<T: StrategyEvent>(&self) -> Option<&T> {
+        self.strategy.as_ref()?.as_any().downcast_ref::<T>()
+    }
 }
 
 /// Per-view evaluation result.
@@ -158,6 +173,8 @@ pub struct Trainer {
     pub state: SplatState,
     grads: GpuSplats,
     view_grad_norm: GpuBuffer<f32>,
+    /// Pixels each Gaussian contributed to this iteration (only for statistics that use them).
+    pixel_count: Option<GpuBuffer<u32>>,
     pub(super) renderer: Renderer,
     backward: Backward,
     loss: Loss,
@@ -172,16 +189,16 @@ pub struct Trainer {
     pub(super) rec: Recorder,
     pool: TimestampPool,
     pub dropped_frames: u32,
-    /// Localized Point Management, fused into the density steps; `None`: ADC only.
-    pub lpm: Option<super::lpm_step::LpmTrainer>,
+    /// Decides clone / split / prune / reset ([`Adc`] unless [`Trainer::set_strategy`]).
+    strategy: Box<dyn DensityStrategy>,
     /// Set by [`Trainer::snapshot_next_step`]: the next step copies the model before its
     /// density control into `snapshot`.
     snapshot_requested: bool,
     snapshot: Option<GpuSplats>,
     /// The iteration whose pre-density-control model `snapshot` holds.
     snapshot_iteration: Option<u32>,
-    /// After a resume: the LPM settings saved in the checkpoint (null: LPM was off).
-    pub(super) resumed_lpm: Option<serde_json::Value>,
+    /// After a resume: the strategy settings saved in the checkpoint (null: plain ADC).
+    pub(super) resumed_strategy: Option<serde_json::Value>,
 }
 
 /// Per-iteration background colour for `Background::Random`: a hash of (seed, iteration), so a
@@ -259,7 +276,15 @@ impl Trainer {
         )?;
         let mut density = config.density;
         density.seed = config.seed;
+        let counts = density.statistic.needs_pixel_counts();
+        let mut backward = Backward::new(ctx, capacity)?;
+        if counts {
+            backward = backward.with_pixel_counts(ctx)?;
+        }
         Ok(Self {
+            pixel_count: counts
+                .then(|| GpuBuffer::new(ctx, "pixel count", capacity, BufferKind::DeviceLocal))
+                .transpose()?,
             ctx: ctx.clone(),
             extent: scene.extent,
             cameras_host,
@@ -269,7 +294,7 @@ impl Trainer {
             grads,
             view_grad_norm,
             renderer,
-            backward: Backward::new(ctx, capacity)?,
+            backward,
             loss: Loss::new(ctx, max_w, max_h)?,
             adam: Adam::new(ctx)?,
             density: DensityControl::new(ctx, capacity, density)?,
@@ -282,11 +307,11 @@ impl Trainer {
             rec: Recorder::new(ctx)?,
             pool: TimestampPool::new(ctx, 32)?,
             dropped_frames: 0,
-            lpm: None,
+            strategy: Box::new(Adc),
             snapshot_requested: false,
             snapshot: None,
             snapshot_iteration: None,
-            resumed_lpm: None,
+            resumed_strategy: None,
             state,
             config,
         })
@@ -347,6 +372,14 @@ impl Trainer {
             self.grads = GpuSplats::zeroed(&self.ctx, "grad ", self.state.sh_degree(), 0, cap)?;
             self.view_grad_norm =
                 GpuBuffer::new(&self.ctx, "view grad norm", cap, BufferKind::DeviceLocal)?;
+            if self.pixel_count.is_some() {
+                self.pixel_count = Some(GpuBuffer::new(
+                    &self.ctx,
+                    "pixel count",
+                    cap,
+                    BufferKind::DeviceLocal,
+                )?);
+            }
             self.backward.reserve(&self.ctx, cap)?;
         }
         let c = self.renderer.capacity();
@@ -442,6 +475,7 @@ impl Trainer {
                 splats: &self.state.params,
                 grads: &self.grads,
                 view_grad_norm: &self.view_grad_norm,
+                pixel_count: self.pixel_count.as_ref(),
                 count,
                 sh_degree: sh,
                 constants,
@@ -458,6 +492,8 @@ impl Trainer {
                 &mut self.rec,
                 &self.view_grad_norm,
                 &f.projected,
+                self.pixel_count.as_ref(),
+                self.extent,
                 count,
             )?;
         }
@@ -512,62 +548,20 @@ impl Trainer {
             gaussians: count,
             densified: None,
             stages,
-            lpm: None,
+            strategy: None,
         };
 
         let control_start = std::time::Instant::now();
-        if densifies {
-            self.rec.begin()?;
-            let args = DensifyArgs {
-                extent: self.extent,
-                prune_large: cfg.schedule.prunes_large(it),
-                iteration: it,
-            };
-            // Taken out while it runs, as it drives the trainer's buffers; put back below.
-            let mut lpm = if self.lpm.as_ref().is_some_and(|l| l.config.runs_at(it)) {
-                self.lpm.take()
-            } else {
-                None
-            };
-            let outcome = match lpm.as_mut() {
-                Some(l) => l.densify(self, view, bg, &args)?,
-                None => self
-                    .density
-                    .step(&mut self.rec, &mut self.state, &args, None)?,
-            };
-            self.follow_capacity()?;
-            if cfg.schedule.resets_opacity(it) {
-                self.density
-                    .record_opacity_reset(&mut self.rec, &self.state)?;
-            }
-            if let Some(l) = lpm.as_mut() {
-                report.lpm = Some(l.finish(self)?);
-            }
-            if lpm.is_some() {
-                self.lpm = lpm;
-            }
-            if outcome.skipped {
-                // Nothing was rebuilt, so this iteration's gradients still belong to the model:
-                // its optimizer step runs as on any other iteration.
-                self.record_adam_step(it)?;
-            }
-            self.rec.submit_and_wait()?;
-            report.gaussians = self.state.count();
-            report.densified = Some(outcome);
-        } else if cfg.schedule.resets_opacity(it) {
-            self.rec.begin()?;
-            self.density
-                .record_opacity_reset(&mut self.rec, &self.state)?;
-            self.rec.submit_and_wait()?;
-        }
-        // LPM's reset on its own interval, where its density part did not run.
-        if report.lpm.is_none() && self.lpm.as_ref().is_some_and(|l| l.config.resets_at(it)) {
-            if let Some(mut l) = self.lpm.take() {
-                let r = l.reset_only(self, view, bg, it, self.extent);
-                self.lpm = Some(l);
-                report.lpm = Some(r?);
-            }
-        }
+        let at = IterationView {
+            iteration: it,
+            view,
+            background: bg,
+        };
+        // The strategy is taken out while it runs, as it drives the trainer's buffers.
+        let mut strategy = std::mem::replace(&mut self.strategy, Box::new(Adc));
+        let result = self.run_density_control(strategy.as_mut(), &at, &mut report);
+        self.strategy = strategy;
+        result?;
         // Density control runs in its own submissions with count readbacks, so its cost is the
         // host wall time of that part (GPU work, waits and host logic), not a GPU interval.
         if let Some(st) = report.stages.as_mut() {
@@ -579,6 +573,85 @@ impl Trainer {
             st.stages.push(("density control".into(), ms));
         }
         Ok(report)
+    }
+
+    /// The iteration's density control: the strategy's densify step on densify iterations, the
+    /// global opacity reset on its schedule, then the strategy's end-of-iteration work.
+    fn run_density_control(
+        &mut self,
+        strategy: &mut dyn DensityStrategy,
+        at: &IterationView,
+        report: &mut StepReport,
+    ) -> anyhow::Result<()> {
+        let it = at.iteration;
+        let schedule = self.config.schedule;
+        if schedule.densifies(it) {
+            self.rec.begin()?;
+            let args = DensifyArgs {
+                extent: self.extent,
+                prune_large: schedule.prunes_large(it),
+                iteration: it,
+            };
+            let outcome = strategy.densify(&mut self.density_context(at.view)?, at, &args)?;
+            self.follow_capacity()?;
+            if schedule.resets_opacity(it) {
+                self.density
+                    .record_opacity_reset(&mut self.rec, &self.state)?;
+            }
+            report.strategy = strategy.after_density(&mut self.density_context(at.view)?, at)?;
+            self.follow_capacity()?;
+            if outcome.skipped {
+                // Nothing was rebuilt, so this iteration's gradients still belong to the model:
+                // its optimizer step runs as on any other iteration.
+                self.record_adam_step(it)?;
+            }
+            self.rec.submit_and_wait()?;
+            report.gaussians = self.state.count();
+            report.densified = Some(outcome);
+        } else if schedule.resets_opacity(it) {
+            self.rec.begin()?;
+            self.density
+                .record_opacity_reset(&mut self.rec, &self.state)?;
+            self.rec.submit_and_wait()?;
+        }
+        let reported = report.strategy.is_some();
+        if let Some(e) =
+            strategy.after_iteration(&mut self.density_context(at.view)?, at, reported)?
+        {
+            report.strategy = Some(e);
+        }
+        self.follow_capacity()
+    }
+
+    /// What a strategy gets to work on for training view `view` (see [`DensityContext`]).
+    fn density_context(&mut self, view: usize) -> anyhow::Result<DensityContext<'_>> {
+        let slot = self.image_slot(view)?;
+        Ok(DensityContext {
+            ctx: &self.ctx,
+            rec: &mut self.rec,
+            state: &mut self.state,
+            density: &mut self.density,
+            extent: self.extent,
+            render: &self.renderer.frame.image,
+            truth: &self.images.buffers[slot.buffer],
+            truth_offset_px: slot.offset_px,
+            width: slot.width,
+            height: slot.height,
+        })
+    }
+
+    /// Replaces the density strategy (before the first step, or after a restore).
+    pub fn set_strategy(&mut self, strategy: Box<dyn DensityStrategy>) {
+        self.strategy = strategy;
+    }
+
+    pub fn strategy(&self) -> &dyn DensityStrategy {
+        self.strategy.as_ref()
+    }
+
+    /// The strategy as its own type, if it is a `T`.
+    pub fn strategy_as<T: DensityStrategy>(&self) -> Option<&T> {
+        self.strategy.as_any().downcast_ref::<T>()
     }
 
     /// Records iteration `it`'s Adam step into `self.rec` (begun).

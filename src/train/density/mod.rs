@@ -64,6 +64,56 @@ pub const DECIDE_LOWERED: u32 = 8;
 
 const WG: u32 = 128;
 
+/// What the densification statistic averages over the views that saw a Gaussian.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum Statistic {
+    /// 3DGS: the NDC mean-gradient norm, one vote per view.
+    #[default]
+    Gradient,
+    /// Pixel-GS (BASE_MODELS.md §3): each view weighted by the pixels the Gaussian contributed
+    /// to there, its norm also scaled by min(1, (depth / (depth_threshold · extent))²). Needs the
+    /// backward's per-splat pixel counts.
+    PixelWeighted { depth_threshold: f32 },
+}
+
+impl Statistic {
+    /// Pixel-GS's depth threshold (relative to the scene extent).
+    pub const PIXEL_GS_DEPTH_THRESHOLD: f32 = 0.37;
+
+    pub fn pixel_gs() -> Statistic {
+        Statistic::PixelWeighted {
+            depth_threshold: Self::PIXEL_GS_DEPTH_THRESHOLD,
+        }
+    }
+
+    pub fn needs_pixel_counts(&self) -> bool {
+        matches!(self, Statistic::PixelWeighted { .. })
+    }
+
+    pub fn name(&self) -> &'static str {
+        match self {
+            Statistic::Gradient => "gradient",
+            Statistic::PixelWeighted { .. } => "pixel-weighted",
+        }
+    }
+
+    /// The accumulate kernel's mode and depth scale 1 / (depth_threshold · extent).
+    pub fn kernel_mode(&self, extent: f64) -> anyhow::Result<(u32, f32)> {
+        Ok(match *self {
+            Statistic::Gradient => (0, 0.0),
+            Statistic::PixelWeighted { depth_threshold } => {
+                let d = depth_threshold as f64 * extent;
+                ensure!(
+                    d.is_finite() && d > 0.0,
+                    "Pixel-GS depth threshold {depth_threshold} × scene extent {extent} must be \
+                     positive and finite (default 0.37)"
+                );
+                (1, (1.0 / d) as f32)
+            }
+        })
+    }
+}
+
 /// The density-control rules (Inria's defaults).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DensityConfig {
@@ -84,6 +134,7 @@ pub struct DensityConfig {
     pub opacity_reset_value: f64,
     /// Seed of the split samples.
     pub seed: u64,
+    pub statistic: Statistic,
 }
 
 impl Default for DensityConfig {
@@ -97,6 +148,7 @@ impl Default for DensityConfig {
             screen_size_limit: None,
             opacity_reset_value: 0.01,
             seed: 0,
+            statistic: Statistic::Gradient,
         }
     }
 }
@@ -258,6 +310,14 @@ struct CountPush {
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct AccumulatePush {
+    count: u32,
+    mode: u32,
+    depth_scale: f32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 struct DecidePush {
     count: u32,
     flags: u32,
@@ -316,6 +376,8 @@ pub struct DensityControl {
     counts: GpuBuffer<u32>,
     /// Bound in place of a missing threshold-scale buffer.
     dummy: GpuBuffer<f32>,
+    /// Bound in place of the pixel counts under the gradient statistic.
+    no_counts: GpuBuffer<u32>,
     scratch_capacity: usize,
     /// Count `record_decide` ran on, so `apply` can check it is applied to the same state.
     decided: Option<usize>,
@@ -341,8 +403,8 @@ impl DensityControl {
             accumulate: pipe(
                 "density/accumulate",
                 shaders::DENSITY_ACCUMULATE,
-                5,
-                size_of::<CountPush>(),
+                6,
+                size_of::<AccumulatePush>(),
             )?,
             decide: pipe(
                 "density/decide",
@@ -380,6 +442,7 @@ impl DensityControl {
             scan: PrefixScan::new(ctx, 3 * capacity as u64)?,
             counts: GpuBuffer::from_slice(ctx, "density counts", &[0u32; 4])?,
             dummy: GpuBuffer::from_slice(ctx, "density no threshold scale", &[1.0f32])?,
+            no_counts: GpuBuffer::from_slice(ctx, "density no pixel counts", &[0u32])?,
             scratch_capacity: capacity,
             decided: None,
             spare: None,
@@ -443,14 +506,34 @@ impl DensityControl {
 
     /// Records this view's contribution to the statistics: `view_grad_norm[i]` is |dL/d mean2d|
     /// in NDC for Gaussian `i` (written by the backward pass), `projected[i].radius > 0` marks
-    /// the visible ones.
+    /// the visible ones; `pixel_count` (the backward's, required by the pixel-weighted
+    /// statistic) the pixels each contributed to; `extent` the scene extent.
     pub fn record_accumulate(
         &self,
         rec: &mut Recorder,
         view_grad_norm: &GpuBuffer<f32>,
         projected: &GpuBuffer<ProjectedGpu>,
+        pixel_count: Option<&GpuBuffer<u32>>,
+        extent: f64,
         count: usize,
     ) -> anyhow::Result<()> {
+        let (mode, depth_scale) = self.config.statistic.kernel_mode(extent)?;
+        let counts = match (self.config.statistic.needs_pixel_counts(), pixel_count) {
+            (false, _) => &self.no_counts,
+            (true, Some(c)) => {
+                ensure!(
+                    c.len() >= count,
+                    "density statistics: {count} Gaussians but {} pixel counts",
+                    c.len()
+                );
+                c
+            }
+            (true, None) => bail!(
+                "density statistics: the {} statistic needs the backward's pixel counts; pass \
+                 them (BackwardArgs::pixel_count)",
+                self.config.statistic.name()
+            ),
+        };
         ensure!(
             count <= self.stats.capacity()
                 && count <= view_grad_norm.len()
@@ -472,9 +555,12 @@ impl DensityControl {
                 &self.stats.grad_accum,
                 &self.stats.denom,
                 &self.stats.max_radii,
+                counts,
             ],
-            &CountPush {
+            &AccumulatePush {
                 count: count as u32,
+                mode,
+                depth_scale,
             },
             self.ctx.groups_1d(count as u64, WG),
         );

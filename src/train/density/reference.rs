@@ -46,6 +46,31 @@ impl HostStats {
     }
 }
 
+impl HostStats {
+    /// One view under Pixel-GS's statistic (`accumulate.comp` mode 1, the same f32 operations
+    /// in the same order): visible Gaussians add n·φ·norm and n, with n their pixel count and
+    /// φ = min(1, (depth · depth_scale)²).
+    pub fn accumulate_pixel_weighted(
+        &mut self,
+        view_grad_norm: &[f32],
+        radii: &[f32],
+        pixel_count: &[u32],
+        depth: &[f32],
+        depth_scale: f32,
+    ) {
+        for (i, &r) in radii.iter().enumerate() {
+            if r > 0.0 {
+                let n = pixel_count[i] as f32;
+                let z = depth[i] * depth_scale;
+                let phi = (z * z).min(1.0);
+                self.grad_accum[i] += n * phi * view_grad_norm[i];
+                self.denom[i] += n;
+                self.max_radii[i] = self.max_radii[i].max(r);
+            }
+        }
+    }
+}
+
 /// The decision word of every Gaussian (`DECIDE_*` bits), as `decide.comp` computes it.
 pub fn decide(
     t: &Thresholds,

@@ -1,5 +1,7 @@
-//! Localized Point Management inside the trainer (LPM.md steps 1–9), fused into the
-//! density-control step of the iterations it runs at.
+//! Localized Point Management as a density strategy (LPM.md steps 1–9): a wrapper around an
+//! ADC-family strategy (plain ADC, or ADC with Pixel-GS's statistic: whatever the trainer's
+//! density config names), fused into the density-control step of the iterations it runs at.
+//! On other densify iterations the wrapped strategy runs alone.
 //!
 //! One LPM step, for the view V rendered this iteration (its image is still in the renderer):
 //! 1. error map → per-block error counts on the GPU ([`LpmGpu::record_error_blocks`]; only the
@@ -29,9 +31,6 @@ use std::time::Instant;
 use anyhow::Context;
 use rand::SeedableRng;
 
-use super::adam::SplatState;
-use super::density::{DensifyArgs, DensifyOutcome};
-use super::trainer::Trainer;
 use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext};
 use crate::lpm::gpu::{block_grid, ErrorImages, LpmGpu};
 use crate::lpm::membership::{OpacityResetSettings, FLAG_IN_BALL};
@@ -43,6 +42,9 @@ use crate::scene::{Image, Scene, View};
 use crate::shaders;
 use crate::splats::gpu::grown_capacity;
 use crate::splats::SH_C0;
+use crate::train::adam::SplatState;
+use crate::train::density::{DensifyArgs, DensifyOutcome};
+use crate::train::strategy::{Adc, DensityContext, DensityStrategy, IterationView, StrategyEvent};
 
 const WG: u32 = 256;
 
@@ -296,6 +298,15 @@ impl LpmStepReport {
     }
 }
 
+impl StrategyEvent for LpmStepReport {
+    fn to_json(&self) -> serde_json::Value {
+        LpmStepReport::to_json(self)
+    }
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+}
+
 /// Sums over the run.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct LpmTotals {
@@ -357,7 +368,7 @@ struct ModePush {
     mode: u32,
 }
 
-/// The step in progress between [`LpmTrainer::densify`] and [`LpmTrainer::finish`].
+/// The step in progress between [`LpmStrategy::densify`] and [`LpmStrategy::finish`].
 struct Pending {
     report: LpmStepReport,
     records: Vec<ZoneRecord>,
@@ -366,9 +377,11 @@ struct Pending {
     adc_seconds: f64,
 }
 
-/// LPM state owned by the trainer.
-pub struct LpmTrainer {
+/// LPM around a wrapped strategy.
+pub struct LpmStrategy {
     pub config: LpmConfig,
+    /// Runs the density iterations LPM does not run at.
+    inner: Box<dyn DensityStrategy>,
     ctx: Arc<GpuContext>,
     gpu: LpmGpu,
     corr: Correspondences,
@@ -391,7 +404,7 @@ pub struct LpmTrainer {
     pub steps: Vec<LpmStepReport>,
 }
 
-impl LpmTrainer {
+impl LpmStrategy {
     /// `train_images[k]` is the image of `scene.train[k]` (as given to the trainer);
     /// `corr` comes from [`crate::lpm::load_or_build`] with `config.matching`.
     pub fn new(
@@ -424,6 +437,7 @@ impl LpmTrainer {
         let per = |name: &str| GpuBuffer::<u32>::new(ctx, name, 1024, BufferKind::DeviceLocal);
         Ok(Self {
             ctx: ctx.clone(),
+            inner: Box::new(Adc),
             gpu: LpmGpu::new(ctx, max_px)?,
             corr,
             views: scene.views.clone(),
@@ -500,7 +514,7 @@ impl LpmTrainer {
     /// holds the counts and radii; the records are the finite zones.
     fn find_zones(
         &mut self,
-        t: &mut Trainer,
+        t: &mut DensityContext,
         view: usize,
         bg: [f32; 3],
         iteration: u32,
@@ -512,16 +526,15 @@ impl LpmTrainer {
             ..Default::default()
         };
         // 1. Error blocks of this iteration's render.
-        let slot = t.image_slot(view)?;
-        let (w, h) = (slot.width, slot.height);
+        let (w, h) = (t.width, t.height);
         let settings = self.config.regions.resolved(w, h);
         report.block = settings.block;
         let (bx, by) = self.gpu.record_error_blocks(
-            &mut t.rec,
+            t.rec,
             &ErrorImages {
-                render: &t.renderer.frame.image,
-                gt: &t.images.buffers[slot.buffer],
-                gt_offset: slot.offset_px,
+                render: t.render,
+                gt: t.truth,
+                gt_offset: t.truth_offset_px,
                 width: w,
                 height: h,
                 background: bg,
@@ -588,7 +601,7 @@ impl LpmTrainer {
             report.radius_max = rel.iter().copied().fold(0.0, f64::max);
         }
         if let Some(dir) = self.config.debug_dir.clone() {
-            super::lpm_debug::dump_step(
+            super::debug_dump::dump_step(
                 &dir,
                 iteration,
                 &self.gpu,
@@ -607,9 +620,9 @@ impl LpmTrainer {
 
     /// Records the LPM opacity reset of the current Gaussians from the flags of the last
     /// membership pass.
-    fn record_reset(&self, t: &mut Trainer) -> anyhow::Result<()> {
+    fn record_reset(&self, t: &mut DensityContext) -> anyhow::Result<()> {
         self.gpu.record_opacity_reset(
-            &mut t.rec,
+            t.rec,
             &self.flags,
             &t.state.params.opacity_logits,
             t.state.count() as u32,
@@ -630,7 +643,7 @@ impl LpmTrainer {
     /// Uploads `records` and records the membership of the first `count` Gaussians.
     fn record_zone_membership(
         &mut self,
-        t: &mut Trainer,
+        t: &mut DensityContext,
         records: &[ZoneRecord],
     ) -> anyhow::Result<()> {
         let count = t.state.count();
@@ -638,7 +651,7 @@ impl LpmTrainer {
         self.ensure_zones(records.len())?;
         self.zones.upload(records)?;
         self.gpu.record_membership(
-            &mut t.rec,
+            t.rec,
             &t.state.params.positions,
             count as u32,
             &self.zones,
@@ -650,25 +663,25 @@ impl LpmTrainer {
 
     /// Steps 1–3 and ADC's densify-and-prune (with the lowered threshold inside zones and the
     /// density-aware pruning). `t.rec` must be begun; on return it is begun and empty, as after
-    /// [`super::density::DensityControl::step`]. `bg` is the background this iteration's render
+    /// [`crate::train::density::DensityControl::step`]. `bg` is the background this iteration's render
     /// of `view` used. With `skip_adc_without_zone` and no zone, nothing changes and the
     /// outcome says `skipped`.
-    pub(super) fn densify(
+    fn densify_with_zones(
         &mut self,
-        t: &mut Trainer,
-        view: usize,
-        bg: [f32; 3],
+        t: &mut DensityContext,
+        at: &IterationView,
         args: &DensifyArgs,
     ) -> anyhow::Result<DensifyOutcome> {
         let start = Instant::now();
-        let (mut report, records) = self.find_zones(t, view, bg, args.iteration, args.extent)?;
+        let (mut report, records) =
+            self.find_zones(t, at.view, at.background, args.iteration, args.extent)?;
         if records.is_empty() {
             let a0 = Instant::now();
             let outcome = if self.config.skip_adc_without_zone {
                 report.skipped_adc = true;
                 DensifyOutcome::unchanged(t.state.count(), t.state.capacity())
             } else {
-                t.density.step(&mut t.rec, &mut t.state, args, None)?
+                self.inner.densify(t, at, args)?
             };
             self.pending = Some(Pending {
                 report,
@@ -692,7 +705,7 @@ impl LpmTrainer {
             self.ctx.groups_1d(count as u64, WG),
         );
         t.density
-            .record_decide(&mut t.rec, &t.state, args, Some(&self.scale))?;
+            .record_decide(t.rec, t.state, args, Some(&self.scale))?;
         t.rec.fill(&self.counters, 0);
         t.rec.barrier();
         let authors = self.config.prune == PruneMode::Authors;
@@ -717,7 +730,7 @@ impl LpmTrainer {
             // Authors: rank k − 1 of the model after densification (weights 1 or 2), every
             // Gaussian at or below it removed.
             self.gpu.record_rank_selection(
-                &mut t.rec,
+                t.rec,
                 &t.state.params.opacity_logits,
                 &self.candidates,
                 3,
@@ -744,7 +757,7 @@ impl LpmTrainer {
             t.rec.barrier();
         }
         let a0 = Instant::now();
-        let outcome = t.density.apply(&mut t.rec, &mut t.state, args)?;
+        let outcome = t.density.apply(t.rec, t.state, args)?;
         let adc_seconds = a0.elapsed().as_secs_f64();
         if prunes {
             // prune_lowest counts the Gaussians it took from ADC's survivors in counters[3].
@@ -762,7 +775,7 @@ impl LpmTrainer {
     /// Step 4, after ADC's apply and its global opacity reset (recorded in `t.rec`, which this
     /// submits): membership of the new Gaussians, the LPM opacity reset (when `reset_interval`
     /// falls on this iteration), added points. Leaves `t.rec` begun and empty.
-    pub(super) fn finish(&mut self, t: &mut Trainer) -> anyhow::Result<LpmStepReport> {
+    fn finish(&mut self, t: &mut DensityContext) -> anyhow::Result<LpmStepReport> {
         let mut p = self.pending.take().context("LPM: finish without densify")?;
         let nz = p.records.len() as u32;
         let count = t.state.count();
@@ -770,7 +783,7 @@ impl LpmTrainer {
         if nz > 0 && (resets || self.config.add_points) {
             self.ensure_gaussians(t.state.capacity().max(count))?;
             self.gpu.record_membership(
-                &mut t.rec,
+                t.rec,
                 &t.state.params.positions,
                 count as u32,
                 &self.zones,
@@ -816,17 +829,16 @@ impl LpmTrainer {
     /// iteration's optimizer step, so the reset logits are not moved by it until the next
     /// iteration (the authors reset just before their optimizer step; one Adam step on a logit
     /// is at most the opacity learning rate). `t.rec` must not be begun; it is left idle.
-    pub(super) fn reset_only(
+    fn reset_only(
         &mut self,
-        t: &mut Trainer,
-        view: usize,
-        bg: [f32; 3],
-        iteration: u32,
-        extent: f64,
+        t: &mut DensityContext,
+        at: &IterationView,
     ) -> anyhow::Result<LpmStepReport> {
         let start = Instant::now();
         t.rec.begin()?;
-        let (mut report, records) = self.find_zones(t, view, bg, iteration, extent)?;
+        let extent = t.extent;
+        let (mut report, records) =
+            self.find_zones(t, at.view, at.background, at.iteration, extent)?;
         report.reset_only = true;
         if !records.is_empty() {
             self.record_zone_membership(t, &records)?;
@@ -844,6 +856,75 @@ impl LpmTrainer {
     }
 }
 
+impl LpmStrategy {
+    /// Wraps `inner` instead of plain ADC (it runs the density iterations LPM does not run at,
+    /// and the zone-less ones unless `skip_adc_without_zone`).
+    pub fn wrapping(mut self, inner: Box<dyn DensityStrategy>) -> Self {
+        self.inner = inner;
+        self
+    }
+}
+
+impl DensityStrategy for LpmStrategy {
+    fn name(&self) -> &'static str {
+        "lpm"
+    }
+
+    fn densify(
+        &mut self,
+        t: &mut DensityContext,
+        at: &IterationView,
+        args: &DensifyArgs,
+    ) -> anyhow::Result<DensifyOutcome> {
+        if self.config.runs_at(at.iteration) {
+            self.densify_with_zones(t, at, args)
+        } else {
+            self.inner.densify(t, at, args)
+        }
+    }
+
+    fn after_density(
+        &mut self,
+        t: &mut DensityContext,
+        at: &IterationView,
+    ) -> anyhow::Result<Option<Arc<dyn StrategyEvent>>> {
+        if self.pending.is_none() {
+            return self.inner.after_density(t, at);
+        }
+        Ok(Some(Arc::new(self.finish(t)?)))
+    }
+
+    fn after_iteration(
+        &mut self,
+        t: &mut DensityContext,
+        at: &IterationView,
+        reported: bool,
+    ) -> anyhow::Result<Option<Arc<dyn StrategyEvent>>> {
+        // LPM's reset on its own interval, where its density part did not run.
+        if !reported && self.config.resets_at(at.iteration) {
+            return Ok(Some(Arc::new(self.reset_only(t, at)?)));
+        }
+        self.inner.after_iteration(t, at, reported)
+    }
+
+    fn settings_json(&self) -> serde_json::Value {
+        let mut s = serde_json::json!({ "lpm": self.config.to_json() });
+        // A wrapped strategy with settings of its own is part of the run's settings too.
+        let inner = self.inner.settings_json();
+        if !inner.is_null() {
+            s["lpm"]["wraps"] = inner;
+        }
+        s
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
+        self
+    }
+}
+
 /// A Gaussian to append: isotropic, SH DC only, fresh optimizer state.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NewGaussian {
@@ -855,10 +936,11 @@ pub struct NewGaussian {
     pub opacity: f64,
 }
 
-/// Appends `rows` after the trainer's current Gaussians (rows `count..count + n`), growing the
-/// state (and the density statistics, gradients, renderer) when the capacity is short. Their
+/// Appends `rows` after the current Gaussians (rows `count..count + n`), growing the
+/// state and the density statistics when the capacity is short (the trainer grows its own
+/// buffers after the strategy's call). Their
 /// Adam moments and density statistics are zero. `t.rec` must be begun and empty; it is left so.
-pub fn append_gaussians(t: &mut Trainer, rows: &[NewGaussian]) -> anyhow::Result<()> {
+pub fn append_gaussians(t: &mut DensityContext, rows: &[NewGaussian]) -> anyhow::Result<()> {
     if rows.is_empty() {
         return Ok(());
     }
@@ -884,7 +966,7 @@ pub fn append_gaussians(t: &mut Trainer, rows: &[NewGaussian]) -> anyhow::Result
         t.rec.submit_and_wait()?;
         t.rec.begin()?;
         dst.set_count(n);
-        std::mem::swap(&mut t.state, &mut dst);
+        std::mem::swap(&mut *t.state, &mut dst);
         t.density.ensure_capacity(cap)?;
     }
     let m = rows.len();
@@ -941,6 +1023,5 @@ pub fn append_gaussians(t: &mut Trainer, rows: &[NewGaussian]) -> anyhow::Result
     t.rec.submit_and_wait()?;
     t.rec.begin()?;
     t.state.set_count(new);
-    t.follow_capacity()?;
     Ok(())
 }

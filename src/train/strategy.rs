@@ -1,0 +1,131 @@
+//! Density strategies: what decides clone / split / prune / reset, as a plug-in of the trainer.
+//!
+//! The trainer loop calls a [`DensityStrategy`] at three points of an iteration and knows
+//! nothing else about it:
+//! 1. [`DensityStrategy::densify`] on the schedule's densify iterations (the command buffer is
+//!    begun; the strategy may submit and begin again, and leaves it begun);
+//! 2. [`DensityStrategy::after_density`] after the densify step, the trainer's capacity
+//!    follow-up and the global opacity reset, in the same command stream;
+//! 3. [`DensityStrategy::after_iteration`] at the end of every iteration, with the recorder
+//!    idle (for work on an interval of the strategy's own, e.g. LPM's opacity reset).
+//!
+//! [`Adc`] is plain adaptive density control over the trainer's [`super::density::DensityControl`]
+//! (whose statistic, gradient or Pixel-GS's pixel-weighted one, is part of its config). LPM
+//! wraps ADC from `crate::lpm::strategy`; dependencies run from the strategy to the trainer,
+//! never back.
+
+use std::any::Any;
+use std::fmt::Debug;
+use std::sync::Arc;
+
+use super::adam::SplatState;
+use super::density::{DensifyArgs, DensifyOutcome, DensityControl};
+use crate::gpu::{GpuBuffer, GpuContext, Recorder};
+
+/// What a strategy reports for one iteration (telemetry; typed access through `as_any`).
+pub trait StrategyEvent: Any + Debug + Send + Sync {
+    fn to_json(&self) -> serde_json::Value;
+    fn as_any(&self) -> &dyn Any;
+}
+
+/// What a strategy works on: the trainer's model state, its ADC engine and this iteration's
+/// render (lent by the trainer for one call; the strategy never sees the trainer itself).
+/// After every call the trainer grows its own per-Gaussian buffers (gradients, renderer) to the
+/// state's capacity, so a strategy that adds Gaussians only grows `state` and `density`.
+pub struct DensityContext<'a> {
+    pub ctx: &'a Arc<GpuContext>,
+    pub rec: &'a mut Recorder,
+    pub state: &'a mut SplatState,
+    pub density: &'a mut DensityControl,
+    /// Scene extent (as in [`DensifyArgs::extent`]).
+    pub extent: f64,
+    /// This iteration's render of the view (RGB interleaved, `width × height`).
+    pub render: &'a GpuBuffer<f32>,
+    /// Its ground truth: RGBA8 words from `truth_offset_px` in `truth`.
+    pub truth: &'a GpuBuffer<u32>,
+    pub truth_offset_px: u32,
+    pub width: u32,
+    pub height: u32,
+}
+
+/// The iteration's inputs a strategy may use.
+#[derive(Debug, Clone, Copy)]
+pub struct IterationView {
+    pub iteration: u32,
+    /// The training view rendered this iteration (its render is still in the renderer).
+    pub view: usize,
+    /// The background that render used.
+    pub background: [f32; 3],
+}
+
+pub trait DensityStrategy: Any {
+    /// A short name for logs ("adc", "lpm").
+    fn name(&self) -> &'static str;
+
+    /// Densify-and-prune at a densify iteration. `t.rec` is begun; leave it begun. An outcome
+    /// with `skipped` means the model and its gradients are untouched, so the trainer still runs
+    /// the iteration's optimizer step.
+    fn densify(
+        &mut self,
+        t: &mut DensityContext,
+        at: &IterationView,
+        args: &DensifyArgs,
+    ) -> anyhow::Result<DensifyOutcome>;
+
+    /// After [`DensityStrategy::densify`] and the global opacity reset (recorded, not yet
+    /// submitted). `t.rec` is begun; leave it begun.
+    fn after_density(
+        &mut self,
+        _t: &mut DensityContext,
+        _at: &IterationView,
+    ) -> anyhow::Result<Option<Arc<dyn StrategyEvent>>> {
+        Ok(None)
+    }
+
+    /// At the end of every iteration, with `t.rec` idle; `reported` says whether this
+    /// iteration already produced an event.
+    fn after_iteration(
+        &mut self,
+        _t: &mut DensityContext,
+        _at: &IterationView,
+        _reported: bool,
+    ) -> anyhow::Result<Option<Arc<dyn StrategyEvent>>> {
+        Ok(None)
+    }
+
+    /// The settings that decide results (saved in checkpoints; a resumed run must match).
+    /// `Null` for plain ADC, whose settings are part of the trainer's config.
+    fn settings_json(&self) -> serde_json::Value {
+        serde_json::Value::Null
+    }
+
+    fn as_any(&self) -> &dyn Any;
+    fn as_any_mut(&mut self) -> &mut dyn Any;
+}
+
+/// Plain adaptive density control (the Inria rules), with whatever statistic the trainer's
+/// density config names.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct Adc;
+
+impl DensityStrategy for Adc {
+    fn name(&self) -> &'static str {
+        "adc"
+    }
+
+    fn densify(
+        &mut self,
+        t: &mut DensityContext,
+        _at: &IterationView,
+        args: &DensifyArgs,
+    ) -> anyhow::Result<DensifyOutcome> {
+        t.density.step(t.rec, t.state, args, None)
+    }
+
+    fn as_any(&self) -> &dyn Any {
+        self
+    }
+    fn as_any_mut(&mut self) -> &mut dyn Any {
+        self
+    }
+}
