@@ -1,12 +1,15 @@
 //! lpmsplat: a Vulkan compute engine (on `ash`) that trains 3D Gaussian Splatting scenes and
 //! implements Localized Point Management (LPM, CVPR 2025).
 //!
-//! Dependencies flow one way: `gpu`, `scene` → `splats` → render → train → `lpm` → CLI.
+//! Dependencies flow one way: `gpu`, `scene` → `splats` → render → train → `lpm`, `models`
+//! → CLI. The trainer is generic over a density strategy (`train::strategy`: ADC, or LPM
+//! wrapping it); a base model (`models`) sets what it changes in the training config.
 
 pub mod error;
 pub mod gpu;
 pub mod lpm;
 pub mod metrics;
+pub mod models;
 pub mod reference;
 pub mod render;
 pub mod scene;

@@ -22,6 +22,7 @@ use lpmsplat::splats::write_ply;
 fn parse_prune(s: &str) -> anyhow::Result<PruneMode> {
     PruneMode::parse(s)
 }
+use lpmsplat::models::BaseModel;
 use lpmsplat::train::trainer::{TrainConfig, Trainer};
 use std::io::Write;
 use std::path::PathBuf;
@@ -34,6 +35,9 @@ pub struct TradeArgs {
     /// Iterations per run.
     #[arg(long, default_value_t = 30_000)]
     pub iterations: u32,
+    /// Base model of every run (3dgs, pixel-gs): the table compares ADC and LPM on it.
+    #[arg(long, default_value = "3dgs", value_parser = BaseModel::parse)]
+    pub model: BaseModel,
     /// The run length whose calendar is followed: the reference's density / LPM calendar
     /// (densify 500..15000, resets every 3000, position learning-rate decay over 30000) is
     /// scaled by CALENDAR / 30000. Default: --iterations (a complete, compressed schedule);
@@ -171,6 +175,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
     base.schedule.densify_until = scale(15_000);
     base.schedule.opacity_reset_interval = (scale(3000) / 100).max(1) * 100;
     base.lr.position_max_steps = calendar;
+    args.model.configure(&mut base);
     eprintln!(
         "bench trade: {} ({} train / {} test views), {} iterations per run on the calendar of \
          {calendar}: densify {}..{}, reset every {}, on {}",
@@ -335,6 +340,7 @@ fn write_outputs(rows: &[TradeRow], device: &str, args: &TradeArgs) -> anyhow::R
     })?;
     let json = serde_json::json!({
         "scene": args.scene.scene.display().to_string(),
+        "model": args.model.name(),
         "resolution": args.scene.resolution,
         "iterations": args.iterations,
         "calendar": args.calendar.unwrap_or(args.iterations),
@@ -642,13 +648,14 @@ fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
         .map_or("full resolution".to_string(), |r| format!("-r {r}"));
     let several = rows.iter().any(|r| r.seeds > 1);
     let mut s = format!(
-        "bench trade: {} {resolution}, {} iterations on the calendar of {}, {device}; LPM \
+        "bench trade: {} {resolution}, base model {}, {} iterations on the calendar of {}, {device}; LPM \
          error blocks of {} kept above {} error pixels\n\n{} \
          trade.png plots PSNR (dB, y) against Gaussians (left) and training seconds (right), in \
          the colours below, one line per run through its evaluated iterations.{}\n\n\
          | run | iteration | colour | PSNR | ΔPSNR vs adc | SSIM | LPIPS | Gaussians | train s | time vs adc | ms/it | LPM ms/it (share) | LPM zones · densified · pruned · added · reset · zone radius / extent | FPS 1352×1014 |\n\
          |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
         args.scene.scene.display(),
+        args.model.name(),
         args.iterations,
         args.calendar.unwrap_or(args.iterations),
         if args.lpm_block == 0 {

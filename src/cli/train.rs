@@ -10,6 +10,7 @@ use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuContext, GpuOptions, StageTimes};
 use lpmsplat::lpm::strategy::{LpmConfig, LpmStrategy, PruneMode};
 use lpmsplat::lpm::{self, ZoneGeometry};
+use lpmsplat::models::BaseModel;
 use lpmsplat::scene::{images, Image, Scene};
 use lpmsplat::splats::{self, read_ply, write_ply, GaussianParams};
 use lpmsplat::train::nan_check::NonFiniteCheck;
@@ -27,6 +28,10 @@ pub struct TrainArgs {
     pub out: PathBuf,
     #[arg(long, default_value_t = 30_000)]
     pub iterations: u32,
+    /// Base model: 3dgs, or pixel-gs (Pixel-GS's pixel-weighted densification statistic).
+    /// Combines with --lpm.
+    #[arg(long, default_value = "3dgs", value_parser = BaseModel::parse)]
+    pub model: BaseModel,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Highest SH degree (0–3).
@@ -318,6 +323,7 @@ impl TrainArgs {
         c.schedule.interval = self.densify_interval;
         c.schedule.opacity_reset_interval = self.opacity_reset_interval;
         c.schedule.white_background = c.background == Background::Fixed([1.0; 3]);
+        self.model.configure(&mut c);
         Ok(c)
     }
 }
@@ -649,6 +655,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     let mut cfg = config.to_json();
     cfg["scene"] = serde_json::json!(args.scene.scene.display().to_string());
     cfg["resolution"] = serde_json::json!(args.scene.resolution);
+    cfg["model"] = serde_json::json!(args.model.name());
     match (resumed_at, &args.resume) {
         // The checkpoint's model is not the run's initialisation: say where the run resumed.
         (Some((iteration, gaussians)), Some(p)) => {
