@@ -10,7 +10,7 @@
 
 use lpmsplat::reference::scenes::{random_gaussians, random_view};
 use lpmsplat::reference::{
-    self, backward, rasterize, sample_splat, sh, Gradients, RefGaussians, RenderOutput,
+    self, backward, mip, rasterize, sample_splat, sh, Gradients, RefGaussians, RenderOutput,
     RenderSettings,
 };
 use lpmsplat::scene::{PinholeCamera, Pose};
@@ -26,12 +26,16 @@ struct Case {
     settings: RenderSettings,
     /// dL/d(image): the loss is Σ weights · image.
     weights: Vec<[f64; 3]>,
+    /// Mip-Splatting's 3D filter (one standard deviation per Gaussian), folded into the
+    /// parameters before rendering; its gradient goes back through `mip::fuse_backward`.
+    filter3d: Option<Vec<f64>>,
 }
 
 impl Case {
     fn render(&self, g: &RefGaussians) -> RenderOutput {
+        let fused = self.filter3d.as_ref().map(|f| mip::fuse(g, f).unwrap());
         reference::render(
-            g,
+            fused.as_ref().unwrap_or(g),
             &self.camera,
             &self.pose,
             self.degree,
@@ -47,8 +51,12 @@ impl Case {
 
     fn gradients(&self) -> (RenderOutput, Gradients) {
         let out = self.render(&self.gaussians);
-        let grads = backward(
-            &self.gaussians,
+        let fused = self
+            .filter3d
+            .as_ref()
+            .map(|f| mip::fuse(&self.gaussians, f).unwrap());
+        let mut grads = backward(
+            fused.as_ref().unwrap_or(&self.gaussians),
             &self.camera,
             &self.pose,
             self.degree,
@@ -58,6 +66,9 @@ impl Case {
             &self.weights,
         )
         .unwrap();
+        if let Some(f) = &self.filter3d {
+            grads.params = mip::fuse_backward(&self.gaussians, f, &grads.params).unwrap();
+        }
         (out, grads)
     }
 }
@@ -230,6 +241,7 @@ fn smooth_mode_gradients_match_finite_differences() {
             background: background(&mut rng, seed),
             settings: RenderSettings::smooth(),
             weights: random_weights(&mut rng, &camera),
+            filter3d: None,
         };
         check_case(
             &case,
@@ -238,6 +250,61 @@ fn smooth_mode_gradients_match_finite_differences() {
         );
     }
     report(&stats, 30);
+}
+
+/// Mip-Splatting: the 2D Mip filter's opacity compensation and the 3D filter folded into the
+/// parameters, in smooth mode (every gradient) and in normal mode (with the clamps), against
+/// finite differences. The filters are a sizeable fraction of the scales, so both the
+/// compensation and the fused opacity move with every scale.
+#[test]
+fn mip_splatting_gradients_match_finite_differences() {
+    for smooth in [true, false] {
+        let mut stats = [GroupStats::default(); 5];
+        let mut floored = 0;
+        for seed in 0..8u64 {
+            let mut rng = Pcg64::seed_from_u64(300 + seed);
+            let (w, h) = SIZES[seed as usize % SIZES.len()];
+            let (camera, pose) = random_view(&mut rng, w, h);
+            let gaussians = random_gaussians(&mut rng, 6);
+            let filter3d: Vec<f64> = gaussians
+                .log_scales
+                .iter()
+                .map(|l| l.iter().copied().fold(f64::MIN, f64::max).exp() * rng.gen_range(0.1..1.0))
+                .collect();
+            let settings = RenderSettings {
+                smooth,
+                ..RenderSettings::mip_splatting()
+            };
+            let case = Case {
+                gaussians,
+                camera,
+                pose,
+                degree: seed as usize % 4,
+                background: background(&mut rng, seed),
+                settings,
+                weights: random_weights(&mut rng, &camera),
+                filter3d: Some(filter3d),
+            };
+            let out = case.render(&case.gaussians);
+            assert!(out
+                .projected
+                .iter()
+                .filter(|p| !p.culled)
+                .all(|p| p.compensation > 0.0 && p.compensation < 1.0));
+            floored += out
+                .projected
+                .iter()
+                .filter(|p| p.compensation_floored)
+                .count();
+            check_case(
+                &case,
+                &format!("mip smooth={smooth} seed {seed} ({w}×{h})"),
+                &mut stats,
+            );
+        }
+        eprintln!("mip smooth={smooth}: {floored} floored compensations");
+        report(&stats, 20);
+    }
 }
 
 #[test]
@@ -264,6 +331,7 @@ fn normal_mode_gradients_match_finite_differences_with_clamps_and_stops() {
             background: background(&mut rng, seed),
             settings: RenderSettings::default(),
             weights: random_weights(&mut rng, &camera),
+            filter3d: None,
         };
         // Count the pixels where the transmittance stop or the alpha clamp actually happened.
         let out = case.render(&case.gaussians);
@@ -315,6 +383,7 @@ fn rasterizer_gradients_and_ndc_statistic_match_finite_differences() {
             background: background(&mut rng, seed),
             settings: RenderSettings::smooth(),
             weights: random_weights(&mut rng, &camera),
+            filter3d: None,
         };
         let (base, grads) = case.gradients();
         // Perturb the preprocess outputs directly and re-blend with the same tile lists.
@@ -401,6 +470,7 @@ fn a_colour_clamped_at_zero_passes_no_gradient() {
         background: [0.5; 3],
         settings: RenderSettings::smooth(),
         weights: random_weights(&mut rng, &camera),
+        filter3d: None,
     };
     let (out, grads) = case.gradients();
     assert_eq!(out.projected[0].rgb_clamped, [true, false, false]);

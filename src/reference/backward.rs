@@ -231,8 +231,9 @@ pub fn preprocess_backward(
         if p.culled {
             continue;
         }
-        let o = p.opacity;
-        out.opacity_logits[i] = grads.opacity[i] * o * (1.0 - o);
+        // p.opacity = sigmoid(logit) · ρ (ρ = 1 without the 2D Mip filter).
+        let o = p.opacity / p.compensation;
+        out.opacity_logits[i] = grads.opacity[i] * p.compensation * o * (1.0 - o);
 
         // Colour: SH coefficients and the view direction.
         let mut dl_dpos = color_backward(
@@ -246,7 +247,20 @@ pub fn preprocess_backward(
         );
 
         // Conic → dilated 2D covariance [a, b, c].
-        let dl_dcov2d = conic_backward(p.cov2d, grads.conic[i], settings.det_min);
+        let mut dl_dcov2d = conic_backward(p.cov2d, grads.conic[i], settings.det_min);
+        if settings.mip_2d && !p.compensation_floored {
+            // ρ = sqrt(det0 / det1): dρ/dΣ = ρ/2 · (∇det0 / det0 − ∇det1 / det1), with
+            // ∇det = (c, −2b, a) of the undilated (det0) and dilated (det1) covariance; the
+            // dilation is a constant, so gradients of either are gradients of the other.
+            let [a1, b, c1] = p.cov2d;
+            let (a0, c0) = (a1 - settings.eps2d, c1 - settings.eps2d);
+            let det0 = a0 * c0 - b * b;
+            let det1 = a1 * c1 - b * b;
+            let k = grads.opacity[i] * o * 0.5 * p.compensation;
+            dl_dcov2d[0] += k * (c0 / det0 - c1 / det1);
+            dl_dcov2d[1] += k * (-2.0 * b / det0 + 2.0 * b / det1);
+            dl_dcov2d[2] += k * (a0 / det0 - a1 / det1);
+        }
 
         // 2D covariance → camera-space mean (through J) and the 3D covariance.
         let t = p.cam_mean;

@@ -24,7 +24,12 @@
 //!    this is Inria's `1.3·tan(fov/2)`). The clamp is written `min(max(t, lo), hi)` so an
 //!    inverted interval (principal point outside the image) still gives a number.
 //!    The projected mean itself is not clamped.
-//! 5. `Σ2D = J W Σ Wᵀ Jᵀ + eps2d·I` (eps2d = 0.3 px², the low-pass dilation).
+//! 5. `Σ2D = J W Σ Wᵀ Jᵀ + eps2d·I` (eps2d = 0.3 px², the low-pass dilation). With
+//!    `mip_2d` (Mip-Splatting's 2D Mip filter, eps2d = 0.1) the opacity is also multiplied by
+//!    `ρ = sqrt(max(ρ_min², det(Σ2D − eps2d·I) / det(Σ2D)))`, `ρ_min = 0.005` (gsplat's
+//!    floor; the official code adds 1e-6 terms instead), so the filter widens a splat without
+//!    adding energy; the floor passes no gradient. The 3D smoothing filter is a change of the
+//!    parameters themselves: [`mip`].
 //! 6. `det = a·c − b²` of `Σ2D = [[a, b], [b, c]]`: culled when `det ≤ 0`; otherwise clamped to
 //!    `max(det, det_min)` (`det_min = 1e-6`; mathematically det ≥ eps2d² = 0.09, so the clamp
 //!    only catches rounding in low precision). Conic = inverse = `[c, −b, a] / det`.
@@ -71,6 +76,7 @@
 pub mod backward;
 pub mod gpu_layout;
 pub mod linalg;
+pub mod mip;
 pub mod project;
 pub mod raster;
 pub mod scenes;
@@ -130,6 +136,11 @@ impl RefGaussians {
     }
 }
 
+/// Mip-Splatting's 2D filter variance (px²), in place of 3DGS's 0.3 dilation.
+pub const MIP_EPS2D: f64 = 0.1;
+/// The floor of the 2D filter's opacity compensation (gsplat's `MIN_COMPENSATION`).
+pub const MIP_MIN_COMPENSATION: f64 = 0.005;
+
 /// The rasterizer's constants. [`Default`] gives the values the engine uses.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RenderSettings {
@@ -151,6 +162,8 @@ pub struct RenderSettings {
     pub det_min: f64,
     /// Test-only: no alpha_min skip, no t_min stop, no alpha_max clamp (see the module docs).
     pub smooth: bool,
+    /// Mip-Splatting's 2D Mip filter: the opacity compensation of step 5.
+    pub mip_2d: bool,
 }
 
 impl Default for RenderSettings {
@@ -165,11 +178,21 @@ impl Default for RenderSettings {
             fov_clamp: 1.3,
             det_min: 1e-6,
             smooth: false,
+            mip_2d: false,
         }
     }
 }
 
 impl RenderSettings {
+    /// Mip-Splatting's 2D Mip filter: eps2d = 0.1 px² with the opacity compensation.
+    pub fn mip_splatting() -> Self {
+        Self {
+            eps2d: MIP_EPS2D,
+            mip_2d: true,
+            ..Self::default()
+        }
+    }
+
     /// The same settings in smooth (finite-difference friendly) mode.
     pub fn smooth() -> Self {
         Self {

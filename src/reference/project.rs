@@ -27,8 +27,12 @@ pub struct Projected {
     pub conic: [f64; 3],
     /// `ceil(3·sqrt(λmax))` in pixels (an integer value, kept as f64).
     pub radius: f64,
-    /// sigmoid(opacity logit).
+    /// sigmoid(opacity logit), times `compensation`.
     pub opacity: f64,
+    /// The 2D Mip filter's opacity factor ρ (1 without `mip_2d`).
+    pub compensation: f64,
+    /// ρ sits at its floor (passes no gradient).
+    pub compensation_floored: bool,
     /// Colour after `+0.5` and the clamp at 0.
     pub rgb: [f64; 3],
     /// Per channel: the clamp at 0 was active (this channel passes no gradient).
@@ -176,6 +180,19 @@ pub fn footprint_extent(radius: f64, lambda_max: f64, opacity: f64, s: &RenderSe
     radius.min((2.0 * p * lambda_max).sqrt().ceil())
 }
 
+/// The 2D Mip filter's opacity factor `sqrt(max(ρ_min², det0 / det1))` for the undilated
+/// covariance `raw` and the dilated determinant `det1`, and whether the floor is active.
+pub fn mip_compensation(raw: [f64; 3], det1: f64) -> (f64, bool) {
+    let det0 = raw[0] * raw[2] - raw[1] * raw[1];
+    let ratio = det0 / det1;
+    let floor = super::MIP_MIN_COMPENSATION * super::MIP_MIN_COMPENSATION;
+    if ratio.is_nan() || ratio <= floor {
+        (super::MIP_MIN_COMPENSATION, true)
+    } else {
+        (ratio.sqrt(), false)
+    }
+}
+
 /// Preprocesses every Gaussian for one camera.
 pub fn preprocess(
     gaussians: &RefGaussians,
@@ -256,8 +273,15 @@ fn project_one(
         rgb[ch] = v.max(0.0);
     }
 
+    // Step 5 (Mip): the 2D filter's opacity compensation, from the undilated determinant.
+    let (compensation, compensation_floored) = if settings.mip_2d {
+        mip_compensation(raw, det_raw)
+    } else {
+        (1.0, false)
+    };
+
     // Step 10: never let a non-finite footprint or colour reach the rasterizer.
-    let opacity = sigmoid(g.opacity_logits[i]);
+    let opacity = sigmoid(g.opacity_logits[i]) * compensation;
     let finite = mean2d
         .iter()
         .chain(&conic)
@@ -299,6 +323,8 @@ fn project_one(
         conic,
         radius,
         opacity,
+        compensation,
+        compensation_floored,
         rgb,
         rgb_clamped,
         tile_min,
