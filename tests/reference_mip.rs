@@ -75,7 +75,7 @@ fn fusing_keeps_each_gaussians_integral_and_zero_filter_changes_nothing() {
     let g = random_gaussians(&mut rng, 50);
     let filter: Vec<f64> = (0..g.len()).map(|i| 0.002 * (i as f64 + 1.0)).collect();
     let fused = fuse(&g, &filter).unwrap();
-    for i in 0..g.len() {
+    for (i, &f) in filter.iter().enumerate() {
         // opacity × volume (Π scales) is what the filter must not change.
         let integral = |logit: f64, ls: [f64; 3]| sigmoid(logit) * ls.iter().sum::<f64>().exp();
         let before = integral(g.opacity_logits[i], g.log_scales[i]);
@@ -86,7 +86,7 @@ fn fusing_keeps_each_gaussians_integral_and_zero_filter_changes_nothing() {
         );
         for k in 0..3 {
             let (s, s2) = (g.log_scales[i][k].exp(), fused.log_scales[i][k].exp());
-            assert!((s2 * s2 - s * s - filter[i] * filter[i]).abs() < 1e-12 * (1.0 + s2 * s2));
+            assert!((s2 * s2 - s * s - f * f).abs() < 1e-12 * (1.0 + s2 * s2));
         }
         assert!(fused.opacity_logits[i] < g.opacity_logits[i]);
         assert_eq!(fused.positions[i], g.positions[i]);
