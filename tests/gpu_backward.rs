@@ -165,8 +165,7 @@ fn run_gpu_pixels(
     }
     rec.fill(&view_grad_norm, NAN_BITS);
     rec.fill(bwd.grad2d(), NAN_BITS);
-    let mut constants = RenderConstants::from_settings(&s.settings);
-    constants.smooth = s.settings.smooth as u32;
+    let constants = RenderConstants::from_settings(&s.settings);
     bwd.record(
         ctx,
         &mut rec,
@@ -410,6 +409,44 @@ fn random_scenes_match_reference() {
             _ => [0; 3].map(|_| rng.gen_range(0.0f32..1.0) as f64),
         };
         check_scene(&ctx, &format!("case {case} {w}×{h} deg {degree} n {n}"), &s);
+    }
+    ctx.check_validation().unwrap();
+}
+
+/// Mip-Splatting's 2D filter: eps2d = 0.1 with the determinant-ratio opacity factor, whose
+/// gradient reaches the opacity logit and the 2D covariance. Small splats make the factor
+/// small (down to the floor for the thinnest), so its terms dominate.
+#[test]
+fn mip_2d_filter_matches_reference() {
+    let ctx = ctx();
+    let mut rng = Pcg64::seed_from_u64(0x3117);
+    for (case, &(w, h)) in [(37, 23), (50, 41), (29, 57)].iter().enumerate() {
+        let n = rng.gen_range(60..140);
+        let mut s = Scene::random(&mut rng, n, w, h, case % 4);
+        for ls in &mut s.gaussians.log_scales {
+            *ls = ls.map(|v| (v - 1.5) as f32 as f64);
+        }
+        s.settings = RenderSettings::mip_splatting();
+        let forward = reference::render(
+            &s.gaussians,
+            &s.camera,
+            &s.pose,
+            s.degree,
+            s.background,
+            &s.settings,
+        )
+        .unwrap();
+        let visible: Vec<f64> = forward
+            .projected
+            .iter()
+            .filter(|p| !p.culled)
+            .map(|p| p.compensation)
+            .collect();
+        assert!(
+            visible.iter().any(|&c| c < 0.5),
+            "case {case}: no splat is small enough for the compensation to matter"
+        );
+        check_scene(&ctx, &format!("mip case {case} {w}×{h} n {n}"), &s);
     }
     ctx.check_validation().unwrap();
 }

@@ -228,6 +228,8 @@ fn random_scenes_match_the_reference() {
     ctx.check_validation().unwrap();
 }
 
+/// Smooth mode, Mip-Splatting's 2D filter (eps2d 0.1 and the opacity compensation) and
+/// larger images.
 #[test]
 fn smooth_mode_and_larger_images_match() {
     let ctx = ctx();
@@ -237,7 +239,8 @@ fn smooth_mode_and_larger_images_match() {
         .into_iter()
         .enumerate()
     {
-        for settings in [RenderSettings::default(), RenderSettings::smooth()] {
+        let mip = RenderSettings::mip_splatting();
+        for settings in [RenderSettings::default(), RenderSettings::smooth(), mip] {
             let mut g = scenes::random_gaussians(&mut rng, 800);
             if settings.smooth {
                 // Smooth mode needs alpha < 1 (no clamp): keep opacities moderate.
@@ -255,7 +258,10 @@ fn smooth_mode_and_larger_images_match() {
                 &pose,
                 bg,
                 &settings,
-                &format!("image {seed} {w}×{h} smooth={}", settings.smooth),
+                &format!(
+                    "image {seed} {w}×{h} smooth={} mip={}",
+                    settings.smooth, settings.mip_2d
+                ),
             );
         }
     }

@@ -155,7 +155,6 @@ void main() {
     // Opacity: sigmoid' = σ(x)·σ(−x), each factor computed without cancellation.
     float sig_pos = 1.0 / (1.0 + exp(-logit));
     float sig_neg = 1.0 / (1.0 + exp(logit));
-    g_opacity_logits[i] = dl_dopacity * sig_pos * sig_neg;
 
     // Colour: SH coefficients and the view direction. Clamp: a channel clamped at 0 in the
     // forward passes no gradient.
@@ -240,6 +239,15 @@ void main() {
     // Conic [c, −b, a]/det → cov2d. Clamp: det = max(det_raw, det_min); no gradient through
     // det when the clamp is active.
     float det = max(det_raw, pc.rc.det_min);
+    // Mip-Splatting's 2D filter (flag 2): the opacity is σ·ρ, ρ = sqrt(det0 / det1) unless
+    // floored; dρ/dΣ = ρ/2 · (∇det0 / det0 − ∇det1 / det1), ∇det = (c, −2b, a) of the undilated
+    // (det0 = |A0 × A1|²) and dilated (det1) covariance.
+    float compensation = 1.0;
+    bool floored = true;
+    if ((pc.rc.flags & 2u) != 0u) {
+        compensation = mip_compensation(dot(cr, cr), det_raw, floored);
+    }
+    g_opacity_logits[i] = dl_dopacity * compensation * sig_pos * sig_neg;
     vec3 dl_dcov;
     if (det_raw >= pc.rc.det_min) {
         // Unclamped: the conic is Σ2D⁻¹, so dL/dΣ2D = −C G C with G the symmetric conic
@@ -255,6 +263,11 @@ void main() {
         dl_dcov = vec3(dl_dconic.z, -dl_dconic.y, dl_dconic.x) / det;
     }
 
+    if (!floored) {
+        float det0 = dot(cr, cr);
+        float k = dl_dopacity * sig_pos * 0.5 * compensation;
+        dl_dcov += k * (vec3(rc, -2.0 * b, ra) / det0 - vec3(c, -2.0 * b, a) / det_raw);
+    }
     // cov2d = T Σ Tᵀ + eps·I. G is the symmetric gradient (b appears twice: half each).
     float g00 = dl_dcov.x, g01 = 0.5 * dl_dcov.y, g11 = dl_dcov.z;
     // Σ rows.

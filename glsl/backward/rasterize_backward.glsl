@@ -131,7 +131,7 @@ void main() {
     uint li = gl_LocalInvocationIndex;
     uvec2 range = tile_ranges[tile];
     uint list_len = range.y > range.x ? range.y - range.x : 0u;
-    bool smooth_mode = pc.rc.smooth_mode != 0u;
+    bool smooth_mode = (pc.rc.flags & 1u) != 0u;
 
     // Per-pixel state (the loops over k are unrolled, so these stay in registers).
     vec2 centre[PIXELS];

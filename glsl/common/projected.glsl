@@ -8,9 +8,20 @@ struct Projected {
     uint tile_min_x, tile_min_y, tile_max_x, tile_max_y;
 };
 
+// Mip-Splatting's 2D filter: the floor of its opacity compensation (reference::MIP_MIN_COMPENSATION).
+const float MIP_MIN_COMPENSATION = 0.005;
+
+// The 2D filter's opacity factor sqrt(max(floor², det0 / det1)) from the undilated
+// determinant det0 and the dilated det1; `floored` says the floor is active (no gradient).
+float mip_compensation(float det0, float det1, out bool floored) {
+    float ratio = det0 / det1;
+    floored = !(ratio > MIP_MIN_COMPENSATION * MIP_MIN_COMPENSATION);
+    return floored ? MIP_MIN_COMPENSATION : sqrt(ratio);
+}
+
 // The rasterizer's constants (push constant block member); mirrors `RenderConstants`.
 struct RenderConstants {
     float near, eps2d, fov_clamp, det_min;
     float alpha_min, alpha_max, t_min;
-    uint smooth_mode;
+    uint flags;  // 1: smooth test mode; 2: Mip-Splatting's 2D filter compensation
 };

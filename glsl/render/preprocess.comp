@@ -119,8 +119,17 @@ void main() {
     uint flags = (shifted.r < 0.0 ? 1u : 0u) | (shifted.g < 0.0 ? 2u : 0u) | (shifted.b < 0.0 ? 4u : 0u);
     vec3 rgb = max(shifted, vec3(0.0));
 
+    // Step 5 (Mip-Splatting's 2D filter, flag 2): opacity × ρ, ρ² = det0 / det1 with the
+    // undilated determinant taken as |u0 × u1|² (no cancellation for thin footprints).
+    float compensation = 1.0;
+    if ((rc.flags & 2u) != 0u) {
+        vec3 cr = cross(u0, u1);
+        bool floored;
+        compensation = mip_compensation(dot(cr, cr), det_raw, floored);
+    }
+
     // Step 10: nothing non-finite reaches the rasterizer.
-    float opacity = 1.0 / (1.0 + exp(-opacity_logits[i]));
+    float opacity = compensation / (1.0 + exp(-opacity_logits[i]));
     bool ok = finite(mean2d.x) && finite(mean2d.y) && finite(conic.x) && finite(conic.y) &&
               finite(conic.z) && finite(radius) && finite(raw.r) && finite(raw.g) &&
               finite(raw.b) && finite(opacity);
@@ -137,7 +146,7 @@ void main() {
     vec2 hi3 = clamp(ceil((mean2d + radius) / ts), vec2(0.0), grid);
     bool on_screen = hi3.x > lo3.x && hi3.y > lo3.y;
     float extent = radius;
-    if (rc.smooth_mode == 0u) {
+    if ((rc.flags & 1u) == 0u) {
         float p_max = log(opacity / rc.alpha_min);
         extent = p_max > 0.0 ? min(radius, ceil(sqrt(2.0 * p_max * lambda_max))) : 0.0;
     }

@@ -85,7 +85,7 @@ void main() {
     }
     c_lo = subgroupMin(c_lo);
     c_hi = subgroupMax(c_hi);
-    bool smooth_mode = rc.smooth_mode != 0u;
+    bool smooth_mode = (rc.flags & 1u) != 0u;
 
     uvec2 range = ranges[tile];
     for (uint base = range.x; base < range.y; base += BATCH) {
@@ -99,7 +99,7 @@ void main() {
             s_mean_opacity[li] = vec4(p.mean_x, p.mean_y, p.opacity, 0.0);
             // A power this far below ln(alpha_min / opacity) gives alpha < alpha_min with room
             // for rounding, so the pixel can skip exp(); the exact test still follows.
-            float cutoff = rc.smooth_mode == 0u ? log(rc.alpha_min / p.opacity) - 1e-3 : -1e30;
+            float cutoff = !smooth_mode ? log(rc.alpha_min / p.opacity) - 1e-3 : -1e30;
             s_conic[li] = vec4(p.conic_a, p.conic_b, p.conic_c, cutoff);
             float q_cut = splat_q_cut(p.opacity, rc.alpha_min, smooth_mode);
             s_rgb[li] = vec4(p.r, p.g, p.b, q_cut);
@@ -142,13 +142,13 @@ void main() {
                     if (power <= 0.0 && power >= cn.w) {
                         float alpha = mo.z * exp(power);
                         bool keep = true;
-                        if (rc.smooth_mode == 0u) {
+                        if (!smooth_mode) {
                             alpha = min(alpha, rc.alpha_max);  // bounds 1/(1 − alpha) backward
                             keep = alpha >= rc.alpha_min;
                         }
                         if (keep) {
                             float next_t = T[k] * (1.0 - alpha);
-                            if (rc.smooth_mode == 0u && next_t < rc.t_min) {
+                            if (!smooth_mode && next_t < rc.t_min) {
                                 done[k] = true;
                             } else {
                                 color[k] += rgb * (alpha * T[k]);

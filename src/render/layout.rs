@@ -128,11 +128,16 @@ pub struct RenderConstants {
     pub alpha_min: f32,
     pub alpha_max: f32,
     pub t_min: f32,
-    /// 1 = smooth test mode (no alpha_min skip, no t_min stop, no alpha_max clamp).
-    pub smooth: u32,
+    /// Bits: [`RenderConstants::SMOOTH`], [`RenderConstants::MIP_2D`].
+    pub flags: u32,
 }
 
 impl RenderConstants {
+    /// Smooth test mode (no alpha_min skip, no t_min stop, no alpha_max clamp).
+    pub const SMOOTH: u32 = 1;
+    /// Mip-Splatting's 2D Mip filter: the opacity compensation (with eps2d = 0.1).
+    pub const MIP_2D: u32 = 2;
+
     pub fn from_settings(s: &crate::reference::RenderSettings) -> Self {
         assert_eq!(
             s.tile_size, TILE_SIZE,
@@ -146,7 +151,8 @@ impl RenderConstants {
             alpha_min: s.alpha_min as f32,
             alpha_max: s.alpha_max as f32,
             t_min: s.t_min as f32,
-            smooth: s.smooth as u32,
+            flags: if s.smooth { Self::SMOOTH } else { 0 }
+                | if s.mip_2d { Self::MIP_2D } else { 0 },
         }
     }
 }
