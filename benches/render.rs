@@ -79,6 +79,7 @@ fn main() -> anyhow::Result<()> {
                 sh_degree: params.sh_degree,
                 background: [0.1, 0.2, 0.3],
                 constants: RenderConstants::default(),
+                filter3d: None,
             };
             let mut renderer = Renderer::for_camera(&ctx, n, &cam)?;
             renderer.render_blocking(&splats, &cameras, 0, &cam, &settings)?;
@@ -127,6 +128,7 @@ fn main() -> anyhow::Result<()> {
                             sh_degree: params.sh_degree,
                             constants: settings.constants,
                             background: settings.background,
+                            filter3d: None,
                         },
                     )?;
                     rec.barrier();

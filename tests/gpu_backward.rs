@@ -10,7 +10,7 @@ use lpmsplat::reference::gpu_layout::{
     gaussian_params, gpu_forward_fixture, round_gaussians_to_f32, round_view_to_f32,
 };
 use lpmsplat::reference::scenes::{random_gaussians, random_view};
-use lpmsplat::reference::{self, Gradients, RefGaussians, RenderSettings};
+use lpmsplat::reference::{self, mip, Gradients, RefGaussians, RenderSettings};
 use lpmsplat::render::backward::{AtomicMode, Backward, BackwardArgs, GRAD2D_STRIDE};
 use lpmsplat::render::layout::{CameraGpu, RenderConstants};
 use lpmsplat::scene::{PinholeCamera, Pose};
@@ -39,6 +39,9 @@ struct Scene {
     background: [f64; 3],
     settings: RenderSettings,
     dl_dimage: Vec<[f64; 3]>,
+    /// Mip-Splatting's 3D filter (f32-exact values): the reference renders the fused
+    /// parameters and takes its gradients back through `mip::fuse_backward`.
+    filter3d: Option<Vec<f64>>,
 }
 
 impl Scene {
@@ -68,6 +71,7 @@ impl Scene {
             dl_dimage: (0..pixels)
                 .map(|_| [0; 3].map(|_| rng.gen_range(-1.0f32..1.0) as f64))
                 .collect(),
+            filter3d: None,
         }
     }
 }
@@ -100,8 +104,13 @@ fn run_gpu_pixels(
     count_pixels: bool,
     s: &Scene,
 ) -> (GpuResult, Gradients) {
+    let fused = s
+        .filter3d
+        .as_ref()
+        .map(|f| mip::fuse(&s.gaussians, f).unwrap());
+    let rendered = fused.as_ref().unwrap_or(&s.gaussians);
     let forward = reference::render(
-        &s.gaussians,
+        rendered,
         &s.camera,
         &s.pose,
         s.degree,
@@ -109,8 +118,8 @@ fn run_gpu_pixels(
         &s.settings,
     )
     .unwrap();
-    let want = reference::backward(
-        &s.gaussians,
+    let mut want = reference::backward(
+        rendered,
         &s.camera,
         &s.pose,
         s.degree,
@@ -120,8 +129,15 @@ fn run_gpu_pixels(
         &s.dl_dimage,
     )
     .unwrap();
+    if let Some(f) = &s.filter3d {
+        want.params = mip::fuse_backward(&s.gaussians, f, &want.params).unwrap();
+    }
     let fx = gpu_forward_fixture(&forward, &s.camera, &s.pose);
     let n = s.gaussians.len();
+    let filter_buf = s.filter3d.as_ref().map(|f| {
+        let f32s: Vec<f32> = f.iter().map(|&v| v as f32).collect();
+        GpuBuffer::from_slice(ctx, "filter3d", &f32s).unwrap()
+    });
 
     // The camera sits at index 1 behind a decoy, so the kernels must use the index.
     let decoy = CameraGpu::new(
@@ -183,6 +199,7 @@ fn run_gpu_pixels(
             grads: &grads,
             view_grad_norm: &view_grad_norm,
             pixel_count: count_pixels.then_some(&pixel_count),
+            filter3d: filter_buf.as_ref(),
             count: n,
             sh_degree: s.degree as u32,
             constants,
@@ -413,11 +430,12 @@ fn random_scenes_match_reference() {
     ctx.check_validation().unwrap();
 }
 
-/// Mip-Splatting's 2D filter: eps2d = 0.1 with the determinant-ratio opacity factor, whose
-/// gradient reaches the opacity logit and the 2D covariance. Small splats make the factor
-/// small (down to the floor for the thinnest), so its terms dominate.
+/// Mip-Splatting's filters: the 2D filter (eps2d = 0.1 with the determinant-ratio opacity
+/// factor, whose gradient reaches the opacity logit and the 2D covariance; small splats make the
+/// factor small, so its terms dominate) and, on every other case, the 3D filter (scales
+/// sqrt(s² + f²), opacity × ρ3; its gradient reaches the log-scales twice).
 #[test]
-fn mip_2d_filter_matches_reference() {
+fn mip_filters_match_reference() {
     let ctx = ctx();
     let mut rng = Pcg64::seed_from_u64(0x3117);
     for (case, &(w, h)) in [(37, 23), (50, 41), (29, 57)].iter().enumerate() {
@@ -427,6 +445,19 @@ fn mip_2d_filter_matches_reference() {
             *ls = ls.map(|v| (v - 1.5) as f32 as f64);
         }
         s.settings = RenderSettings::mip_splatting();
+        // The 3D filter on every other case (f32-exact, from a tenth to twice the largest scale).
+        if case % 2 == 0 {
+            s.filter3d = Some(
+                s.gaussians
+                    .log_scales
+                    .iter()
+                    .map(|l| {
+                        let top = l.iter().copied().fold(f64::MIN, f64::max).exp();
+                        (top * rng.gen_range(0.1..2.0)) as f32 as f64
+                    })
+                    .collect(),
+            );
+        }
         let forward = reference::render(
             &s.gaussians,
             &s.camera,
@@ -800,6 +831,7 @@ fn record_refuses_mismatched_arguments() {
         sh_degree,
         constants: RenderConstants::default(),
         background: [0.0; 3],
+        filter3d: None,
     };
     let mut rec = Recorder::new(&ctx).unwrap();
     let err = |r: anyhow::Result<()>| r.unwrap_err().to_string();

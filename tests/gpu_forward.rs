@@ -4,7 +4,7 @@
 #![allow(clippy::too_many_arguments, clippy::needless_range_loop)]
 
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions};
-use lpmsplat::reference::{self, scenes, RefGaussians, RenderSettings};
+use lpmsplat::reference::{self, mip, scenes, RefGaussians, RenderSettings};
 use lpmsplat::render::forward::{Capacity, FrameSettings, Renderer};
 use lpmsplat::render::layout::{CameraGpu, ProjectedGpu, RenderConstants};
 use lpmsplat::scene::{PinholeCamera, Pose};
@@ -25,6 +25,7 @@ struct Frame {
 }
 
 /// Renders `g` (rounded to f32) on the GPU; returns the frame and the f32-exact reference input.
+#[allow(clippy::too_many_arguments)]
 fn render_gpu(
     ctx: &Arc<GpuContext>,
     renderer: &mut Renderer,
@@ -35,8 +36,35 @@ fn render_gpu(
     background: [f32; 3],
     settings: &RenderSettings,
 ) -> (Frame, RefGaussians) {
+    render_gpu_filtered(
+        ctx, renderer, g, None, sh_degree, camera, pose, background, settings,
+    )
+}
+
+/// As `render_gpu`, with Mip-Splatting's 3D filter `filter` (rounded to f32) given to the GPU;
+/// the reference input returned then has the filter folded in (`mip::fuse`).
+#[allow(clippy::too_many_arguments)]
+fn render_gpu_filtered(
+    ctx: &Arc<GpuContext>,
+    renderer: &mut Renderer,
+    g: &RefGaussians,
+    filter: Option<&[f64]>,
+    sh_degree: u32,
+    camera: &PinholeCamera,
+    pose: &Pose,
+    background: [f32; 3],
+    settings: &RenderSettings,
+) -> (Frame, RefGaussians) {
     let params = g.to_params(3);
+    let filter32: Option<Vec<f32>> = filter.map(|f| f.iter().map(|&v| v as f32).collect());
     let exact = RefGaussians::from_params(&params);
+    let exact = match &filter32 {
+        Some(f) => mip::fuse(&exact, &f.iter().map(|&v| v as f64).collect::<Vec<_>>()).unwrap(),
+        None => exact,
+    };
+    let filter_buf = filter32
+        .as_ref()
+        .map(|f| GpuBuffer::from_slice(ctx, "filter3d", f).unwrap());
     let splats = GpuSplats::upload(ctx, &params, params.len().max(1)).unwrap();
     let cam = CameraGpu::new(camera, pose);
     // A decoy camera at index 0 checks that the kernels use the index they are given.
@@ -60,6 +88,7 @@ fn render_gpu(
                 sh_degree,
                 background,
                 constants: RenderConstants::from_settings(settings),
+                filter3d: filter_buf.as_ref(),
             },
         )
         .unwrap();
@@ -230,6 +259,47 @@ fn random_scenes_match_the_reference() {
 
 /// Smooth mode, Mip-Splatting's 2D filter (eps2d 0.1 and the opacity compensation) and
 /// larger images.
+#[test]
+fn mip_splatting_3d_filter_matches_the_fused_reference() {
+    let ctx = ctx();
+    let mut renderer = renderer(&ctx);
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(0x3D);
+    for (seed, (w, h)) in [(120u32, 90u32), (64, 150)].into_iter().enumerate() {
+        let g = scenes::random_gaussians(&mut rng, 500);
+        // Filters from a tenth of a Gaussian's largest scale to several times it.
+        let filter: Vec<f64> = g
+            .log_scales
+            .iter()
+            .map(|l| l.iter().copied().fold(f64::MIN, f64::max).exp() * rng.gen_range(0.1..3.0))
+            .collect();
+        let (camera, pose) = scenes::random_view(&mut rng, w, h);
+        let bg = [0.2, 0.1, 0.9];
+        let settings = RenderSettings::mip_splatting();
+        let (frame, exact) = render_gpu_filtered(
+            &ctx,
+            &mut renderer,
+            &g,
+            Some(&filter),
+            2,
+            &camera,
+            &pose,
+            bg,
+            &settings,
+        );
+        compare(
+            &frame,
+            &exact,
+            2,
+            &camera,
+            &pose,
+            bg,
+            &settings,
+            &format!("3D filter {seed} {w}×{h}"),
+        );
+    }
+    ctx.check_validation().unwrap();
+}
+
 #[test]
 fn smooth_mode_and_larger_images_match() {
     let ctx = ctx();
@@ -458,6 +528,7 @@ fn a_4096_square_image_renders_or_is_refused_with_the_binding_limit() {
         sh_degree: 0,
         background: [0.0; 3],
         constants: RenderConstants::from_settings(&settings),
+        filter3d: None,
     };
     // 4096² RGB f32 is 192 MiB: above lavapipe's 128 MiB storage binding limit.
     let need = 4096u64 * 4096 * 12;

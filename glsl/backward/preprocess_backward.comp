@@ -42,6 +42,8 @@ layout(std430, set = 0, binding = 12) writeonly buffer GOpacity { float g_opacit
 layout(std430, set = 0, binding = 13) writeonly buffer GShDc { float g_sh_dc[]; };
 layout(std430, set = 0, binding = 14) writeonly buffer GShRest { float g_sh_rest[]; };
 layout(std430, set = 0, binding = 15) writeonly buffer ViewGradNorm { float view_grad_norm[]; };
+// Mip-Splatting's 3D filter (flag 4): one standard deviation per Gaussian.
+layout(std430, set = 0, binding = 16) readonly buffer Filter3d { float filter3d[]; };
 
 layout(push_constant) uniform Push {
     RenderConstants rc;
@@ -208,6 +210,16 @@ void main() {
     vec3 R[3];
     quat_rows(unit, R);
     vec3 s = exp(log_s);
+    // Mip-Splatting's 3D filter: the covariance is built from s' = sqrt(s² + f²), the opacity
+    // carries ρ3 = sqrt(Π s² / Π s'²); w = s² / s'² = dl'/dl (l = log-scale).
+    float rho3d = 1.0;
+    vec3 w = vec3(1.0);
+    bool filtered = (pc.rc.flags & 4u) != 0u;
+    if (filtered) {
+        vec3 s_raw = s;
+        s = filtered_scales(s_raw, filter3d[i], rho3d);
+        w = (s_raw * s_raw) / (s * s);
+    }
     vec3 M[3] = vec3[3](R[0] * s, R[1] * s, R[2] * s);
 
     // EWA Jacobian. Clamp: x/z and y/z limited to fov_clamp half-FoV tangents measured from the
@@ -247,7 +259,7 @@ void main() {
     if ((pc.rc.flags & 2u) != 0u) {
         compensation = mip_compensation(dot(cr, cr), det_raw, floored);
     }
-    g_opacity_logits[i] = dl_dopacity * compensation * sig_pos * sig_neg;
+    g_opacity_logits[i] = dl_dopacity * rho3d * compensation * sig_pos * sig_neg;
     vec3 dl_dcov;
     if (det_raw >= pc.rc.det_min) {
         // Unclamped: the conic is Σ2D⁻¹, so dL/dΣ2D = −C G C with G the symmetric conic
@@ -265,7 +277,7 @@ void main() {
 
     if (!floored) {
         float det0 = dot(cr, cr);
-        float k = dl_dopacity * sig_pos * 0.5 * compensation;
+        float k = dl_dopacity * sig_pos * rho3d * 0.5 * compensation;
         dl_dcov += k * (vec3(rc, -2.0 * b, ra) / det0 - vec3(c, -2.0 * b, a) / det_raw);
     }
     // cov2d = T Σ Tᵀ + eps·I. G is the symmetric gradient (b appears twice: half each).
@@ -320,6 +332,11 @@ void main() {
         vec3 dm = 2.0 * (dl_dsigma[r].x * M[0] + dl_dsigma[r].y * M[1] + dl_dsigma[r].z * M[2]);
         dl_dls += dm * R[r] * s;
         dl_dR[r] = dm * s;
+    }
+    if (filtered) {
+        // dL/dl = dL/dl' · w, plus the opacity factor: ∂ ln ρ3 / ∂l_k = 1 − w_k.
+        float opacity_eff = sig_pos * rho3d * compensation;
+        dl_dls = dl_dls * w + dl_dopacity * opacity_eff * (vec3(1.0) - w);
     }
     g_log_scales[3u * i] = dl_dls.x;
     g_log_scales[3u * i + 1u] = dl_dls.y;

@@ -19,6 +19,16 @@ float mip_compensation(float det0, float det1, out bool floored) {
     return floored ? MIP_MIN_COMPENSATION : sqrt(ratio);
 }
 
+// Mip-Splatting's 3D filter of standard deviation f: the scales the renderer uses,
+// sqrt(s² + f²), and the opacity factor sqrt(Π s² / Π (s² + f²)) (src/reference/mip.rs).
+vec3 filtered_scales(vec3 s, float f, out float rho) {
+    float phi = f * f;
+    vec3 s2 = s * s;
+    vec3 w = s2 / (s2 + phi);
+    rho = sqrt(w.x * w.y * w.z);
+    return sqrt(s2 + phi);
+}
+
 // The rasterizer's constants (push constant block member); mirrors `RenderConstants`.
 struct RenderConstants {
     float near, eps2d, fov_clamp, det_min;

@@ -22,6 +22,8 @@ layout(std430, set = 0, binding = 7) writeonly buffer Out { Projected projected[
 layout(std430, set = 0, binding = 8) writeonly buffer DepthKeys { uvec2 depth_keys[]; };
 layout(std430, set = 0, binding = 9) writeonly buffer DepthVals { uint depth_vals[]; };
 layout(std430, set = 0, binding = 10) buffer Counts { uint counts[]; };
+// Mip-Splatting's 3D filter (flag 4): one standard deviation per Gaussian.
+layout(std430, set = 0, binding = 11) readonly buffer Filter3d { float filter3d[]; };
 
 layout(push_constant) uniform Push {
     uint count;
@@ -72,6 +74,10 @@ void main() {
                                                   : mat3(1.0);
     // Step 3: M = R S, Σ = M Mᵀ, rotated into the camera: W M.
     vec3 s = exp(vec3(log_scales[3u * i], log_scales[3u * i + 1u], log_scales[3u * i + 2u]));
+    // Mip-Splatting's 3D filter: Σ + f²·I (R is orthonormal) and the opacity that keeps the
+    // Gaussian's integral.
+    float rho3d = 1.0;
+    if ((rc.flags & 4u) != 0u) s = filtered_scales(s, filter3d[i], rho3d);
     mat3 M = mat3(R[0] * s.x, R[1] * s.y, R[2] * s.z);
     mat3 W = transpose(mat3(cam.r0.xyz, cam.r1.xyz, cam.r2.xyz));  // rows r0, r1, r2
     mat3 WM = W * M;
@@ -129,7 +135,7 @@ void main() {
     }
 
     // Step 10: nothing non-finite reaches the rasterizer.
-    float opacity = compensation / (1.0 + exp(-opacity_logits[i]));
+    float opacity = rho3d * compensation / (1.0 + exp(-opacity_logits[i]));
     bool ok = finite(mean2d.x) && finite(mean2d.y) && finite(conic.x) && finite(conic.y) &&
               finite(conic.z) && finite(radius) && finite(raw.r) && finite(raw.g) &&
               finite(raw.b) && finite(opacity);

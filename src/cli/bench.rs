@@ -153,6 +153,7 @@ fn fps_one(
         sh_degree: params.sh_degree,
         background: [0.0; 3],
         constants: RenderConstants::default(),
+        filter3d: None,
     };
     let mut renderer = Renderer::for_camera(ctx, params.len(), &cam)?;
     // First frame sizes the intersection buffers.

@@ -482,6 +482,7 @@ fn fps_of(
         sh_degree: model.sh_degree,
         background: [0.0; 3],
         constants: RenderConstants::default(),
+        filter3d: None,
     };
     let mut r = Renderer::for_camera(ctx, model.len().max(1), &cam)?;
     r.render_blocking(&splats, &cameras, 0, &cam, &settings)?;

@@ -127,6 +127,7 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
         sh_degree: params.sh_degree,
         background: bg,
         constants: RenderConstants::default(),
+        filter3d: None,
     };
     let mut per_view = Vec::new();
     for (k, &v) in views.iter().enumerate() {

@@ -69,6 +69,7 @@ pub fn run(gpu: &GpuOptions, args: &RenderArgs) -> anyhow::Result<()> {
         sh_degree: params.sh_degree,
         background: bg,
         constants: RenderConstants::default(),
+        filter3d: None,
     };
     for (k, &i) in indices.iter().enumerate() {
         renderer.render_blocking(&splats, &cameras, k as u32, &cams[k], &settings)?;

@@ -134,6 +134,8 @@ pub struct BackwardArgs<'a> {
     pub grads: &'a GpuSplats,
     /// Output: f32 per Gaussian.
     pub view_grad_norm: &'a GpuBuffer<f32>,
+    /// The forward's 3D filter ([`super::forward::FrameSettings::filter3d`]), if any.
+    pub filter3d: Option<&'a GpuBuffer<f32>>,
     /// Output (when given): u32 per Gaussian, the number of pixels it contributed to
     /// (Pixel-GS's n_v(i)); zeroed by the pass. Needs [`Backward::with_pixel_counts`].
     pub pixel_count: Option<&'a GpuBuffer<u32>>,
@@ -151,6 +153,8 @@ pub struct Backward {
     raster_counting: Option<ComputePipeline>,
     /// Bound at binding 8 when no pixel counts are asked for (never written).
     no_counts: GpuBuffer<u32>,
+    /// Bound in place of an absent 3D filter (never read).
+    no_filter: GpuBuffer<f32>,
     pixels: u32,
     preprocess: ComputePipeline,
     grad2d: GpuBuffer<f32>,
@@ -195,7 +199,7 @@ impl Backward {
             ctx,
             "backward/preprocess_backward",
             shaders::BACKWARD_PREPROCESS_BACKWARD,
-            16,
+            17,
             std::mem::size_of::<PreprocessPush>() as u32,
             WG,
             &[],
@@ -205,6 +209,7 @@ impl Backward {
             raster,
             raster_counting: None,
             no_counts: GpuBuffer::new(ctx, "no pixel counts", 1, BufferKind::DeviceLocal)?,
+            no_filter: GpuBuffer::new(ctx, "no 3D filter", 1, BufferKind::DeviceLocal)?,
             pixels,
             preprocess,
             grad2d: Self::alloc_grad2d(ctx, capacity)?,
@@ -351,8 +356,12 @@ impl Backward {
             rec.timestamp(p, "rasterize backward");
         }
         rec.barrier();
+        let mut constants = a.constants;
+        if a.filter3d.is_some() {
+            constants.flags |= RenderConstants::FILTER_3D;
+        }
         let push = PreprocessPush {
-            constants: a.constants,
+            constants,
             camera_index: a.camera_index,
             count: a.count as u32,
             sh_degree: a.sh_degree,
@@ -380,6 +389,7 @@ impl Backward {
                     &g.sh_dc,
                     &g.sh_rest,
                     a.view_grad_norm,
+                    a.filter3d.unwrap_or(&self.no_filter),
                 ],
                 &push,
                 ctx.groups_1d(a.count as u64, WG),
@@ -424,6 +434,7 @@ impl Backward {
         for (name, len, need) in [
             ("projected", a.projected.len(), n),
             ("view_grad_norm", a.view_grad_norm.len(), n),
+            ("filter3d", a.filter3d.map_or(usize::MAX, |f| f.len()), n),
             (
                 "pixel_count",
                 a.pixel_count.map_or(usize::MAX, |c| c.len()),

@@ -58,11 +58,14 @@ struct RasterPush {
 }
 
 /// What a frame needs besides the splats and the camera buffer.
-#[derive(Debug, Clone, Copy)]
-pub struct FrameSettings {
+#[derive(Clone, Copy)]
+pub struct FrameSettings<'a> {
     pub sh_degree: u32,
     pub background: [f32; 3],
     pub constants: RenderConstants,
+    /// Mip-Splatting's 3D smoothing filter, one standard deviation per Gaussian (world units):
+    /// rendered with scales sqrt(s² + f²) and opacity × sqrt(Π s² / Π (s² + f²)).
+    pub filter3d: Option<&'a GpuBuffer<f32>>,
 }
 
 /// Capacities the renderer's buffers are sized for.
@@ -98,6 +101,8 @@ pub struct FrameBuffers {
 pub struct Renderer {
     ctx: Arc<GpuContext>,
     preprocess: ComputePipeline,
+    /// Bound in place of an absent 3D filter (never read).
+    no_filter: GpuBuffer<f32>,
     gather: ComputePipeline,
     emit: ComputePipeline,
     ranges: ComputePipeline,
@@ -167,10 +172,11 @@ impl Renderer {
         };
         Ok(Self {
             ctx: ctx.clone(),
+            no_filter: GpuBuffer::new(ctx, "no 3D filter", 1, BufferKind::DeviceLocal)?,
             preprocess: pipe(
                 "render/preprocess",
                 shaders::RENDER_PREPROCESS,
-                11,
+                12,
                 std::mem::size_of::<PreprocessPush>(),
             )?,
             gather: pipe(
@@ -315,6 +321,16 @@ impl Renderer {
         };
 
         // 1. Preprocess.
+        let mut rc = settings.constants;
+        if let Some(filter) = settings.filter3d {
+            anyhow::ensure!(
+                filter.len() >= splats.count,
+                "renderer: {} 3D filter values for {} Gaussians",
+                filter.len(),
+                splats.count
+            );
+            rc.flags |= RenderConstants::FILTER_3D;
+        }
         rec.fill(&f.tile_ranges, 0);
         rec.dispatch(
             &self.preprocess,
@@ -330,13 +346,14 @@ impl Renderer {
                 &f.depth_keys,
                 &f.depth_vals,
                 &f.counts,
+                settings.filter3d.unwrap_or(&self.no_filter),
             ],
             &PreprocessPush {
                 count: splats.count as u32,
                 camera_index,
                 sh_degree: settings.sh_degree.min(splats.sh_degree),
                 rest_coeffs: ((splats.sh_degree + 1) * (splats.sh_degree + 1) - 1),
-                rc: settings.constants,
+                rc,
             },
             // At least one invocation so counts[0] is written for an empty scene.
             ctx.groups_1d(n.max(1), WG),

@@ -137,6 +137,9 @@ impl RenderConstants {
     pub const SMOOTH: u32 = 1;
     /// Mip-Splatting's 2D Mip filter: the opacity compensation (with eps2d = 0.1).
     pub const MIP_2D: u32 = 2;
+    /// Mip-Splatting's 3D filter: a per-Gaussian buffer is bound (set by the renderer and the
+    /// backward when one is given).
+    pub const FILTER_3D: u32 = 4;
 
     pub fn from_settings(s: &crate::reference::RenderSettings) -> Self {
         assert_eq!(

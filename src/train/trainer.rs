@@ -434,6 +434,7 @@ impl Trainer {
                 sh_degree: sh,
                 background: bg,
                 constants,
+                filter3d: None,
             },
             if cfg.timestamps {
                 Some(&mut self.pool)
@@ -480,6 +481,7 @@ impl Trainer {
                 sh_degree: sh,
                 constants,
                 background: bg,
+                filter3d: None,
             },
             if cfg.timestamps {
                 Some(&mut self.pool)
@@ -714,6 +716,7 @@ impl Trainer {
                 sh_degree: self.config.sh_degree,
                 background,
                 constants: RenderConstants::default(),
+                filter3d: None,
             },
         )?;
         self.renderer.read_image()
