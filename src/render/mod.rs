@@ -3,6 +3,7 @@
 //! scenes for benchmarks.
 
 pub mod backward;
+pub mod filter3d;
 pub mod forward;
 pub mod layout;
 pub mod scan;
