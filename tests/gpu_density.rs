@@ -739,6 +739,72 @@ fn opacity_reset_caps_opacity_and_clears_only_the_opacity_moments() {
     ctx.check_validation().unwrap();
 }
 
+/// Mip-Splatting's filter-aware reset: the opacity the renderer uses, σ(x)·ρ3, is capped at
+/// 0.01 (stored σ(x') = 0.01 / ρ3 where it was above), against an f64 computation; Gaussians
+/// whose filtered opacity is already below keep their logit bit for bit.
+#[test]
+fn filtered_opacity_reset_caps_the_rendered_opacity() {
+    let ctx = ctx();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(81);
+    let (n, degree) = (2_000, 0);
+    let host = HostState {
+        params: random_params(&mut rng, n, degree, 1.0),
+        m: random_moments(&mut rng, n, degree, false),
+        v: random_moments(&mut rng, n, degree, true),
+    };
+    let filter: Vec<f32> = host
+        .params
+        .log_scales
+        .iter()
+        .map(|l| l[0].exp() * rng.gen_range(0.0f32..3.0))
+        .collect();
+    let state = upload_state(&ctx, &host, n);
+    let fbuf = GpuBuffer::from_slice(&ctx, "filter3d", &filter).unwrap();
+    let cfg = DensityConfig::default();
+    let dc = DensityControl::new(&ctx, n, cfg).unwrap();
+    let mut rec = Recorder::new(&ctx).unwrap();
+    dc.record_opacity_reset_filtered(&mut rec, &state, Some(&fbuf))
+        .unwrap();
+    rec.submit_and_wait().unwrap();
+    let got = state.params.opacity_logits.read_range(0, n).unwrap();
+    let (mut capped, mut kept) = (0, 0);
+    for i in 0..n {
+        let phi = (filter[i] as f64).powi(2);
+        let rho: f64 = host.params.log_scales[i]
+            .iter()
+            .map(|&l| {
+                let s2 = (2.0 * l as f64).exp();
+                (s2 / (s2 + phi)).sqrt()
+            })
+            .product();
+        let x = host.params.opacity_logits[i] as f64;
+        let effective = rho / (1.0 + (-x).exp());
+        if effective > 0.01 * (1.0 + 1e-4) {
+            let after = rho / (1.0 + (-(got[i] as f64)).exp());
+            assert!(
+                (after / 0.01 - 1.0).abs() < 1e-3,
+                "{i}: rendered opacity {after}"
+            );
+            capped += 1;
+        } else if effective < 0.01 * (1.0 - 1e-4) {
+            assert_eq!(got[i], host.params.opacity_logits[i], "{i}");
+            kept += 1;
+        }
+    }
+    assert!(
+        capped > n / 4 && kept > n / 10,
+        "{capped} capped, {kept} kept"
+    );
+    assert!(state
+        .m
+        .opacity_logits
+        .read_range(0, n)
+        .unwrap()
+        .iter()
+        .all(|&v| v == 0.0));
+    ctx.check_validation().unwrap();
+}
+
 #[test]
 fn decisions_can_be_edited_between_decide_and_apply() {
     // The LPM hook: extra pruning OR-ed into the decisions before the scan.

@@ -351,6 +351,7 @@ struct SplitPush {
 struct ResetPush {
     count: u32,
     max_logit: f32,
+    filtered: u32,
 }
 
 const SCATTER_COPY: u32 = 0;
@@ -433,7 +434,7 @@ impl DensityControl {
             reset: pipe(
                 "density/reset_opacity",
                 shaders::DENSITY_RESET_OPACITY,
-                3,
+                5,
                 size_of::<ResetPush>(),
             )?,
             stats: DensityStats::zeroed(ctx, capacity)?,
@@ -799,6 +800,25 @@ impl DensityControl {
         rec: &mut Recorder,
         state: &SplatState,
     ) -> anyhow::Result<()> {
+        self.record_opacity_reset_filtered(rec, state, None)
+    }
+
+    /// [`DensityControl::record_opacity_reset`] on the opacity the renderer uses when
+    /// Mip-Splatting's 3D filter `filter3d` is given (σ(x)·ρ, see `reset_opacity.comp`).
+    pub fn record_opacity_reset_filtered(
+        &self,
+        rec: &mut Recorder,
+        state: &SplatState,
+        filter3d: Option<&GpuBuffer<f32>>,
+    ) -> anyhow::Result<()> {
+        if let Some(f) = filter3d {
+            ensure!(
+                f.len() >= state.count(),
+                "opacity reset: {} 3D filter values for {} Gaussians",
+                f.len(),
+                state.count()
+            );
+        }
         let max_logit = reset_logit(&self.config)?;
         let count = state.count();
         if count == 0 {
@@ -811,10 +831,13 @@ impl DensityControl {
                 &state.params.opacity_logits,
                 &state.m.opacity_logits,
                 &state.v.opacity_logits,
+                &state.params.log_scales,
+                filter3d.unwrap_or(&self.dummy),
             ],
             &ResetPush {
                 count: count as u32,
                 max_logit,
+                filtered: filter3d.is_some() as u32,
             },
             self.ctx.groups_1d(count as u64, WG),
         );
