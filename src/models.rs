@@ -1,8 +1,9 @@
 //! Base models: what a model changes in a training run, applied to the trainer's config.
 //!
-//! Today's models share the 3DGS parameter groups, renderer and PLY layout; they differ in the
-//! densification statistic (Pixel-GS, BASE_MODELS.md §3). A model that changes the render
-//! (Mip-Splatting's filters, 2DGS's surfels) is not built yet.
+//! Today's models share the 3DGS parameter groups and PLY layout; they differ in the
+//! densification statistic (Pixel-GS, BASE_MODELS.md §3) or in the renderer's filters
+//! (Mip-Splatting, §2: a non-optimised per-Gaussian 3D filter the trainer recomputes, and the
+//! 2D Mip filter). 2DGS's surfels and SpacetimeGS are not built yet.
 
 use crate::train::density::Statistic;
 use crate::train::trainer::TrainConfig;
@@ -16,10 +17,17 @@ pub enum BaseModel {
     /// each Gaussian covers per view, with the depth factor on the statistic only; everything
     /// else as 3DGS (the official code's defaults).
     PixelGs,
+    /// Mip-Splatting (Yu et al., CVPR 2024): the 3D smoothing filter and the 2D Mip filter,
+    /// with the paper's densification (3DGS's gradient test).
+    MipSplatting,
 }
 
 impl BaseModel {
-    pub const ALL: [BaseModel; 2] = [BaseModel::Gaussians3d, BaseModel::PixelGs];
+    pub const ALL: [BaseModel; 3] = [
+        BaseModel::Gaussians3d,
+        BaseModel::PixelGs,
+        BaseModel::MipSplatting,
+    ];
 
     pub fn parse(s: &str) -> anyhow::Result<BaseModel> {
         Self::ALL
@@ -38,6 +46,18 @@ impl BaseModel {
         match self {
             BaseModel::Gaussians3d => "3dgs",
             BaseModel::PixelGs => "pixel-gs",
+            BaseModel::MipSplatting => "mip-splatting",
+        }
+    }
+
+    /// The rasterizer constants its renders use (eval, render, viewers of an exported PLY).
+    pub fn render_constants(&self) -> crate::render::layout::RenderConstants {
+        use crate::reference::RenderSettings;
+        match self {
+            BaseModel::MipSplatting => crate::render::layout::RenderConstants::from_settings(
+                &RenderSettings::mip_splatting(),
+            ),
+            _ => crate::render::layout::RenderConstants::default(),
         }
     }
 
@@ -45,16 +65,18 @@ impl BaseModel {
     /// user's flags, alone).
     pub fn configure(&self, config: &mut TrainConfig) {
         config.density.statistic = match self {
-            BaseModel::Gaussians3d => Statistic::Gradient,
+            BaseModel::Gaussians3d | BaseModel::MipSplatting => Statistic::Gradient,
             BaseModel::PixelGs => Statistic::pixel_gs(),
         };
+        config.mip_filters = *self == BaseModel::MipSplatting;
     }
 
     /// The model a config trains (the inverse of [`BaseModel::configure`]).
     pub fn of(config: &TrainConfig) -> BaseModel {
-        match config.density.statistic {
-            Statistic::Gradient => BaseModel::Gaussians3d,
-            Statistic::PixelWeighted { .. } => BaseModel::PixelGs,
+        match (config.density.statistic, config.mip_filters) {
+            (_, true) => BaseModel::MipSplatting,
+            (Statistic::Gradient, false) => BaseModel::Gaussians3d,
+            (Statistic::PixelWeighted { .. }, false) => BaseModel::PixelGs,
         }
     }
 }
@@ -72,6 +94,9 @@ mod tests {
             assert_eq!(BaseModel::of(&c), m);
         }
         let e = BaseModel::parse("mip").unwrap_err().to_string();
-        assert!(e.contains("3dgs, pixel-gs") && e.contains("Fix"), "{e}");
+        assert!(
+            e.contains("3dgs, pixel-gs, mip-splatting") && e.contains("Fix"),
+            "{e}"
+        );
     }
 }

@@ -743,3 +743,114 @@ fn snapshot_holds_the_model_before_density_control() {
     );
     ctx.check_validation().unwrap();
 }
+
+/// Mip-Splatting in the trainer: a render is the f64 reference render of the model with the
+/// reference 3D filter (from the training cameras) folded in and the 2D filter on; the exported
+/// (fused) model rendered with only the 2D filter shows the same image; training through
+/// density steps and an opacity reset keeps the filter in step with the growing model.
+#[test]
+fn mip_splatting_renders_trains_and_exports_like_the_reference() {
+    use lpmsplat::reference::{self, mip, RefGaussians, RenderSettings};
+    let ctx = ctx();
+    let scene = lego();
+    let train = images::load_images(&scene, &scene.train).unwrap();
+    // Small Gaussians: the filters (a fraction of a pixel's footprint) then change them a lot.
+    let mut model = ground_truth_model(21, 300);
+    for l in model.log_scales.iter_mut().flatten() {
+        *l -= 3.0;
+    }
+    let mut cfg = fixed_config(1);
+    cfg.mip_filters = true;
+    let mut t = Trainer::new(&ctx, &scene, &train, &model, cfg.clone()).unwrap();
+    let exact = RefGaussians::from_params(&model);
+    let cams: Vec<_> = scene
+        .train
+        .iter()
+        .map(|&v| (scene.views[v].camera, scene.views[v].pose))
+        .collect();
+    let filter = mip::filter3d(&exact.positions, &cams).unwrap();
+    assert!(filter.iter().all(|&f| f > 0.0));
+    let fused = mip::fuse(&exact, &filter).unwrap();
+    let v = scene.train[1];
+    let (camera, pose) = (scene.views[v].camera, scene.views[v].pose);
+    let want = reference::render(
+        &fused,
+        &camera,
+        &pose,
+        0,
+        [0.0; 3],
+        &RenderSettings::mip_splatting(),
+    )
+    .unwrap();
+    let got = t.render_view(v, [0.0; 3]).unwrap();
+    let worst = got
+        .chunks(3)
+        .zip(&want.raster.image)
+        .flat_map(|(g, w)| (0..3).map(move |c| (g[c] as f64 - w[c]).abs()))
+        .fold(0.0, f64::max);
+    assert!(
+        worst < 2e-3,
+        "Mip render vs reference: max difference {worst}"
+    );
+    // Without the filters the image differs visibly (the test would not notice a missing one).
+    let plain = reference::render(
+        &exact,
+        &camera,
+        &pose,
+        0,
+        [0.0; 3],
+        &RenderSettings::default(),
+    )
+    .unwrap();
+    let apart = plain
+        .raster
+        .image
+        .iter()
+        .zip(&want.raster.image)
+        .flat_map(|(a, b)| (0..3).map(move |c| (a[c] - b[c]).abs()))
+        .fold(0.0, f64::max);
+    assert!(
+        apart > 0.02,
+        "the filters changed the image by only {apart}"
+    );
+    // The export folds the 3D filter in: rendered with the 2D filter alone, the same image.
+    let exported = t.export_model().unwrap();
+    let again = reference::render(
+        &RefGaussians::from_params(&exported),
+        &camera,
+        &pose,
+        0,
+        [0.0; 3],
+        &RenderSettings::mip_splatting(),
+    )
+    .unwrap();
+    let drift = again
+        .raster
+        .image
+        .iter()
+        .zip(&want.raster.image)
+        .flat_map(|(a, b)| (0..3).map(move |c| (a[c] - b[c]).abs()))
+        .fold(0.0, f64::max);
+    assert!(drift < 1e-3, "exported model renders {drift} away");
+
+    // Training with density steps and an opacity reset.
+    let mut cfg = cfg;
+    cfg.iterations = 12;
+    cfg.schedule.densify_from = 2;
+    cfg.schedule.densify_until = 10;
+    cfg.schedule.interval = 3;
+    cfg.schedule.opacity_reset_interval = 6;
+    cfg.density.grad_threshold = 1e-7;
+    let mut t = Trainer::new(&ctx, &scene, &train, &model, cfg).unwrap();
+    let mut grew = false;
+    for _ in 0..12 {
+        let r = t.step().unwrap();
+        assert!(r.loss.is_finite());
+        grew |= r.densified.is_some_and(|d| d.after > d.before);
+    }
+    assert!(grew, "no density step added Gaussians");
+    let out = t.export_model().unwrap();
+    assert_eq!(out.len(), t.gaussians());
+    out.validate().unwrap();
+    ctx.check_validation().unwrap();
+}

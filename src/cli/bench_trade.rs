@@ -416,7 +416,7 @@ fn evaluate_run(
     let (name, colour) = RUNS[r.k];
     let (m, _) = t.evaluate(scene, &scene.test, test_images)?;
     let (psnr, ssim) = mean_metrics(&m);
-    let model = t.model()?;
+    let model = t.export_model()?;
     let lpm_totals = t
         .strategy_as::<LpmStrategy>()
         .map(|l| l.totals)

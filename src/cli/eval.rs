@@ -10,8 +10,9 @@ use anyhow::Context;
 use clap::Args;
 use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions};
+use lpmsplat::models::BaseModel;
 use lpmsplat::render::forward::{Capacity, FrameSettings, Renderer};
-use lpmsplat::render::layout::{CameraGpu, RenderConstants};
+use lpmsplat::render::layout::CameraGpu;
 use lpmsplat::scene::{images, Image, Scene};
 use lpmsplat::splats::{gpu::GpuSplats, read_ply};
 use lpmsplat::train::trainer::{Background, ViewMetrics};
@@ -31,6 +32,10 @@ pub struct EvalArgs {
     /// Trained Gaussians (Inria-layout PLY, e.g. OUT/point_cloud.ply from `train`).
     #[arg(long)]
     pub ply: PathBuf,
+    /// The model the PLY was trained as: `mip-splatting` renders with its 2D Mip filter (the
+    /// exported PLY already holds the 3D filter); 3dgs and pixel-gs render alike.
+    #[arg(long, default_value = "3dgs", value_parser = BaseModel::parse)]
+    pub model: BaseModel,
     /// Background: black, white, or r,g,b in [0, 1]. Default: the scene's (white for
     /// NeRF-synthetic), black otherwise. Ground truth with alpha is composited on it.
     #[arg(long)]
@@ -126,7 +131,7 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
     let settings = FrameSettings {
         sh_degree: params.sh_degree,
         background: bg,
-        constants: RenderConstants::default(),
+        constants: args.model.render_constants(),
         filter3d: None,
     };
     let mut per_view = Vec::new();

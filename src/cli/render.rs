@@ -4,8 +4,9 @@ use super::SceneArgs;
 use anyhow::Context;
 use clap::Args;
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions};
+use lpmsplat::models::BaseModel;
 use lpmsplat::render::forward::{FrameSettings, Renderer};
-use lpmsplat::render::layout::{CameraGpu, RenderConstants};
+use lpmsplat::render::layout::CameraGpu;
 use lpmsplat::scene::{images, Image, Scene};
 use lpmsplat::splats::{gpu::GpuSplats, read_ply};
 use std::path::PathBuf;
@@ -17,6 +18,10 @@ pub struct RenderArgs {
     /// Trained Gaussians (Inria-layout PLY).
     #[arg(long)]
     pub ply: PathBuf,
+    /// The model the PLY was trained as: `mip-splatting` renders with its 2D Mip filter (the
+    /// exported PLY already holds the 3D filter); 3dgs and pixel-gs render alike.
+    #[arg(long, default_value = "3dgs", value_parser = BaseModel::parse)]
+    pub model: BaseModel,
     /// Output folder for the PNGs (created if missing).
     #[arg(long)]
     pub out: PathBuf,
@@ -68,7 +73,7 @@ pub fn run(gpu: &GpuOptions, args: &RenderArgs) -> anyhow::Result<()> {
     let settings = FrameSettings {
         sh_degree: params.sh_degree,
         background: bg,
-        constants: RenderConstants::default(),
+        constants: args.model.render_constants(),
         filter3d: None,
     };
     for (k, &i) in indices.iter().enumerate() {

@@ -525,7 +525,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         if super::interrupt::requested() {
             bar.abandon();
             trainer.save_checkpoint(&scene, &checkpoint_path)?;
-            write_ply(&args.out.join("point_cloud.ply"), &trainer.model()?)?;
+            write_ply(&args.out.join("point_cloud.ply"), &trainer.export_model()?)?;
             anyhow::bail!(
                 "interrupted (Ctrl-C) after iteration {}: wrote {} and {}. To continue: {}",
                 r.iteration,
@@ -598,7 +598,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     bar.finish();
     let train_s = t0.elapsed().as_secs_f64();
     let trained = (config.iterations - start_iteration).max(1);
-    let model = trainer.model()?;
+    let model = trainer.export_model()?;
     write_ply(&args.out.join("point_cloud.ply"), &model)?;
     trainer.save_checkpoint(&scene, &checkpoint_path)?;
 

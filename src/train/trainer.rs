@@ -33,6 +33,7 @@ use super::schedule::{sh_degree_at, DensitySchedule, LearningRates};
 use super::strategy::{Adc, DensityContext, DensityStrategy, IterationView, StrategyEvent};
 use crate::gpu::{BufferKind, GpuBuffer, GpuContext, Recorder, StageTimes, TimestampPool};
 use crate::render::backward::{Backward, BackwardArgs};
+use crate::render::filter3d::SmoothingFilter;
 use crate::render::forward::{Capacity, FrameSettings, Renderer};
 use crate::render::layout::{CameraGpu, RenderConstants};
 use crate::scene::{Image, Scene};
@@ -76,6 +77,11 @@ pub struct TrainConfig {
     pub ssim_weight: f32,
     /// Collect per-stage GPU timestamps every iteration.
     pub timestamps: bool,
+    /// Mip-Splatting's filters: the 2D Mip filter (eps2d 0.1 with the opacity compensation)
+    /// and the 3D smoothing filter (recomputed after every density step and every 100
+    /// iterations after densification, as the official code; the opacity reset acts on the
+    /// filtered opacity).
+    pub mip_filters: bool,
 }
 
 impl Default for TrainConfig {
@@ -90,6 +96,7 @@ impl Default for TrainConfig {
             schedule: DensitySchedule::default(),
             ssim_weight: 0.2,
             timestamps: false,
+            mip_filters: false,
         }
     }
 }
@@ -121,6 +128,10 @@ impl TrainConfig {
                 "white_background_reset": s.white_background,
             },
         });
+        // Only when on, so checkpoints from before the key still resume.
+        if self.mip_filters {
+            j["mip_filters"] = serde_json::json!(true);
+        }
         // Only when not the 3DGS default, so checkpoints from before the key still resume.
         if let Statistic::PixelWeighted { depth_threshold } = d.statistic {
             j["density"]["statistic"] = serde_json::json!({
@@ -175,6 +186,12 @@ pub struct Trainer {
     view_grad_norm: GpuBuffer<f32>,
     /// Pixels each Gaussian contributed to this iteration (only for statistics that use them).
     pixel_count: Option<GpuBuffer<u32>>,
+    /// Mip-Splatting's 3D filter (with `mip_filters`).
+    filter: Option<SmoothingFilter>,
+    /// The filter does not hold the current model's values (after density control).
+    filter_stale: bool,
+    /// The iteration whose evaluation model the filter was last computed for.
+    filter_eval_at: Option<u32>,
     pub(super) renderer: Renderer,
     backward: Backward,
     loss: Loss,
@@ -281,7 +298,20 @@ impl Trainer {
         if counts {
             backward = backward.with_pixel_counts(ctx)?;
         }
+        let filter = if config.mip_filters {
+            Some(SmoothingFilter::new(
+                ctx,
+                &cameras_host,
+                &scene.train,
+                capacity,
+            )?)
+        } else {
+            None
+        };
         Ok(Self {
+            filter,
+            filter_stale: true,
+            filter_eval_at: None,
             pixel_count: counts
                 .then(|| GpuBuffer::new(ctx, "pixel count", capacity, BufferKind::DeviceLocal))
                 .transpose()?,
@@ -388,6 +418,11 @@ impl Trainer {
             ..c
         })?;
         self.grads.count = self.state.count();
+        if let Some(f) = self.filter.as_mut() {
+            let before = f.values().len();
+            f.reserve(cap)?;
+            self.filter_stale |= f.values().len() != before;
+        }
         Ok(())
     }
 
@@ -405,6 +440,7 @@ impl Trainer {
     /// Runs one training iteration (waits for it).
     pub fn step(&mut self) -> anyhow::Result<StepReport> {
         self.iteration += 1;
+        self.filter_eval_at = None;
         let it = self.iteration;
         let cfg = self.config.clone();
         let view = self.views.next_view();
@@ -423,7 +459,24 @@ impl Trainer {
         if cfg.timestamps {
             self.rec.start_timestamps(&mut self.pool);
         }
-        let constants = RenderConstants::default();
+        let constants = self.render_constants();
+        // Mip-Splatting: the 3D filter of the model being trained, recomputed after density
+        // control and every 100 iterations after densification (never in the last 100).
+        if let Some(f) = &self.filter {
+            let refresh = it > cfg.schedule.densify_until
+                && it.is_multiple_of(100)
+                && it + 100 <= cfg.iterations;
+            if self.filter_stale || refresh {
+                f.record_update(
+                    &mut self.rec,
+                    &self.state.params.positions,
+                    &self.cameras,
+                    count,
+                )?;
+                self.filter_stale = false;
+            }
+        }
+        let filter3d = self.filter.as_ref().map(|f| f.values());
         self.renderer.record(
             &mut self.rec,
             &self.state.params,
@@ -434,7 +487,7 @@ impl Trainer {
                 sh_degree: sh,
                 background: bg,
                 constants,
-                filter3d: None,
+                filter3d,
             },
             if cfg.timestamps {
                 Some(&mut self.pool)
@@ -481,7 +534,7 @@ impl Trainer {
                 sh_degree: sh,
                 constants,
                 background: bg,
-                filter3d: None,
+                filter3d,
             },
             if cfg.timestamps {
                 Some(&mut self.pool)
@@ -596,12 +649,16 @@ impl Trainer {
             };
             let outcome = strategy.densify(&mut self.density_context(at.view)?, at, &args)?;
             self.follow_capacity()?;
+            // New and moved Gaussians need their 3D filter (the official code recomputes it
+            // after every densification).
+            self.filter_stale |= !outcome.skipped;
             if schedule.resets_opacity(it) {
-                self.density
-                    .record_opacity_reset(&mut self.rec, &self.state)?;
+                self.record_opacity_reset()?;
             }
+            let count = self.state.count();
             report.strategy = strategy.after_density(&mut self.density_context(at.view)?, at)?;
             self.follow_capacity()?;
+            self.filter_stale |= self.state.count() != count;
             if outcome.skipped {
                 // Nothing was rebuilt, so this iteration's gradients still belong to the model:
                 // its optimizer step runs as on any other iteration.
@@ -612,8 +669,7 @@ impl Trainer {
             report.densified = Some(outcome);
         } else if schedule.resets_opacity(it) {
             self.rec.begin()?;
-            self.density
-                .record_opacity_reset(&mut self.rec, &self.state)?;
+            self.record_opacity_reset()?;
             self.rec.submit_and_wait()?;
         }
         let reported = report.strategy.is_some();
@@ -656,6 +712,41 @@ impl Trainer {
         self.strategy.as_any().downcast_ref::<T>()
     }
 
+    /// Records the global opacity reset (into the begun `self.rec`); with the 3D filter, on the
+    /// filtered opacity, recomputing the filter first if density control changed the model.
+    fn record_opacity_reset(&mut self) -> anyhow::Result<()> {
+        match &self.filter {
+            Some(f) => {
+                if self.filter_stale {
+                    f.record_update(
+                        &mut self.rec,
+                        &self.state.params.positions,
+                        &self.cameras,
+                        self.state.count(),
+                    )?;
+                    self.filter_stale = false;
+                }
+                self.density.record_opacity_reset_filtered(
+                    &mut self.rec,
+                    &self.state,
+                    Some(f.values()),
+                )
+            }
+            None => self
+                .density
+                .record_opacity_reset(&mut self.rec, &self.state),
+        }
+    }
+
+    /// The rasterizer constants of this run (Mip-Splatting's 2D filter with `mip_filters`).
+    pub fn render_constants(&self) -> RenderConstants {
+        if self.config.mip_filters {
+            RenderConstants::from_settings(&crate::reference::RenderSettings::mip_splatting())
+        } else {
+            RenderConstants::default()
+        }
+    }
+
     /// Records iteration `it`'s Adam step into `self.rec` (begun).
     fn record_adam_step(&mut self, it: u32) -> anyhow::Result<()> {
         self.adam_step += 1;
@@ -691,6 +782,53 @@ impl Trainer {
         self.eval_params().download()
     }
 
+    /// Computes the 3D filter of the model [`Trainer::eval_params`] returns (waits), when the
+    /// run has one. The buffer then belongs to that model: the next step recomputes it.
+    fn filter_for_eval(&mut self) -> anyhow::Result<()> {
+        if self.filter_eval_at == Some(self.iteration) {
+            return Ok(());
+        }
+        let Some(f) = self.filter.as_mut() else {
+            return Ok(());
+        };
+        let params = snapshot_or(
+            &self.snapshot,
+            self.snapshot_iteration,
+            self.iteration,
+            &self.state.params,
+        );
+        f.reserve(params.count)?;
+        self.rec.begin()?;
+        f.record_update(
+            &mut self.rec,
+            &params.positions,
+            &self.cameras,
+            params.count,
+        )?;
+        self.rec.submit_and_wait()?;
+        self.filter_stale = true;
+        self.filter_eval_at = Some(self.iteration);
+        Ok(())
+    }
+
+    /// The model to export for ordinary 3DGS viewers: with Mip-Splatting's 3D filter folded
+    /// into scales and opacity (as the official `create_fused_ply.py`); the 2D filter cannot be
+    /// folded, so render it with `--model mip-splatting`. Without the filter: [`Trainer::model`].
+    pub fn export_model(&mut self) -> anyhow::Result<GaussianParams> {
+        let model = self.model()?;
+        if self.filter.is_none() {
+            return Ok(model);
+        }
+        self.filter_for_eval()?;
+        let f = self.filter.as_ref().expect("checked above");
+        let values = f.values().read_range(0, model.len())?;
+        let fused = crate::reference::mip::fuse(
+            &crate::reference::RefGaussians::from_params(&model),
+            &values.iter().map(|&v| v as f64).collect::<Vec<_>>(),
+        )?;
+        Ok(fused.to_params(model.sh_degree))
+    }
+
     /// Renders view `view` of the scene with the current model (RGB interleaved).
     pub fn render_view(&mut self, view: usize, background: [f32; 3]) -> anyhow::Result<Vec<f32>> {
         let cam = self.cameras_host[view];
@@ -700,6 +838,8 @@ impl Trainer {
             tiles: c.tiles.max(cam.tile_count() as usize),
             ..c
         })?;
+        self.filter_for_eval()?;
+        let constants = self.render_constants();
         // Field by field (not `eval_params`): the renderer is borrowed mutably below.
         let params = snapshot_or(
             &self.snapshot,
@@ -715,8 +855,8 @@ impl Trainer {
             &FrameSettings {
                 sh_degree: self.config.sh_degree,
                 background,
-                constants: RenderConstants::default(),
-                filter3d: None,
+                constants,
+                filter3d: self.filter.as_ref().map(|f| f.values()),
             },
         )?;
         self.renderer.read_image()
