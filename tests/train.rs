@@ -834,7 +834,6 @@ fn mip_splatting_renders_trains_and_exports_like_the_reference() {
     assert!(drift < 1e-3, "exported model renders {drift} away");
 
     // Training with density steps and an opacity reset.
-    let mut cfg = cfg;
     cfg.iterations = 12;
     cfg.schedule.densify_from = 2;
     cfg.schedule.densify_until = 10;
