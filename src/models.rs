@@ -52,13 +52,7 @@ impl BaseModel {
 
     /// The rasterizer constants its renders use (eval, render, viewers of an exported PLY).
     pub fn render_constants(&self) -> crate::render::layout::RenderConstants {
-        use crate::reference::RenderSettings;
-        match self {
-            BaseModel::MipSplatting => crate::render::layout::RenderConstants::from_settings(
-                &RenderSettings::mip_splatting(),
-            ),
-            _ => crate::render::layout::RenderConstants::default(),
-        }
+        crate::render::layout::RenderConstants::for_mip(*self == BaseModel::MipSplatting)
     }
 
     /// Sets what this model changes in `config` (leaves the rest, the 3DGS defaults or the

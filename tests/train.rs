@@ -744,6 +744,15 @@ fn snapshot_holds_the_model_before_density_control() {
     ctx.check_validation().unwrap();
 }
 
+/// The largest per-channel difference of two RGB images.
+fn max_difference_rgb(a: &[[f64; 3]], b: &[[f64; 3]]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    a.iter()
+        .zip(b)
+        .flat_map(|(x, y)| (0..3).map(move |c| (x[c] - y[c]).abs()))
+        .fold(0.0, f64::max)
+}
+
 /// Mip-Splatting in the trainer: a render is the f64 reference render of the model with the
 /// reference 3D filter (from the training cameras) folded in and the 2D filter on; the exported
 /// (fused) model rendered with only the 2D filter shows the same image; training through
@@ -782,12 +791,13 @@ fn mip_splatting_renders_trains_and_exports_like_the_reference() {
         &RenderSettings::mip_splatting(),
     )
     .unwrap();
-    let got = t.render_view(v, [0.0; 3]).unwrap();
-    let worst = got
+    let got: Vec<[f64; 3]> = t
+        .render_view(v, [0.0; 3])
+        .unwrap()
         .chunks(3)
-        .zip(&want.raster.image)
-        .flat_map(|(g, w)| (0..3).map(move |c| (g[c] as f64 - w[c]).abs()))
-        .fold(0.0, f64::max);
+        .map(|p| [p[0] as f64, p[1] as f64, p[2] as f64])
+        .collect();
+    let worst = max_difference_rgb(&got, &want.raster.image);
     assert!(
         worst < 2e-3,
         "Mip render vs reference: max difference {worst}"
@@ -802,13 +812,7 @@ fn mip_splatting_renders_trains_and_exports_like_the_reference() {
         &RenderSettings::default(),
     )
     .unwrap();
-    let apart = plain
-        .raster
-        .image
-        .iter()
-        .zip(&want.raster.image)
-        .flat_map(|(a, b)| (0..3).map(move |c| (a[c] - b[c]).abs()))
-        .fold(0.0, f64::max);
+    let apart = max_difference_rgb(&plain.raster.image, &want.raster.image);
     assert!(
         apart > 0.02,
         "the filters changed the image by only {apart}"
@@ -824,13 +828,7 @@ fn mip_splatting_renders_trains_and_exports_like_the_reference() {
         &RenderSettings::mip_splatting(),
     )
     .unwrap();
-    let drift = again
-        .raster
-        .image
-        .iter()
-        .zip(&want.raster.image)
-        .flat_map(|(a, b)| (0..3).map(move |c| (a[c] - b[c]).abs()))
-        .fold(0.0, f64::max);
+    let drift = max_difference_rgb(&again.raster.image, &want.raster.image);
     assert!(drift < 1e-3, "exported model renders {drift} away");
 
     // Training with density steps and an opacity reset.

@@ -28,8 +28,9 @@ pub struct TrainArgs {
     pub out: PathBuf,
     #[arg(long, default_value_t = 30_000)]
     pub iterations: u32,
-    /// Base model: 3dgs, or pixel-gs (Pixel-GS's pixel-weighted densification statistic).
-    /// Combines with --lpm.
+    /// Base model: 3dgs, pixel-gs (Pixel-GS's pixel-weighted densification statistic) or
+    /// mip-splatting (3D smoothing and 2D Mip filters; the PLY has the 3D filter fused in,
+    /// evaluate it with `eval --model mip-splatting`). Combines with --lpm.
     #[arg(long, default_value = "3dgs", value_parser = BaseModel::parse)]
     pub model: BaseModel,
     #[arg(long, default_value_t = 0)]

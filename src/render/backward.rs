@@ -229,27 +229,18 @@ impl Backward {
         let spec = [float_atomics as u32, pixels, count_pixels as u32];
         let push = std::mem::size_of::<RasterPush>() as u32;
         // A device without float atomics gets SPIR-V that does not declare the capability.
-        if ctx.info.float_atomic_add {
-            ComputePipeline::new(
-                ctx,
+        let (name, spirv) = if ctx.info.float_atomic_add {
+            (
                 "backward/rasterize_backward",
                 shaders::BACKWARD_RASTERIZE_BACKWARD,
-                9,
-                push,
-                wg,
-                &spec,
             )
         } else {
-            ComputePipeline::new(
-                ctx,
+            (
                 "backward/rasterize_backward_cas",
                 shaders::BACKWARD_RASTERIZE_BACKWARD_CAS,
-                9,
-                push,
-                wg,
-                &spec,
             )
-        }
+        };
+        ComputePipeline::new(ctx, name, spirv, 9, push, wg, &spec)
     }
 
     /// Also builds the pixel-counting variant of the rasterizer backward, so that

@@ -141,6 +141,16 @@ impl RenderConstants {
     /// backward when one is given).
     pub const FILTER_3D: u32 = 4;
 
+    /// The constants of Mip-Splatting's renders (eps2d 0.1 with the 2D filter's compensation)
+    /// when `mip`, else the 3DGS defaults.
+    pub fn for_mip(mip: bool) -> Self {
+        if mip {
+            Self::from_settings(&crate::reference::RenderSettings::mip_splatting())
+        } else {
+            Self::default()
+        }
+    }
+
     pub fn from_settings(s: &crate::reference::RenderSettings) -> Self {
         assert_eq!(
             s.tile_size, TILE_SIZE,

@@ -740,11 +740,7 @@ impl Trainer {
 
     /// The rasterizer constants of this run (Mip-Splatting's 2D filter with `mip_filters`).
     pub fn render_constants(&self) -> RenderConstants {
-        if self.config.mip_filters {
-            RenderConstants::from_settings(&crate::reference::RenderSettings::mip_splatting())
-        } else {
-            RenderConstants::default()
-        }
+        RenderConstants::for_mip(self.config.mip_filters)
     }
 
     /// Records iteration `it`'s Adam step into `self.rec` (begun).
