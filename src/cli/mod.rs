@@ -2,6 +2,7 @@
 
 mod bench;
 mod eval;
+mod export;
 mod info;
 mod interrupt;
 mod matching;
@@ -36,14 +37,16 @@ pub enum Command {
     Info(info::InfoArgs),
     /// Extract and cache LPM correspondences for all neighbour view pairs.
     Match(matching::MatchArgs),
-    /// Render chosen cameras of a scene from a trained PLY into PNGs.
+    /// Render chosen cameras of a scene from a trained PLY into PNGs, or an orbit into a GIF.
     Render(render::RenderArgs),
     /// Train a scene (ADC baseline) and write the PLY, test renders and metrics.
     Train(train::TrainArgs),
     /// PSNR and SSIM of a trained PLY on a scene's test views (table, JSON, side-by-side PNGs).
     Eval(eval::EvalArgs),
-    /// Benchmarks: `bench fps` (rendering speed and per-stage GPU time).
+    /// Benchmarks: `bench fps` (rendering speed and per-stage GPU time), `bench trade`.
     Bench(bench::BenchArgs),
+    /// Convert a trained PLY to the compact `.splat` format of web viewers.
+    Export(export::ExportArgs),
 }
 
 /// Scene-loading flags shared by the subcommands that read a scene.
@@ -90,5 +93,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bench(a) => bench::run(&gpu, &a),
         Command::Train(a) => train::run(&gpu, &a),
         Command::Eval(a) => eval::run(&gpu, &a),
+        Command::Export(a) => export::run(&a),
     }
 }

@@ -7,8 +7,9 @@ use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions};
 use lpmsplat::models::BaseModel;
 use lpmsplat::render::forward::{FrameSettings, Renderer};
 use lpmsplat::render::layout::CameraGpu;
+use lpmsplat::scene::orbit::Orbit;
 use lpmsplat::scene::{images, Image, Scene};
-use lpmsplat::splats::{gpu::GpuSplats, read_ply};
+use lpmsplat::splats::{gpu::GpuSplats, read_ply, GaussianParams};
 use std::path::PathBuf;
 
 #[derive(Args, Debug)]
@@ -31,6 +32,14 @@ pub struct RenderArgs {
     /// Background colour as r,g,b in [0, 1] (default: the scene's, black for COLMAP scenes).
     #[arg(long, value_parser = parse_rgb)]
     pub background: Option<[f32; 3]>,
+    /// Instead of the scene's cameras, render N frames on a closed path around the scene (a
+    /// turntable for 360° captures, a small ellipse for forward-facing ones; see
+    /// `scene::orbit`) into OUT/orbit.gif, at the first training camera's size and focal length.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(2..=2000))]
+    pub orbit: Option<u32>,
+    /// Frames per second of the orbit GIF.
+    #[arg(long, default_value_t = 25, value_parser = clap::value_parser!(u32).range(1..=100))]
+    pub fps: u32,
 }
 
 pub fn parse_rgb(s: &str) -> Result<[f32; 3], String> {
@@ -48,6 +57,9 @@ pub fn parse_rgb(s: &str) -> Result<[f32; 3], String> {
 pub fn run(gpu: &GpuOptions, args: &RenderArgs) -> anyhow::Result<()> {
     let scene = Scene::load(&args.scene.scene, &args.scene.load_options()?)?;
     let params = read_ply(&args.ply)?;
+    if let Some(frames) = args.orbit {
+        return render_orbit(gpu, args, &scene, &params, frames as usize);
+    }
     let indices: Vec<usize> = match args.cameras.as_str() {
         "train" => scene.train.clone(),
         "test" => scene.test.clone(),
@@ -91,4 +103,123 @@ pub fn run(gpu: &GpuOptions, args: &RenderArgs) -> anyhow::Result<()> {
     }
     ctx.check_validation()?;
     Ok(())
+}
+
+/// Renders `frames` views along the scene's orbit into OUT/orbit.gif.
+fn render_orbit(
+    gpu: &GpuOptions,
+    args: &RenderArgs,
+    scene: &Scene,
+    params: &GaussianParams,
+    frames: usize,
+) -> anyhow::Result<()> {
+    lpmsplat::splats::require_nonempty(&args.ply, params)?;
+    let fitted: Vec<usize> = if scene.train.is_empty() {
+        (0..scene.views.len()).collect()
+    } else {
+        scene.train.clone()
+    };
+    let poses: Vec<_> = fitted.iter().map(|&i| scene.views[i].pose).collect();
+    // Forward-facing captures look at the model's median depth along the mean optical axis.
+    let orbit = Orbit::fit(&poses, |centre, axis| {
+        let mut depths: Vec<f64> = params
+            .positions
+            .iter()
+            .map(|p| (glam::DVec3::from_array(p.map(f64::from)) - centre).dot(axis))
+            .filter(|d| *d > 0.0)
+            .collect();
+        if depths.is_empty() {
+            return 1.0;
+        }
+        let mid = depths.len() / 2;
+        *depths.select_nth_unstable_by(mid, f64::total_cmp).1
+    });
+    let camera = scene.views[fitted[0]].camera;
+    let cams: Vec<CameraGpu> = orbit
+        .poses(frames)
+        .iter()
+        .map(|pose| CameraGpu::new(&camera, pose))
+        .collect();
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating output folder {}", args.out.display()))?;
+    let ctx = GpuContext::new(gpu)?;
+    let splats = GpuSplats::upload(&ctx, params, params.len())?;
+    let cameras = GpuBuffer::from_slice(&ctx, "cameras", &cams)?;
+    let mut renderer = Renderer::for_camera(&ctx, params.len(), &cams[0])?;
+    let settings = FrameSettings {
+        sh_degree: params.sh_degree,
+        background: args.background.or(scene.background).unwrap_or([0.0; 3]),
+        constants: args.model.render_constants(),
+        filter3d: None,
+    };
+    let path = args.out.join("orbit.gif");
+    let mut gif = OrbitGif::new(camera.width, camera.height, args.fps);
+    for (k, cam) in cams.iter().enumerate() {
+        renderer.render_blocking(&splats, &cameras, k as u32, cam, &settings)?;
+        gif.push(&renderer.read_image()?)?;
+    }
+    ctx.check_validation()?;
+    gif.write(&path)?;
+    println!(
+        "{} ({frames} frames, {}×{}, {:?} orbit around [{:.3}, {:.3}, {:.3}])",
+        path.display(),
+        camera.width,
+        camera.height,
+        orbit.kind,
+        orbit.target[0],
+        orbit.target[1],
+        orbit.target[2]
+    );
+    Ok(())
+}
+
+/// An animated GIF built in memory (frames quantised to 256 colours each with NeuQuant) and
+/// written atomically at the end, so an interrupted render leaves no half file.
+struct OrbitGif {
+    width: u16,
+    height: u16,
+    delay_cs: u16,
+    frames: Vec<gif::Frame<'static>>,
+}
+
+impl OrbitGif {
+    fn new(width: u32, height: u32, fps: u32) -> OrbitGif {
+        OrbitGif {
+            width: width.min(u16::MAX as u32) as u16,
+            height: height.min(u16::MAX as u32) as u16,
+            delay_cs: (100 / fps.max(1)).max(1) as u16,
+            frames: Vec::new(),
+        }
+    }
+
+    fn push(&mut self, rgb: &[f32]) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            rgb.len() == self.width as usize * self.height as usize * 3,
+            "a GIF frame must be {}×{} (at most 65535 px a side)",
+            self.width,
+            self.height
+        );
+        let bytes: Vec<u8> = rgb
+            .iter()
+            .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
+            .collect();
+        // Speed 10 of 1..=30: NeuQuant's usual quality / time balance.
+        let mut frame = gif::Frame::from_rgb_speed(self.width, self.height, &bytes, 10);
+        frame.delay = self.delay_cs;
+        self.frames.push(frame);
+        Ok(())
+    }
+
+    fn write(self, path: &std::path::Path) -> anyhow::Result<()> {
+        lpmsplat::error::write_atomic(path, |file| {
+            let mut enc =
+                gif::Encoder::new(std::io::BufWriter::new(file), self.width, self.height, &[])?;
+            enc.set_repeat(gif::Repeat::Infinite)?;
+            for frame in &self.frames {
+                enc.write_frame(frame)?;
+            }
+            Ok(())
+        })
+        .with_context(|| format!("{}: writing the GIF failed", path.display()))
+    }
 }

@@ -12,7 +12,7 @@ use lpmsplat::lpm::strategy::{LpmConfig, LpmStrategy, PruneMode};
 use lpmsplat::lpm::{self, ZoneGeometry};
 use lpmsplat::models::BaseModel;
 use lpmsplat::scene::{images, Image, Scene};
-use lpmsplat::splats::{self, read_ply, write_ply, GaussianParams};
+use lpmsplat::splats::{self, read_ply, write_ply, write_splat, GaussianParams};
 use lpmsplat::train::nan_check::NonFiniteCheck;
 use lpmsplat::train::trainer::{Background, TrainConfig, Trainer, ViewMetrics};
 use std::io::Write;
@@ -601,6 +601,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     let trained = (config.iterations - start_iteration).max(1);
     let model = trainer.export_model()?;
     write_ply(&args.out.join("point_cloud.ply"), &model)?;
+    write_splat(&args.out.join("point_cloud.splat"), &model)?;
     trainer.save_checkpoint(&scene, &checkpoint_path)?;
 
     // Final evaluation and renders.

@@ -8,6 +8,7 @@
 pub mod camera;
 pub mod colmap;
 pub mod images;
+pub mod orbit;
 pub mod split;
 pub mod transforms;
 pub mod undistort;

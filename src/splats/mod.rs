@@ -1,4 +1,4 @@
-//! The Gaussian model: host-side parameters, PLY in/out (Inria layout), initialisation.
+//! The Gaussian model: host-side parameters, PLY in/out (Inria layout), `.splat` out (web viewers), initialisation.
 //!
 //! The GPU parameter buffers are filled from [`GaussianParams`]; this module keeps to plain
 //! host arrays.
@@ -8,7 +8,9 @@ pub mod init;
 pub mod knn;
 pub mod model;
 pub mod ply;
+pub mod splat_file;
 
 pub use init::{from_sfm, from_sfm_points, random_init};
 pub use model::{GaussianParams, ParamField, MAX_SH_DEGREE, SH_C0};
 pub use ply::{read_ply, read_ply_with_degree, require_nonempty, write_ply};
+pub use splat_file::write_splat;
