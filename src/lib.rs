@@ -10,6 +10,7 @@ pub mod gpu;
 pub mod lpm;
 pub mod metrics;
 pub mod models;
+pub mod plot;
 pub mod reference;
 pub mod render;
 pub mod scene;

@@ -516,6 +516,68 @@ fn cli_train_resume_eval_end_to_end() {
             / 3.0;
         assert!((mean - e["psnr"].as_f64().unwrap()).abs() < 1e-9, "{e}");
     }
+    // The pictures and the compact export: training.png (3 × 2 panels of 520 × 300), the
+    // curves' samples in metrics.json, point_cloud.splat (32 bytes a Gaussian), which `export`
+    // reproduces from the PLY.
+    let plot = images::decode_image(&out.join("training.png")).unwrap();
+    assert_eq!((plot.width, plot.height), (1040, 900));
+    let history = metrics["history"].as_array().unwrap();
+    assert_eq!(
+        history.len(),
+        1,
+        "every 10 iterations and the last: {history:?}"
+    );
+    assert_eq!(history[0]["iteration"], 6);
+    assert_eq!(history[0]["gaussians"], 300);
+    let splat = std::fs::read(out.join("point_cloud.splat")).unwrap();
+    assert_eq!(splat.len(), 300 * 32);
+    let exported = dir.path().join("exported.splat");
+    let text = run_ok(
+        lpmsplat()
+            .arg("export")
+            .arg("--ply")
+            .arg(out.join("point_cloud.ply"))
+            .arg("--splat")
+            .arg(&exported),
+    );
+    assert!(text.contains("300 Gaussians"), "{text}");
+    assert_eq!(std::fs::read(&exported).unwrap(), splat);
+    let e = run_err(
+        lpmsplat()
+            .arg("export")
+            .arg("--ply")
+            .arg(dir.path().join("missing.ply")),
+    );
+    assert!(e.contains("missing.ply") && e.contains("Fix:"), "{e}");
+
+    // render --orbit: a looping GIF of N frames at the training cameras' size.
+    let orbit = dir.path().join("orbit");
+    let text = run_ok(
+        lpmsplat()
+            .arg("render")
+            .arg(&scene)
+            .arg("--ply")
+            .arg(out.join("point_cloud.ply"))
+            .arg("--out")
+            .arg(&orbit)
+            .args(["--orbit", "5"]),
+    );
+    assert!(text.contains("Inward"), "lego is a 360° capture: {text}");
+    let mut opts = gif::DecodeOptions::new();
+    opts.set_color_output(gif::ColorOutput::RGBA);
+    let mut dec = opts
+        .read_info(std::fs::File::open(orbit.join("orbit.gif")).unwrap())
+        .unwrap();
+    assert_eq!((dec.width(), dec.height()), (100, 100));
+    let mut frames = 0;
+    let mut lit = 0;
+    while let Some(f) = dec.read_next_frame().unwrap() {
+        frames += 1;
+        lit += f.buffer.chunks(4).filter(|p| p[..3] != [0, 0, 0]).count();
+    }
+    assert_eq!(frames, 5);
+    assert!(lit > 0, "the orbit frames show the model");
+
     let config: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("config.json")).unwrap()).unwrap();
     assert_eq!(config["iterations"], 6);

@@ -17,6 +17,8 @@ use std::time::Instant;
 
 #[path = "bench_trade.rs"]
 mod trade;
+#[path = "trade_report.rs"]
+mod trade_report;
 
 #[derive(Args, Debug)]
 pub struct BenchArgs {

@@ -4,6 +4,7 @@
 //! and `trade.png` (PSNR against Gaussian count, left, and against training time, right; one
 //! colour per run, listed in the table).
 
+use super::trade_report;
 use crate::cli::train::{background_from, build_lpm, initial_model, mean_metrics, prepare_output};
 use crate::cli::SceneArgs;
 use anyhow::Context;
@@ -23,6 +24,7 @@ fn parse_prune(s: &str) -> anyhow::Result<PruneMode> {
     PruneMode::parse(s)
 }
 use lpmsplat::models::BaseModel;
+use lpmsplat::plot::{panels_png, Panel, Series};
 use lpmsplat::train::trainer::{TrainConfig, Trainer};
 use std::io::Write;
 use std::path::PathBuf;
@@ -86,6 +88,10 @@ pub struct TradeArgs {
     /// LPM runs: fraction of error pixels that keeps a block (as `train --lpm-block-fraction`).
     #[arg(long, default_value_t = 0.85)]
     pub lpm_block_fraction: f32,
+    /// The test view trade.html shows (name, file stem or index into the test views; default
+    /// the first): the truth beside each run's final render and error map.
+    #[arg(long)]
+    pub report_view: Option<String>,
 }
 
 #[derive(Debug, Clone, serde::Serialize)]
@@ -112,6 +118,9 @@ pub struct TradeRow {
     pub lpm_pruned: f64,
     pub lpm_radius: f64,
     pub fps_1352x1014: f64,
+    /// PSNR on the report's test view (final iteration, first seed only: the rows whose render
+    /// trade.html shows).
+    pub view_psnr: Option<f64>,
 }
 
 pub const RUNS: [(&str, [u8; 3]); 7] = [
@@ -143,6 +152,10 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
         args.scene.scene.display()
     );
     prepare_output(&args.out)?;
+    let view_name = scene.views
+        [scene.test[trade_report::report_view(&scene, args.report_view.as_deref())?]]
+    .name
+    .clone();
     let train_images = images::load_images(&scene, &scene.train)?;
     let test_images = images::load_images(&scene, &scene.test)?;
     let seeds: Vec<u64> = (0..args.seeds as u64).map(|i| args.seed + i).collect();
@@ -318,7 +331,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                         r.seed,
                     )
                 });
-                write_outputs(&rows, &ctx.info.name, args)?;
+                write_outputs(&rows, &ctx.info.name, &view_name, args)?;
             }
         }
         for &i in &group {
@@ -333,7 +346,12 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
 }
 
 /// Writes trade.md, trade.json and trade.png for the rows so far (atomically).
-fn write_outputs(rows: &[TradeRow], device: &str, args: &TradeArgs) -> anyhow::Result<()> {
+fn write_outputs(
+    rows: &[TradeRow],
+    device: &str,
+    view_name: &str,
+    args: &TradeArgs,
+) -> anyhow::Result<()> {
     let summary = summarize(rows);
     let table = table(&summary, device, args);
     write_atomic(&args.out.join("trade.md"), |f| {
@@ -359,6 +377,13 @@ fn write_outputs(rows: &[TradeRow], device: &str, args: &TradeArgs) -> anyhow::R
     })?;
     let png = plot(&summary.iter().map(Summary::as_row).collect::<Vec<_>>())?;
     write_atomic(&args.out.join("trade.png"), |f| Ok(f.write_all(&png)?))?;
+    let title = format!(
+        "bench trade: {}, {}, {} iterations",
+        args.scene.scene.display(),
+        args.model.name(),
+        args.iterations
+    );
+    trade_report::write_html(&args.out, &title, view_name, rows, &summary, &table)?;
     Ok(())
 }
 
@@ -415,8 +440,16 @@ fn evaluate_run(
     args: &TradeArgs,
 ) -> anyhow::Result<TradeRow> {
     let (name, colour) = RUNS[r.k];
-    let (m, _) = t.evaluate(scene, &scene.test, test_images)?;
+    let (m, renders) = t.evaluate(scene, &scene.test, test_images)?;
     let (psnr, ssim) = mean_metrics(&m);
+    let mut view_psnr = None;
+    if iteration == args.iterations && r.seed == args.seed {
+        let k = trade_report::report_view(scene, args.report_view.as_deref())?;
+        let bg = t.config.background.eval_colour();
+        let truth = images::composite_on_background(&test_images[k], bg);
+        trade_report::save_view_images(&args.out, name, &renders[k], &truth)?;
+        view_psnr = Some(m[k].psnr);
+    }
     let model = t.export_model()?;
     let lpm_totals = t
         .strategy_as::<LpmStrategy>()
@@ -455,6 +488,7 @@ fn evaluate_run(
         lpm_pruned: lpm_totals.pruned as f64,
         lpm_radius: lpm_totals.radius_mean,
         fps_1352x1014: fps,
+        view_psnr,
     };
     let name = if args.seeds > 1 {
         format!("{name} (seed {})", r.seed)
@@ -555,6 +589,7 @@ impl Summary {
             lpm_pruned: self.lpm_pruned,
             lpm_radius: self.lpm_radius,
             fps_1352x1014: self.fps_1352x1014,
+            view_psnr: None,
         }
     }
 }
@@ -652,8 +687,9 @@ fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
     let mut s = format!(
         "bench trade: {} {resolution}, base model {}, {} iterations on the calendar of {}, {device}; LPM \
          error blocks of {} kept above {} error pixels\n\n{} \
-         trade.png plots PSNR (dB, y) against Gaussians (left) and training seconds (right), in \
-         the colours below, one line per run through its evaluated iterations.{}\n\n\
+         trade.png plots test PSNR against Gaussians and training seconds (top), and PSNR and \
+         Gaussians against iterations (bottom), one named line per run through its evaluated \
+         iterations; trade.html shows the plot, this table and the runs' renders.{}\n\n\
          | run | iteration | colour | PSNR | ΔPSNR vs adc | SSIM | LPIPS | Gaussians | train s | time vs adc | ms/it | LPM ms/it (share) | LPM zones · densified · pruned · added · reset · zone radius / extent | FPS 1352×1014 |\n\
          |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
         args.scene.scene.display(),
@@ -732,162 +768,68 @@ fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
     s
 }
 
-/// 3×5 bitmaps of the characters axis labels use (digits, '.', '-'), one row of 3 bits each,
-/// top row first (bit 2 = left column).
-fn glyph(c: char) -> Option<[u8; 5]> {
-    Some(match c {
-        '0' => [7, 5, 5, 5, 7],
-        '1' => [2, 6, 2, 2, 7],
-        '2' => [7, 1, 7, 4, 7],
-        '3' => [7, 1, 7, 1, 7],
-        '4' => [5, 5, 7, 1, 1],
-        '5' => [7, 4, 7, 1, 7],
-        '6' => [7, 4, 7, 5, 7],
-        '7' => [7, 1, 1, 1, 1],
-        '8' => [7, 5, 7, 5, 7],
-        '9' => [7, 5, 7, 1, 7],
-        '.' => [0, 0, 0, 0, 2],
-        '-' => [0, 0, 7, 0, 0],
-        _ => return None,
-    })
-}
-
-/// Draws `text` with its top-left corner at (x, y), each font pixel a 2×2 square.
-fn draw_text(img: &mut image::RgbImage, x: i64, y: i64, text: &str) {
-    let (w, h) = (img.width() as i64, img.height() as i64);
-    for (k, c) in text.chars().enumerate() {
-        let Some(rows) = glyph(c) else { continue };
-        for (r, bits) in rows.iter().enumerate() {
-            for col in 0..3 {
-                if bits & (4 >> col) == 0 {
-                    continue;
-                }
-                for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-                    let px = x + 8 * k as i64 + 2 * col + dx;
-                    let py = y + 2 * r as i64 + dy;
-                    if px >= 0 && py >= 0 && px < w && py < h {
-                        img.put_pixel(px as u32, py as u32, image::Rgb([0, 0, 0]));
-                    }
-                }
-            }
-        }
-    }
-}
-
-/// Two panels side by side: PSNR in dB (y) against Gaussian count (left) and against training
-/// seconds (right), each axis spanning its data with a 10 % margin and labelled with the data's
-/// smallest and largest values at tick marks; a 7-px square marker per evaluated row, and a
-/// 1-px line joining a run's rows in iteration order (its trajectory).
+/// Four panels (2 × 2): PSNR against Gaussians and against training seconds (the trade-off),
+/// then PSNR and Gaussians against iterations (the curves). One line per run through its
+/// evaluated iterations, in the run's colour, named in the legend; a dot per evaluation.
 fn plot(rows: &[TradeRow]) -> anyhow::Result<Vec<u8>> {
-    // Panel size, left margin (y labels), bottom margin (x labels), top/right margin.
-    let (pw, ph, ml, mb, mt) = (420u32, 300u32, 60u32, 30u32, 15u32);
-    let mut img = image::RgbImage::from_pixel(2 * pw, ph, image::Rgb([255, 255, 255]));
-    let range = |v: &mut dyn Iterator<Item = f64>| {
-        v.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
-            (a.min(x), b.max(x))
-        })
-    };
-    let pad = |(lo, hi): (f64, f64)| {
-        let p = ((hi - lo) * 0.1).max(1e-9);
-        (lo - p, hi + p)
-    };
-    let finite: Vec<&TradeRow> = rows.iter().filter(|r| r.psnr.is_finite()).collect();
-    let y_data = range(&mut finite.iter().map(|r| r.psnr));
-    let ys = pad(y_data);
-    let x_data = [
-        range(&mut finite.iter().map(|r| r.gaussians as f64)),
-        range(&mut finite.iter().map(|r| r.train_seconds)),
-    ];
-    for (panel, &xd) in x_data.iter().enumerate() {
-        let (x0, x1) = pad(xd);
-        let ox = panel as u32 * pw;
-        let axis = image::Rgb([0, 0, 0]);
-        let (left, bottom) = (ox + ml, ph - mb);
-        for x in left..ox + pw - mt {
-            img.put_pixel(x, bottom, axis);
-        }
-        for y in mt..bottom {
-            img.put_pixel(left, y, axis);
-        }
-        let to_px = |x: f64, y: f64| {
-            (
-                left as f64 + (x - x0) / (x1 - x0) * (pw - ml - mt) as f64,
-                bottom as f64 - (y - ys.0) / (ys.1 - ys.0) * (ph - mb - mt) as f64,
-            )
-        };
-        if finite.is_empty() {
-            continue;
-        }
-        // Ticks and labels at the data's extremes.
-        for v in [y_data.0, y_data.1] {
-            let (_, py) = to_px(x0, v);
-            for x in left - 4..left {
-                img.put_pixel(x, py as u32, axis);
-            }
-            let text = format!("{v:.2}");
-            draw_text(
-                &mut img,
-                left as i64 - 6 - 8 * text.len() as i64,
-                py as i64 - 5,
-                &text,
-            );
-        }
-        for v in [xd.0, xd.1] {
-            let (px, _) = to_px(v, ys.0);
-            for y in bottom + 1..bottom + 5 {
-                img.put_pixel(px as u32, y, axis);
-            }
-            let text = if panel == 0 {
-                format!("{v:.0}")
-            } else {
-                format!("{v:.1}")
-            };
-            let half = 4 * text.len() as i64;
-            draw_text(&mut img, px as i64 - half, bottom as i64 + 8, &text);
-        }
-        let point = |r: &TradeRow| {
-            let x = if panel == 0 {
-                r.gaussians as f64
-            } else {
-                r.train_seconds
-            };
-            to_px(x, r.psnr)
-        };
-        let mut put = |x: i64, y: i64, c: [u8; 3]| {
-            if x >= 0 && y >= 0 && (x as u32) < 2 * pw && (y as u32) < ph {
-                img.put_pixel(x as u32, y as u32, image::Rgb(c));
-            }
-        };
-        for (name, colour) in RUNS {
-            let mut path: Vec<&TradeRow> =
-                finite.iter().copied().filter(|r| r.run == name).collect();
-            path.sort_by_key(|r| r.iteration);
-            for w in path.windows(2) {
-                let ((ax, ay), (bx, by)) = (point(w[0]), point(w[1]));
-                let steps = (bx - ax).abs().max((by - ay).abs()).ceil().max(1.0) as i64;
-                for s in 0..=steps {
-                    let f = s as f64 / steps as f64;
-                    put(
-                        (ax + f * (bx - ax)) as i64,
-                        (ay + f * (by - ay)) as i64,
-                        colour,
-                    );
-                }
-            }
-            for r in path {
-                let (px, py) = point(r);
-                for dy in -3i64..=3 {
-                    for dx in -3i64..=3 {
-                        put(px as i64 + dx, py as i64 + dy, colour);
-                    }
-                }
-            }
+    let mut names: Vec<&str> = Vec::new();
+    for r in rows {
+        if !names.contains(&r.run.as_str()) {
+            names.push(&r.run);
         }
     }
-    let mut out = Vec::new();
-    image::DynamicImage::ImageRgb8(img)
-        .write_to(&mut std::io::Cursor::new(&mut out), image::ImageFormat::Png)?;
-    Ok(out)
+    let series = |x: &dyn Fn(&TradeRow) -> f64, y: &dyn Fn(&TradeRow) -> f64| -> Vec<Series> {
+        names
+            .iter()
+            .map(|&n| {
+                let mut own: Vec<&TradeRow> = rows.iter().filter(|r| r.run == n).collect();
+                own.sort_by_key(|r| r.iteration);
+                Series {
+                    name: n.to_string(),
+                    colour: own[0].colour,
+                    points: own.iter().map(|r| (x(r), y(r))).collect(),
+                    markers: true,
+                }
+            })
+            .collect()
+    };
+    let panel = |title: &str, x_label: &str, y_label: &str, series: Vec<Series>| Panel {
+        title: title.into(),
+        x_label: x_label.into(),
+        y_label: y_label.into(),
+        series,
+    };
+    let psnr = |r: &TradeRow| r.psnr;
+    let gaussians = |r: &TradeRow| r.gaussians as f64;
+    let seconds = |r: &TradeRow| r.train_seconds;
+    let iteration = |r: &TradeRow| r.iteration as f64;
+    let panels = [
+        panel(
+            "PSNR against model size",
+            "Gaussians",
+            "test PSNR (dB)",
+            series(&gaussians, &psnr),
+        ),
+        panel(
+            "PSNR against training time",
+            "training seconds",
+            "test PSNR (dB)",
+            series(&seconds, &psnr),
+        ),
+        panel(
+            "PSNR over training",
+            "iteration",
+            "test PSNR (dB)",
+            series(&iteration, &psnr),
+        ),
+        panel(
+            "Gaussians over training",
+            "iteration",
+            "Gaussians",
+            series(&iteration, &gaussians),
+        ),
+    ];
+    panels_png(&panels, 2, 520, 340)
 }
 
 #[cfg(test)]
@@ -916,11 +858,12 @@ mod tests {
             lpm_pruned: 0.0,
             lpm_radius: 0.0,
             fps_1352x1014: 1.0,
+            view_psnr: None,
         }
     }
 
     #[test]
-    fn plot_draws_each_run_in_its_colour_with_labelled_axes() {
+    fn plot_draws_each_run_in_its_colour() {
         let rows = [
             row("adc", 1000, 33.937, 44_467, 487.7),
             row("adc+lpm", 1000, 34.398, 45_529, 482.7),
@@ -929,28 +872,24 @@ mod tests {
         ];
         let png = plot(&rows).unwrap();
         let img = image::load_from_memory(&png).unwrap().to_rgb8();
-        assert_eq!((img.width(), img.height()), (840, 300));
+        assert_eq!((img.width(), img.height()), (1040, 680));
         let count = |c: [u8; 3]| img.pixels().filter(|p| p.0 == c).count();
-        // Four markers of 49 px per panel pair for each run, plus its trajectory lines.
+        // Two dots (~50 px each) per panel, four panels, plus the lines and the legend swatch.
         for (name, colour) in [RUNS[0], RUNS[2]] {
-            assert!(count(colour) >= 2 * 2 * 49, "{name}: {}", count(colour));
+            assert!(count(colour) >= 4 * 2 * 40, "{name}: {}", count(colour));
         }
-        // Labels: black pixels left of the first panel's y axis (x < 60) and below its x axis.
-        let black = |x0: u32, x1: u32, y0: u32, y1: u32| {
-            (x0..x1)
-                .flat_map(|x| (y0..y1).map(move |y| (x, y)))
-                .filter(|&(x, y)| img.get_pixel(x, y).0 == [0, 0, 0])
-                .count()
-        };
-        assert!(black(0, 55, 0, 270) > 40, "no y labels");
-        assert!(black(60, 420, 275, 300) > 40, "no x labels");
-        // A row without a finite PSNR is skipped, not drawn at NaN.
+        // A run without a finite PSNR draws nothing in the PSNR panels, only in the Gaussians
+        // one (bottom right).
         let mut bad = rows.to_vec();
         bad.push(row("lpm-no-add", 2000, f64::NAN, 10, 1.0));
         let img = image::load_from_memory(&plot(&bad).unwrap())
             .unwrap()
             .to_rgb8();
-        assert_eq!(img.pixels().filter(|p| p.0 == RUNS[3].1).count(), 0);
+        let in_psnr_panels = img
+            .enumerate_pixels()
+            .filter(|(x, y, p)| (*y < 340 || *x < 520) && p.0 == RUNS[3].1)
+            .count();
+        assert_eq!(in_psnr_panels, 0);
         if let Ok(dir) = std::env::var("LPMSPLAT_KEEP_PLOT") {
             std::fs::write(std::path::Path::new(&dir).join("trade_plot.png"), &png).unwrap();
         }

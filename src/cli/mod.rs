@@ -7,7 +7,9 @@ mod info;
 mod interrupt;
 mod matching;
 mod render;
+
 mod train;
+mod train_plot;
 
 use clap::{Args, Parser, Subcommand};
 use lpmsplat::gpu::GpuOptions;

@@ -2,6 +2,7 @@
 //! `point_cloud.ply` (Inria layout), `renders/test/*.png`, `metrics.json`, `config.json`.
 
 use super::render::parse_rgb;
+use super::train_plot::{write_training_plot, EvalPoint, Sample};
 use super::SceneArgs;
 use anyhow::Context;
 use clap::Args;
@@ -510,6 +511,11 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     let mut stages = StageTimes::default();
     let mut evals = Vec::new();
     let mut ema_loss = None::<f64>;
+    // For training.png: samples every 10 iterations, and the evaluations, on a clock that
+    // leaves out evaluations and checkpoints.
+    let mut samples: Vec<Sample> = Vec::new();
+    let mut eval_points: Vec<EvalPoint> = Vec::new();
+    let mut paused_s = 0.0;
     for _ in start_iteration..config.iterations {
         let next = trainer.iteration + 1;
         if next == config.iterations || (args.eval_every > 0 && next % args.eval_every == 0) {
@@ -539,7 +545,9 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
             && r.iteration % args.checkpoint_every == 0
             && r.iteration < config.iterations
         {
+            let t_pause = Instant::now();
             trainer.save_checkpoint(&scene, &checkpoint_path)?;
+            paused_s += t_pause.elapsed().as_secs_f64();
         }
         if let Some(s) = &r.stages {
             stages.accumulate(s);
@@ -548,6 +556,12 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         let ema = ema_loss.map_or(l, |e| 0.9 * e + 0.1 * l);
         ema_loss = Some(ema);
         if r.iteration % 10 == 0 || r.iteration == config.iterations {
+            samples.push(Sample {
+                iteration: r.iteration,
+                seconds: t0.elapsed().as_secs_f64() - paused_s,
+                loss: ema,
+                gaussians: r.gaussians,
+            });
             let psnr_l1 = -10.0 * (r.l1 as f64).max(1e-12).log10();
             bar.set_message(format!(
                 "loss {ema:.4} (L1 {:.4}, ~{psnr_l1:.1} dB) | {} Gaussians",
@@ -575,8 +589,15 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
             && r.iteration < config.iterations
             && !scene.test.is_empty()
         {
+            let t_pause = Instant::now();
             let (m, _) = trainer.evaluate(&scene, &scene.test, &test_images)?;
             let (p, s) = mean_metrics(&m);
+            eval_points.push(EvalPoint {
+                iteration: r.iteration,
+                seconds: t_pause.duration_since(t0).as_secs_f64() - paused_s,
+                psnr: p,
+                gaussians: trainer.gaussians(),
+            });
             let line = format!(
                 "[{}] test PSNR {p:.3} dB, SSIM {s:.4}, {} Gaussians",
                 r.iteration,
@@ -594,10 +615,12 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
                 "gaussians": trainer.gaussians(),
                 "per_view": m,
             }));
+            paused_s += t_pause.elapsed().as_secs_f64();
         }
     }
     bar.finish();
     let train_s = t0.elapsed().as_secs_f64();
+    let plot_train_s = train_s - paused_s;
     let trained = (config.iterations - start_iteration).max(1);
     let model = trainer.export_model()?;
     write_ply(&args.out.join("point_cloud.ply"), &model)?;
@@ -627,6 +650,25 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         )?;
     }
     let (psnr, ssim) = mean_metrics(&per_view);
+    if !per_view.is_empty() {
+        eval_points.push(EvalPoint {
+            iteration: config.iterations,
+            seconds: plot_train_s,
+            psnr,
+            gaussians: model.len(),
+        });
+    }
+    let run_name = format!(
+        "{}{}",
+        args.model.name(),
+        if lpm_config.is_some() { " + LPM" } else { "" }
+    );
+    write_training_plot(
+        &args.out.join("training.png"),
+        &run_name,
+        &samples,
+        &eval_points,
+    )?;
     let metrics = serde_json::json!({
         "scene": args.scene.scene.display().to_string(),
         "iterations": config.iterations,
@@ -636,6 +678,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         "ssim": ssim,
         "per_view": per_view,
         "evaluations": evals,
+        "history": samples,
         "train_seconds": train_s,
         "iterations_per_second": trained as f64 / train_s,
         "resumed_from": start_iteration,

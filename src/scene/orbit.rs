@@ -1,13 +1,15 @@
 //! A closed camera path fitted to a scene's cameras, for turntable / fly-around videos.
 //!
-//! The path is an ellipse through the spread of the camera centres, in the plane perpendicular
-//! to the cameras' mean up direction, always looking at a target point:
+//! The path is an ellipse through the spread of the camera centres, always looking at a target
+//! point with the cameras' mean up direction:
 //! - **360° captures** (the cameras look inwards from all sides): the target is the point nearest
-//!   to every optical axis (least squares), and the ellipse is the ring the cameras stand on.
+//!   to every optical axis (least squares), and the ellipse is the ring the cameras stand on, in
+//!   the plane perpendicular to up.
 //! - **Forward-facing captures** (the optical axes are nearly parallel, so that point is
 //!   ill-defined): the target lies on the mean optical axis at a focus depth the caller gives
-//!   (e.g. the median depth of the model), and the ellipse is the small spread of the cameras,
-//!   as in the "spiral" paths of forward-facing NeRF datasets.
+//!   (e.g. the median depth of the model), and the ellipse is the small spread of the cameras in
+//!   the plane perpendicular to the viewing direction, as in the "spiral" paths of
+//!   forward-facing NeRF datasets.
 //!
 //! The ellipse's semi-axes are √2·σ along the two principal directions of the centres (σ their
 //! standard deviations): cameras spaced evenly on a circle of radius R give exactly R.
@@ -92,8 +94,11 @@ impl Orbit {
             b += proj * *c;
         }
         let spread = symmetric_eigenvalues(a * (1.0 / n))[0];
-        let (kind, target) = if spread >= FORWARD_FACING_SPREAD {
-            (OrbitKind::Inward, a.inverse() * b)
+        // The path's plane: perpendicular to `up` around an inward capture (a turntable),
+        // perpendicular to the viewing direction in front of a forward-facing one (the spiral
+        // of forward-facing NeRF datasets, staying within the cameras' spread).
+        let (kind, target, normal) = if spread >= FORWARD_FACING_SPREAD {
+            (OrbitKind::Inward, a.inverse() * b, up)
         } else {
             let mean_axis = {
                 let s: DVec3 = axes.iter().sum();
@@ -104,13 +109,21 @@ impl Orbit {
                 }
             };
             let depth = focus_depth(mean_c, mean_axis);
-            (OrbitKind::ForwardFacing, mean_c + mean_axis * depth)
+            (
+                OrbitKind::ForwardFacing,
+                mean_c + mean_axis * depth,
+                mean_axis,
+            )
         };
 
-        // Principal directions of the centres in the plane perpendicular to `up`.
-        let e1 = if up.x.abs() < 0.9 { DVec3::X } else { DVec3::Y };
-        let e1 = (e1 - up * e1.dot(up)).normalize();
-        let e2 = up.cross(e1);
+        // Principal directions of the centres in that plane.
+        let e1 = if normal.x.abs() < 0.9 {
+            DVec3::X
+        } else {
+            DVec3::Y
+        };
+        let e1 = (e1 - normal * e1.dot(normal)).normalize();
+        let e2 = normal.cross(e1);
         let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
         for c in &centres {
             let d = *c - mean_c;
@@ -122,7 +135,7 @@ impl Orbit {
         let theta = 0.5 * (2.0 * sxy).atan2(sxx - syy);
         let (s, c) = theta.sin_cos();
         let major = e1 * c + e2 * s;
-        let minor = up.cross(major);
+        let minor = normal.cross(major);
         let tr = sxx + syy;
         let disc = ((sxx - syy).powi(2) / 4.0 + sxy * sxy).sqrt();
         let (l1, l2) = ((tr / 2.0 + disc).max(0.0), (tr / 2.0 - disc).max(0.0));
@@ -204,5 +217,58 @@ mod tests {
         // A point above the target appears above it in the image (smaller y).
         let above = p.transform((target + DVec3::Z).to_array());
         assert!(above[1] < 0.0, "{above:?}");
+    }
+
+    fn ring(n: usize, radius: f64, height: f64, target: DVec3) -> Vec<Pose> {
+        (0..n)
+            .map(|k| {
+                let a = 2.0 * std::f64::consts::PI * k as f64 / n as f64;
+                let eye = target + DVec3::new(radius * a.cos(), height, radius * a.sin());
+                look_at(eye, target, DVec3::Y)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_ring_of_inward_cameras_gives_their_circle_around_their_target() {
+        let target = DVec3::new(0.5, -1.0, 2.0);
+        let orbit = Orbit::fit(&ring(24, 4.0, 1.5, target), |_, _| unreachable!());
+        assert_eq!(orbit.kind, OrbitKind::Inward);
+        assert!((v(orbit.target) - target).length() < 1e-9, "{orbit:?}");
+        assert!((v(orbit.up) - DVec3::Y).length() < 1e-9, "{orbit:?}");
+        for pose in orbit.poses(10) {
+            let c = v(pose.center());
+            let d = c - target;
+            assert!((d.y - 1.5).abs() < 1e-9, "height {c}");
+            assert!(
+                ((d.x * d.x + d.z * d.z).sqrt() - 4.0).abs() < 1e-9,
+                "radius {c}"
+            );
+            let t = pose.transform(target.to_array());
+            assert!(t[0].abs() < 1e-9 && t[1].abs() < 1e-9 && t[2] > 0.0);
+        }
+    }
+
+    #[test]
+    fn forward_facing_cameras_look_at_the_focus_depth() {
+        // A 3 × 2 grid of cameras 0.1 apart, all looking down +z.
+        let poses: Vec<Pose> = (0..6)
+            .map(|k| {
+                let eye = DVec3::new(0.1 * (k % 3) as f64, 0.1 * (k / 3) as f64, 0.0);
+                look_at(eye, eye + DVec3::Z, -DVec3::Y)
+            })
+            .collect();
+        let orbit = Orbit::fit(&poses, |centre, axis| {
+            assert!((axis - DVec3::Z).length() < 1e-9);
+            assert!((centre - DVec3::new(0.1, 0.05, 0.0)).length() < 1e-9);
+            7.0
+        });
+        assert_eq!(orbit.kind, OrbitKind::ForwardFacing);
+        assert!((v(orbit.target) - DVec3::new(0.1, 0.05, 7.0)).length() < 1e-9);
+        // The path stays within the cameras' spread.
+        for pose in orbit.poses(12) {
+            let d = v(pose.center()) - DVec3::new(0.1, 0.05, 0.0);
+            assert!(d.length() < 0.2 && d.z.abs() < 1e-9, "{d}");
+        }
     }
 }
