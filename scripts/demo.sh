@@ -7,5 +7,5 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/install-deps.sh
-exec cargo run --release -- train tests/data/lund_door_small -r 2 --iterations 2000 \
+exec cargo run --release -- train tests/data/lund_door_small -r 2 --iterations 2000 --eval-every 250 \
   -o output/lund_door_small "$@"

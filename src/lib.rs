@@ -7,6 +7,7 @@
 
 pub mod error;
 pub mod gpu;
+pub mod lpips;
 pub mod lpm;
 pub mod metrics;
 pub mod models;

@@ -125,7 +125,62 @@ fn bench_trade_interleaved_writes_table_json_and_plot() {
         "{md}"
     );
     let png = image::open(out.join("trade.png")).unwrap();
-    assert_eq!((png.width(), png.height()), (840, 300));
+    assert_eq!((png.width(), png.height()), (1040, 680));
+    // trade.html: the plot, the table, and the first test view's truth beside each run's final
+    // render and error map (files it links, all present), also as one captioned picture.
+    let html = std::fs::read_to_string(out.join("trade.html")).unwrap();
+    let view = json["runs"][2]["view_psnr"]
+        .as_f64()
+        .expect("final rows carry the view's PSNR");
+    assert!(view.is_finite(), "{view}");
+    assert!(
+        json["runs"][0]["view_psnr"].is_null(),
+        "iteration 20 shows no render"
+    );
+    for link in [
+        "trade.png",
+        "report/truth.png",
+        "report/adc.png",
+        "report/adc-error.png",
+        "report/adc+lpm.png",
+        "report/adc+lpm-error.png",
+        "report/side_by_side.png",
+    ] {
+        assert!(html.contains(&format!("\"{link}\"")), "{link} not linked");
+        assert!(out.join(link).is_file(), "{link} missing");
+    }
+    assert!(
+        html.contains("<td>+0.000</td>") || html.contains("+0.000"),
+        "{html}"
+    );
+    let truth = image::open(out.join("report/truth.png")).unwrap();
+    let error = image::open(out.join("report/adc-error.png")).unwrap();
+    assert_eq!(
+        (truth.width(), truth.height()),
+        (error.width(), error.height())
+    );
+    let grid = image::open(out.join("report/side_by_side.png")).unwrap();
+    assert!(grid.width() >= 3 * truth.width() && grid.height() >= 2 * truth.height());
+    let e = {
+        let (ok, text) = output(
+            lpmsplat()
+                .args(["bench", "trade"])
+                .arg(data("lund_door_small"))
+                .args([
+                    "-r",
+                    "8",
+                    "--iterations",
+                    "2",
+                    "--report-view",
+                    "nope",
+                    "-o",
+                ])
+                .arg(dir.path().join("t2")),
+        );
+        assert!(!ok);
+        text
+    };
+    assert!(e.contains("--report-view") && e.contains("Fix:"), "{e}");
 }
 
 #[test]

@@ -465,6 +465,43 @@ fn run_err(c: &mut Command) -> String {
     text
 }
 
+/// An LPIPS weights file with the right tensors and random values.
+fn random_lpips_weights(dir: &Path) -> PathBuf {
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
+    let convs: [(usize, usize, usize, usize); 5] = [
+        (0, 64, 3, 11),
+        (3, 192, 64, 5),
+        (6, 384, 192, 3),
+        (8, 256, 384, 3),
+        (10, 256, 256, 3),
+    ];
+    let mut tensors: Vec<(String, Vec<usize>, Vec<f32>)> = Vec::new();
+    for (index, out_c, in_c, k) in convs {
+        let bound = 1.0 / ((in_c * k * k) as f32).sqrt();
+        let w = (0..out_c * in_c * k * k)
+            .map(|_| rng.gen_range(-bound..bound))
+            .collect();
+        tensors.push((
+            format!("features.{index}.weight"),
+            vec![out_c, in_c, k, k],
+            w,
+        ));
+        let b = (0..out_c).map(|_| rng.gen_range(-bound..bound)).collect();
+        tensors.push((format!("features.{index}.bias"), vec![out_c], b));
+    }
+    for (i, c) in [64, 192, 384, 256, 256].into_iter().enumerate() {
+        let w = (0..c).map(|_| rng.gen_range(0.0..0.1)).collect();
+        tensors.push((format!("lin{i}.weight"), vec![1, c, 1, 1], w));
+    }
+    let path = dir.join("lpips.safetensors");
+    let refs: Vec<(&str, &[usize], &[f32])> = tensors
+        .iter()
+        .map(|(n, s, v)| (n.as_str(), s.as_slice(), v.as_slice()))
+        .collect();
+    lpmsplat::lpips::weights::write_f32(&path, &refs).unwrap();
+    path
+}
+
 #[test]
 fn cli_train_resume_eval_end_to_end() {
     let dir = tempfile::tempdir().unwrap();
@@ -670,6 +707,50 @@ fn cli_train_resume_eval_end_to_end() {
     let img = images::decode_image(&sbs.join("r_0.png")).unwrap();
     assert_eq!((img.width, img.height), (200, 100));
     assert_eq!(ev["split"], "test");
+
+    // eval --lpips-weights: a network with random weights (the numbers are checked against the
+    // reference package in tests/lpips.rs; here, the wiring): a score per view, their mean, and
+    // the same PSNR as without it. Bad weights stop eval before it renders anything.
+    let weights = random_lpips_weights(dir.path());
+    let json_lp = dir.path().join("eval_lpips.json");
+    let text = run_ok(
+        lpmsplat()
+            .arg("eval")
+            .arg(&scene)
+            .arg("--ply")
+            .arg(out.join("point_cloud.ply"))
+            .arg("--json")
+            .arg(&json_lp)
+            .arg("--lpips-weights")
+            .arg(&weights),
+    );
+    assert!(!text.contains("not computed"), "{text}");
+    let ev_lp: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&json_lp).unwrap()).unwrap();
+    let lp = ev_lp["lpips"].as_f64().expect("an LPIPS mean");
+    let views: Vec<f64> = ev_lp["per_view"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v["lpips"].as_f64().unwrap())
+        .collect();
+    assert_eq!(views.len(), 3);
+    assert!(views.iter().all(|d| d.is_finite() && *d > 0.0), "{views:?}");
+    assert!((views.iter().sum::<f64>() / 3.0 - lp).abs() < 1e-12);
+    assert_eq!(ev_lp["psnr"], ev["psnr"]);
+    assert!(ev_lp["lpips_note"].is_null());
+    let bad = dir.path().join("bad.safetensors");
+    std::fs::write(&bad, b"not a safetensors file").unwrap();
+    let e = run_err(
+        lpmsplat()
+            .arg("eval")
+            .arg(&scene)
+            .arg("--ply")
+            .arg(out.join("point_cloud.ply"))
+            .arg("--lpips-weights")
+            .arg(&bad),
+    );
+    assert!(e.contains("bad.safetensors"), "{e}");
 
     // eval --split train scores the 8 training views instead (none of the 3 val views).
     let json_train = dir.path().join("eval_train.json");

@@ -5,6 +5,7 @@
 //! colour per run, listed in the table).
 
 use super::trade_report;
+use crate::cli::lpips_scores::{self, LpipsArgs};
 use crate::cli::train::{background_from, build_lpm, initial_model, mean_metrics, prepare_output};
 use crate::cli::SceneArgs;
 use anyhow::Context;
@@ -12,6 +13,7 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions};
+use lpmsplat::lpips::Lpips;
 use lpmsplat::lpm::strategy::{LpmConfig, LpmStrategy, PruneMode};
 use lpmsplat::lpm::ZoneGeometry;
 use lpmsplat::render::forward::{FrameSettings, Renderer};
@@ -92,6 +94,8 @@ pub struct TradeArgs {
     /// the first): the truth beside each run's final render and error map.
     #[arg(long)]
     pub report_view: Option<String>,
+    #[command(flatten)]
+    pub lpips: LpipsArgs,
 }
 
 #[derive(Debug, Clone, serde::Serialize)]
@@ -102,7 +106,8 @@ pub struct TradeRow {
     pub colour: [u8; 3],
     pub psnr: f64,
     pub ssim: f64,
-    pub lpips: String,
+    /// Mean LPIPS (AlexNet, v0.1) over the test views; `None` without --lpips-weights.
+    pub lpips: Option<f64>,
     pub gaussians: usize,
     pub train_seconds: f64,
     pub ms_per_iteration: f64,
@@ -145,6 +150,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
         "bench trade: --seeds 0. Fix: pass at least 1"
     );
     let selected = selected_runs(&args.runs)?;
+    let lpips = args.lpips.load()?;
     let scene = Scene::load(&args.scene.scene, &args.scene.load_options()?)?;
     anyhow::ensure!(
         !scene.test.is_empty(),
@@ -319,7 +325,12 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                     let r = &mut runs[i];
                     let mut t = r.trainer.take().expect("trainer built above");
                     let row = bar.suspend(|| {
-                        evaluate_run(&ctx, &scene, &test_images, r, &mut t, it, args)
+                        let test = TestSet {
+                            scene: &scene,
+                            images: &test_images,
+                            lpips: lpips.as_ref(),
+                        };
+                        evaluate_run(&ctx, &test, r, &mut t, it, args)
                     })?;
                     r.trainer = Some(t);
                     rows.push(row);
@@ -429,18 +440,32 @@ pub fn selected_runs(names: &[String]) -> anyhow::Result<Vec<usize>> {
     Ok(out)
 }
 
+/// What every run is scored on: the scene's test views, their images, and LPIPS if loaded.
+struct TestSet<'a> {
+    scene: &'a Scene,
+    images: &'a [images::Image],
+    lpips: Option<&'a Lpips>,
+}
+
 /// Evaluates a run at iteration `iteration` on the test views and times its model at 1352×1014.
 fn evaluate_run(
     ctx: &std::sync::Arc<GpuContext>,
-    scene: &Scene,
-    test_images: &[images::Image],
+    test: &TestSet<'_>,
     r: &Run,
     t: &mut Trainer,
     iteration: u32,
     args: &TradeArgs,
 ) -> anyhow::Result<TradeRow> {
+    let (scene, test_images, lpips) = (test.scene, test.images, test.lpips);
     let (name, colour) = RUNS[r.k];
-    let (m, renders) = t.evaluate(scene, &scene.test, test_images)?;
+    let (mut m, renders) = t.evaluate(scene, &scene.test, test_images)?;
+    let lpips_mean = lpips_scores::score(
+        lpips,
+        &mut m,
+        &renders,
+        test_images,
+        t.config.background.eval_colour(),
+    )?;
     let (psnr, ssim) = mean_metrics(&m);
     let mut view_psnr = None;
     if iteration == args.iterations && r.seed == args.seed {
@@ -475,7 +500,7 @@ fn evaluate_run(
         colour,
         psnr,
         ssim,
-        lpips: "n/a (no weights)".into(),
+        lpips: lpips_mean,
         gaussians: model.len(),
         train_seconds: train_s,
         ms_per_iteration: 1e3 * train_s / iteration as f64,
@@ -548,7 +573,8 @@ pub struct Summary {
     pub delta_psnr_se: Option<f64>,
     pub ssim: f64,
     pub ssim_sd: f64,
-    pub lpips: String,
+    /// Mean LPIPS (AlexNet, v0.1) over the test views; `None` without --lpips-weights.
+    pub lpips: Option<f64>,
     pub gaussians: f64,
     pub train_seconds: f64,
     /// Mean train seconds over ADC's mean train seconds at the same iteration.
@@ -576,7 +602,7 @@ impl Summary {
             colour: self.colour,
             psnr: self.psnr,
             ssim: self.ssim,
-            lpips: self.lpips.clone(),
+            lpips: self.lpips,
             gaussians: self.gaussians.round() as usize,
             train_seconds: self.train_seconds,
             ms_per_iteration: self.ms_per_iteration,
@@ -659,7 +685,11 @@ pub fn summarize(rows: &[TradeRow]) -> Vec<Summary> {
                 delta_psnr_se,
                 ssim,
                 ssim_sd,
-                lpips: g[0].lpips.clone(),
+                lpips: g
+                    .iter()
+                    .map(|r| r.lpips)
+                    .collect::<Option<Vec<f64>>>()
+                    .map(|v| mean_sd(&v).0),
                 gaussians: mean_sd(&col(&|r| r.gaussians as f64)).0,
                 train_seconds,
                 time_vs_adc,
@@ -689,7 +719,8 @@ fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
          error blocks of {} kept above {} error pixels\n\n{} \
          trade.png plots test PSNR against Gaussians and training seconds (top), and PSNR and \
          Gaussians against iterations (bottom), one named line per run through its evaluated \
-         iterations; trade.html shows the plot, this table and the runs' renders.{}\n\n\
+         iterations; trade.html shows the plot, this table and the runs' renders. LPIPS is \
+         AlexNet v0.1 (n/a without --lpips-weights).{}\n\n\
          | run | iteration | colour | PSNR | ΔPSNR vs adc | SSIM | LPIPS | Gaussians | train s | time vs adc | ms/it | LPM ms/it (share) | LPM zones · densified · pruned · added · reset · zone radius / extent | FPS 1352×1014 |\n\
          |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
         args.scene.scene.display(),
@@ -755,7 +786,7 @@ fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
             pm(r.psnr_sd, 3),
             r.ssim,
             pm(r.ssim_sd, 4),
-            r.lpips,
+            r.lpips.map_or("n/a".to_string(), |d| format!("{d:.4}")),
             r.gaussians,
             r.train_seconds,
             r.ms_per_iteration,
@@ -845,7 +876,7 @@ mod tests {
             colour,
             psnr,
             ssim: 0.9,
-            lpips: "n/a".into(),
+            lpips: None,
             gaussians,
             train_seconds: secs,
             ms_per_iteration: 1.0,

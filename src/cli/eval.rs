@@ -1,9 +1,11 @@
-//! `eval`: PSNR and SSIM of a trained PLY on a scene's test views, per image and mean, as a
-//! table on stdout and optionally JSON; side-by-side PNGs (render | ground truth) on request.
+//! `eval`: PSNR, SSIM and (with `--lpips-weights`) LPIPS of a trained PLY on a scene's test
+//! views, per image and mean, as a table on stdout and optionally JSON; side-by-side PNGs
+//! (render | ground truth) on request.
 //!
-//! LPIPS is not computed: it needs pretrained network weights (AlexNet/VGG) that this project
-//! does not ship. The JSON says so (`"lpips": null`) rather than reporting a stand-in.
+//! Without LPIPS weights (which this project cannot ship) the JSON says so (`"lpips": null`
+//! and a note) rather than reporting a stand-in.
 
+use super::lpips_scores::{self, LpipsArgs};
 use super::train::{background_from, mean_metrics};
 use super::SceneArgs;
 use anyhow::Context;
@@ -19,12 +21,9 @@ use lpmsplat::train::trainer::{Background, ViewMetrics};
 use std::io::Write;
 use std::path::PathBuf;
 
-const LPIPS_NOTE: &str = "LPIPS not computed: it needs pretrained network weights \
-    (AlexNet/VGG) that lpmsplat does not ship";
-
 /// Evaluates a trained PLY on the test split (or, with `--split train`, on the training views).
-/// Reports PSNR and SSIM (11×11 Gaussian window, σ 1.5) per image and their mean. LPIPS is not computed: it needs pretrained network
-/// weights that lpmsplat does not ship.
+/// Reports PSNR, SSIM (11×11 Gaussian window, σ 1.5) and, given `--lpips-weights`, LPIPS
+/// (AlexNet, v0.1) per image and their mean.
 #[derive(Args, Debug)]
 pub struct EvalArgs {
     #[command(flatten)]
@@ -50,6 +49,8 @@ pub struct EvalArgs {
     /// to. Scoring both tells overfitting (train rising while test falls) from a failure to fit.
     #[arg(long, value_enum, default_value_t = EvalSplit::Test)]
     pub split: EvalSplit,
+    #[command(flatten)]
+    pub lpips: LpipsArgs,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -102,6 +103,7 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
         args.scene.scene.display(),
         args.split.name()
     );
+    let lpips = args.lpips.load()?;
     let params = read_ply(&args.ply)?;
     anyhow::ensure!(
         !params.is_empty(),
@@ -135,6 +137,7 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
         filter3d: None,
     };
     let mut per_view = Vec::new();
+    let mut renders = Vec::new();
     for (k, &v) in views.iter().enumerate() {
         let c = renderer.capacity();
         renderer.ensure_capacity(Capacity {
@@ -154,12 +157,15 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
             view: scene.views[v].name.clone(),
             psnr: lpmsplat::metrics::psnr(&render, &gt.rgb)?,
             ssim: lpmsplat::metrics::ssim(&render, &gt.rgb, w, h)?,
+            lpips: None,
         });
         if let Some(dir) = &args.side_by_side {
             let path = dir.join(format!("{}.png", scene.views[v].stem));
             images::save_png(&path, &side_by_side(&render, &gt))?;
         }
+        renders.push(render);
     }
+    let lpips_mean = lpips_scores::score(lpips.as_ref(), &mut per_view, &renders, &gts, bg)?;
     let (psnr, ssim) = mean_metrics(&per_view);
     let name_w = per_view
         .iter()
@@ -167,12 +173,30 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
         .max()
         .unwrap_or(4)
         .max(4);
-    println!("{:<name_w$}  {:>9}  {:>7}", "view", "PSNR (dB)", "SSIM");
+    let lp = |v: Option<f64>| v.map_or("–".to_string(), |d| format!("{d:.4}"));
+    println!(
+        "{:<name_w$}  {:>9}  {:>7}  {:>7}",
+        "view", "PSNR (dB)", "SSIM", "LPIPS"
+    );
     for m in &per_view {
-        println!("{:<name_w$}  {:>9.3}  {:>7.4}", m.view, m.psnr, m.ssim);
+        println!(
+            "{:<name_w$}  {:>9.3}  {:>7.4}  {:>7}",
+            m.view,
+            m.psnr,
+            m.ssim,
+            lp(m.lpips)
+        );
     }
-    println!("{:<name_w$}  {:>9.3}  {:>7.4}", "mean", psnr, ssim);
-    println!("({LPIPS_NOTE})");
+    println!(
+        "{:<name_w$}  {:>9.3}  {:>7.4}  {:>7}",
+        "mean",
+        psnr,
+        ssim,
+        lp(lpips_mean)
+    );
+    if lpips_mean.is_none() {
+        println!("({})", lpips_scores::NOT_COMPUTED);
+    }
     if let Some(path) = &args.json {
         let json = serde_json::json!({
             "scene": args.scene.scene.display().to_string(),
@@ -183,8 +207,8 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
             "views": per_view.len(),
             "psnr": psnr,
             "ssim": ssim,
-            "lpips": serde_json::Value::Null,
-            "lpips_note": LPIPS_NOTE,
+            "lpips": lpips_mean,
+            "lpips_note": if lpips_mean.is_none() { Some(lpips_scores::NOT_COMPUTED) } else { None },
             "per_view": per_view,
         });
         let text = serde_json::to_string_pretty(&json)?;

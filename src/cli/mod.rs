@@ -5,6 +5,7 @@ mod eval;
 mod export;
 mod info;
 mod interrupt;
+mod lpips_scores;
 mod matching;
 mod render;
 

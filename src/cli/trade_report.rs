@@ -137,7 +137,7 @@ pub fn write_html(
             if s.seeds > 1 { format!(" ± {:.3}", s.psnr_sd) } else { String::new() },
             s.delta_psnr.map_or("–".into(), |d| format!("{d:+.3}")),
             s.ssim,
-            esc(&s.lpips),
+            s.lpips.map_or("n/a".to_string(), |d| format!("{d:.4}")),
             s.gaussians,
             s.train_seconds,
             s.time_vs_adc.map_or("–".into(), |t| format!("{t:.3}×")),

@@ -1,6 +1,7 @@
 //! `train`: fits Gaussians to a scene's training views on the GPU and writes the output folder:
 //! `point_cloud.ply` (Inria layout), `renders/test/*.png`, `metrics.json`, `config.json`.
 
+use super::lpips_scores::{self, LpipsArgs};
 use super::render::parse_rgb;
 use super::train_plot::{write_training_plot, EvalPoint, Sample};
 use super::SceneArgs;
@@ -51,6 +52,9 @@ pub struct TrainArgs {
     /// Evaluate on the test views every N iterations (0 = only at the end).
     #[arg(long, default_value_t = 0)]
     pub eval_every: u32,
+    /// LPIPS in the evaluations (see `eval --lpips-weights`).
+    #[command(flatten)]
+    pub lpips: LpipsArgs,
     /// Collect per-stage GPU timestamps and report their shares.
     #[arg(long)]
     pub timestamps: bool,
@@ -424,6 +428,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     let scene = Scene::load(&args.scene.scene, &args.scene.load_options()?)?;
     let config = args.config(&scene)?;
     let lpm_config = args.lpm.config(args.densify_interval, args.seed)?;
+    let lpips = args.lpips.load()?;
     prepare_output(&args.out)?;
     let checkpoint_path = args.out.join("checkpoint.bin");
     let t_load = Instant::now();
@@ -590,7 +595,14 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
             && !scene.test.is_empty()
         {
             let t_pause = Instant::now();
-            let (m, _) = trainer.evaluate(&scene, &scene.test, &test_images)?;
+            let (mut m, renders) = trainer.evaluate(&scene, &scene.test, &test_images)?;
+            let lp = lpips_scores::score(
+                lpips.as_ref(),
+                &mut m,
+                &renders,
+                &test_images,
+                trainer.config.background.eval_colour(),
+            )?;
             let (p, s) = mean_metrics(&m);
             eval_points.push(EvalPoint {
                 iteration: r.iteration,
@@ -599,8 +611,9 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
                 gaussians: trainer.gaussians(),
             });
             let line = format!(
-                "[{}] test PSNR {p:.3} dB, SSIM {s:.4}, {} Gaussians",
+                "[{}] test PSNR {p:.3} dB, SSIM {s:.4},{} {} Gaussians",
                 r.iteration,
+                lp.map_or(String::new(), |d| format!(" LPIPS {d:.4},")),
                 trainer.gaussians()
             );
             if plain {
@@ -612,6 +625,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
                 "iteration": r.iteration,
                 "psnr": p,
                 "ssim": s,
+                "lpips": lp,
                 "gaussians": trainer.gaussians(),
                 "per_view": m,
             }));
@@ -628,11 +642,18 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     trainer.save_checkpoint(&scene, &checkpoint_path)?;
 
     // Final evaluation and renders.
-    let (per_view, renders) = if scene.test.is_empty() {
+    let (mut per_view, renders) = if scene.test.is_empty() {
         (Vec::new(), Vec::new())
     } else {
         trainer.evaluate(&scene, &scene.test, &test_images)?
     };
+    let lpips_mean = lpips_scores::score(
+        lpips.as_ref(),
+        &mut per_view,
+        &renders,
+        &test_images,
+        trainer.config.background.eval_colour(),
+    )?;
     let render_dir = args.out.join("renders").join("test");
     std::fs::create_dir_all(&render_dir)
         .with_context(|| format!("creating {}", render_dir.display()))?;
@@ -676,6 +697,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         "test_views": scene.test.len(),
         "psnr": psnr,
         "ssim": ssim,
+        "lpips": lpips_mean,
         "per_view": per_view,
         "evaluations": evals,
         "history": samples,
@@ -720,13 +742,14 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         Ok(f.write_all(text.as_bytes())?)
     })?;
     println!(
-        "trained {} iterations in {:.1} s ({:.2} it/s): {} Gaussians, test PSNR {:.3} dB, SSIM {:.4}",
+        "trained {} iterations in {:.1} s ({:.2} it/s): {} Gaussians, test PSNR {:.3} dB, SSIM {:.4}{}",
         config.iterations,
         train_s,
         trained as f64 / train_s,
         model.len(),
         psnr,
-        ssim
+        ssim,
+        lpips_mean.map_or(String::new(), |d| format!(", LPIPS {d:.4}"))
     );
     if config.timestamps {
         let total = stages.total_ms().max(1e-12);

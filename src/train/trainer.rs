@@ -170,6 +170,9 @@ pub struct ViewMetrics {
     pub view: String,
     pub psnr: f64,
     pub ssim: f64,
+    /// Filled in by callers that have LPIPS weights (the trainer has none).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lpips: Option<f64>,
 }
 
 pub struct Trainer {
@@ -878,6 +881,7 @@ impl Trainer {
                 view: scene.views[v].name.clone(),
                 psnr: crate::metrics::psnr(&clamped, &gt.rgb)?,
                 ssim: crate::metrics::ssim(&clamped, &gt.rgb, w, h)?,
+                lpips: None,
             });
             renders.push(clamped);
         }
