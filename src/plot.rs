@@ -278,7 +278,19 @@ pub fn captioned_grid(tiles: &[Tile], cols: usize) -> anyhow::Result<Vec<u8>> {
     register_font();
     const CAPTION: u32 = 22;
     const GAP: u32 = 6;
-    let cell_w = tiles.iter().map(|t| t.width).max().unwrap_or(1);
+    // Wide enough for the widest picture and the longest caption (DejaVu Sans at 15 px
+    // averages under 9 px a character).
+    let caption_w = tiles
+        .iter()
+        .map(|t| 9 * t.caption.chars().count() as u32 + 4)
+        .max()
+        .unwrap_or(0);
+    let cell_w = tiles
+        .iter()
+        .map(|t| t.width)
+        .max()
+        .unwrap_or(1)
+        .max(caption_w);
     let cell_h = tiles.iter().map(|t| t.height).max().unwrap_or(1) + CAPTION;
     let rows = tiles.len().div_ceil(cols) as u32;
     let (w, h) = (

@@ -208,11 +208,18 @@ fn write_side_by_side(out: &Path, shown: &[&TradeRow]) -> anyhow::Result<()> {
         })
     };
     let mut top = vec![tile("truth.png".into(), "ground truth".into())?];
+    // The error maps' colour scale, left to right 0 .. ERROR_MAP_MAX, under the truth.
+    let (bar_w, bar_h) = (top[0].width, 16u32);
+    let ramp: Vec<f32> = (0..bar_h)
+        .flat_map(|_| {
+            (0..bar_w).flat_map(move |x| [ERROR_MAP_MAX * x as f32 / (bar_w.max(2) - 1) as f32; 3])
+        })
+        .collect();
     let mut bottom = vec![Tile {
-        caption: format!("error 0..{ERROR_MAP_MAX}"),
-        width: top[0].width,
-        height: 0,
-        rgb: Vec::new(),
+        caption: format!("error 0 to {ERROR_MAP_MAX}"),
+        width: bar_w,
+        height: bar_h,
+        rgb: error_map(&ramp, &vec![0.0; ramp.len()], ERROR_MAP_MAX),
     }];
     for r in shown {
         let stem = run_stem(&r.run);
