@@ -2,11 +2,12 @@
 # Installs what a fresh Debian 12 machine lacks to build and run lpmsplat: the Vulkan loader,
 # Mesa's lavapipe (a CPU Vulkan driver, so a machine without a GPU runs everything), the
 # Khronos validation layer (the tests turn it on) and shaderc with the static glslang /
-# SPIRV-Tools archives the build links (see .cargo/config.toml). Both README commands call this
+# SPIRV-Tools archives the build links (see .cargo/config.toml), and g++ (shaderc-sys's build
+# needs a C++ compiler; a minimal Debian 12 has none). Both README commands call this
 # script first, so they work in either order. Idempotent: installs only missing packages.
 set -euo pipefail
 
-PACKAGES=(libvulkan1 libvulkan-dev mesa-vulkan-drivers vulkan-validationlayers libshaderc-dev glslang-dev spirv-tools)
+PACKAGES=(g++ libvulkan1 libvulkan-dev mesa-vulkan-drivers vulkan-validationlayers libshaderc-dev glslang-dev spirv-tools)
 
 need=()
 if command -v dpkg >/dev/null 2>&1; then

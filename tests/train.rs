@@ -1044,3 +1044,21 @@ fn cli_mip_splatting_trains_and_evaluates_at_other_scales() {
     let half = eval_at(&["--model", "mip-splatting", "-r", "2"]);
     assert!(half.is_finite() && half > 5.0, "{half}");
 }
+
+#[test]
+fn a_repeated_train_flag_takes_its_last_value() {
+    // scripts/demo.sh appends the user's flags after its own defaults.
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    run_ok(
+        lpmsplat()
+            .arg("train")
+            .arg(data("lego_small"))
+            .args(["--init-points", "100", "--sh-degree", "0"])
+            .args(["--iterations", "40", "--iterations", "2", "-o"])
+            .arg(&out),
+    );
+    let config: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("config.json")).unwrap()).unwrap();
+    assert_eq!(config["iterations"], 2);
+}

@@ -35,6 +35,13 @@ fn main() {
     };
     let mut missing = Vec::new();
     let mut packages: Vec<&str> = Vec::new();
+    // shaderc-sys's build (link-cplusplus) needs a C++ compiler even with the link override.
+    println!("cargo:rerun-if-env-changed=CXX");
+    println!("cargo:rerun-if-env-changed=PATH");
+    if !cxx_available() {
+        missing.push("a C++ compiler (`c++`, or the one $CXX names)".to_string());
+        packages.push("g++");
+    }
     for (file, package) in ARCHIVES {
         let path = dir.join(file);
         // A missing file counts as changed, so the check repeats until the archive appears.
@@ -50,7 +57,7 @@ fn main() {
         return;
     }
     panic!(
-        "\n\nlpmsplat cannot be built: the shader compiler's static libraries are missing:\n  {}\n\
+        "\n\nlpmsplat cannot be built: what the shader compiler needs is missing:\n  {}\n\
          Fix (Debian 12 / Ubuntu): `bash scripts/install-deps.sh` (installs everything lpmsplat \
          needs), or `sudo apt-get install {}`.\n\
          Elsewhere: install shaderc, glslang and SPIRV-Tools with static archives and point \
@@ -59,4 +66,16 @@ fn main() {
         missing.join("\n  "),
         packages.join(" ")
     );
+}
+
+/// Whether `$CXX` (or `c++`) resolves to an executable on PATH.
+fn cxx_available() -> bool {
+    let cxx = std::env::var("CXX").unwrap_or_else(|_| "c++".to_string());
+    let cxx = cxx.split_whitespace().next().unwrap_or("c++").to_string();
+    if cxx.contains('/') {
+        return std::path::Path::new(&cxx).is_file();
+    }
+    std::env::var_os("PATH")
+        .map(|paths| std::env::split_paths(&paths).any(|d| d.join(&cxx).is_file()))
+        .unwrap_or(false)
 }

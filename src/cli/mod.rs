@@ -43,6 +43,9 @@ pub enum Command {
     /// Render chosen cameras of a scene from a trained PLY into PNGs, or an orbit into a GIF.
     Render(render::RenderArgs),
     /// Train a scene (ADC baseline) and write the PLY, test renders and metrics.
+    // A repeated flag takes its last value, so `scripts/demo.sh --iterations 500` overrides
+    // the script's own `--iterations 2000`.
+    #[command(args_override_self = true)]
     Train(train::TrainArgs),
     /// PSNR and SSIM of a trained PLY on a scene's test views (table, JSON, side-by-side PNGs).
     Eval(eval::EvalArgs),
