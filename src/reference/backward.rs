@@ -237,9 +237,9 @@ pub fn preprocess_backward(
 
         // Colour: SH coefficients and the view direction.
         let mut dl_dpos = color_backward(
-            gaussians,
-            i,
-            p,
+            gaussians.positions[i],
+            &gaussians.sh[i],
+            p.rgb_clamped,
             center,
             sh_degree,
             grads.rgb[i],
@@ -291,12 +291,14 @@ pub fn preprocess_backward(
     Ok(out)
 }
 
-/// SH colour backward for Gaussian `i`: writes the SH coefficient gradients into `dl_dsh` and
-/// returns the position gradient that flows through the view direction.
-fn color_backward(
-    gaussians: &RefGaussians,
-    i: usize,
-    p: &Projected,
+/// SH colour backward for one splat at `position` with coefficients `coeffs` (3DGS and
+/// surfels alike): writes the SH coefficient gradients into `dl_dsh` and returns the position
+/// gradient that flows through the view direction. `rgb_clamped` are the channels the forward
+/// clamped at 0.
+pub(crate) fn color_backward(
+    position: Vec3,
+    coeffs: &[[f64; 3]; 16],
+    rgb_clamped: [bool; 3],
     camera_center: Vec3,
     sh_degree: usize,
     dl_drgb: [f64; 3],
@@ -304,15 +306,14 @@ fn color_backward(
 ) -> Vec3 {
     // The clamp at 0 kills the gradient of a clamped channel.
     let mut dl_draw = dl_drgb;
-    for (d, &clamped) in dl_draw.iter_mut().zip(&p.rgb_clamped) {
+    for (d, &clamped) in dl_draw.iter_mut().zip(&rgb_clamped) {
         if clamped {
             *d = 0.0;
         }
     }
-    let (dir, len) = view_direction(gaussians.positions[i], camera_center);
+    let (dir, len) = view_direction(position, camera_center);
     let basis = sh::basis(sh_degree, dir);
     let basis_grad = sh::basis_gradient(sh_degree, dir);
-    let coeffs = &gaussians.sh[i];
     let mut dl_ddir = [0.0; 3];
     for k in 0..sh::num_coeffs(sh_degree) {
         let mut weight = 0.0;
@@ -444,7 +445,7 @@ fn sigma_backward(log_scale: [f64; 3], q: [f64; 4], dl_dsigma: &Mat3) -> ([f64; 
 }
 
 /// Gradient of `quat_to_rotation` with respect to the (unit) quaternion (w, x, y, z).
-fn rotation_backward(q: [f64; 4], g: &Mat3) -> [f64; 4] {
+pub(crate) fn rotation_backward(q: [f64; 4], g: &Mat3) -> [f64; 4] {
     let [w, x, y, z] = q;
     [
         2.0 * (-z * g[0][1] + y * g[0][2] + z * g[1][0] - x * g[1][2] - y * g[2][0] + x * g[2][1]),

@@ -104,15 +104,14 @@
 //! `alpha_max` clamp, as in 3DGS, for finite differences of a future backward. The median
 //! depth stays a step function of the parameters.
 //!
-//! # What a backward must follow
+//! # Backward ([`backward`])
 //! The branch of step 3 (object-space vs low-pass), the alpha clamp, the normal's sign, the
-//! skipped (surfel, pixel) pairs, and the order: all in [`SurfelSample`] and
+//! skipped (surfel, pixel) pairs, and the order are all in [`SurfelSample`] and
 //! [`SurfelProjected`]; `M₁`, `M₂`, final `T` and the median contributor per pixel in
-//! [`SurfelRasterOutput`]. Two choices are left to it: the official backward sends a low-pass
-//! hit's depth gradient to `h₃` as `∂L/∂z·(u, v, 1)` only, not through `(u, v)` (so not the
-//! exact derivative of this forward), and its distortion gradient uses the pixel's final
-//! totals `A = 1 − T_final`, `M₁`, `M₂`.
+//! [`SurfelRasterOutput`]. The backward differentiates this forward exactly (its module docs
+//! say where that differs from the official backward: the low-pass branch's depth gradient).
 
+pub mod backward;
 pub mod project;
 pub mod raster;
 
@@ -124,6 +123,8 @@ use super::sh;
 use super::TileBins;
 use crate::scene::{PinholeCamera, Pose};
 
+pub use backward::SurfelProjectedGrads;
+pub use backward::{backward, SurfelGradients, SurfelOutputGrads, SurfelParamGrads};
 pub use project::{bounding_box, preprocess, project_surfel, transform_matrix, SurfelBox};
 pub use project::{SurfelCull, SurfelProjected};
 pub use raster::{bin_surfels, composite_pixel, rasterize, sample_surfel, SurfelPixel};
