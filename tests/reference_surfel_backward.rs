@@ -397,8 +397,7 @@ fn each_output_alone_matches_finite_differences() {
     {
         let mut stats = [GroupStats::default(); 5];
         for seed in 0..4u64 {
-            let mut case =
-                random_case(20 + 4 * k as u64 + seed, 5, SurfelSettings::smooth(), which);
+            let case = random_case(20 + 4 * k as u64 + seed, 5, SurfelSettings::smooth(), which);
             check_case(&case, &format!("{which:?} seed {seed}"), &mut stats);
         }
         eprintln!("{which:?}");
