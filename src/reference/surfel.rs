@@ -171,6 +171,37 @@ impl RefSurfels {
         Ok(())
     }
 
+    /// The surfels in the engine's f32 parameter layout, in a 3DGS-shaped buffer: the two
+    /// log-scales go to the first two of each Gaussian's three, the third is set to
+    /// `third_log_scale` (the surfel kernels never read it; tests set it to something absurd).
+    pub fn to_params(&self, sh_degree: u32, third_log_scale: f32) -> crate::splats::GaussianParams {
+        let as_3d = super::RefGaussians {
+            positions: self.positions.clone(),
+            log_scales: self
+                .log_scales
+                .iter()
+                .map(|l| [l[0], l[1], third_log_scale as f64])
+                .collect(),
+            rotations: self.rotations.clone(),
+            opacity_logits: self.opacity_logits.clone(),
+            sh: self.sh.clone(),
+        };
+        as_3d.to_params(sh_degree)
+    }
+
+    /// The inverse of [`RefSurfels::to_params`] (the third log-scale dropped): f32 values
+    /// widened exactly, so a reference render of the result sees what the GPU sees.
+    pub fn from_params(p: &crate::splats::GaussianParams) -> Self {
+        let g = super::RefGaussians::from_params(p);
+        Self {
+            positions: g.positions,
+            log_scales: g.log_scales.iter().map(|l| [l[0], l[1]]).collect(),
+            rotations: g.rotations,
+            opacity_logits: g.opacity_logits,
+            sh: g.sh,
+        }
+    }
+
     /// Appends one surfel with only the DC colour set.
     pub fn push(
         &mut self,

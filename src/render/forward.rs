@@ -77,11 +77,34 @@ pub struct Capacity {
     pub tiles: usize,
 }
 
+impl Capacity {
+    /// One of everything: what buffers are shrunk to before a regrowth frees them.
+    pub fn single() -> Self {
+        Self {
+            gaussians: 1,
+            intersections: 1,
+            pixels: 1,
+            tiles: 1,
+        }
+    }
+
+    /// What a frame of `gaussians` at `camera`'s size needs, intersections aside (known only
+    /// after the frame).
+    pub fn for_frame(gaussians: usize, camera: &CameraGpu) -> Self {
+        Self {
+            gaussians,
+            intersections: 0,
+            pixels: (camera.width() as usize) * (camera.height() as usize),
+            tiles: camera.tile_count() as usize,
+        }
+    }
+}
+
 /// The per-frame buffers (kept after the frame: the backward pass reads them).
 pub struct FrameBuffers {
     pub projected: GpuBuffer<ProjectedGpu>,
-    depth_keys: GpuBuffer<[u32; 2]>,
-    depth_vals: GpuBuffer<u32>,
+    pub(super) depth_keys: GpuBuffer<[u32; 2]>,
+    pub(super) depth_vals: GpuBuffer<u32>,
     depth_keys_tmp: GpuBuffer<[u32; 2]>,
     depth_vals_tmp: GpuBuffer<u32>,
     touched: GpuBuffer<u32>,
@@ -115,6 +138,12 @@ pub struct Renderer {
     tile_sorted_in: SortedIn,
     depth_sorted_in: SortedIn,
     last_camera: Option<CameraGpu>,
+}
+
+fn stamp(rec: &mut Recorder, pool: Option<&mut TimestampPool>, label: &str) {
+    if let Some(p) = pool {
+        rec.timestamp(p, label);
+    }
 }
 
 /// Bits needed to hold every tile id of a grid with `tiles` tiles.
@@ -260,15 +289,7 @@ impl Renderer {
             return Ok(false);
         }
         // Free the old buffers first so peak memory does not double.
-        self.frame = FrameBuffers::new(
-            &self.ctx,
-            &Capacity {
-                gaussians: 1,
-                intersections: 1,
-                pixels: 1,
-                tiles: 1,
-            },
-        )?;
+        self.frame = FrameBuffers::new(&self.ctx, &Capacity::single())?;
         if next.gaussians != cur.gaussians {
             self.depth_sort = RadixSort::new(&self.ctx, next.gaussians as u64)?;
             self.scan = PrefixScan::new(&self.ctx, next.gaussians as u64)?;
@@ -295,30 +316,10 @@ impl Renderer {
         settings: &FrameSettings,
         mut timestamps: Option<&mut TimestampPool>,
     ) -> anyhow::Result<()> {
-        let need = Capacity {
-            gaussians: splats.count,
-            intersections: 0,
-            pixels: (camera.width() as usize) * (camera.height() as usize),
-            tiles: camera.tile_count() as usize,
-        };
-        anyhow::ensure!(
-            need.gaussians <= self.capacity.gaussians
-                && need.pixels <= self.capacity.pixels
-                && need.tiles <= self.capacity.tiles,
-            "renderer sized for {:?} cannot draw {} Gaussians at {}×{}; call ensure_capacity first",
-            self.capacity,
-            splats.count,
-            camera.width(),
-            camera.height()
-        );
+        self.check_frame(splats.count, camera)?;
         let ctx = self.ctx.clone();
         let f = &self.frame;
         let n = splats.count as u64;
-        let mut stamp = |rec: &mut Recorder, label: &str| {
-            if let Some(p) = timestamps.as_deref_mut() {
-                rec.timestamp(p, label);
-            }
-        };
 
         // 1. Preprocess.
         let mut rc = settings.constants;
@@ -359,8 +360,67 @@ impl Renderer {
             ctx.groups_1d(n.max(1), WG),
         );
         rec.barrier();
-        stamp(rec, "preprocess");
+        stamp(rec, timestamps.as_deref_mut(), "preprocess");
 
+        // 2–5 (tile ranges).
+        self.record_binning(rec, n, camera, timestamps.as_deref_mut());
+
+        // 5. Rasterize one workgroup per tile.
+        let f = &self.frame;
+        let (_, ids) = self.sorted_pairs();
+        rec.dispatch(
+            &self.raster,
+            &[
+                &f.projected,
+                ids,
+                &f.tile_ranges,
+                cameras,
+                &f.image,
+                &f.final_t,
+                &f.last_index,
+            ],
+            &RasterPush {
+                rc: settings.constants,
+                camera_index,
+                background: settings.background,
+            },
+            ctx.groups_1d(camera.tile_count() as u64, 1),
+        );
+        rec.barrier();
+        stamp(rec, timestamps, "rasterize");
+        self.finish_frame(rec, camera);
+        Ok(())
+    }
+
+    /// Checks that a frame of `count` splats at `camera`'s size fits the buffers.
+    pub(super) fn check_frame(&self, count: usize, camera: &CameraGpu) -> anyhow::Result<()> {
+        let pixels = (camera.width() as usize) * (camera.height() as usize);
+        anyhow::ensure!(
+            count <= self.capacity.gaussians
+                && pixels <= self.capacity.pixels
+                && camera.tile_count() as usize <= self.capacity.tiles,
+            "renderer sized for {:?} cannot draw {} Gaussians at {}×{}; call ensure_capacity first",
+            self.capacity,
+            count,
+            camera.width(),
+            camera.height()
+        );
+        Ok(())
+    }
+
+    /// Steps 2–5 of a frame whose preprocess (of `n` splats, 3DGS's or another model's) has
+    /// filled `frame.projected`, the depth keys and values and `counts[0]`, and zeroed
+    /// `frame.tile_ranges`: the depth sort, tile counts, scan and emit, the stable tile sort
+    /// and the tile ranges. The sorted pairs are then [`Renderer::sorted_ids`].
+    pub(super) fn record_binning(
+        &mut self,
+        rec: &mut Recorder,
+        n: u64,
+        camera: &CameraGpu,
+        mut timestamps: Option<&mut TimestampPool>,
+    ) {
+        let ctx = self.ctx.clone();
+        let f = &self.frame;
         // 2. Depth sort of all Gaussians (culled ones carry the largest key).
         let depth_in = self.depth_sort.record(
             &ctx,
@@ -379,7 +439,7 @@ impl Renderer {
             SortedIn::Input => &f.depth_vals,
             SortedIn::Scratch => &f.depth_vals_tmp,
         };
-        stamp(rec, "depth sort");
+        stamp(rec, timestamps.as_deref_mut(), "depth sort");
 
         // 3. Tile counts in depth order, scan, emit pairs.
         rec.dispatch(
@@ -413,7 +473,7 @@ impl Renderer {
             ctx.groups_1d(n.max(1), WG),
         );
         rec.barrier();
-        stamp(rec, "binning");
+        stamp(rec, timestamps.as_deref_mut(), "binning");
 
         // 4. Stable sort by tile id (only the bits this image needs).
         let bits = tile_bits(camera.tile_count());
@@ -429,10 +489,11 @@ impl Renderer {
             COUNT_SCRATCH,
             bits,
         );
-        let (keys, ids) = self.sorted_pairs();
-        stamp(rec, "tile sort");
+        let (keys, _) = self.sorted_pairs();
+        stamp(rec, timestamps, "tile sort");
 
-        // 5. Tile ranges, then rasterize one workgroup per tile.
+        // 5. Tile ranges.
+        let f = &self.frame;
         rec.dispatch(
             &self.ranges,
             &[keys, &f.tile_ranges, &f.counts],
@@ -440,32 +501,16 @@ impl Renderer {
             ctx.groups_1d(self.capacity.intersections as u64, WG),
         );
         rec.barrier();
-        rec.dispatch(
-            &self.raster,
-            &[
-                &f.projected,
-                ids,
-                &f.tile_ranges,
-                cameras,
-                &f.image,
-                &f.final_t,
-                &f.last_index,
-            ],
-            &RasterPush {
-                rc: settings.constants,
-                camera_index,
-                background: settings.background,
-            },
-            ctx.groups_1d(camera.tile_count() as u64, 1),
-        );
-        rec.barrier();
-        stamp(rec, "rasterize");
-        rec.copy(&f.counts, &f.counts_host, COUNT_SLOTS);
-        self.last_camera = Some(*camera);
-        Ok(())
     }
 
-    fn sorted_pairs(&self) -> (&GpuBuffer<[u32; 2]>, &GpuBuffer<u32>) {
+    /// The end of every frame: the counts go to the host buffer (read after the frame's fence)
+    /// and the camera is remembered for the readbacks.
+    pub(super) fn finish_frame(&mut self, rec: &mut Recorder, camera: &CameraGpu) {
+        rec.copy(&self.frame.counts, &self.frame.counts_host, COUNT_SLOTS);
+        self.last_camera = Some(*camera);
+    }
+
+    pub(super) fn sorted_pairs(&self) -> (&GpuBuffer<[u32; 2]>, &GpuBuffer<u32>) {
         let f = &self.frame;
         match self.tile_sorted_in {
             SortedIn::Input => (&f.tile_keys, &f.tile_vals),
@@ -500,12 +545,7 @@ impl Renderer {
         camera: &CameraGpu,
         settings: &FrameSettings,
     ) -> anyhow::Result<()> {
-        self.ensure_capacity(Capacity {
-            gaussians: splats.count,
-            intersections: 0,
-            pixels: (camera.width() * camera.height()) as usize,
-            tiles: camera.tile_count() as usize,
-        })?;
+        self.ensure_capacity(Capacity::for_frame(splats.count, camera))?;
         loop {
             let mut rec = Recorder::new(&self.ctx)?;
             self.record(

@@ -1,6 +1,6 @@
 //! The renderer on the GPU: the data contract (`layout`), the forward pass (`forward`) and its
-//! building blocks (prefix sums, radix sort), the backward pass (`backward`), and generated
-//! scenes for benchmarks.
+//! building blocks (prefix sums, radix sort), the backward pass (`backward`), 2DGS's surfels
+//! (`surfel`, on the same binning), and generated scenes for benchmarks.
 
 pub mod backward;
 pub mod filter3d;
@@ -8,4 +8,5 @@ pub mod forward;
 pub mod layout;
 pub mod scan;
 pub mod sort;
+pub mod surfel;
 pub mod synthetic;

@@ -1,0 +1,245 @@
+//! The surfel forward pass: `glsl/surfel/preprocess.comp` → 3DGS's depth sort, binning, tile
+//! sort and tile ranges ([`Renderer`]) → `glsl/surfel/rasterize.comp`, recorded into the
+//! caller's command buffer. Sizes grow like [`Renderer`]'s: the surfel geometry with the
+//! Gaussian capacity, the maps with the pixel capacity.
+
+use std::sync::Arc;
+
+use super::layout::{SurfelConstants, GEOM_STRIDE, MAPS_STRIDE};
+use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder, TimestampPool};
+use crate::render::backward::default_pixels_per_invocation;
+use crate::render::forward::{Capacity, Renderer};
+use crate::render::layout::CameraGpu;
+use crate::shaders;
+use crate::splats::gpu::GpuSplats;
+
+const WG: u32 = 256;
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct PreprocessPush {
+    count: u32,
+    camera_index: u32,
+    sh_degree: u32,
+    rest_coeffs: u32,
+    scale_stride: u32,
+    _pad: [u32; 3],
+    sc: SurfelConstants,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct RasterPush {
+    sc: SurfelConstants,
+    camera_index: u32,
+    background: [f32; 3],
+}
+
+/// What a surfel frame needs besides the splats and the camera buffer.
+#[derive(Debug, Clone, Copy)]
+pub struct SurfelFrameSettings {
+    pub sh_degree: u32,
+    pub background: [f32; 3],
+    pub constants: SurfelConstants,
+}
+
+/// The surfel buffers of the last frame (the backward reads them with [`Renderer::frame`]).
+pub struct SurfelFrame {
+    /// [`super::layout::SurfelGeomGpu`] per surfel, as flat floats.
+    pub geom: GpuBuffer<f32>,
+    /// [`super::layout::SurfelMapsGpu`] per pixel, as flat floats.
+    pub maps: GpuBuffer<f32>,
+    /// Per pixel: list position plus one of the median contributor (0 = none).
+    pub median_index: GpuBuffer<u32>,
+}
+
+impl SurfelFrame {
+    fn new(ctx: &Arc<GpuContext>, cap: &Capacity) -> anyhow::Result<Self> {
+        let dl = BufferKind::DeviceLocal;
+        let (n, px) = (cap.gaussians.max(1), cap.pixels.max(1));
+        Ok(Self {
+            geom: GpuBuffer::new(ctx, "surfel geometry", n * GEOM_STRIDE, dl)?,
+            maps: GpuBuffer::new(ctx, "surfel maps", px * MAPS_STRIDE, dl)?,
+            median_index: GpuBuffer::new(ctx, "surfel median index", px, dl)?,
+        })
+    }
+}
+
+/// The 2DGS renderer: 3DGS's binning with the surfel preprocess and rasterizer.
+pub struct SurfelRenderer {
+    ctx: Arc<GpuContext>,
+    /// The shared stages and buffers (projected, tile lists, image, final T, last index).
+    pub base: Renderer,
+    pub surfel: SurfelFrame,
+    preprocess: ComputePipeline,
+    raster: ComputePipeline,
+}
+
+impl SurfelRenderer {
+    pub fn new(ctx: &Arc<GpuContext>, capacity: Capacity) -> anyhow::Result<Self> {
+        let pixels = default_pixels_per_invocation(&ctx.info);
+        Ok(Self {
+            ctx: ctx.clone(),
+            base: Renderer::new(ctx, capacity)?,
+            surfel: SurfelFrame::new(ctx, &capacity)?,
+            preprocess: ComputePipeline::new(
+                ctx,
+                "surfel/preprocess",
+                shaders::SURFEL_PREPROCESS,
+                12,
+                std::mem::size_of::<PreprocessPush>() as u32,
+                WG,
+                &[],
+            )?,
+            raster: ComputePipeline::new(
+                ctx,
+                "surfel/rasterize",
+                shaders::SURFEL_RASTERIZE,
+                10,
+                std::mem::size_of::<RasterPush>() as u32,
+                WG / pixels,
+                &[pixels],
+            )?,
+        })
+    }
+
+    /// Grows the buffers when `need` exceeds the capacity (see [`Renderer::ensure_capacity`]).
+    pub fn ensure_capacity(&mut self, need: Capacity) -> anyhow::Result<bool> {
+        let before = self.base.capacity();
+        let grew = self.base.ensure_capacity(need)?;
+        let after = self.base.capacity();
+        if after.gaussians != before.gaussians || after.pixels != before.pixels {
+            // Free the old buffers first so peak memory does not double.
+            self.surfel = SurfelFrame::new(&self.ctx, &Capacity::single())?;
+            self.surfel = SurfelFrame::new(&self.ctx, &after)?;
+        }
+        Ok(grew)
+    }
+
+    /// Records one frame of the surfels `splats` (log-scales `scale_stride` floats apart: 2,
+    /// or 3 in a 3DGS-shaped buffer whose third entry is unused) seen from
+    /// `cameras[camera_index]` (host copy `camera`).
+    #[allow(clippy::too_many_arguments)]
+    pub fn record(
+        &mut self,
+        rec: &mut Recorder,
+        splats: &GpuSplats,
+        scale_stride: u32,
+        cameras: &GpuBuffer<CameraGpu>,
+        camera_index: u32,
+        camera: &CameraGpu,
+        settings: &SurfelFrameSettings,
+        mut timestamps: Option<&mut TimestampPool>,
+    ) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            scale_stride >= 2,
+            "surfel renderer: a log-scale stride of {scale_stride}; surfels have two scales"
+        );
+        self.base.check_frame(splats.count, camera)?;
+        let ctx = self.ctx.clone();
+        let n = splats.count as u64;
+        let f = &self.base.frame;
+        rec.fill(&f.tile_ranges, 0);
+        rec.dispatch(
+            &self.preprocess,
+            &[
+                &splats.positions,
+                &splats.log_scales,
+                &splats.rotations,
+                &splats.opacity_logits,
+                &splats.sh_dc,
+                &splats.sh_rest,
+                cameras,
+                &f.projected,
+                &f.depth_keys,
+                &f.depth_vals,
+                &f.counts,
+                &self.surfel.geom,
+            ],
+            &PreprocessPush {
+                count: splats.count as u32,
+                camera_index,
+                sh_degree: settings.sh_degree.min(splats.sh_degree),
+                rest_coeffs: (splats.sh_degree + 1) * (splats.sh_degree + 1) - 1,
+                scale_stride,
+                _pad: [0; 3],
+                sc: settings.constants,
+            },
+            // At least one invocation so counts[0] is written for an empty scene.
+            ctx.groups_1d(n.max(1), WG),
+        );
+        rec.barrier();
+        if let Some(p) = timestamps.as_deref_mut() {
+            rec.timestamp(p, "preprocess");
+        }
+
+        self.base
+            .record_binning(rec, n, camera, timestamps.as_deref_mut());
+
+        let f = &self.base.frame;
+        rec.dispatch(
+            &self.raster,
+            &[
+                &f.projected,
+                &self.surfel.geom,
+                self.base.sorted_ids(),
+                &f.tile_ranges,
+                cameras,
+                &f.image,
+                &f.final_t,
+                &f.last_index,
+                &self.surfel.maps,
+                &self.surfel.median_index,
+            ],
+            &RasterPush {
+                sc: settings.constants,
+                camera_index,
+                background: settings.background,
+            },
+            ctx.groups_1d(camera.tile_count() as u64, 1),
+        );
+        rec.barrier();
+        if let Some(p) = timestamps {
+            rec.timestamp(p, "rasterize");
+        }
+        self.base.finish_frame(rec, camera);
+        Ok(())
+    }
+
+    /// Renders one frame and waits, regrowing and re-rendering when the intersections did not
+    /// fit. For tools and tests; the trainer records frames into its own command buffers.
+    pub fn render_blocking(
+        &mut self,
+        splats: &GpuSplats,
+        scale_stride: u32,
+        cameras: &GpuBuffer<CameraGpu>,
+        camera_index: u32,
+        camera: &CameraGpu,
+        settings: &SurfelFrameSettings,
+    ) -> anyhow::Result<()> {
+        let need = Capacity::for_frame(splats.count, camera);
+        self.ensure_capacity(need)?;
+        loop {
+            let mut rec = Recorder::new(&self.ctx)?;
+            self.record(
+                &mut rec,
+                splats,
+                scale_stride,
+                cameras,
+                camera_index,
+                camera,
+                settings,
+                None,
+            )?;
+            rec.submit_and_wait()?;
+            let m = self.base.last_intersections()?;
+            if m <= self.base.capacity().intersections as u64 {
+                return Ok(());
+            }
+            self.ensure_capacity(Capacity {
+                intersections: m as usize,
+                ..self.base.capacity()
+            })?;
+        }
+    }
+}
