@@ -1,0 +1,266 @@
+// 2DGS rasterizer backward (shared body of rasterize_backward.comp and
+// rasterize_backward_cas.comp). Mirrors src/reference/surfel/backward.rs `pixel_backward`.
+//
+// One workgroup per 16×16 tile; each invocation owns PIXELS pixels. Every pixel walks its
+// tile's list back to front from its `last_index`, so all pixels of the workgroup visit the
+// same surfel at the same time: surfels are staged in shared memory a batch at a time. Per
+// surfel an invocation sums its pixels' gradients, the subgroup sums those (subgroupAdd) into
+// shared memory, and after the batch one invocation per surfel adds the subgroups' sums to
+// global memory (18 atomics per (tile, surfel) pair at most; zero sums are not added).
+//
+// Every output is a function of the blend weights w_i = alpha_i T_i and per-surfel values, so
+// per surfel the pixel forms g = ∂L/∂w at fixed values (colour, alpha map, background, depth,
+// normal, distortion with the pixel's final totals A, M1, M2 — exact, see the reference), then
+// ∂L/∂alpha = T·g − (Σ_{behind} g_i w_i)/(1 − alpha), keeping that sum back to front. The
+// transmittance in front is recovered as T/(1 − alpha) from the stored final T (bounded: the
+// forward stops before T < t_min and alpha ≤ alpha_max).
+//
+// Per surfel the pixel repeats the forward's decisions (surfel_sample): skipped pairs, the
+// object-space vs low-pass branch, the alpha clamp (no gradient to the kernel or opacity when
+// active), the median contributor (gets the median depth's gradient). The low-pass branch's
+// hit depth still depends on (u, v): its gradient goes through them (exact; the official code
+// drops that part).
+//
+// Output: grad_geom[g·18 + k]: dL/d(h1 (3), h2 (3), h3 (3), box centre (2), rgb (3),
+// opacity, normal (3)), accumulated atomically (the caller zeroes it first).
+//
+// HAS_FLOAT_ATOMICS (a #define of the including file) says whether the SPIR-V may declare the
+// float atomic-add capability; USE_FLOAT_ATOMICS (specialisation constant 2) picks the float
+// atomicAdd (1) or a compare-and-swap loop on the bits (0) at pipeline creation.
+
+#extension GL_KHR_shader_subgroup_basic : require
+#extension GL_KHR_shader_subgroup_arithmetic : require
+#extension GL_EXT_control_flow_attributes : require
+
+layout(constant_id = 0) const uint WG_SIZE = 256;  // must be 256 / PIXELS
+layout(constant_id = 1) const uint SUBGROUP_SIZE = 32;
+layout(constant_id = 2) const uint USE_FLOAT_ATOMICS = 0;
+layout(constant_id = 3) const uint PIXELS = 1;  // 1, 2, 4, 8 or 16
+layout(local_size_x_id = 0) in;
+
+#include "camera.glsl"
+#include "projected.glsl"
+#include "surfel.glsl"
+
+const uint TILE = 16u;
+const uint GRAD_STRIDE = 18u;
+
+layout(std430, set = 0, binding = 0) readonly buffer Cameras { Camera cameras[]; };
+layout(std430, set = 0, binding = 1) readonly buffer ProjectedBuf { Projected projected[]; };
+layout(std430, set = 0, binding = 2) readonly buffer Geom { float geom[]; };
+layout(std430, set = 0, binding = 3) readonly buffer TileRanges { uvec2 tile_ranges[]; };
+layout(std430, set = 0, binding = 4) readonly buffer SortedIds { uint sorted_ids[]; };
+layout(std430, set = 0, binding = 5) readonly buffer FinalT { float final_t[]; };
+layout(std430, set = 0, binding = 6) readonly buffer LastIndex { uint last_index[]; };
+layout(std430, set = 0, binding = 7) readonly buffer MedianIndex { uint median_index[]; };
+layout(std430, set = 0, binding = 8) readonly buffer Maps { float maps[]; };
+layout(std430, set = 0, binding = 9) readonly buffer DlDImage { float dl_dimage[]; };
+// Per pixel, MAP_GRADS_STRIDE floats: dL/d(alpha, depth numerator, median depth, normal (3),
+// distortion), the last unused.
+layout(std430, set = 0, binding = 10) readonly buffer DlDMaps { float dl_dmaps[]; };
+layout(std430, set = 0, binding = 11) buffer GradBits { uint grad_bits[]; };
+#if HAS_FLOAT_ATOMICS
+layout(std430, set = 0, binding = 11) buffer GradFloat { float grad_f[]; };
+#endif
+
+layout(push_constant) uniform Push {
+    SurfelConstants sc;
+    vec4 background;  // xyz used
+    uint camera_index;
+} pc;
+
+const uint MAP_GRADS_STRIDE = 8u;
+
+void atomic_add_float(uint idx, float v) {
+#if HAS_FLOAT_ATOMICS
+    if (USE_FLOAT_ATOMICS != 0u) {
+        atomicAdd(grad_f[idx], v);
+        return;
+    }
+#endif
+    // Lock-free: every failed exchange means another invocation's add succeeded.
+    uint old = grad_bits[idx];
+    for (;;) {
+        uint assumed = old;
+        old = atomicCompSwap(grad_bits[idx], assumed,
+                             floatBitsToUint(uintBitsToFloat(assumed) + v));
+        if (old == assumed) break;
+    }
+}
+
+// Surfels per batch: the per-subgroup sums of a batch must fit in s_acc.
+const uint ACC_FLOATS = 4608u;
+const uint NUM_SG = WG_SIZE / SUBGROUP_SIZE;
+const uint BATCH_BY_ACC = ACC_FLOATS / (NUM_SG * GRAD_STRIDE);
+const uint BATCH = WG_SIZE < BATCH_BY_ACC ? WG_SIZE : BATCH_BY_ACC;
+
+// Pixel k of invocation li (row-major in the tile): a subgroup's pixels are consecutive.
+uint tile_pixel(uint li, uint k) {
+    uint lane = li % SUBGROUP_SIZE;
+    return (li - lane) * PIXELS + k * SUBGROUP_SIZE + lane;
+}
+
+shared uint s_max_last;
+shared uint s_id[BATCH];
+shared vec4 s_h1[BATCH];  // h1, opacity
+shared vec4 s_h2[BATCH];  // h2, box centre x
+shared vec4 s_h3[BATCH];  // h3, box centre y
+shared vec3 s_n[BATCH];
+shared vec3 s_rgb[BATCH];
+// [(surfel in batch · NUM_SG + subgroup) · GRAD_STRIDE + k]: the subgroup's sums.
+shared float s_acc[ACC_FLOATS];
+
+void main() {
+    Camera cam = cameras[pc.camera_index];
+    uint width = cam.size.x, height = cam.size.y, tiles_x = cam.size.z, tiles_y = cam.size.w;
+    uint tile = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
+    if (tile >= tiles_x * tiles_y) return;  // uniform over the workgroup
+
+    uint li = gl_LocalInvocationIndex;
+    uvec2 range = tile_ranges[tile];
+    uint list_len = range.y > range.x ? range.y - range.x : 0u;
+    SurfelConstants sc = pc.sc;
+
+    vec2 centre[PIXELS];
+    uint last[PIXELS], median_at[PIXELS];
+    float t[PIXELS];
+    vec3 dl_dc[PIXELS], dl_dn[PIXELS];
+    // dL/d(alpha map) + the background's −bg·dL/dC per unit weight; depth; median; distortion.
+    float g_const[PIXELS], dl_dd[PIXELS], dl_dmed[PIXELS], dl_ddist[PIXELS];
+    float total_w[PIXELS], m1[PIXELS], m2[PIXELS];
+    float behind[PIXELS];  // Σ over surfels behind of g_i·w_i
+    uint my_max_last = 0u;
+    [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
+        uint q = tile_pixel(li, k);
+        uint px = (tile % tiles_x) * TILE + q % TILE;
+        uint py = (tile / tiles_x) * TILE + q / TILE;
+        bool inside = px < width && py < height;
+        uint pix = py * width + px;
+        centre[k] = vec2(float(px) + 0.5, float(py) + 0.5);
+        // A last_index past the tile's list would read other tiles' entries: clamp (bad input).
+        last[k] = inside ? min(last_index[pix], list_len) : 0u;
+        median_at[k] = inside ? median_index[pix] : 0u;
+        t[k] = inside ? final_t[pix] : 1.0;
+        total_w[k] = 1.0 - t[k];
+        dl_dc[k] = vec3(0.0); dl_dn[k] = vec3(0.0);
+        g_const[k] = 0.0; dl_dd[k] = 0.0; dl_dmed[k] = 0.0; dl_ddist[k] = 0.0;
+        m1[k] = 0.0; m2[k] = 0.0;
+        if (inside) {
+            dl_dc[k] = vec3(dl_dimage[3u * pix], dl_dimage[3u * pix + 1u], dl_dimage[3u * pix + 2u]);
+            uint o = MAP_GRADS_STRIDE * pix;
+            g_const[k] = dl_dmaps[o] - dot(pc.background.xyz, dl_dc[k]);
+            dl_dd[k] = dl_dmaps[o + 1u];
+            dl_dmed[k] = dl_dmaps[o + 2u];
+            dl_dn[k] = vec3(dl_dmaps[o + 3u], dl_dmaps[o + 4u], dl_dmaps[o + 5u]);
+            dl_ddist[k] = dl_dmaps[o + 6u];
+            m1[k] = maps[MAPS_STRIDE * pix + 6u];
+            m2[k] = maps[MAPS_STRIDE * pix + 7u];
+        }
+        behind[k] = 0.0;
+        my_max_last = max(my_max_last, last[k]);
+    }
+
+    if (li == 0u) s_max_last = 0u;
+    barrier();
+    atomicMax(s_max_last, subgroupMax(my_max_last));
+    barrier();
+    uint max_last = s_max_last;
+    float dm_dz_num = sc.far * sc.near / (sc.far - sc.near);
+
+    for (uint done = 0u; done < max_last; done += BATCH) {
+        uint batch = min(BATCH, max_last - done);
+        barrier();  // the previous batch has been consumed by every invocation
+        if (li < batch) {
+            uint e = max_last - 1u - (done + li);
+            uint g = sorted_ids[range.x + e];
+            Projected p = projected[g];
+            uint o = GEOM_STRIDE * g;
+            s_id[li] = g;
+            s_h1[li] = vec4(geom[o], geom[o + 1u], geom[o + 2u], p.opacity);
+            s_h2[li] = vec4(geom[o + 3u], geom[o + 4u], geom[o + 5u], p.mean_x);
+            s_h3[li] = vec4(geom[o + 6u], geom[o + 7u], geom[o + 8u], p.mean_y);
+            s_n[li] = vec3(geom[o + 9u], geom[o + 10u], geom[o + 11u]);
+            s_rgb[li] = vec3(p.r, p.g, p.b);
+        }
+        barrier();
+        for (uint j = 0u; j < batch; j++) {
+            uint e = max_last - 1u - (done + j);
+            vec4 h1 = s_h1[j], h2 = s_h2[j], h3 = s_h3[j];
+            vec2 mc = vec2(h2.w, h3.w);
+            float opacity = h1.w;
+            vec3 rgb = s_rgb[j], n = s_n[j];
+            vec3 g_h1 = vec3(0.0), g_h2 = vec3(0.0), g_h3 = vec3(0.0), g_rgb = vec3(0.0);
+            vec3 g_n = vec3(0.0);
+            vec2 g_m = vec2(0.0);
+            float g_op = 0.0;
+            [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
+                if (e >= last[k]) continue;
+                SurfelHit s;
+                if (!surfel_sample(sc, h1.xyz, h2.xyz, h3.xyz, mc, opacity, centre[k], s)) continue;
+                float inv_one_minus = 1.0 / (1.0 - s.alpha);
+                t[k] *= inv_one_minus;
+                float w = s.alpha * t[k];
+                float mz = mapped_depth(sc, s.z);
+                float g_w = dot(dl_dc[k], rgb) + g_const[k] + dl_dd[k] * s.z
+                            + dot(dl_dn[k], n)
+                            + dl_ddist[k] * (mz * mz * total_w[k] + m2[k] - 2.0 * mz * m1[k]);
+                float dl_dalpha = t[k] * g_w - behind[k] * inv_one_minus;
+                behind[k] += g_w * w;
+                g_rgb += w * dl_dc[k];
+                g_n += w * dl_dn[k];
+                float dl_dz = w * dl_dd[k]
+                              + dl_ddist[k] * 2.0 * w * (mz * total_w[k] - m1[k])
+                                  * dm_dz_num / (s.z * s.z);
+                if (e + 1u == median_at[k]) dl_dz += dl_dmed[k];
+                vec2 dl_duv = vec2(0.0);
+                // Clamp: an alpha clamped at alpha_max passes nothing to the kernel or opacity.
+                if (!s.alpha_clamped) {
+                    g_op += s.gauss * dl_dalpha;
+                    float dl_drho = -0.5 * s.gauss * opacity * dl_dalpha;
+                    if (s.lowpass) {
+                        g_m += dl_drho * 2.0 * sc.filter_inv_square * (mc - centre[k]);
+                    } else {
+                        dl_duv = 2.0 * s.uv * dl_drho;
+                    }
+                }
+                // z = u h31 + v h32 + h33; (u, v) = p.xy / p.z; p = a × c.
+                dl_duv += dl_dz * h3.xy;
+                vec3 dl_dh3 = dl_dz * vec3(s.uv, 1.0);
+                vec3 dl_dp = vec3(dl_duv, -dot(dl_duv, s.uv)) / s.p.z;
+                vec3 dl_da = cross(s.c, dl_dp);
+                vec3 dl_dcc = cross(dl_dp, s.a);
+                dl_dh3 += centre[k].x * dl_da + centre[k].y * dl_dcc;
+                g_h1 -= dl_da;
+                g_h2 -= dl_dcc;
+                g_h3 += dl_dh3;
+            }
+            g_h1 = subgroupAdd(g_h1);
+            g_h2 = subgroupAdd(g_h2);
+            g_h3 = subgroupAdd(g_h3);
+            g_m = subgroupAdd(g_m);
+            g_rgb = subgroupAdd(g_rgb);
+            g_op = subgroupAdd(g_op);
+            g_n = subgroupAdd(g_n);
+            if (subgroupElect()) {
+                uint a = (j * NUM_SG + gl_SubgroupID) * GRAD_STRIDE;
+                s_acc[a + 0u] = g_h1.x; s_acc[a + 1u] = g_h1.y; s_acc[a + 2u] = g_h1.z;
+                s_acc[a + 3u] = g_h2.x; s_acc[a + 4u] = g_h2.y; s_acc[a + 5u] = g_h2.z;
+                s_acc[a + 6u] = g_h3.x; s_acc[a + 7u] = g_h3.y; s_acc[a + 8u] = g_h3.z;
+                s_acc[a + 9u] = g_m.x; s_acc[a + 10u] = g_m.y;
+                s_acc[a + 11u] = g_rgb.x; s_acc[a + 12u] = g_rgb.y; s_acc[a + 13u] = g_rgb.z;
+                s_acc[a + 14u] = g_op;
+                s_acc[a + 15u] = g_n.x; s_acc[a + 16u] = g_n.y; s_acc[a + 17u] = g_n.z;
+            }
+        }
+        barrier();
+        // One invocation per surfel of the batch: the subgroups' sums, then the atomics.
+        for (uint j = li; j < batch; j += WG_SIZE) {
+            uint base = s_id[j] * GRAD_STRIDE;
+            for (uint c = 0u; c < GRAD_STRIDE; c++) {
+                float sum = 0.0;
+                for (uint sg = 0u; sg < NUM_SG; sg++) sum += s_acc[(j * NUM_SG + sg) * GRAD_STRIDE + c];
+                if (sum != 0.0) atomic_add_float(base + c, sum);
+            }
+        }
+    }
+}
