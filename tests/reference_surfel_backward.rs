@@ -13,6 +13,7 @@
 
 use lpmsplat::reference::scenes::{look_at, random_view};
 use lpmsplat::reference::sh;
+use lpmsplat::reference::surfel::regularise;
 use lpmsplat::reference::surfel::{
     self, random_surfels, rasterize, sample_surfel, RefSurfels, SurfelGradients, SurfelOutputGrads,
     SurfelProjected, SurfelRenderOutput, SurfelSettings,
@@ -760,3 +761,107 @@ fn mismatched_output_gradients_are_an_error() {
     .to_string();
     assert!(err.contains("`normal`"), "{err}");
 }
+
+/// The normal-consistency loss with the weighting alpha held at `alpha` (the official code
+/// detaches it), for difference quotients.
+fn normal_loss_detached(
+    out: &SurfelRenderOutput,
+    camera: &PinholeCamera,
+    ratio: f64,
+    alpha: &[f64],
+) -> f64 {
+    let (depth, _) = regularise::surface_depth(&out.raster, ratio);
+    let normals = regularise::depth_normals(camera, &depth);
+    let n = normals.len() as f64;
+    normals
+        .iter()
+        .zip(&out.raster.normal)
+        .zip(alpha)
+        .map(|((s, r), a)| 1.0 - a * (s[0] * r[0] + s[1] * r[1] + s[2] * r[2]))
+        .sum::<f64>()
+        / n
+}
+
+/// The regularisers (normal consistency with both depth ratios, distortion) through the surfel
+/// backward against difference quotients of the regularised loss, on scenes dense enough that
+/// the surface-depth map has interior normals.
+#[test]
+fn regulariser_gradients_match_finite_differences() {
+    let mut stats = [GroupStats::default(); 5];
+    for seed in 0..8u64 {
+        let mut case = random_case(120 + seed, 12, SurfelSettings::smooth(), Outputs::All);
+        for ls in &mut case.surfels.log_scales {
+            *ls = ls.map(|v| v + 0.8);
+        }
+        let ratio = if seed % 2 == 0 { 0.0 } else { 1.0 };
+        let base = case.render(&case.surfels);
+        let (_, gn) = regularise::normal_consistency(&base.raster, &case.camera, ratio, 0.7);
+        let (_, gd) = regularise::distortion_loss(&base.raster, 300.0);
+        let mut w = gn;
+        for (a, b) in w.distortion.iter_mut().zip(&gd.distortion) {
+            *a += b;
+        }
+        case.weights = w;
+        // A median that jumps between neighbours is a step in the surface depth: fine for the
+        // structure check (it compares median contributors).
+        let alpha = base.raster.alpha.clone();
+        let loss = |out: &SurfelRenderOutput| {
+            0.7 * normal_loss_detached(out, &case.camera, ratio, &alpha)
+                + 300.0 * out.raster.distortion.iter().sum::<f64>() / alpha.len() as f64
+        };
+        let grads = surfel::backward(
+            &case.surfels,
+            &case.camera,
+            &case.pose,
+            case.degree,
+            case.background,
+            &case.settings,
+            &base,
+            &case.weights,
+        )
+        .unwrap();
+        let sig = structure(&base, &case.camera, &case.settings);
+        // The expected depth D/alpha of faint pixels makes the quotient noisy at small steps;
+        // it is smooth enough for a larger one.
+        let h = 1e-4;
+        for (group, &(label, comps)) in GROUPS.iter().enumerate().take(4) {
+            let mut pairs = Vec::new();
+            for i in 0..case.surfels.len() {
+                for c in 0..comps {
+                    stats[group].total += 1;
+                    let mut s = case.surfels.clone();
+                    let x = *param_mut(&mut s, group, i, c);
+                    *param_mut(&mut s, group, i, c) = x + h;
+                    let plus = case.render(&s);
+                    *param_mut(&mut s, group, i, c) = x - h;
+                    let minus = case.render(&s);
+                    if structure(&plus, &case.camera, &case.settings) != sig
+                        || structure(&minus, &case.camera, &case.settings) != sig
+                    {
+                        stats[group].skipped += 1;
+                        continue;
+                    }
+                    let fd = (loss(&plus) - loss(&minus)) / (2.0 * h);
+                    pairs.push((param_grad(&grads, group, i, c), fd));
+                }
+            }
+            compare(
+                &format!("regularisers seed {seed}"),
+                label,
+                &pairs,
+                1e-9,
+                &mut stats[group],
+            );
+        }
+    }
+    for (k, s) in stats.iter().enumerate().take(4) {
+        eprintln!("{:>14}: {s:?}", GROUPS[k].0);
+        assert!(
+            s.checked >= 20 && s.skipped * 5 <= s.total,
+            "{}: {s:?}",
+            GROUPS[k].0
+        );
+        assert!(s.noise_accepted * 20 <= s.checked, "{}: {s:?}", GROUPS[k].0);
+    }
+}
+

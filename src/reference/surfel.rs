@@ -114,6 +114,7 @@
 pub mod backward;
 pub mod project;
 pub mod raster;
+pub mod regularise;
 
 use anyhow::{ensure, Result};
 use rand::Rng;
