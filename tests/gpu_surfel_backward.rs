@@ -8,6 +8,7 @@
 
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder};
 use lpmsplat::reference::scenes;
+use lpmsplat::reference::surfel::regularise;
 use lpmsplat::reference::surfel::{
     self, random_surfels, RefSurfels, SurfelGradients, SurfelOutputGrads, SurfelSettings,
 };
@@ -16,6 +17,7 @@ use lpmsplat::render::layout::CameraGpu;
 use lpmsplat::render::surfel::backward::{SurfelBackward, SurfelBackwardArgs, MAP_GRADS_STRIDE};
 use lpmsplat::render::surfel::forward::{SurfelFrameSettings, SurfelRenderer};
 use lpmsplat::render::surfel::layout::SurfelConstants;
+use lpmsplat::render::surfel::regularise::{RegulariserWeights, SurfelRegularisers};
 use lpmsplat::scene::{PinholeCamera, Pose};
 use lpmsplat::splats::gpu::GpuSplats;
 use lpmsplat::splats::GaussianParams;
@@ -433,4 +435,122 @@ fn a_short_gradient_buffer_is_refused() {
         err.contains("dl_dimage") || err.contains("dl_dmaps"),
         "{err}"
     );
+}
+
+/// The regularisers' GPU passes (surface depth, depth normals, gather) against
+/// `reference::surfel::regularise` on the same frames: every slot of dL/d(maps).
+#[test]
+fn regulariser_map_gradients_match_the_reference() {
+    let ctx = ctx();
+    let mut rng = Pcg64::seed_from_u64(4242);
+    let (mut compared, mut with_normals) = (0, 0);
+    for seed in 0..16u64 {
+        let mut s = random_scene(&mut rng, SurfelSettings::default(), 0.8);
+        for _ in 0..20 {
+            // Dense scenes: interior pixels with a surface to take normals of.
+            let extra = random_surfels(&mut rng, 1);
+            s.surfels.positions.extend(extra.positions);
+            s.surfels
+                .log_scales
+                .extend(extra.log_scales.iter().map(|l| l.map(|v| v + 0.8)));
+            s.surfels.rotations.extend(extra.rotations);
+            s.surfels.opacity_logits.extend(extra.opacity_logits);
+            s.surfels.sh.extend(extra.sh);
+        }
+        let ratio = (seed % 2) as f32;
+        let weights = RegulariserWeights {
+            normal: 0.05 * (1 + seed % 3) as f32,
+            distortion: 100.0,
+            depth_ratio: ratio,
+        };
+        let params = s.surfels.to_params(3, THIRD);
+        let exact = RefSurfels::from_params(&params);
+        let n = params.len();
+        let splats = GpuSplats::upload(&ctx, &params, n).unwrap();
+        let cam = CameraGpu::new(&s.camera, &s.pose);
+        let cameras = GpuBuffer::from_slice(&ctx, "cameras", &[cam]).unwrap();
+        let mut renderer = SurfelRenderer::new(&ctx, Capacity::single()).unwrap();
+        let constants = SurfelConstants::from_settings(&s.settings);
+        renderer
+            .render_blocking(
+                &splats,
+                3,
+                &cameras,
+                0,
+                &cam,
+                &SurfelFrameSettings {
+                    sh_degree: s.sh_degree,
+                    background: s.background,
+                    constants,
+                },
+            )
+            .unwrap();
+        let px = (s.camera.width * s.camera.height) as usize;
+        let regs = SurfelRegularisers::new(&ctx, px).unwrap();
+        let dl_dmaps =
+            GpuBuffer::from_slice(&ctx, "dl_dmaps", &vec![f32::NAN; px * MAP_GRADS_STRIDE])
+                .unwrap();
+        let mut rec = Recorder::new(&ctx).unwrap();
+        regs.record(&mut rec, &renderer, &cameras, 0, &cam, &weights, &dl_dmaps)
+            .unwrap();
+        rec.submit_and_wait().unwrap();
+        let got = dl_dmaps.read().unwrap();
+        let bg = s.background.map(|v| v as f64);
+        let fwd = surfel::render(
+            &exact,
+            &s.camera,
+            &s.pose,
+            s.sh_degree as usize,
+            bg,
+            &s.settings,
+        )
+        .unwrap();
+        if renderer.base.frame.last_index.read_range(0, px).unwrap() != fwd.raster.last_contributor
+        {
+            continue;
+        }
+        let (_, gn) = regularise::normal_consistency(
+            &fwd.raster,
+            &s.camera,
+            ratio as f64,
+            weights.normal as f64,
+        );
+        let (_, gd) = regularise::distortion_loss(&fwd.raster, weights.distortion as f64);
+        let slot =
+            |k: usize| -> Vec<f32> { (0..px).map(|p| got[p * MAP_GRADS_STRIDE + k]).collect() };
+        let label = format!("regularisers seed {seed}");
+        compare(&format!("{label} alpha"), &slot(0), &gn.alpha, 1e-2, 2e-3);
+        compare(&format!("{label} depth"), &slot(1), &gn.depth, 1e-2, 2e-3);
+        compare(
+            &format!("{label} median"),
+            &slot(2),
+            &gn.median_depth,
+            1e-2,
+            2e-3,
+        );
+        for k in 0..3 {
+            let want: Vec<f64> = gn.normal.iter().map(|v| v[k]).collect();
+            compare(
+                &format!("{label} normal[{k}]"),
+                &slot(3 + k),
+                &want,
+                1e-2,
+                2e-3,
+            );
+        }
+        compare(
+            &format!("{label} distortion"),
+            &slot(6),
+            &gd.distortion,
+            1e-6,
+            0.0,
+        );
+        if gn.normal.iter().any(|v| *v != [0.0; 3]) {
+            with_normals += 1;
+        }
+        compared += 1;
+    }
+    assert!(compared >= 12, "only {compared} of 16 scenes comparable");
+    assert!(with_normals >= 10, "only {with_normals} scenes had surface normals");
+    ctx.check_validation().unwrap();
 }

@@ -6,3 +6,4 @@
 pub mod backward;
 pub mod forward;
 pub mod layout;
+pub mod regularise;
