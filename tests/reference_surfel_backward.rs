@@ -864,4 +864,3 @@ fn regulariser_gradients_match_finite_differences() {
         assert!(s.noise_accepted * 20 <= s.checked, "{}: {s:?}", GROUPS[k].0);
     }
 }
-

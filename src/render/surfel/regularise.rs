@@ -110,6 +110,7 @@ impl SurfelRegularisers {
 
     /// Records the three passes on `renderer`'s last frame of `cameras[camera_index]` (host
     /// copy `camera`), writing `dl_dmaps` ([`MAP_GRADS_STRIDE`] floats per pixel).
+    #[allow(clippy::too_many_arguments)]
     pub fn record(
         &self,
         rec: &mut Recorder,
