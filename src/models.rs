@@ -1,11 +1,14 @@
 //! Base models: what a model changes in a training run, applied to the trainer's config.
 //!
 //! Today's models share the 3DGS parameter groups and PLY layout; they differ in the
-//! densification statistic (Pixel-GS, BASE_MODELS.md §3) or in the renderer's filters
+//! densification statistic (Pixel-GS, BASE_MODELS.md §3), in the renderer's filters
 //! (Mip-Splatting, §2: a non-optimised per-Gaussian 3D filter the trainer recomputes, and the
-//! 2D Mip filter). 2DGS's surfels and SpacetimeGS are not built yet.
+//! 2D Mip filter), or in the primitive (2DGS, §1: surfels, with their own passes and
+//! regularisers, [`crate::train::passes::surfels`]). SpacetimeGS is not built yet.
 
+use crate::splats::GaussianParams;
 use crate::train::density::Statistic;
+use crate::train::passes::surfels::{SurfelTraining, UNUSED_LOG_SCALE};
 use crate::train::trainer::TrainConfig;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Hash)]
@@ -20,13 +23,18 @@ pub enum BaseModel {
     /// Mip-Splatting (Yu et al., CVPR 2024): the 3D smoothing filter and the 2D Mip filter,
     /// with the paper's densification (3DGS's gradient test).
     MipSplatting,
+    /// 2D Gaussian Splatting (Huang et al., SIGGRAPH 2024): surfels with the normal-consistency
+    /// and depth-distortion regularisers, the official densification statistic and its 0.05
+    /// opacity prune.
+    Surfels2d,
 }
 
 impl BaseModel {
-    pub const ALL: [BaseModel; 3] = [
+    pub const ALL: [BaseModel; 4] = [
         BaseModel::Gaussians3d,
         BaseModel::PixelGs,
         BaseModel::MipSplatting,
+        BaseModel::Surfels2d,
     ];
 
     pub fn parse(s: &str) -> anyhow::Result<BaseModel> {
@@ -47,7 +55,32 @@ impl BaseModel {
             BaseModel::Gaussians3d => "3dgs",
             BaseModel::PixelGs => "pixel-gs",
             BaseModel::MipSplatting => "mip-splatting",
+            BaseModel::Surfels2d => "2dgs",
         }
+    }
+
+    /// The prune threshold on opacity when the user gives none (2DGS's `opacity_cull` 0.05,
+    /// else the Inria 0.005).
+    pub fn default_min_opacity(&self) -> f64 {
+        match self {
+            BaseModel::Surfels2d => 0.05,
+            _ => 0.005,
+        }
+    }
+
+    /// Turns a 3DGS-style initial model into this model's: for 2DGS, random rotations (the
+    /// official `torch.rand(N, 4)`, here seeded) and the unused third log-scale
+    /// ([`UNUSED_LOG_SCALE`]); other models unchanged.
+    pub fn initialise(&self, mut params: GaussianParams, seed: u64) -> GaussianParams {
+        if *self == BaseModel::Surfels2d {
+            use rand::{Rng, SeedableRng};
+            let mut rng = rand_pcg::Pcg64::seed_from_u64(seed ^ 0x2D65);
+            for (l, q) in params.log_scales.iter_mut().zip(&mut params.rotations) {
+                l[2] = UNUSED_LOG_SCALE;
+                *q = [0; 4].map(|_| rng.gen_range(0.0..1.0f32).max(1e-3));
+            }
+        }
+        params
     }
 
     /// The rasterizer constants its renders use (eval, render, viewers of an exported PLY).
@@ -59,14 +92,24 @@ impl BaseModel {
     /// user's flags, alone).
     pub fn configure(&self, config: &mut TrainConfig) {
         config.density.statistic = match self {
-            BaseModel::Gaussians3d | BaseModel::MipSplatting => Statistic::Gradient,
+            BaseModel::Gaussians3d | BaseModel::MipSplatting | BaseModel::Surfels2d => {
+                Statistic::Gradient
+            }
             BaseModel::PixelGs => Statistic::pixel_gs(),
         };
         config.mip_filters = *self == BaseModel::MipSplatting;
+        config.surfels = match (self, config.surfels) {
+            (BaseModel::Surfels2d, Some(t)) => Some(t),
+            (BaseModel::Surfels2d, None) => Some(SurfelTraining::default()),
+            _ => None,
+        };
     }
 
     /// The model a config trains (the inverse of [`BaseModel::configure`]).
     pub fn of(config: &TrainConfig) -> BaseModel {
+        if config.surfels.is_some() {
+            return BaseModel::Surfels2d;
+        }
         match (config.density.statistic, config.mip_filters) {
             (_, true) => BaseModel::MipSplatting,
             (Statistic::Gradient, false) => BaseModel::Gaussians3d,
@@ -89,7 +132,7 @@ mod tests {
         }
         let e = BaseModel::parse("mip").unwrap_err().to_string();
         assert!(
-            e.contains("3dgs, pixel-gs, mip-splatting") && e.contains("Fix"),
+            e.contains("3dgs, pixel-gs, mip-splatting, 2dgs") && e.contains("Fix"),
             "{e}"
         );
     }

@@ -16,6 +16,7 @@ use lpmsplat::models::BaseModel;
 use lpmsplat::scene::{images, Image, Scene};
 use lpmsplat::splats::{self, read_ply, write_ply, write_splat, GaussianParams};
 use lpmsplat::train::nan_check::NonFiniteCheck;
+use lpmsplat::train::passes::surfels::SurfelTraining;
 use lpmsplat::train::trainer::{Background, TrainConfig, Trainer, ViewMetrics};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -30,9 +31,11 @@ pub struct TrainArgs {
     pub out: PathBuf,
     #[arg(long, default_value_t = 30_000)]
     pub iterations: u32,
-    /// Base model: 3dgs, pixel-gs (Pixel-GS's pixel-weighted densification statistic) or
+    /// Base model: 3dgs, pixel-gs (Pixel-GS's pixel-weighted densification statistic),
     /// mip-splatting (3D smoothing and 2D Mip filters; the PLY has the 3D filter fused in,
-    /// evaluate it with `eval --model mip-splatting`). Combines with --lpm.
+    /// evaluate it with `eval --model mip-splatting`) or 2dgs (surfels with the normal and
+    /// distortion regularisers; see --lambda-normal, --lambda-dist, --depth-ratio). Combines
+    /// with --lpm.
     #[arg(long, default_value = "3dgs", value_parser = BaseModel::parse)]
     pub model: BaseModel,
     #[arg(long, default_value_t = 0)]
@@ -99,8 +102,25 @@ pub struct TrainArgs {
     pub opacity_reset_interval: u32,
     #[arg(long, default_value_t = 0.01)]
     pub percent_dense: f64,
-    #[arg(long, default_value_t = 0.005)]
-    pub min_opacity: f64,
+    /// Prune Gaussians below this opacity. Default: 0.005, or 0.05 for 2dgs (official).
+    #[arg(long)]
+    pub min_opacity: Option<f64>,
+    /// 2dgs: weight of the normal-consistency regulariser (official 0.05), active after
+    /// --normal-from (7000).
+    #[arg(long)]
+    pub lambda_normal: Option<f32>,
+    #[arg(long)]
+    pub normal_from: Option<u32>,
+    /// 2dgs: weight of the depth-distortion regulariser (official code 0; its DTU script
+    /// 1000), active after --dist-from (3000).
+    #[arg(long)]
+    pub lambda_dist: Option<f32>,
+    #[arg(long)]
+    pub dist_from: Option<u32>,
+    /// 2dgs: the surface depth the normal regulariser differentiates: 0 the expected depth
+    /// (official default), 1 the median depth (official DTU and TnT scripts).
+    #[arg(long)]
+    pub depth_ratio: Option<f32>,
     /// Prune Gaussians whose screen radius exceeds this many pixels (off by default, as the
     /// reference's test never fires).
     #[arg(long)]
@@ -322,13 +342,48 @@ impl TrainArgs {
         c.lr.rotation = self.lr_rotation;
         c.density.grad_threshold = self.densify_grad_threshold;
         c.density.percent_dense = self.percent_dense;
-        c.density.min_opacity = self.min_opacity;
+        c.density.min_opacity = self.min_opacity.unwrap_or(self.model.default_min_opacity());
         c.density.screen_size_limit = self.screen_size_limit;
         c.schedule.densify_from = self.densify_from;
         c.schedule.densify_until = self.densify_until;
         c.schedule.interval = self.densify_interval;
         c.schedule.opacity_reset_interval = self.opacity_reset_interval;
         c.schedule.white_background = c.background == Background::Fixed([1.0; 3]);
+        if self.model == BaseModel::Surfels2d {
+            let mut t = SurfelTraining::default();
+            t.normal_weight = self.lambda_normal.unwrap_or(t.normal_weight);
+            t.normal_from = self.normal_from.unwrap_or(t.normal_from);
+            t.distortion_weight = self.lambda_dist.unwrap_or(t.distortion_weight);
+            t.distortion_from = self.dist_from.unwrap_or(t.distortion_from);
+            t.depth_ratio = self.depth_ratio.unwrap_or(t.depth_ratio);
+            anyhow::ensure!(
+                t.normal_weight >= 0.0 && t.distortion_weight >= 0.0,
+                "--lambda-normal {} and --lambda-dist {} must be ≥ 0",
+                t.normal_weight,
+                t.distortion_weight
+            );
+            anyhow::ensure!(
+                (0.0..=1.0).contains(&t.depth_ratio),
+                "--depth-ratio {} must lie in [0, 1] (0: expected depth, 1: median depth)",
+                t.depth_ratio
+            );
+            c.surfels = Some(t);
+        } else {
+            for (flag, given) in [
+                ("--lambda-normal", self.lambda_normal.is_some()),
+                ("--normal-from", self.normal_from.is_some()),
+                ("--lambda-dist", self.lambda_dist.is_some()),
+                ("--dist-from", self.dist_from.is_some()),
+                ("--depth-ratio", self.depth_ratio.is_some()),
+            ] {
+                anyhow::ensure!(
+                    !given,
+                    "{flag} applies to --model 2dgs only (this run trains {}). Fix: drop the \
+                     flag or pass --model 2dgs",
+                    self.model.name()
+                );
+            }
+        }
         self.model.configure(&mut c);
         Ok(c)
     }
@@ -451,13 +506,16 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     }
     let init = match &resumed {
         Some(ck) => ck.params(),
-        None => initial_model(
-            &scene,
-            args.init_ply.as_deref(),
-            args.init_points,
+        None => args.model.initialise(
+            initial_model(
+                &scene,
+                args.init_ply.as_deref(),
+                args.init_points,
+                args.seed,
+                args.sh_degree,
+            )?,
             args.seed,
-            args.sh_degree,
-        )?,
+        ),
     };
     let ctx = GpuContext::new(gpu)?;
     // From here on Ctrl-C is polled after each iteration (and saves a checkpoint).

@@ -1,5 +1,5 @@
 //! Training on the GPU: the loss, the optimiser and its schedules, adaptive density control,
-//! the training data and the trainer loop.
+//! the training data, the base models' passes (`passes`) and the trainer loop.
 
 pub mod adam;
 pub mod checkpoint;
@@ -7,6 +7,7 @@ pub mod data;
 pub mod density;
 pub mod loss;
 pub mod nan_check;
+pub mod passes;
 pub mod schedule;
 pub mod strategy;
 pub mod trainer;

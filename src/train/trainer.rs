@@ -29,12 +29,11 @@ use super::adam::{Adam, SplatState};
 use super::data::{scene_cameras, GpuImages, ViewSchedule};
 use super::density::{DensifyArgs, DensifyOutcome, DensityConfig, DensityControl, Statistic};
 use super::loss::{Loss, LOSS_SLOT_FLOATS};
+use super::passes::{self, surfels::SurfelTraining, FrameArgs, GradArgs, ModelPasses};
 use super::schedule::{sh_degree_at, DensitySchedule, LearningRates};
 use super::strategy::{Adc, DensityContext, DensityStrategy, IterationView, StrategyEvent};
 use crate::gpu::{BufferKind, GpuBuffer, GpuContext, Recorder, StageTimes, TimestampPool};
-use crate::render::backward::{Backward, BackwardArgs};
-use crate::render::filter3d::SmoothingFilter;
-use crate::render::forward::{Capacity, FrameSettings, Renderer};
+use crate::render::forward::Capacity;
 use crate::render::layout::{CameraGpu, RenderConstants};
 use crate::scene::{Image, Scene};
 use crate::splats::gpu::{grown_capacity, GpuSplats};
@@ -82,6 +81,8 @@ pub struct TrainConfig {
     /// iterations after densification, as the official code; the opacity reset acts on the
     /// filtered opacity).
     pub mip_filters: bool,
+    /// 2DGS: the model is surfels, with these regulariser settings (`None`: 3D Gaussians).
+    pub surfels: Option<SurfelTraining>,
 }
 
 impl Default for TrainConfig {
@@ -97,6 +98,7 @@ impl Default for TrainConfig {
             ssim_weight: 0.2,
             timestamps: false,
             mip_filters: false,
+            surfels: None,
         }
     }
 }
@@ -131,6 +133,14 @@ impl TrainConfig {
         // Only when on, so checkpoints from before the key still resume.
         if self.mip_filters {
             j["mip_filters"] = serde_json::json!(true);
+        }
+        // Only for surfels, so checkpoints from before the key still resume.
+        if let Some(t) = &self.surfels {
+            j["surfels"] = serde_json::json!({
+                "normal_weight": t.normal_weight, "normal_from": t.normal_from,
+                "distortion_weight": t.distortion_weight, "distortion_from": t.distortion_from,
+                "depth_ratio": t.depth_ratio,
+            });
         }
         // Only when not the 3DGS default, so checkpoints from before the key still resume.
         if let Statistic::PixelWeighted { depth_threshold } = d.statistic {
@@ -187,16 +197,8 @@ pub struct Trainer {
     pub state: SplatState,
     grads: GpuSplats,
     view_grad_norm: GpuBuffer<f32>,
-    /// Pixels each Gaussian contributed to this iteration (only for statistics that use them).
-    pixel_count: Option<GpuBuffer<u32>>,
-    /// Mip-Splatting's 3D filter (with `mip_filters`).
-    filter: Option<SmoothingFilter>,
-    /// The filter does not hold the current model's values (after density control).
-    filter_stale: bool,
-    /// The iteration whose evaluation model the filter was last computed for.
-    filter_eval_at: Option<u32>,
-    pub(super) renderer: Renderer,
-    backward: Backward,
+    /// The base model's forward, backward, own losses and per-Gaussian buffers.
+    passes: Box<dyn ModelPasses>,
     loss: Loss,
     adam: Adam,
     pub density: DensityControl,
@@ -285,39 +287,22 @@ impl Trainer {
             max_tiles = max_tiles.max(c.tile_count());
         }
         let pixels = (max_w * max_h) as usize;
-        let renderer = Renderer::new(
+        let mut density = config.density;
+        density.seed = config.seed;
+        let passes = passes::for_config(
             ctx,
+            &config,
+            &cameras_host,
+            &scene.train,
+            capacity,
             Capacity {
                 gaussians: capacity,
-                intersections: (capacity * 8).max(1 << 16),
+                intersections: 0,
                 pixels,
                 tiles: max_tiles as usize,
             },
         )?;
-        let mut density = config.density;
-        density.seed = config.seed;
-        let counts = density.statistic.needs_pixel_counts();
-        let mut backward = Backward::new(ctx, capacity)?;
-        if counts {
-            backward = backward.with_pixel_counts(ctx)?;
-        }
-        let filter = if config.mip_filters {
-            Some(SmoothingFilter::new(
-                ctx,
-                &cameras_host,
-                &scene.train,
-                capacity,
-            )?)
-        } else {
-            None
-        };
         Ok(Self {
-            filter,
-            filter_stale: true,
-            filter_eval_at: None,
-            pixel_count: counts
-                .then(|| GpuBuffer::new(ctx, "pixel count", capacity, BufferKind::DeviceLocal))
-                .transpose()?,
             ctx: ctx.clone(),
             extent: scene.extent,
             cameras_host,
@@ -326,8 +311,7 @@ impl Trainer {
             image_of_view,
             grads,
             view_grad_norm,
-            renderer,
-            backward,
+            passes,
             loss: Loss::new(ctx, max_w, max_h)?,
             adam: Adam::new(ctx)?,
             density: DensityControl::new(ctx, capacity, density)?,
@@ -405,27 +389,9 @@ impl Trainer {
             self.grads = GpuSplats::zeroed(&self.ctx, "grad ", self.state.sh_degree(), 0, cap)?;
             self.view_grad_norm =
                 GpuBuffer::new(&self.ctx, "view grad norm", cap, BufferKind::DeviceLocal)?;
-            if self.pixel_count.is_some() {
-                self.pixel_count = Some(GpuBuffer::new(
-                    &self.ctx,
-                    "pixel count",
-                    cap,
-                    BufferKind::DeviceLocal,
-                )?);
-            }
-            self.backward.reserve(&self.ctx, cap)?;
         }
-        let c = self.renderer.capacity();
-        self.renderer.ensure_capacity(Capacity {
-            gaussians: cap,
-            ..c
-        })?;
+        self.passes.reserve(cap)?;
         self.grads.count = self.state.count();
-        if let Some(f) = self.filter.as_mut() {
-            let before = f.values().len();
-            f.reserve(cap)?;
-            self.filter_stale |= f.values().len() != before;
-        }
         Ok(())
     }
 
@@ -443,7 +409,6 @@ impl Trainer {
     /// Runs one training iteration (waits for it).
     pub fn step(&mut self) -> anyhow::Result<StepReport> {
         self.iteration += 1;
-        self.filter_eval_at = None;
         let it = self.iteration;
         let cfg = self.config.clone();
         let view = self.views.next_view();
@@ -462,36 +427,19 @@ impl Trainer {
         if cfg.timestamps {
             self.rec.start_timestamps(&mut self.pool);
         }
-        let constants = self.render_constants();
-        // Mip-Splatting: the 3D filter of the model being trained, recomputed after density
-        // control and every 100 iterations after densification (never in the last 100).
-        if let Some(f) = &self.filter {
-            let refresh = it > cfg.schedule.densify_until
-                && it.is_multiple_of(100)
-                && it + 100 <= cfg.iterations;
-            if self.filter_stale || refresh {
-                f.record_update(
-                    &mut self.rec,
-                    &self.state.params.positions,
-                    &self.cameras,
-                    count,
-                )?;
-                self.filter_stale = false;
-            }
-        }
-        let filter3d = self.filter.as_ref().map(|f| f.values());
-        self.renderer.record(
+        let frame = FrameArgs {
+            params: &self.state.params,
+            cameras: &self.cameras,
+            view: view as u32,
+            camera: &cam,
+            sh_degree: sh,
+            background: bg,
+            iteration: it,
+        };
+        self.passes.record_prepare(&mut self.rec, &frame, &cfg)?;
+        self.passes.record_forward(
             &mut self.rec,
-            &self.state.params,
-            &self.cameras,
-            view as u32,
-            &cam,
-            &FrameSettings {
-                sh_degree: sh,
-                background: bg,
-                constants,
-                filter3d,
-            },
+            &frame,
             if cfg.timestamps {
                 Some(&mut self.pool)
             } else {
@@ -501,7 +449,7 @@ impl Trainer {
         let img = self.images.slots[slot];
         self.loss.record(
             &mut self.rec,
-            &self.renderer.frame.image,
+            self.passes.image(),
             &self.images.buffers[img.buffer],
             img.offset_px,
             img.width,
@@ -515,30 +463,17 @@ impl Trainer {
         if cfg.timestamps {
             self.rec.timestamp(&mut self.pool, "loss");
         }
-        let f = &self.renderer.frame;
-        self.backward.record_timed(
+        self.passes.record_backward(
             &self.ctx,
             &mut self.rec,
-            &BackwardArgs {
-                cameras: &self.cameras,
-                camera_index: view as u32,
-                camera: &cam,
-                projected: &f.projected,
-                tile_ranges: &f.tile_ranges,
-                sorted_ids: self.renderer.sorted_ids(),
-                final_t: &f.final_t,
-                last_index: &f.last_index,
+            &GradArgs {
+                frame,
                 dl_dimage: &self.dl_dimage,
-                splats: &self.state.params,
                 grads: &self.grads,
                 view_grad_norm: &self.view_grad_norm,
-                pixel_count: self.pixel_count.as_ref(),
                 count,
-                sh_degree: sh,
-                constants,
-                background: bg,
-                filter3d,
             },
+            &cfg,
             if cfg.timestamps {
                 Some(&mut self.pool)
             } else {
@@ -549,8 +484,8 @@ impl Trainer {
             self.density.record_accumulate(
                 &mut self.rec,
                 &self.view_grad_norm,
-                &f.projected,
-                self.pixel_count.as_ref(),
+                self.passes.projected(),
+                self.passes.pixel_count(),
                 self.extent,
                 count,
             )?;
@@ -580,14 +515,8 @@ impl Trainer {
             None
         };
 
-        if !self.renderer.last_frame_complete()? {
-            let need = self.renderer.last_intersections()? as usize;
+        if self.passes.after_frame()? {
             self.dropped_frames += 1;
-            let c = self.renderer.capacity();
-            self.renderer.ensure_capacity(Capacity {
-                intersections: need,
-                ..c
-            })?;
         }
         let l = self.loss_host.read()?;
         anyhow::ensure!(
@@ -652,16 +581,20 @@ impl Trainer {
             };
             let outcome = strategy.densify(&mut self.density_context(at.view)?, at, &args)?;
             self.follow_capacity()?;
-            // New and moved Gaussians need their 3D filter (the official code recomputes it
-            // after every densification).
-            self.filter_stale |= !outcome.skipped;
+            // New and moved Gaussians need their derived per-Gaussian data (Mip-Splatting's 3D
+            // filter: the official code recomputes it after every densification).
+            if !outcome.skipped {
+                self.passes.model_changed();
+            }
             if schedule.resets_opacity(it) {
                 self.record_opacity_reset()?;
             }
             let count = self.state.count();
             report.strategy = strategy.after_density(&mut self.density_context(at.view)?, at)?;
             self.follow_capacity()?;
-            self.filter_stale |= self.state.count() != count;
+            if self.state.count() != count {
+                self.passes.model_changed();
+            }
             if outcome.skipped {
                 // Nothing was rebuilt, so this iteration's gradients still belong to the model:
                 // its optimizer step runs as on any other iteration.
@@ -693,7 +626,7 @@ impl Trainer {
             state: &mut self.state,
             density: &mut self.density,
             extent: self.extent,
-            render: &self.renderer.frame.image,
+            render: self.passes.image(),
             truth: &self.images.buffers[slot.buffer],
             truth_offset_px: slot.offset_px,
             width: slot.width,
@@ -715,30 +648,11 @@ impl Trainer {
         self.strategy.as_any().downcast_ref::<T>()
     }
 
-    /// Records the global opacity reset (into the begun `self.rec`); with the 3D filter, on the
-    /// filtered opacity, recomputing the filter first if density control changed the model.
+    /// Records the global opacity reset (into the begun `self.rec`), on the opacity the
+    /// model's renderer uses (Mip-Splatting: the filtered one).
     fn record_opacity_reset(&mut self) -> anyhow::Result<()> {
-        match &self.filter {
-            Some(f) => {
-                if self.filter_stale {
-                    f.record_update(
-                        &mut self.rec,
-                        &self.state.params.positions,
-                        &self.cameras,
-                        self.state.count(),
-                    )?;
-                    self.filter_stale = false;
-                }
-                self.density.record_opacity_reset_filtered(
-                    &mut self.rec,
-                    &self.state,
-                    Some(f.values()),
-                )
-            }
-            None => self
-                .density
-                .record_opacity_reset(&mut self.rec, &self.state),
-        }
+        self.passes
+            .record_opacity_reset(&mut self.rec, &self.density, &self.state, &self.cameras)
     }
 
     /// The rasterizer constants of this run (Mip-Splatting's 2D filter with `mip_filters`).
@@ -763,17 +677,12 @@ impl Trainer {
     /// The renderer's intersection capacity (saved in checkpoints: a frame that overflows it
     /// is dropped, so it is part of the state that decides results).
     pub fn intersection_capacity(&self) -> usize {
-        self.renderer.capacity().intersections
+        self.passes.intersection_capacity()
     }
 
     /// Grows the intersection buffers to at least `n` pairs.
     pub fn reserve_intersections(&mut self, n: usize) -> anyhow::Result<()> {
-        let c = self.renderer.capacity();
-        self.renderer.ensure_capacity(Capacity {
-            intersections: n,
-            ..c
-        })?;
-        Ok(())
+        self.passes.reserve_intersections(n)
     }
 
     /// The model to evaluate or export (see [`Trainer::eval_params`]).
@@ -781,84 +690,40 @@ impl Trainer {
         self.eval_params().download()
     }
 
-    /// Computes the 3D filter of the model [`Trainer::eval_params`] returns (waits), when the
-    /// run has one. The buffer then belongs to that model: the next step recomputes it.
-    fn filter_for_eval(&mut self) -> anyhow::Result<()> {
-        if self.filter_eval_at == Some(self.iteration) {
-            return Ok(());
-        }
-        let Some(f) = self.filter.as_mut() else {
-            return Ok(());
-        };
+    /// The model to export for viewers: Mip-Splatting's 3D filter folded into scales and
+    /// opacity (as the official `create_fused_ply.py`; the 2D filter cannot be folded, so
+    /// render it with `--model mip-splatting`); other models as [`Trainer::model`].
+    pub fn export_model(&mut self) -> anyhow::Result<GaussianParams> {
+        let model = self.model()?;
         let params = snapshot_or(
             &self.snapshot,
             self.snapshot_iteration,
             self.iteration,
             &self.state.params,
         );
-        f.reserve(params.count)?;
-        self.rec.begin()?;
-        f.record_update(
-            &mut self.rec,
-            &params.positions,
-            &self.cameras,
-            params.count,
-        )?;
-        self.rec.submit_and_wait()?;
-        self.filter_stale = true;
-        self.filter_eval_at = Some(self.iteration);
-        Ok(())
-    }
-
-    /// The model to export for ordinary 3DGS viewers: with Mip-Splatting's 3D filter folded
-    /// into scales and opacity (as the official `create_fused_ply.py`); the 2D filter cannot be
-    /// folded, so render it with `--model mip-splatting`. Without the filter: [`Trainer::model`].
-    pub fn export_model(&mut self) -> anyhow::Result<GaussianParams> {
-        let model = self.model()?;
-        if self.filter.is_none() {
-            return Ok(model);
-        }
-        self.filter_for_eval()?;
-        let f = self.filter.as_ref().expect("checked above");
-        let values = f.values().read_range(0, model.len())?;
-        let fused = crate::reference::mip::fuse(
-            &crate::reference::RefGaussians::from_params(&model),
-            &values.iter().map(|&v| v as f64).collect::<Vec<_>>(),
-        )?;
-        Ok(fused.to_params(model.sh_degree))
+        self.passes
+            .export(params, &self.cameras, self.iteration, model)
     }
 
     /// Renders view `view` of the scene with the current model (RGB interleaved).
     pub fn render_view(&mut self, view: usize, background: [f32; 3]) -> anyhow::Result<Vec<f32>> {
         let cam = self.cameras_host[view];
-        let c = self.renderer.capacity();
-        self.renderer.ensure_capacity(Capacity {
-            pixels: c.pixels.max((cam.width() * cam.height()) as usize),
-            tiles: c.tiles.max(cam.tile_count() as usize),
-            ..c
-        })?;
-        self.filter_for_eval()?;
-        let constants = self.render_constants();
-        // Field by field (not `eval_params`): the renderer is borrowed mutably below.
+        // Field by field (not `eval_params`): the passes are borrowed mutably below.
         let params = snapshot_or(
             &self.snapshot,
             self.snapshot_iteration,
             self.iteration,
             &self.state.params,
         );
-        self.renderer.render_blocking(
+        self.passes.render_view(&FrameArgs {
             params,
-            &self.cameras,
-            view as u32,
-            &cam,
-            &FrameSettings {
-                sh_degree: self.config.sh_degree,
-                background,
-                constants,
-                filter3d: self.filter.as_ref().map(|f| f.values()),
-            },
-        )?;
-        self.renderer.read_image()
+            cameras: &self.cameras,
+            view: view as u32,
+            camera: &cam,
+            sh_degree: self.config.sh_degree,
+            background,
+            iteration: self.iteration,
+        })
     }
 
     /// PSNR and SSIM of every view in `views` against `images` (composited on the evaluation

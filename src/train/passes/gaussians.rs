@@ -1,0 +1,302 @@
+//! The passes of 3D Gaussian models: 3DGS's forward and backward, Pixel-GS's per-Gaussian pixel
+//! counts, and Mip-Splatting's 3D smoothing filter (a per-Gaussian buffer recomputed after every
+//! density step and every 100 iterations after densification, never in the last 100, as the
+//! official code; the opacity reset acts on the filtered opacity) with its 2D Mip filter.
+
+use std::sync::Arc;
+
+use anyhow::Result;
+
+use super::{FrameArgs, GradArgs, ModelPasses};
+use crate::gpu::{BufferKind, GpuBuffer, GpuContext, Recorder, TimestampPool};
+use crate::render::backward::{Backward, BackwardArgs};
+use crate::render::filter3d::SmoothingFilter;
+use crate::render::forward::{Capacity, FrameSettings, Renderer};
+use crate::render::layout::{CameraGpu, ProjectedGpu, RenderConstants};
+use crate::splats::gpu::GpuSplats;
+use crate::splats::GaussianParams;
+use crate::train::adam::SplatState;
+use crate::train::density::DensityControl;
+use crate::train::trainer::TrainConfig;
+
+pub struct GaussianPasses {
+    ctx: Arc<GpuContext>,
+    renderer: Renderer,
+    backward: Backward,
+    constants: RenderConstants,
+    /// Pixels each Gaussian contributed to this iteration (only for statistics that use them).
+    pixel_count: Option<GpuBuffer<u32>>,
+    /// Mip-Splatting's 3D filter (with `mip_filters`).
+    filter: Option<SmoothingFilter>,
+    /// The filter does not hold the current model's values (after density control).
+    filter_stale: bool,
+    /// The iteration whose evaluation model the filter was last computed for.
+    filter_eval_at: Option<u32>,
+}
+
+impl GaussianPasses {
+    pub fn new(
+        ctx: &Arc<GpuContext>,
+        config: &TrainConfig,
+        cameras: &[CameraGpu],
+        train_views: &[usize],
+        capacity: usize,
+        frame: Capacity,
+    ) -> Result<Self> {
+        let renderer = Renderer::new(
+            ctx,
+            Capacity {
+                gaussians: capacity,
+                intersections: (capacity * 8).max(1 << 16),
+                ..frame
+            },
+        )?;
+        let counts = config.density.statistic.needs_pixel_counts();
+        let mut backward = Backward::new(ctx, capacity)?;
+        if counts {
+            backward = backward.with_pixel_counts(ctx)?;
+        }
+        let filter = if config.mip_filters {
+            Some(SmoothingFilter::new(ctx, cameras, train_views, capacity)?)
+        } else {
+            None
+        };
+        Ok(Self {
+            ctx: ctx.clone(),
+            renderer,
+            backward,
+            constants: RenderConstants::for_mip(config.mip_filters),
+            pixel_count: counts
+                .then(|| GpuBuffer::new(ctx, "pixel count", capacity, BufferKind::DeviceLocal))
+                .transpose()?,
+            filter,
+            filter_stale: true,
+            filter_eval_at: None,
+        })
+    }
+
+    /// Computes the 3D filter of `params` (waits), when the run has one, for an evaluation at
+    /// `iteration`. The buffer then belongs to that model: the next step recomputes it.
+    fn filter_for_eval(
+        &mut self,
+        params: &GpuSplats,
+        cameras: &GpuBuffer<CameraGpu>,
+        iteration: u32,
+    ) -> Result<()> {
+        if self.filter_eval_at == Some(iteration) {
+            return Ok(());
+        }
+        let Some(f) = self.filter.as_mut() else {
+            return Ok(());
+        };
+        f.reserve(params.count)?;
+        let mut rec = Recorder::new(&self.ctx)?;
+        f.record_update(&mut rec, &params.positions, cameras, params.count)?;
+        rec.submit_and_wait()?;
+        self.filter_stale = true;
+        self.filter_eval_at = Some(iteration);
+        Ok(())
+    }
+}
+
+impl ModelPasses for GaussianPasses {
+    fn reserve(&mut self, capacity: usize) -> Result<()> {
+        if self.backward.capacity() < capacity {
+            if self.pixel_count.is_some() {
+                self.pixel_count = Some(GpuBuffer::new(
+                    &self.ctx,
+                    "pixel count",
+                    capacity,
+                    BufferKind::DeviceLocal,
+                )?);
+            }
+            self.backward.reserve(&self.ctx, capacity)?;
+        }
+        let c = self.renderer.capacity();
+        self.renderer.ensure_capacity(Capacity {
+            gaussians: capacity,
+            ..c
+        })?;
+        if let Some(f) = self.filter.as_mut() {
+            let before = f.values().len();
+            f.reserve(capacity)?;
+            self.filter_stale |= f.values().len() != before;
+        }
+        Ok(())
+    }
+
+    fn record_prepare(
+        &mut self,
+        rec: &mut Recorder,
+        f: &FrameArgs,
+        config: &TrainConfig,
+    ) -> Result<()> {
+        self.filter_eval_at = None;
+        let Some(filter) = &self.filter else {
+            return Ok(());
+        };
+        let it = f.iteration;
+        let refresh = it > config.schedule.densify_until
+            && it.is_multiple_of(100)
+            && it + 100 <= config.iterations;
+        if self.filter_stale || refresh {
+            filter.record_update(rec, &f.params.positions, f.cameras, f.params.count)?;
+            self.filter_stale = false;
+        }
+        Ok(())
+    }
+
+    fn record_forward(
+        &mut self,
+        rec: &mut Recorder,
+        f: &FrameArgs,
+        timestamps: Option<&mut TimestampPool>,
+    ) -> Result<()> {
+        let settings = FrameSettings {
+            sh_degree: f.sh_degree,
+            background: f.background,
+            constants: self.constants,
+            filter3d: self.filter.as_ref().map(|f| f.values()),
+        };
+        self.renderer.record(
+            rec, f.params, f.cameras, f.view, f.camera, &settings, timestamps,
+        )
+    }
+
+    fn image(&self) -> &GpuBuffer<f32> {
+        &self.renderer.frame.image
+    }
+
+    fn projected(&self) -> &GpuBuffer<ProjectedGpu> {
+        &self.renderer.frame.projected
+    }
+
+    fn pixel_count(&self) -> Option<&GpuBuffer<u32>> {
+        self.pixel_count.as_ref()
+    }
+
+    fn record_backward(
+        &mut self,
+        ctx: &GpuContext,
+        rec: &mut Recorder,
+        g: &GradArgs,
+        _config: &TrainConfig,
+        timestamps: Option<&mut TimestampPool>,
+    ) -> Result<()> {
+        let fr = &self.renderer.frame;
+        let f = &g.frame;
+        self.backward.record_timed(
+            ctx,
+            rec,
+            &BackwardArgs {
+                cameras: f.cameras,
+                camera_index: f.view,
+                camera: f.camera,
+                projected: &fr.projected,
+                tile_ranges: &fr.tile_ranges,
+                sorted_ids: self.renderer.sorted_ids(),
+                final_t: &fr.final_t,
+                last_index: &fr.last_index,
+                dl_dimage: g.dl_dimage,
+                splats: f.params,
+                grads: g.grads,
+                view_grad_norm: g.view_grad_norm,
+                pixel_count: self.pixel_count.as_ref(),
+                count: g.count,
+                sh_degree: f.sh_degree,
+                constants: self.constants,
+                background: f.background,
+                filter3d: self.filter.as_ref().map(|f| f.values()),
+            },
+            timestamps,
+        )
+    }
+
+    fn after_frame(&mut self) -> Result<bool> {
+        if self.renderer.last_frame_complete()? {
+            return Ok(false);
+        }
+        let need = self.renderer.last_intersections()? as usize;
+        self.reserve_intersections(need)?;
+        Ok(true)
+    }
+
+    fn intersection_capacity(&self) -> usize {
+        self.renderer.capacity().intersections
+    }
+
+    fn reserve_intersections(&mut self, n: usize) -> Result<()> {
+        let c = self.renderer.capacity();
+        self.renderer.ensure_capacity(Capacity {
+            intersections: n,
+            ..c
+        })?;
+        Ok(())
+    }
+
+    fn model_changed(&mut self) {
+        self.filter_stale = true;
+    }
+
+    fn record_opacity_reset(
+        &mut self,
+        rec: &mut Recorder,
+        density: &DensityControl,
+        state: &SplatState,
+        cameras: &GpuBuffer<CameraGpu>,
+    ) -> Result<()> {
+        match &self.filter {
+            Some(f) => {
+                if self.filter_stale {
+                    f.record_update(rec, &state.params.positions, cameras, state.count())?;
+                    self.filter_stale = false;
+                }
+                density.record_opacity_reset_filtered(rec, state, Some(f.values()))
+            }
+            None => density.record_opacity_reset(rec, state),
+        }
+    }
+
+    fn render_view(&mut self, f: &FrameArgs) -> Result<Vec<f32>> {
+        let c = self.renderer.capacity();
+        let cam = f.camera;
+        self.renderer.ensure_capacity(Capacity {
+            pixels: c.pixels.max((cam.width() * cam.height()) as usize),
+            tiles: c.tiles.max(cam.tile_count() as usize),
+            ..c
+        })?;
+        self.filter_for_eval(f.params, f.cameras, f.iteration)?;
+        let settings = FrameSettings {
+            sh_degree: f.sh_degree,
+            background: f.background,
+            constants: self.constants,
+            filter3d: self.filter.as_ref().map(|f| f.values()),
+        };
+        self.renderer
+            .render_blocking(f.params, f.cameras, f.view, cam, &settings)?;
+        self.renderer.read_image()
+    }
+
+    /// With Mip-Splatting's 3D filter folded into scales and opacity (as the official
+    /// `create_fused_ply.py`); the 2D filter cannot be folded, so render it with
+    /// `--model mip-splatting`. Without the filter: `model` unchanged.
+    fn export(
+        &mut self,
+        params: &GpuSplats,
+        cameras: &GpuBuffer<CameraGpu>,
+        iteration: u32,
+        model: GaussianParams,
+    ) -> Result<GaussianParams> {
+        if self.filter.is_none() {
+            return Ok(model);
+        }
+        self.filter_for_eval(params, cameras, iteration)?;
+        let f = self.filter.as_ref().expect("checked above");
+        let values = f.values().read_range(0, model.len())?;
+        let fused = crate::reference::mip::fuse(
+            &crate::reference::RefGaussians::from_params(&model),
+            &values.iter().map(|&v| v as f64).collect::<Vec<_>>(),
+        )?;
+        Ok(fused.to_params(model.sh_degree))
+    }
+}

@@ -1,0 +1,129 @@
+//! A base model's GPU passes, as the trainer drives them: the frame (forward), the gradients
+//! (backward, with the model's own losses), the buffers the model keeps per Gaussian beside the
+//! optimised parameters, and the renders for evaluation and export. The trainer loop knows only
+//! this trait; [`for_config`] picks the implementation:
+//!
+//! - [`gaussians::GaussianPasses`]: 3D Gaussians (3DGS, Pixel-GS's pixel counts, Mip-Splatting's
+//!   filters);
+//! - [`surfels::SurfelPasses`]: 2DGS's surfels with the normal-consistency and distortion
+//!   regularisers.
+
+pub mod gaussians;
+pub mod surfels;
+
+use std::sync::Arc;
+
+use anyhow::Result;
+
+use super::adam::SplatState;
+use super::density::DensityControl;
+use super::trainer::TrainConfig;
+use crate::gpu::{GpuBuffer, GpuContext, Recorder, TimestampPool};
+use crate::render::forward::Capacity;
+use crate::render::layout::{CameraGpu, ProjectedGpu};
+use crate::splats::gpu::GpuSplats;
+use crate::splats::GaussianParams;
+
+/// One frame: which model, seen from which camera, how.
+pub struct FrameArgs<'a> {
+    pub params: &'a GpuSplats,
+    pub cameras: &'a GpuBuffer<CameraGpu>,
+    pub view: u32,
+    /// Host copy of `cameras[view]`.
+    pub camera: &'a CameraGpu,
+    pub sh_degree: u32,
+    pub background: [f32; 3],
+    pub iteration: u32,
+}
+
+/// The gradients of one frame: `dl_dimage` is the photometric loss's; the model adds its own
+/// losses' and writes every parameter's gradient of Gaussians `0..count` into `grads`, and the
+/// densification statistic of this view into `view_grad_norm`.
+pub struct GradArgs<'a> {
+    pub frame: FrameArgs<'a>,
+    pub dl_dimage: &'a GpuBuffer<f32>,
+    pub grads: &'a GpuSplats,
+    pub view_grad_norm: &'a GpuBuffer<f32>,
+    pub count: usize,
+}
+
+pub trait ModelPasses: Send {
+    /// Grows the per-Gaussian buffers the passes own to `capacity` Gaussians (only between
+    /// submissions).
+    fn reserve(&mut self, capacity: usize) -> Result<()>;
+    /// Work before the iteration's frame (Mip-Splatting refreshes its 3D filter).
+    fn record_prepare(
+        &mut self,
+        rec: &mut Recorder,
+        f: &FrameArgs,
+        config: &TrainConfig,
+    ) -> Result<()>;
+    fn record_forward(
+        &mut self,
+        rec: &mut Recorder,
+        f: &FrameArgs,
+        timestamps: Option<&mut TimestampPool>,
+    ) -> Result<()>;
+    /// The last frame's image (RGB interleaved, background composited).
+    fn image(&self) -> &GpuBuffer<f32>;
+    /// The last frame's per-Gaussian screen data (radius > 0: visible), for the statistics.
+    fn projected(&self) -> &GpuBuffer<ProjectedGpu>;
+    /// Pixels each Gaussian covered in the last backward, when the statistic needs them.
+    fn pixel_count(&self) -> Option<&GpuBuffer<u32>>;
+    fn record_backward(
+        &mut self,
+        ctx: &GpuContext,
+        rec: &mut Recorder,
+        g: &GradArgs,
+        config: &TrainConfig,
+        timestamps: Option<&mut TimestampPool>,
+    ) -> Result<()>;
+    /// After the frame's fence: when it dropped intersections, grows the buffers and returns
+    /// true (the frame is counted as dropped).
+    fn after_frame(&mut self) -> Result<bool>;
+    fn intersection_capacity(&self) -> usize;
+    fn reserve_intersections(&mut self, n: usize) -> Result<()>;
+    /// Density control changed the model (per-Gaussian derived data is stale).
+    fn model_changed(&mut self);
+    /// The global opacity reset on the opacity the renderer uses.
+    fn record_opacity_reset(
+        &mut self,
+        rec: &mut Recorder,
+        density: &DensityControl,
+        state: &SplatState,
+        cameras: &GpuBuffer<CameraGpu>,
+    ) -> Result<()>;
+    /// Renders one view of `f.params` and waits; RGB interleaved.
+    fn render_view(&mut self, f: &FrameArgs) -> Result<Vec<f32>>;
+    /// `model` (the download of `params`) as written for viewers.
+    fn export(
+        &mut self,
+        params: &GpuSplats,
+        cameras: &GpuBuffer<CameraGpu>,
+        iteration: u32,
+        model: GaussianParams,
+    ) -> Result<GaussianParams>;
+}
+
+/// The passes of the model `config` trains, sized for `capacity` Gaussians and the largest
+/// training view (`frame`: pixels and tiles).
+pub fn for_config(
+    ctx: &Arc<GpuContext>,
+    config: &TrainConfig,
+    cameras: &[CameraGpu],
+    train_views: &[usize],
+    capacity: usize,
+    frame: Capacity,
+) -> Result<Box<dyn ModelPasses>> {
+    Ok(match &config.surfels {
+        Some(_) => Box::new(surfels::SurfelPasses::new(ctx, capacity, frame)?),
+        None => Box::new(gaussians::GaussianPasses::new(
+            ctx,
+            config,
+            cameras,
+            train_views,
+            capacity,
+            frame,
+        )?),
+    })
+}
