@@ -83,6 +83,25 @@ impl BaseModel {
         params
     }
 
+    /// A renderer for this model's trained PLYs (eval, render, orbit).
+    pub fn view_renderer(
+        &self,
+        ctx: &std::sync::Arc<crate::gpu::GpuContext>,
+        gaussians: usize,
+        camera: &crate::render::layout::CameraGpu,
+    ) -> anyhow::Result<Box<dyn crate::render::view::ViewRenderer>> {
+        use crate::render::view::{GaussianView, SurfelView};
+        Ok(match self {
+            BaseModel::Surfels2d => Box::new(SurfelView::new(ctx, gaussians, camera)?),
+            _ => Box::new(GaussianView::new(
+                ctx,
+                gaussians,
+                camera,
+                self.render_constants(),
+            )?),
+        })
+    }
+
     /// The rasterizer constants its renders use (eval, render, viewers of an exported PLY).
     pub fn render_constants(&self) -> crate::render::layout::RenderConstants {
         crate::render::layout::RenderConstants::for_mip(*self == BaseModel::MipSplatting)

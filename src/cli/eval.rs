@@ -13,7 +13,6 @@ use clap::Args;
 use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions};
 use lpmsplat::models::BaseModel;
-use lpmsplat::render::forward::{Capacity, FrameSettings, Renderer};
 use lpmsplat::render::layout::CameraGpu;
 use lpmsplat::scene::{images, Image, Scene};
 use lpmsplat::splats::{gpu::GpuSplats, read_ply};
@@ -32,7 +31,8 @@ pub struct EvalArgs {
     #[arg(long)]
     pub ply: PathBuf,
     /// The model the PLY was trained as: `mip-splatting` renders with its 2D Mip filter (the
-    /// exported PLY already holds the 3D filter); 3dgs and pixel-gs render alike.
+    /// exported PLY already holds the 3D filter); 3dgs and pixel-gs render alike; 2dgs renders
+    /// surfels.
     #[arg(long, default_value = "3dgs", value_parser = BaseModel::parse)]
     pub model: BaseModel,
     /// Background: black, white, or r,g,b in [0, 1]. Default: the scene's (white for
@@ -129,25 +129,14 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
     let biggest = (0..cams.len())
         .max_by_key(|&k| cams[k].width() as u64 * cams[k].height() as u64)
         .unwrap_or(0);
-    let mut renderer = Renderer::for_camera(&ctx, params.len(), &cams[biggest])?;
-    let settings = FrameSettings {
-        sh_degree: params.sh_degree,
-        background: bg,
-        constants: args.model.render_constants(),
-        filter3d: None,
-    };
+    let mut renderer = args
+        .model
+        .view_renderer(&ctx, params.len(), &cams[biggest])?;
     let mut per_view = Vec::new();
     let mut renders = Vec::new();
     for (k, &v) in views.iter().enumerate() {
-        let c = renderer.capacity();
-        renderer.ensure_capacity(Capacity {
-            pixels: c.pixels.max((cams[k].width() * cams[k].height()) as usize),
-            tiles: c.tiles.max(cams[k].tile_count() as usize),
-            ..c
-        })?;
-        renderer.render_blocking(&splats, &cameras, k as u32, &cams[k], &settings)?;
         let render: Vec<f32> = renderer
-            .read_image()?
+            .render(&splats, &cameras, k as u32, &cams[k], bg)?
             .iter()
             .map(|x| x.clamp(0.0, 1.0))
             .collect();

@@ -3,6 +3,7 @@
 mod bench;
 mod eval;
 mod export;
+mod geometry_outputs;
 mod info;
 mod interrupt;
 mod lpips_scores;

@@ -1,11 +1,11 @@
 //! `render`: PNGs of chosen cameras of a scene for a trained PLY.
 
+use super::geometry_outputs;
 use super::SceneArgs;
 use anyhow::Context;
 use clap::Args;
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions};
 use lpmsplat::models::BaseModel;
-use lpmsplat::render::forward::{FrameSettings, Renderer};
 use lpmsplat::render::layout::CameraGpu;
 use lpmsplat::scene::orbit::Orbit;
 use lpmsplat::scene::{images, Image, Scene};
@@ -20,7 +20,8 @@ pub struct RenderArgs {
     #[arg(long)]
     pub ply: PathBuf,
     /// The model the PLY was trained as: `mip-splatting` renders with its 2D Mip filter (the
-    /// exported PLY already holds the 3D filter); 3dgs and pixel-gs render alike.
+    /// exported PLY already holds the 3D filter); 3dgs and pixel-gs render alike; 2dgs renders
+    /// surfels.
     #[arg(long, default_value = "3dgs", value_parser = BaseModel::parse)]
     pub model: BaseModel,
     /// Output folder for the PNGs (created if missing).
@@ -37,6 +38,18 @@ pub struct RenderArgs {
     /// `scene::orbit`) into OUT/orbit.gif, at the first training camera's size and focal length.
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(2..=2000))]
     pub orbit: Option<u32>,
+    /// 2dgs: also write each view's surface depth as OUT/<view>_depth.png (colour-mapped,
+    /// near = bright) and OUT/<view>_depth.pfm (raw float32, camera z; 0 where nothing was
+    /// drawn).
+    #[arg(long)]
+    pub depth: bool,
+    /// 2dgs: also write each view's rendered normals as OUT/<view>_normal.png (world space,
+    /// RGB = (n + 1)/2) and OUT/<view>_normal.pfm (raw float32 xyz).
+    #[arg(long)]
+    pub normals: bool,
+    /// 2dgs: the surface depth of --depth: 0 the expected depth, 1 the median depth.
+    #[arg(long, default_value_t = 0.0)]
+    pub depth_ratio: f32,
     /// Frames per second of the orbit GIF.
     #[arg(long, default_value_t = 25, value_parser = clap::value_parser!(u32).range(1..=100))]
     pub fps: u32,
@@ -80,17 +93,35 @@ pub fn run(gpu: &GpuOptions, args: &RenderArgs) -> anyhow::Result<()> {
         .map(|&i| CameraGpu::new(&scene.views[i].camera, &scene.views[i].pose))
         .collect();
     let cameras = GpuBuffer::from_slice(&ctx, "cameras", &cams)?;
-    let mut renderer = Renderer::for_camera(&ctx, params.len(), &cams[0])?;
+    let mut renderer = args.model.view_renderer(&ctx, params.len(), &cams[0])?;
     let bg = args.background.or(scene.background).unwrap_or([0.0; 3]);
-    let settings = FrameSettings {
-        sh_degree: params.sh_degree,
-        background: bg,
-        constants: args.model.render_constants(),
-        filter3d: None,
-    };
+    anyhow::ensure!(
+        !(args.depth || args.normals) || args.model == BaseModel::Surfels2d,
+        "--depth and --normals render 2DGS surfels' depth and normal maps; this PLY is read as \
+         --model {}. Fix: pass --model 2dgs for a 2DGS model, or drop the flags",
+        args.model.name()
+    );
     for (k, &i) in indices.iter().enumerate() {
-        renderer.render_blocking(&splats, &cameras, k as u32, &cams[k], &settings)?;
-        let rgb = renderer.read_image()?;
+        let rgb = renderer.render(&splats, &cameras, k as u32, &cams[k], bg)?;
+        if args.depth || args.normals {
+            let maps = renderer
+                .geometry(&cams[k])?
+                .context("the surfel renderer gives geometry maps")?;
+            let view = &scene.views[i];
+            let written = geometry_outputs::write(
+                &args.out,
+                &view.stem,
+                &maps,
+                &view.camera,
+                &view.pose,
+                args.depth_ratio,
+                args.depth,
+                args.normals,
+            )?;
+            for p in written {
+                println!("{}", p.display());
+            }
+        }
         let img = Image {
             width: cams[k].width(),
             height: cams[k].height(),
@@ -145,18 +176,12 @@ fn render_orbit(
     let ctx = GpuContext::new(gpu)?;
     let splats = GpuSplats::upload(&ctx, params, params.len())?;
     let cameras = GpuBuffer::from_slice(&ctx, "cameras", &cams)?;
-    let mut renderer = Renderer::for_camera(&ctx, params.len(), &cams[0])?;
-    let settings = FrameSettings {
-        sh_degree: params.sh_degree,
-        background: args.background.or(scene.background).unwrap_or([0.0; 3]),
-        constants: args.model.render_constants(),
-        filter3d: None,
-    };
+    let mut renderer = args.model.view_renderer(&ctx, params.len(), &cams[0])?;
+    let bg = args.background.or(scene.background).unwrap_or([0.0; 3]);
     let path = args.out.join("orbit.gif");
     let mut gif = OrbitGif::new(camera.width, camera.height, args.fps);
     for (k, cam) in cams.iter().enumerate() {
-        renderer.render_blocking(&splats, &cameras, k as u32, cam, &settings)?;
-        gif.push(&renderer.read_image()?)?;
+        gif.push(&renderer.render(&splats, &cameras, k as u32, cam, bg)?)?;
     }
     ctx.check_validation()?;
     gif.write(&path)?;

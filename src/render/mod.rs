@@ -10,3 +10,4 @@ pub mod scan;
 pub mod sort;
 pub mod surfel;
 pub mod synthetic;
+pub mod view;

@@ -301,3 +301,97 @@ pub fn save_png(path: &Path, img: &Image) -> anyhow::Result<()> {
             .with_context(|| format!("{}: write failed (disk full?)", path.display()))
     })
 }
+
+/// Writes a PFM (portable float map): `channels` 1 ("Pf") or 3 ("PF") float32 values per pixel,
+/// row-major top to bottom in `data`; stored little-endian bottom row first, as the format
+/// says. Atomic like [`save_png`].
+pub fn save_pfm(
+    path: &Path,
+    width: u32,
+    height: u32,
+    channels: usize,
+    data: &[f32],
+) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        (channels == 1 || channels == 3)
+            && data.len() == width as usize * height as usize * channels,
+        "{}: a PFM needs 1 or 3 channels and {}×{}×channels values, not {} with {channels}",
+        path.display(),
+        width,
+        height,
+        data.len()
+    );
+    let mut bytes = format!(
+        "{}\n{width} {height}\n-1.0\n",
+        if channels == 3 { "PF" } else { "Pf" }
+    )
+    .into_bytes();
+    let row = width as usize * channels;
+    for y in (0..height as usize).rev() {
+        for v in &data[y * row..(y + 1) * row] {
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    write_atomic(path, |f| {
+        use std::io::Write;
+        Ok(f.write_all(&bytes)?)
+    })
+    .with_context(|| format!("{}: writing the PFM failed", path.display()))
+}
+
+/// Reads a PFM written by [`save_pfm`] (either byte order): `(width, height, channels, data)`
+/// with rows top to bottom.
+pub fn read_pfm(path: &Path) -> anyhow::Result<(u32, u32, usize, Vec<f32>)> {
+    let bytes = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    let bad = || {
+        anyhow::anyhow!(
+            "{}: not a PFM file (header PF/Pf, size, scale)",
+            path.display()
+        )
+    };
+    let mut fields = Vec::new();
+    let mut at = 0;
+    while fields.len() < 4 {
+        while at < bytes.len() && bytes[at].is_ascii_whitespace() {
+            at += 1;
+        }
+        let start = at;
+        while at < bytes.len() && !bytes[at].is_ascii_whitespace() {
+            at += 1;
+        }
+        anyhow::ensure!(at > start, bad());
+        fields.push(
+            std::str::from_utf8(&bytes[start..at])
+                .map_err(|_| bad())?
+                .to_string(),
+        );
+    }
+    at += 1;
+    let channels = match fields[0].as_str() {
+        "PF" => 3,
+        "Pf" => 1,
+        _ => return Err(bad()),
+    };
+    let w: u32 = fields[1].parse().map_err(|_| bad())?;
+    let h: u32 = fields[2].parse().map_err(|_| bad())?;
+    let scale: f32 = fields[3].parse().map_err(|_| bad())?;
+    let n = w as usize * h as usize * channels;
+    anyhow::ensure!(
+        bytes.len() >= at + 4 * n,
+        "{}: truncated PFM",
+        path.display()
+    );
+    let row = w as usize * channels;
+    let mut data = vec![0.0f32; n];
+    for (k, chunk) in bytes[at..at + 4 * n].chunks_exact(4).enumerate() {
+        let b = [chunk[0], chunk[1], chunk[2], chunk[3]];
+        let v = if scale < 0.0 {
+            f32::from_le_bytes(b)
+        } else {
+            f32::from_be_bytes(b)
+        };
+        let (y, x) = (k / row, k % row);
+        data[(h as usize - 1 - y) * row + x] = v;
+    }
+    Ok((w, h, channels, data))
+}
