@@ -551,6 +551,9 @@ fn regulariser_map_gradients_match_the_reference() {
         compared += 1;
     }
     assert!(compared >= 12, "only {compared} of 16 scenes comparable");
-    assert!(with_normals >= 10, "only {with_normals} scenes had surface normals");
+    assert!(
+        with_normals >= 10,
+        "only {with_normals} scenes had surface normals"
+    );
     ctx.check_validation().unwrap();
 }

@@ -460,3 +460,89 @@ fn an_empty_scene_renders_the_background() {
         .all(|m| m.depth == 0.0 && m.median_depth == 0.0));
     assert!(frame.median_index.iter().all(|&i| i == 0));
 }
+
+/// A tilted plane tiled with opaque surfels lying in it: where the pixels are covered, the
+/// expected depth is the plane's depth along each ray and the accumulated normal is the plane's
+/// (camera-facing) normal, the median depth too; the f32 GPU against the plane itself, not
+/// against the reference.
+#[test]
+fn a_plane_of_surfels_renders_the_planes_depth_and_normal() {
+    let ctx = ctx();
+    let mut renderer = renderer(&ctx);
+    let camera = PinholeCamera {
+        fx: 60.0,
+        fy: 60.0,
+        cx: 32.0,
+        cy: 24.0,
+        width: 64,
+        height: 48,
+    };
+    // The plane z = 3 + 0.4 x − 0.2 y (camera = world, identity pose): its unit normal facing
+    // the camera is n ∝ (0.4, −0.2, −1).
+    let nz = [0.4f64, -0.2, -1.0];
+    let len = (nz[0] * nz[0] + nz[1] * nz[1] + nz[2] * nz[2]).sqrt();
+    let n = nz.map(|v| v / len);
+    // A rotation whose third column is n: axis-angle from (0, 0, −1)... built from the
+    // quaternion between e_z and −n (the surfel normal's sign does not matter: it is flipped
+    // to face the camera).
+    let m = n.map(|v| -v);
+    let (w, axis) = (1.0 + m[2], [-m[1], m[0], 0.0]);
+    let qn = (w * w + axis[0] * axis[0] + axis[1] * axis[1]).sqrt();
+    let q = [w / qn, axis[0] / qn, axis[1] / qn, 0.0];
+    let mut s = RefSurfels::default();
+    let step = 0.08;
+    for iy in -14..=14 {
+        for ix in -20..=20 {
+            let (x, y) = (ix as f64 * step, iy as f64 * step);
+            let z = 3.0 + 0.4 * x - 0.2 * y;
+            s.push(
+                [x, y, z],
+                [(0.08f64).ln(), (0.08f64).ln()],
+                q,
+                8.0,
+                [0.2, 0.3, 0.4],
+            );
+        }
+    }
+    let (frame, _) = render_gpu(
+        &ctx,
+        &mut renderer,
+        &s,
+        0,
+        &camera,
+        &Pose::IDENTITY,
+        [0.0; 3],
+        &SurfelSettings::default(),
+    );
+    let (mut worst_depth, mut worst_angle, mut covered) = (0.0f64, 0.0f64, 0);
+    for y in 4..camera.height - 4 {
+        for x in 4..camera.width - 4 {
+            let pix = (y * camera.width + x) as usize;
+            let alpha = 1.0 - frame.final_t[pix] as f64;
+            if alpha < 0.999 {
+                continue;
+            }
+            covered += 1;
+            let r = [
+                (x as f64 + 0.5 - camera.cx) / camera.fx,
+                (y as f64 + 0.5 - camera.cy) / camera.fy,
+                1.0,
+            ];
+            // z along the ray: z = 3 + 0.4 z r_x − 0.2 z r_y.
+            let z = 3.0 / (1.0 - 0.4 * r[0] + 0.2 * r[1]);
+            let m = &frame.maps[pix];
+            worst_depth = worst_depth
+                .max((m.depth as f64 / alpha - z).abs() / z)
+                .max((m.median_depth as f64 - z).abs() / z);
+            let nr = m.normal.map(f64::from);
+            let l = (nr[0] * nr[0] + nr[1] * nr[1] + nr[2] * nr[2]).sqrt();
+            let cos = (nr[0] * n[0] + nr[1] * n[1] + nr[2] * n[2]) / l;
+            worst_angle = worst_angle.max(cos.clamp(-1.0, 1.0).acos().to_degrees());
+        }
+    }
+    eprintln!("{covered} covered pixels: depth error {worst_depth:.2e} (relative), normal {worst_angle:.2e}°");
+    assert!(covered > 1000, "{covered}");
+    assert!(worst_depth < 1e-4, "{worst_depth}");
+    assert!(worst_angle < 0.05, "{worst_angle}");
+    ctx.check_validation().unwrap();
+}

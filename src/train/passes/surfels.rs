@@ -3,8 +3,9 @@
 //! iterations ([`SurfelTraining`]).
 //!
 //! Storage: surfels live in the same parameter buffers as 3D Gaussians, with log-scales three
-//! floats apart; the surfel kernels read the first two and never the third, which stays at
-//! [`UNUSED_LOG_SCALE`] (it gets a zero gradient, so Adam never moves it). That keeps 3DGS's
+//! floats apart; the surfel kernels read the first two and never the third, which starts at
+//! [`UNUSED_LOG_SCALE`] (it gets a zero gradient, so Adam never moves it; a split shrinks it
+//! by ln 1.6 like the others, so it only gets smaller). That keeps 3DGS's
 //! density control right for surfels unchanged: a split samples its children with the third
 //! standard deviation e^−20, i.e. in the surfel's plane as the official 2DGS split does
 //! (`std = (s_u, s_v, 0)`), shrinks every scale by the same factor, and the largest-scale
