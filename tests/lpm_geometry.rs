@@ -1213,3 +1213,57 @@ fn authors_cone_radius_is_the_smallest_half_extent() {
     );
     assert!((s.cone_radius - 0.7).abs() < 1e-7);
 }
+
+/// LPM's added points: isotropic 3D Gaussians, or surfels facing the camera whose error
+/// created them (normal = the rotation's third column, towards that camera), with the unused
+/// third log-scale; also when the camera is straight "below" (n = −e_z, the quaternion
+/// formula's singular case).
+#[test]
+fn added_surfels_face_the_camera_that_asked_for_them() {
+    use lpmsplat::lpm::strategy::{new_point_shape, NewGaussian};
+    use lpmsplat::train::passes::surfels::UNUSED_LOG_SCALE;
+    use lpmsplat::train::strategy::Primitive;
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
+    let mut cases: Vec<([f32; 3], [f32; 3])> = (0..200)
+        .map(|_| {
+            (
+                [0; 3].map(|_| rng.gen_range(-2.0..2.0)),
+                [0; 3].map(|_| rng.gen_range(-5.0..5.0)),
+            )
+        })
+        .collect();
+    cases.push(([0.5, 0.5, 1.0], [0.5, 0.5, -3.0]));
+    cases.push(([0.5, 0.5, 1.0], [0.5, 0.5, 4.0]));
+    for (position, camera_center) in cases {
+        let row = NewGaussian {
+            position,
+            scale: 0.03,
+            color: [0.5; 3],
+            opacity: 0.1,
+            camera_center,
+        };
+        let (l, q) = new_point_shape(Primitive::Gaussian, &row);
+        assert_eq!((l, q), ([0.03f32.ln(); 3], [1.0, 0.0, 0.0, 0.0]));
+        let (l, q) = new_point_shape(Primitive::Surfel, &row);
+        assert_eq!(l, [0.03f32.ln(), 0.03f32.ln(), UNUSED_LOG_SCALE]);
+        let [w, x, y, z] = q.map(f64::from);
+        assert!(((w * w + x * x + y * y + z * z) - 1.0).abs() < 1e-6);
+        // Third column of the rotation matrix of a unit quaternion.
+        let normal = [
+            2.0 * (x * z + w * y),
+            2.0 * (y * z - w * x),
+            1.0 - 2.0 * (x * x + y * y),
+        ];
+        let d: Vec<f64> = (0..3)
+            .map(|k| (camera_center[k] - position[k]) as f64)
+            .collect();
+        let len = d.iter().map(|v| v * v).sum::<f64>().sqrt();
+        for k in 0..3 {
+            assert!(
+                (normal[k] - d[k] / len).abs() < 1e-5,
+                "{position:?} → {camera_center:?}: normal {normal:?}"
+            );
+        }
+    }
+}

@@ -44,7 +44,9 @@ use crate::splats::gpu::grown_capacity;
 use crate::splats::SH_C0;
 use crate::train::adam::SplatState;
 use crate::train::density::{DensifyArgs, DensifyOutcome};
-use crate::train::strategy::{Adc, DensityContext, DensityStrategy, IterationView, StrategyEvent};
+use crate::train::strategy::{
+    Adc, DensityContext, DensityStrategy, IterationView, Primitive, StrategyEvent,
+};
 
 const WG: u32 = 256;
 
@@ -812,6 +814,7 @@ impl LpmStrategy {
                     scale: z.radius / 3.0,
                     color: z.color,
                     opacity: self.config.add_opacity,
+                    camera_center: z.camera_center,
                 })
                 .collect();
             append_gaussians(t, &rows)?;
@@ -925,15 +928,45 @@ impl DensityStrategy for LpmStrategy {
     }
 }
 
-/// A Gaussian to append: isotropic, SH DC only, fresh optimizer state.
+/// A Gaussian to append: SH DC only, fresh optimizer state; isotropic for 3D Gaussians, a disc
+/// facing `camera_center` for surfels ([`new_point_shape`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NewGaussian {
     pub position: [f32; 3],
-    /// World-space standard deviation (all three axes).
+    /// World-space standard deviation (all three axes; both in-plane axes of a surfel).
     pub scale: f32,
     /// Linear RGB in [0, 1].
     pub color: [f32; 3],
     pub opacity: f64,
+    /// The centre of the camera whose error created the point.
+    pub camera_center: [f32; 3],
+}
+
+/// Log-scales and rotation (w, x, y, z) of a new point. A 3D Gaussian is isotropic (identity
+/// rotation). A surfel added at a zone centre faces the camera whose error created it (our
+/// decision; nothing in the LPM or 2DGS sources says which way, BASE_MODELS.md §1.6): its
+/// normal, the rotation's third column, points from the centre to that camera, so the view
+/// that asked for detail sees the disc face on; the third log-scale is the unused one.
+pub fn new_point_shape(primitive: Primitive, row: &NewGaussian) -> ([f32; 3], [f32; 4]) {
+    let l = row.scale.ln();
+    match primitive {
+        Primitive::Gaussian => ([l; 3], [1.0, 0.0, 0.0, 0.0]),
+        Primitive::Surfel => {
+            let d: [f64; 3] = [0, 1, 2].map(|k| (row.camera_center[k] - row.position[k]) as f64);
+            let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            // The rotation taking e_z to n: q ∝ (1 + n_z, e_z × n) = (1 + n_z, −n_y, n_x, 0);
+            // for n = −e_z (or a camera at the centre), half a turn about x.
+            let q = if len > 0.0 && d[2] / len > -1.0 + 1e-9 {
+                let n = d.map(|v| v / len);
+                let q = [1.0 + n[2], -n[1], n[0], 0.0];
+                let qn = (q.iter().map(|v| v * v).sum::<f64>()).sqrt();
+                q.map(|v| (v / qn) as f32)
+            } else {
+                [0.0, 1.0, 0.0, 0.0]
+            };
+            ([l, l, crate::train::passes::surfels::UNUSED_LOG_SCALE], q)
+        }
+    }
 }
 
 /// Appends `rows` after the current Gaussians (rows `count..count + n`), growing the
@@ -980,9 +1013,10 @@ pub fn append_gaussians(t: &mut DensityContext, rows: &[NewGaussian]) -> anyhow:
             r.position,
             r.scale
         );
+        let (log_scales, rotation) = new_point_shape(t.primitive, r);
         data[0].extend(r.position);
-        data[1].extend([r.scale.ln(); 3]);
-        data[2].extend([1.0, 0.0, 0.0, 0.0]);
+        data[1].extend(log_scales);
+        data[2].extend(rotation);
         data[3].push(logit(r.opacity));
         data[4].extend(r.color.map(|c| ((c as f64 - 0.5) / SH_C0) as f32));
         data[5].extend(std::iter::repeat_n(0.0, rest));

@@ -32,6 +32,18 @@ pub trait StrategyEvent: Any + Debug + Send + Sync {
 /// render (lent by the trainer for one call; the strategy never sees the trainer itself).
 /// After every call the trainer grows its own per-Gaussian buffers (gradients, renderer) to the
 /// state's capacity, so a strategy that adds Gaussians only grows `state` and `density`.
+/// The shape of the model's primitives, for strategies that create them from nothing (LPM's
+/// added points).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Primitive {
+    /// 3D Gaussians: three scales.
+    Gaussian,
+    /// 2DGS surfels: two scales in the plane, the third stored but unused
+    /// ([`crate::train::passes::surfels::UNUSED_LOG_SCALE`]); the rotation's third column is
+    /// the normal.
+    Surfel,
+}
+
 pub struct DensityContext<'a> {
     pub ctx: &'a Arc<GpuContext>,
     pub rec: &'a mut Recorder,
@@ -46,6 +58,8 @@ pub struct DensityContext<'a> {
     pub truth_offset_px: u32,
     pub width: u32,
     pub height: u32,
+    /// What a new primitive looks like in this model.
+    pub primitive: Primitive,
 }
 
 /// The iteration's inputs a strategy may use.

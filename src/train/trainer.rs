@@ -631,6 +631,7 @@ impl Trainer {
             truth_offset_px: slot.offset_px,
             width: slot.width,
             height: slot.height,
+            primitive: self.passes.primitive(),
         })
     }
 

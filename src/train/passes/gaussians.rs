@@ -17,6 +17,7 @@ use crate::splats::gpu::GpuSplats;
 use crate::splats::GaussianParams;
 use crate::train::adam::SplatState;
 use crate::train::density::DensityControl;
+use crate::train::strategy::Primitive;
 use crate::train::trainer::TrainConfig;
 
 pub struct GaussianPasses {
@@ -100,6 +101,10 @@ impl GaussianPasses {
 }
 
 impl ModelPasses for GaussianPasses {
+    fn primitive(&self) -> Primitive {
+        Primitive::Gaussian
+    }
+
     fn reserve(&mut self, capacity: usize) -> Result<()> {
         if self.backward.capacity() < capacity {
             if self.pixel_count.is_some() {

@@ -17,6 +17,7 @@ use anyhow::Result;
 
 use super::adam::SplatState;
 use super::density::DensityControl;
+use super::strategy::Primitive;
 use super::trainer::TrainConfig;
 use crate::gpu::{GpuBuffer, GpuContext, Recorder, TimestampPool};
 use crate::render::forward::Capacity;
@@ -48,6 +49,8 @@ pub struct GradArgs<'a> {
 }
 
 pub trait ModelPasses: Send {
+    /// The shape of this model's primitives (for strategies that add some).
+    fn primitive(&self) -> Primitive;
     /// Grows the per-Gaussian buffers the passes own to `capacity` Gaussians (only between
     /// submissions).
     fn reserve(&mut self, capacity: usize) -> Result<()>;

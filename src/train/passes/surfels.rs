@@ -28,6 +28,7 @@ use crate::splats::gpu::GpuSplats;
 use crate::splats::GaussianParams;
 use crate::train::adam::SplatState;
 use crate::train::density::DensityControl;
+use crate::train::strategy::Primitive;
 use crate::train::trainer::TrainConfig;
 
 /// The third log-scale of a surfel in the 3-float storage (module docs): e^−20 ≈ 2e-9.
@@ -122,6 +123,10 @@ impl SurfelPasses {
 }
 
 impl ModelPasses for SurfelPasses {
+    fn primitive(&self) -> Primitive {
+        Primitive::Surfel
+    }
+
     fn reserve(&mut self, capacity: usize) -> Result<()> {
         self.backward.reserve(&self.ctx, capacity)?;
         let c = self.renderer.base.capacity();
