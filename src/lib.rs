@@ -9,6 +9,7 @@ pub mod error;
 pub mod gpu;
 pub mod lpips;
 pub mod lpm;
+pub mod mesh;
 pub mod metrics;
 pub mod models;
 pub mod plot;

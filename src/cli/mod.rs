@@ -8,6 +8,7 @@ mod info;
 mod interrupt;
 mod lpips_scores;
 mod matching;
+mod mesh;
 mod render;
 
 mod train;
@@ -54,6 +55,8 @@ pub enum Command {
     Bench(bench::BenchArgs),
     /// Convert a trained PLY to the compact `.splat` format of web viewers.
     Export(export::ExportArgs),
+    /// A triangle mesh (PLY) of a trained 2DGS model: its rendered depth fused into a TSDF.
+    Mesh(mesh::MeshArgs),
 }
 
 /// Scene-loading flags shared by the subcommands that read a scene.
@@ -101,5 +104,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Train(a) => train::run(&gpu, &a),
         Command::Eval(a) => eval::run(&gpu, &a),
         Command::Export(a) => export::run(&a),
+        Command::Mesh(a) => mesh::run(&gpu, &a),
     }
 }

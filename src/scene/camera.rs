@@ -227,6 +227,13 @@ impl Pose {
         ]
     }
 
+    /// Maps a camera-space point back to world space: `Rᵀ (p − t)`.
+    pub fn inverse_transform(&self, p: [f64; 3]) -> [f64; 3] {
+        let r = &self.rotation;
+        let d = [0, 1, 2].map(|k| p[k] - self.translation[k]);
+        [0, 1, 2].map(|c| r[0][c] * d[0] + r[1][c] * d[1] + r[2][c] * d[2])
+    }
+
     /// Camera centre in world coordinates: `-Rᵀ t`.
     pub fn center(&self) -> [f64; 3] {
         let r = &self.rotation;
