@@ -117,9 +117,8 @@ impl Tsdf {
                         let q = j * nx + i;
                         let wq = weight[q];
                         tsdf[q] = (tsdf[q] * wq + t) / (wq + 1.0);
-                        for ch in 0..3 {
-                            color[q][ch] =
-                                (color[q][ch] * wq + view.rgb[3 * pix + ch]) / (wq + 1.0);
+                        for (ch, c) in color[q].iter_mut().enumerate() {
+                            *c = (*c * wq + view.rgb[3 * pix + ch]) / (wq + 1.0);
                         }
                         weight[q] = wq + 1.0;
                     }
