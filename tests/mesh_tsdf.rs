@@ -173,3 +173,24 @@ fn a_tsdf_too_large_is_refused_with_a_fix() {
         .to_string();
     assert!(err.contains("--voxel"), "{err}");
 }
+
+/// The preview of the fused sphere from one of the fusing views: lit where the sphere faces
+/// the camera, darker towards its silhouette, black around it.
+#[test]
+fn the_preview_shows_the_sphere_lit_from_the_camera() {
+    let (mesh, _) = fuse_sphere(0.04, false, f64::INFINITY);
+    let cam = camera();
+    let pose = views()[0];
+    let img = lpmsplat::mesh::preview::render_preview(&mesh, &cam, &pose);
+    let at = |x: u32, y: u32| img.rgb[3 * (y * cam.width + x) as usize];
+    // The sphere's centre projects to the principal point (the view looks at the origin).
+    assert!(at(64, 48) > 0.95, "{}", at(64, 48));
+    assert_eq!(at(2, 2), 0.0);
+    // Radius 0.7 at distance ~3.23: ~26 px; 22 px out the surface is seen at a grazing angle.
+    assert!(
+        at(64 + 22, 48) < at(64 + 5, 48),
+        "{} vs {}",
+        at(86, 48),
+        at(69, 48)
+    );
+}

@@ -44,8 +44,8 @@ pub struct TradeArgs {
     #[arg(long, default_value = "3dgs", value_parser = BaseModel::parse)]
     pub model: BaseModel,
     /// The run length whose calendar is followed: the reference's density / LPM calendar
-    /// (densify 500..15000, resets every 3000, position learning-rate decay over 30000) is
-    /// scaled by CALENDAR / 30000. Default: --iterations (a complete, compressed schedule);
+    /// (densify 500..15000, resets every 3000, position learning-rate decay over 30000; 2dgs's
+    /// normal and distortion regularisers from 7000 and 3000) is scaled by CALENDAR / 30000. Default: --iterations (a complete, compressed schedule);
     /// `--calendar 30000 --iterations 7000` is the reference schedule stopped at 7k.
     #[arg(long)]
     pub calendar: Option<u32>,
@@ -167,7 +167,9 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
     let seeds: Vec<u64> = (0..args.seeds as u64).map(|i| args.seed + i).collect();
     let inits = seeds
         .iter()
-        .map(|&seed| initial_model(&scene, None, 100_000, seed, 3))
+        .map(|&seed| {
+            initial_model(&scene, None, 100_000, seed, 3).map(|m| args.model.initialise(m, seed))
+        })
         .collect::<anyhow::Result<Vec<_>>>()?;
     let ctx = GpuContext::new(gpu)?;
     let calendar = args.calendar.unwrap_or(args.iterations);
@@ -195,7 +197,13 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
     base.schedule.densify_until = scale(15_000);
     base.schedule.opacity_reset_interval = (scale(3000) / 100).max(1) * 100;
     base.lr.position_max_steps = calendar;
+    base.density.min_opacity = args.model.default_min_opacity();
     args.model.configure(&mut base);
+    if let Some(t) = base.surfels.as_mut() {
+        // 2DGS's regularisers start on the same calendar (official 7000 and 3000 of 30k).
+        t.normal_from = scale(t.normal_from);
+        t.distortion_from = scale(t.distortion_from);
+    }
     eprintln!(
         "bench trade: {} ({} train / {} test views), {} iterations per run on the calendar of \
          {calendar}: densify {}..{}, reset every {}, on {}",

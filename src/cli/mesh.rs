@@ -55,6 +55,9 @@ pub struct MeshArgs {
     /// Keep at most this many of the largest pieces (official 50; DTU: 1).
     #[arg(long, default_value_t = 50)]
     pub max_pieces: usize,
+    /// Also write a shaded picture of the mesh seen from the first fused view (PNG).
+    #[arg(long)]
+    pub preview: Option<PathBuf>,
 }
 
 /// Pixels with less accumulated alpha give no depth.
@@ -164,6 +167,12 @@ pub fn run(gpu: &GpuOptions, args: &MeshArgs) -> anyhow::Result<()> {
     }
     let mesh = extract(&tsdf).keep_large_pieces(args.min_triangles, args.max_pieces);
     write_mesh_ply(&args.out, &mesh)?;
+    if let Some(path) = &args.preview {
+        let view = &scene.views[views[0]];
+        let img = lpmsplat::mesh::preview::render_preview(&mesh, &view.camera, &view.pose);
+        images::save_png(path, &img)?;
+        println!("{}: the mesh seen from {}", path.display(), view.name);
+    }
     println!(
         "{}: {} vertices, {} triangles ({} views, voxel {voxel:.5}, {}×{}×{} voxels, sdf \
          truncation {sdf_trunc:.5})",

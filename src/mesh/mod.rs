@@ -5,6 +5,7 @@
 
 pub mod extract;
 pub mod ply;
+pub mod preview;
 pub mod tsdf;
 
 /// A triangle mesh with per-vertex colours.
