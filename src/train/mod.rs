@@ -3,6 +3,7 @@
 
 pub mod adam;
 pub mod checkpoint;
+pub mod config;
 pub mod data;
 pub mod density;
 pub mod loss;

@@ -16,9 +16,9 @@ use crate::render::layout::{CameraGpu, ProjectedGpu, RenderConstants};
 use crate::splats::gpu::GpuSplats;
 use crate::splats::GaussianParams;
 use crate::train::adam::SplatState;
+use crate::train::config::TrainConfig;
 use crate::train::density::DensityControl;
 use crate::train::strategy::Primitive;
-use crate::train::trainer::TrainConfig;
 
 pub struct GaussianPasses {
     ctx: Arc<GpuContext>,

@@ -16,9 +16,9 @@ use std::sync::Arc;
 use anyhow::Result;
 
 use super::adam::SplatState;
+use super::config::TrainConfig;
 use super::density::DensityControl;
 use super::strategy::Primitive;
-use super::trainer::TrainConfig;
 use crate::gpu::{GpuBuffer, GpuContext, Recorder, TimestampPool};
 use crate::render::forward::Capacity;
 use crate::render::layout::{CameraGpu, ProjectedGpu};

@@ -23,61 +23,18 @@ use crate::render::layout::{CameraGpu, ProjectedGpu};
 use crate::render::surfel::backward::{SurfelBackward, SurfelBackwardArgs, MAP_GRADS_STRIDE};
 use crate::render::surfel::forward::{SurfelFrameSettings, SurfelRenderer};
 use crate::render::surfel::layout::SurfelConstants;
-use crate::render::surfel::regularise::{RegulariserWeights, SurfelRegularisers};
+use crate::render::surfel::regularise::SurfelRegularisers;
 use crate::splats::gpu::GpuSplats;
 use crate::splats::GaussianParams;
 use crate::train::adam::SplatState;
+use crate::train::config::TrainConfig;
 use crate::train::density::DensityControl;
 use crate::train::strategy::Primitive;
-use crate::train::trainer::TrainConfig;
 
 /// The third log-scale of a surfel in the 3-float storage (module docs): e^−20 ≈ 2e-9.
 pub const UNUSED_LOG_SCALE: f32 = -20.0;
 
-/// 2DGS's training settings (official `arguments/__init__.py`, `train.py`).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct SurfelTraining {
-    /// λ of the normal consistency (0.05), active for iterations > `normal_from` (7000).
-    pub normal_weight: f32,
-    pub normal_from: u32,
-    /// λ of the depth distortion (0 in the official code; its DTU script uses 1000), active
-    /// for iterations > `distortion_from` (3000).
-    pub distortion_weight: f32,
-    pub distortion_from: u32,
-    /// The surface depth: 0 the expected depth (official default), 1 the median (DTU, TnT).
-    pub depth_ratio: f32,
-}
-
-impl Default for SurfelTraining {
-    fn default() -> Self {
-        Self {
-            normal_weight: 0.05,
-            normal_from: 7000,
-            distortion_weight: 0.0,
-            distortion_from: 3000,
-            depth_ratio: 0.0,
-        }
-    }
-}
-
-impl SurfelTraining {
-    /// The regularisers' weights at `iteration`.
-    pub fn weights_at(&self, iteration: u32) -> RegulariserWeights {
-        RegulariserWeights {
-            normal: if iteration > self.normal_from {
-                self.normal_weight
-            } else {
-                0.0
-            },
-            distortion: if iteration > self.distortion_from {
-                self.distortion_weight
-            } else {
-                0.0
-            },
-            depth_ratio: self.depth_ratio,
-        }
-    }
-}
+pub use crate::train::config::SurfelTraining;
 
 pub struct SurfelPasses {
     ctx: Arc<GpuContext>,

@@ -1,0 +1,164 @@
+//! What decides a training run: the background, the learning rates, density control, the
+//! schedule and the base model's own settings (`config.json`, and the checkpoint's key).
+
+use super::density::{DensityConfig, Statistic};
+use super::schedule::{DensitySchedule, LearningRates};
+use crate::render::surfel::regularise::RegulariserWeights;
+
+/// The background the model is trained against.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Background {
+    Fixed([f32; 3]),
+    /// A new uniform random colour every iteration (evaluation then uses black).
+    Random,
+}
+
+impl Background {
+    pub fn describe(&self) -> String {
+        match self {
+            Background::Fixed(c) => format!("{},{},{}", c[0], c[1], c[2]),
+            Background::Random => "random".into(),
+        }
+    }
+    /// The colour used for evaluation and saved renders.
+    pub fn eval_colour(&self) -> [f32; 3] {
+        match self {
+            Background::Fixed(c) => *c,
+            Background::Random => [0.0; 3],
+        }
+    }
+}
+
+/// Everything that decides a training run (written to `config.json`).
+#[derive(Debug, Clone)]
+pub struct TrainConfig {
+    pub iterations: u32,
+    pub seed: u64,
+    pub sh_degree: u32,
+    pub background: Background,
+    pub lr: LearningRates,
+    pub density: DensityConfig,
+    pub schedule: DensitySchedule,
+    pub ssim_weight: f32,
+    /// Collect per-stage GPU timestamps every iteration.
+    pub timestamps: bool,
+    /// Mip-Splatting's filters: the 2D Mip filter (eps2d 0.1 with the opacity compensation)
+    /// and the 3D smoothing filter (recomputed after every density step and every 100
+    /// iterations after densification, as the official code; the opacity reset acts on the
+    /// filtered opacity).
+    pub mip_filters: bool,
+    /// 2DGS: the model is surfels, with these regulariser settings (`None`: 3D Gaussians).
+    pub surfels: Option<SurfelTraining>,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        Self {
+            iterations: 30_000,
+            seed: 0,
+            sh_degree: 3,
+            background: Background::Fixed([0.0; 3]),
+            lr: LearningRates::default(),
+            density: DensityConfig::default(),
+            schedule: DensitySchedule::default(),
+            ssim_weight: 0.2,
+            timestamps: false,
+            mip_filters: false,
+            surfels: None,
+        }
+    }
+}
+
+impl TrainConfig {
+    pub fn to_json(&self) -> serde_json::Value {
+        let lr = &self.lr;
+        let d = &self.density;
+        let s = &self.schedule;
+        let mut j = serde_json::json!({
+            "iterations": self.iterations,
+            "seed": self.seed,
+            "sh_degree": self.sh_degree,
+            "background": self.background.describe(),
+            "ssim_weight": self.ssim_weight,
+            "lr": {
+                "position_init": lr.position_init, "position_final": lr.position_final,
+                "position_max_steps": lr.position_max_steps, "scaling": lr.scaling,
+                "rotation": lr.rotation, "opacity": lr.opacity, "sh_dc": lr.sh_dc,
+                "sh_rest": lr.sh_rest,
+            },
+            "density": {
+                "grad_threshold": d.grad_threshold, "percent_dense": d.percent_dense,
+                "min_opacity": d.min_opacity, "max_world_fraction": d.max_world_fraction,
+                "split_shrink": d.split_shrink, "screen_size_limit": d.screen_size_limit,
+                "opacity_reset_value": d.opacity_reset_value,
+                "densify_from": s.densify_from, "densify_until": s.densify_until,
+                "interval": s.interval, "opacity_reset_interval": s.opacity_reset_interval,
+                "white_background_reset": s.white_background,
+            },
+        });
+        // Only when on, so checkpoints from before the key still resume.
+        if self.mip_filters {
+            j["mip_filters"] = serde_json::json!(true);
+        }
+        // Only for surfels, so checkpoints from before the key still resume.
+        if let Some(t) = &self.surfels {
+            j["surfels"] = serde_json::json!({
+                "normal_weight": t.normal_weight, "normal_from": t.normal_from,
+                "distortion_weight": t.distortion_weight, "distortion_from": t.distortion_from,
+                "depth_ratio": t.depth_ratio,
+            });
+        }
+        // Only when not the 3DGS default, so checkpoints from before the key still resume.
+        if let Statistic::PixelWeighted { depth_threshold } = d.statistic {
+            j["density"]["statistic"] = serde_json::json!({
+                "kind": d.statistic.name(), "depth_threshold": depth_threshold,
+            });
+        }
+        j
+    }
+}
+
+/// 2DGS's training settings (official `arguments/__init__.py`, `train.py`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SurfelTraining {
+    /// λ of the normal consistency (0.05), active for iterations > `normal_from` (7000).
+    pub normal_weight: f32,
+    pub normal_from: u32,
+    /// λ of the depth distortion (0 in the official code; its DTU script uses 1000), active
+    /// for iterations > `distortion_from` (3000).
+    pub distortion_weight: f32,
+    pub distortion_from: u32,
+    /// The surface depth: 0 the expected depth (official default), 1 the median (DTU, TnT).
+    pub depth_ratio: f32,
+}
+
+impl Default for SurfelTraining {
+    fn default() -> Self {
+        Self {
+            normal_weight: 0.05,
+            normal_from: 7000,
+            distortion_weight: 0.0,
+            distortion_from: 3000,
+            depth_ratio: 0.0,
+        }
+    }
+}
+
+impl SurfelTraining {
+    /// The regularisers' weights at `iteration`.
+    pub fn weights_at(&self, iteration: u32) -> RegulariserWeights {
+        RegulariserWeights {
+            normal: if iteration > self.normal_from {
+                self.normal_weight
+            } else {
+                0.0
+            },
+            distortion: if iteration > self.distortion_from {
+                self.distortion_weight
+            } else {
+                0.0
+            },
+            depth_ratio: self.depth_ratio,
+        }
+    }
+}
