@@ -12,6 +12,7 @@ pub mod orbit;
 pub mod split;
 pub mod transforms;
 pub mod undistort;
+pub mod video;
 
 use std::path::{Path, PathBuf};
 
@@ -81,6 +82,8 @@ pub enum SceneFormat {
     NerfSynthetic,
     /// A single `transforms.json` with `fl_x`/`fl_y`/`cx`/`cy`/`w`/`h`.
     Nerfstudio,
+    /// One frame of a multi-view video ([`video::VideoScene::frame_scene`]).
+    Video,
 }
 
 /// Which COLMAP form to read when both exist.
