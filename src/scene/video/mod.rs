@@ -24,21 +24,12 @@ use super::{split, CameraModel, LoadOptions, PinholeCamera, Pose, Scene, SceneFo
 pub const SEGMENT_FRAMES: usize = 50;
 
 /// Which frames of the video to train on.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct FrameRange {
     /// First frame (index into each camera's sorted frames).
     pub start: usize,
     /// Number of frames; `None`: [`SEGMENT_FRAMES`], or fewer when the video is shorter.
     pub count: Option<usize>,
-}
-
-impl Default for FrameRange {
-    fn default() -> Self {
-        Self {
-            start: 0,
-            count: None,
-        }
-    }
 }
 
 impl std::str::FromStr for FrameRange {
