@@ -81,6 +81,7 @@ pub mod project;
 pub mod raster;
 pub mod scenes;
 pub mod sh;
+pub mod spacetime;
 pub mod surfel;
 
 use anyhow::{ensure, Result};
