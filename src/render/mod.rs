@@ -8,6 +8,7 @@ pub mod forward;
 pub mod layout;
 pub mod scan;
 pub mod sort;
+pub mod spacetime;
 pub mod surfel;
 pub mod synthetic;
 pub mod view;

@@ -1,0 +1,213 @@
+//! SpacetimeGaussians' temporal step on the GPU (`glsl/spacetime/temporal{,_backward}.comp`; the
+//! f64 oracle is `crate::reference::spacetime`): the model at time `t` written as still 3D
+//! Gaussians (positions, quaternions, opacity logits) that the 3DGS preprocess, rasterizer and
+//! their backward draw unchanged, and the still Gaussians' gradients taken back to the temporal
+//! parameters. One invocation per Gaussian, no host work.
+
+use std::sync::Arc;
+
+use anyhow::ensure;
+
+use crate::gpu::{ComputePipeline, GpuBuffer, GpuContext, Recorder};
+use crate::shaders;
+
+const WG: u32 = 128;
+
+/// Floats per Gaussian of each temporal group.
+pub const MOTION_STRIDE: usize = 9;
+pub const OMEGA_STRIDE: usize = 4;
+
+/// The parameters the temporal step reads, or their gradients (flat f32, Gaussian `i` at
+/// `i × stride`): positions 3, motion 9 (`m₁, m₂, m₃` as xyz triples), rotations 4 (w, x, y, z),
+/// angular velocities 4, opacity logits 1, temporal centres 1, temporal log-scales 1.
+pub struct TemporalBuffers<'a> {
+    pub positions: &'a GpuBuffer<f32>,
+    pub motion: &'a GpuBuffer<f32>,
+    pub rotations: &'a GpuBuffer<f32>,
+    pub omega: &'a GpuBuffer<f32>,
+    pub opacity_logits: &'a GpuBuffer<f32>,
+    pub t_center: &'a GpuBuffer<f32>,
+    pub t_log_scale: &'a GpuBuffer<f32>,
+}
+
+impl TemporalBuffers<'_> {
+    fn check(&self, what: &str, count: usize) -> anyhow::Result<()> {
+        let groups = [
+            ("positions", self.positions.len(), 3),
+            ("motion", self.motion.len(), MOTION_STRIDE),
+            ("rotations", self.rotations.len(), 4),
+            ("omega", self.omega.len(), OMEGA_STRIDE),
+            ("opacity logits", self.opacity_logits.len(), 1),
+            ("temporal centres", self.t_center.len(), 1),
+            ("temporal log-scales", self.t_log_scale.len(), 1),
+        ];
+        for (name, len, stride) in groups {
+            ensure!(
+                len >= count * stride,
+                "temporal step: {what} {name} hold {len} floats, {count} Gaussians need {}",
+                count * stride
+            );
+        }
+        Ok(())
+    }
+}
+
+/// The still Gaussians at one time, or their gradients: positions 3, rotations 4, opacity
+/// logits 1 per Gaussian.
+pub struct InstantBuffers<'a> {
+    pub positions: &'a GpuBuffer<f32>,
+    pub rotations: &'a GpuBuffer<f32>,
+    pub opacity_logits: &'a GpuBuffer<f32>,
+}
+
+impl InstantBuffers<'_> {
+    fn check(&self, what: &str, count: usize) -> anyhow::Result<()> {
+        for (name, len, stride) in [
+            ("positions", self.positions.len(), 3),
+            ("rotations", self.rotations.len(), 4),
+            ("opacity logits", self.opacity_logits.len(), 1),
+        ] {
+            ensure!(
+                len >= count * stride,
+                "temporal step: {what} {name} hold {len} floats, {count} Gaussians need {}",
+                count * stride
+            );
+        }
+        Ok(())
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct ForwardPush {
+    count: u32,
+    t: f32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct BackwardPush {
+    count: u32,
+    t: f32,
+    accumulate: u32,
+}
+
+pub struct TemporalStep {
+    ctx: Arc<GpuContext>,
+    forward: ComputePipeline,
+    backward: ComputePipeline,
+}
+
+impl TemporalStep {
+    pub fn new(ctx: &Arc<GpuContext>) -> anyhow::Result<Self> {
+        use std::mem::size_of;
+        Ok(Self {
+            ctx: ctx.clone(),
+            forward: ComputePipeline::new(
+                ctx,
+                "spacetime/temporal",
+                shaders::SPACETIME_TEMPORAL,
+                10,
+                size_of::<ForwardPush>() as u32,
+                WG,
+                &[],
+            )?,
+            backward: ComputePipeline::new(
+                ctx,
+                "spacetime/temporal_backward",
+                shaders::SPACETIME_TEMPORAL_BACKWARD,
+                13,
+                size_of::<BackwardPush>() as u32,
+                WG,
+                &[],
+            )?,
+        })
+    }
+
+    /// Records the first `count` Gaussians of `params` at time `t` into `out` (no barriers:
+    /// the caller orders it against the passes around it).
+    pub fn record_forward(
+        &self,
+        rec: &mut Recorder,
+        params: &TemporalBuffers,
+        out: &InstantBuffers,
+        count: usize,
+        t: f32,
+    ) -> anyhow::Result<()> {
+        params.check("parameter", count)?;
+        out.check("output", count)?;
+        ensure!(t.is_finite(), "temporal step: time {t} is not finite");
+        if count == 0 {
+            return Ok(());
+        }
+        rec.dispatch(
+            &self.forward,
+            &[
+                params.positions,
+                params.motion,
+                params.rotations,
+                params.omega,
+                params.opacity_logits,
+                params.t_center,
+                params.t_log_scale,
+                out.positions,
+                out.rotations,
+                out.opacity_logits,
+            ],
+            &ForwardPush {
+                count: count as u32,
+                t,
+            },
+            self.ctx.groups_1d(count as u64, WG),
+        );
+        Ok(())
+    }
+
+    /// Records the temporal parameters' gradients of the first `count` Gaussians from the still
+    /// Gaussians' (`d_instant`) at time `t`: written into `grads`, or added to them with
+    /// `accumulate` (several views in one step). Only `params`' opacity logits and temporal
+    /// centres and scales are read.
+    pub fn record_backward(
+        &self,
+        rec: &mut Recorder,
+        params: &TemporalBuffers,
+        d_instant: &InstantBuffers,
+        grads: &TemporalBuffers,
+        count: usize,
+        t: f32,
+        accumulate: bool,
+    ) -> anyhow::Result<()> {
+        params.check("parameter", count)?;
+        d_instant.check("instant gradient", count)?;
+        grads.check("gradient", count)?;
+        ensure!(t.is_finite(), "temporal step: time {t} is not finite");
+        if count == 0 {
+            return Ok(());
+        }
+        rec.dispatch(
+            &self.backward,
+            &[
+                params.opacity_logits,
+                params.t_center,
+                params.t_log_scale,
+                d_instant.positions,
+                d_instant.rotations,
+                d_instant.opacity_logits,
+                grads.positions,
+                grads.motion,
+                grads.rotations,
+                grads.omega,
+                grads.opacity_logits,
+                grads.t_center,
+                grads.t_log_scale,
+            ],
+            &BackwardPush {
+                count: count as u32,
+                t,
+                accumulate: accumulate as u32,
+            },
+            self.ctx.groups_1d(count as u64, WG),
+        );
+        Ok(())
+    }
+}
