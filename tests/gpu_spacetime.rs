@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder};
 use lpmsplat::reference::spacetime::{instant, instant_backward, Instant, Temporal};
-use lpmsplat::render::spacetime::{InstantBuffers, TemporalBuffers, TemporalStep};
+use lpmsplat::render::spacetime::{At, InstantBuffers, TemporalBuffers, TemporalStep};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 
@@ -143,7 +143,7 @@ fn temporal_step_matches_the_reference() {
             opacity_logits: &out_o,
         };
         let mut rec = Recorder::new(&ctx).unwrap();
-        step.record_forward(&mut rec, &dev.buffers(), &out, n, t)
+        step.record_forward(&mut rec, &dev.buffers(), &out, At { count: n, t })
             .unwrap();
         rec.submit_and_wait().unwrap();
         let (gp, gr, go) = (
@@ -212,8 +212,7 @@ fn temporal_step_matches_the_reference() {
             &dev.buffers(),
             &d_instant,
             &grads.buffers(),
-            n,
-            t,
+            At { count: n, t },
             false,
         )
         .unwrap();
@@ -224,8 +223,7 @@ fn temporal_step_matches_the_reference() {
             &dev.buffers(),
             &d_instant,
             &grads.buffers(),
-            n,
-            t,
+            At { count: n, t },
             true,
         )
         .unwrap();
@@ -273,7 +271,7 @@ fn temporal_step_matches_the_reference() {
     };
     let mut rec = Recorder::new(&ctx).unwrap();
     let e = step
-        .record_forward(&mut rec, &dev.buffers(), &out, n, 0.5)
+        .record_forward(&mut rec, &dev.buffers(), &out, At { count: n, t: 0.5 })
         .unwrap_err()
         .to_string();
     assert!(e.contains("output positions") && e.contains("15000"), "{e}");

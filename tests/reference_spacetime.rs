@@ -9,6 +9,9 @@ use lpmsplat::reference::spacetime::{
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 
+/// A parameter of a copy, to perturb.
+type Field = Box<dyn Fn(&mut Temporal) -> &mut f64>;
+
 fn sigmoid(x: f64) -> f64 {
     1.0 / (1.0 + (-x).exp())
 }
@@ -71,7 +74,7 @@ fn gradients_match_central_differences() {
         let g = instant_backward(&p, t, &w);
         let delta = t - p.t_center;
         // Every parameter as (getter into a copy, analytic gradient).
-        let mut checks: Vec<(Box<dyn Fn(&mut Temporal) -> &mut f64>, f64)> = Vec::new();
+        let mut checks: Vec<(Field, f64)> = Vec::new();
         for k in 0..3 {
             checks.push((
                 Box::new(move |q: &mut Temporal| &mut q.position[k]),

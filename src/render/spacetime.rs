@@ -92,6 +92,13 @@ struct BackwardPush {
     accumulate: u32,
 }
 
+/// Which Gaussians at which time: the first `count`, at `t`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct At {
+    pub count: usize,
+    pub t: f32,
+}
+
 pub struct TemporalStep {
     ctx: Arc<GpuContext>,
     forward: ComputePipeline,
@@ -124,16 +131,16 @@ impl TemporalStep {
         })
     }
 
-    /// Records the first `count` Gaussians of `params` at time `t` into `out` (no barriers:
-    /// the caller orders it against the passes around it).
+    /// Records the first `at.count` Gaussians of `params` at time `at.t` into `out` (no
+    /// barriers: the caller orders it against the passes around it).
     pub fn record_forward(
         &self,
         rec: &mut Recorder,
         params: &TemporalBuffers,
         out: &InstantBuffers,
-        count: usize,
-        t: f32,
+        at: At,
     ) -> anyhow::Result<()> {
+        let At { count, t } = at;
         params.check("parameter", count)?;
         out.check("output", count)?;
         ensure!(t.is_finite(), "temporal step: time {t} is not finite");
@@ -163,8 +170,8 @@ impl TemporalStep {
         Ok(())
     }
 
-    /// Records the temporal parameters' gradients of the first `count` Gaussians from the still
-    /// Gaussians' (`d_instant`) at time `t`: written into `grads`, or added to them with
+    /// Records the temporal parameters' gradients of the first `at.count` Gaussians from the
+    /// still Gaussians' (`d_instant`) at time `at.t`: written into `grads`, or added to them with
     /// `accumulate` (several views in one step). Only `params`' opacity logits and temporal
     /// centres and scales are read.
     pub fn record_backward(
@@ -173,10 +180,10 @@ impl TemporalStep {
         params: &TemporalBuffers,
         d_instant: &InstantBuffers,
         grads: &TemporalBuffers,
-        count: usize,
-        t: f32,
+        at: At,
         accumulate: bool,
     ) -> anyhow::Result<()> {
+        let At { count, t } = at;
         params.check("parameter", count)?;
         d_instant.check("instant gradient", count)?;
         grads.check("gradient", count)?;
