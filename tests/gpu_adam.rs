@@ -238,7 +238,7 @@ fn bad_calls_are_refused() {
     assert!(adam
         .record(&ctx, &mut rec, pa, &grads, m, v, 11, 1, &lrs)
         .is_err());
-    let mut nan = lrs;
+    let mut nan = lrs.clone();
     nan.0[3] = f64::NAN;
     assert!(adam
         .record(&ctx, &mut rec, pa, &grads, m, v, 10, 1, &nan)
@@ -246,5 +246,65 @@ fn bad_calls_are_refused() {
     adam.record(&ctx, &mut rec, pa, &grads, m, v, 10, 1, &lrs)
         .unwrap();
     rec.submit_and_wait().unwrap();
+    ctx.check_validation().unwrap();
+}
+
+/// A model's extra groups are optimised like the built-in ones, with their own learning rates
+/// appended in order; a learning-rate list of the wrong length is refused.
+#[test]
+fn extra_groups_get_their_own_learning_rates() {
+    use lpmsplat::splats::{ExtraGroup, ExtraValues};
+    let ctx = ctx();
+    let exact = ctx.info.driver.to_lowercase().contains("llvmpipe")
+        || ctx.info.name.to_lowercase().contains("llvmpipe");
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(99);
+    let n = 301usize;
+    let mut params = random_params(&mut rng, n, 1, 1.0);
+    let mut grads_host = random_params(&mut rng, n, 1, 0.3);
+    for (name, stride) in [("motion", 9usize), ("t_center", 1)] {
+        let group = ExtraGroup::new(name, stride);
+        params.extra.push(ExtraValues {
+            group: group.clone(),
+            values: (0..n * stride).map(|_| rng.gen_range(-1.0..1.0)).collect(),
+        });
+        grads_host.extra.push(ExtraValues {
+            group,
+            values: (0..n * stride).map(|_| rng.gen_range(-0.1..0.1)).collect(),
+        });
+    }
+    let state = SplatState::new(&ctx, GpuSplats::upload(&ctx, &params, n).unwrap()).unwrap();
+    let grads = GpuSplats::upload(&ctx, &grads_host, n).unwrap();
+    let adam = Adam::new(&ctx).unwrap();
+    let mut lrs = LearningRates::default().at(1, 1.0);
+    let mut rec = Recorder::new(&ctx).unwrap();
+    let e = adam
+        .record_state(&ctx, &mut rec, &state, &grads, 1, &lrs)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("6 learning rates for 8 parameter groups"), "{e}");
+    lrs.0.extend([0.02, 0.3]);
+    let mut rec = Recorder::new(&ctx).unwrap();
+    adam.record_state(&ctx, &mut rec, &state, &grads, 1, &lrs)
+        .unwrap();
+    rec.submit_and_wait().unwrap();
+    let got = state.params.download().unwrap();
+    for (k, lr) in [(0usize, 0.02), (1, 0.3)] {
+        let mut p = params.extra[k].values.clone();
+        let g = &grads_host.extra[k].values;
+        let (mut m, mut v) = (vec![0.0; p.len()], vec![0.0; p.len()]);
+        adam_host_step(&Default::default(), &mut p, g, &mut m, &mut v, lr, 1);
+        for (i, (a, b)) in got.extra[k].values.iter().zip(&p).enumerate() {
+            let ok = if exact {
+                a.to_bits() == b.to_bits()
+            } else {
+                (a - b).abs() <= 1e-6
+            };
+            assert!(ok, "extra group {k} value {i}: GPU {a} vs host {b}");
+        }
+        assert!(
+            got.extra[k].values != params.extra[k].values,
+            "group {k} moved"
+        );
+    }
     ctx.check_validation().unwrap();
 }

@@ -4,8 +4,8 @@
 
 use lpmsplat::gpu::{BufferKind, GpuBuffer, GpuContext, GpuOptions, Recorder};
 use lpmsplat::render::layout::ProjectedGpu;
-use lpmsplat::splats::gpu::{grown_capacity, GpuSplats};
-use lpmsplat::splats::GaussianParams;
+use lpmsplat::splats::gpu::{grown_capacity, GpuSplats, SplatShape};
+use lpmsplat::splats::{ExtraGroup, ExtraValues, GaussianParams};
 use lpmsplat::train::adam::SplatState;
 use lpmsplat::train::density::reference::{self, HostState, HostStats};
 use lpmsplat::train::density::rng::fold_seed;
@@ -109,9 +109,26 @@ fn upload_stats(dc: &DensityControl, s: &HostStats) {
     dc.stats().max_radii.upload(&s.max_radii).unwrap();
 }
 
+/// Adds two extra groups (as a model with its own parameters has) of random values: every
+/// path must carry them with their Gaussian.
+fn with_extras(mut p: GaussianParams, rng: &mut impl Rng) -> GaussianParams {
+    let n = p.len();
+    for (name, stride) in [("tag", 2), ("time", 1)] {
+        p.extra.push(ExtraValues {
+            group: ExtraGroup::new(name, stride),
+            values: (0..n * stride).map(|_| normal(rng)).collect(),
+        });
+    }
+    p
+}
+
 /// A destination state filled with NaN bits, so any row the step forgets shows up.
 fn poisoned_spare(ctx: &Arc<GpuContext>, degree: u32, capacity: usize) -> SplatState {
-    let s = SplatState::zeroed(ctx, degree, 0, capacity).unwrap();
+    poisoned_spare_shaped(ctx, &SplatShape::plain(degree), capacity)
+}
+
+fn poisoned_spare_shaped(ctx: &Arc<GpuContext>, shape: &SplatShape, capacity: usize) -> SplatState {
+    let s = SplatState::allocate(ctx, shape, capacity).unwrap();
     let mut rec = Recorder::new(ctx).unwrap();
     for set in [&s.params, &s.m, &s.v] {
         for (b, _) in set.groups() {
@@ -157,6 +174,16 @@ fn assert_states_match(gpu: &HostState, host: &HostState, children_from: usize, 
     );
     assert_eq!(bits(&g.sh_dc), bits(&h.sh_dc), "{what}: sh_dc");
     assert_eq!(bits(&g.sh_rest), bits(&h.sh_rest), "{what}: sh_rest");
+    assert_eq!(g.extra.len(), h.extra.len(), "{what}: extra groups");
+    for (x, y) in g.extra.iter().zip(&h.extra) {
+        assert_eq!(x.group, y.group, "{what}: extra group");
+        assert_eq!(
+            bits(&x.values),
+            bits(&y.values),
+            "{what}: extra {}",
+            x.group.name
+        );
+    }
     assert_eq!(gpu.m, host.m, "{what}: first moments");
     assert_eq!(gpu.v, host.v, "{what}: second moments");
 }
@@ -304,12 +331,15 @@ fn random_steps_match_the_host_reference_and_grow_past_the_capacity() {
     let ctx = ctx();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(77);
     let (n, degree, extent) = (2_000usize, 2u32, 3.0f32);
-    let mut host = HostState {
-        params: random_params(&mut rng, n, degree, extent),
-        m: random_moments(&mut rng, n, degree, false),
-        v: random_moments(&mut rng, n, degree, true),
-    };
+    let params = with_extras(random_params(&mut rng, n, degree, extent), &mut rng);
+    let m = with_extras(random_moments(&mut rng, n, degree, false), &mut rng);
+    let mut v = with_extras(random_moments(&mut rng, n, degree, true), &mut rng);
+    for e in &mut v.extra {
+        e.values.iter_mut().for_each(|x| *x = x.abs());
+    }
+    let mut host = HostState { params, m, v };
     let mut state = upload_state(&ctx, &host, n + 50);
+    assert_eq!(state.shape().extra.len(), 2);
     let cfg = DensityConfig {
         seed: 0x1234_5678_9abc,
         ..Default::default()
@@ -340,7 +370,7 @@ fn random_steps_match_the_host_reference_and_grow_past_the_capacity() {
         let scale_buf = scale
             .as_ref()
             .map(|s| GpuBuffer::from_slice(&ctx, "threshold scale", s).unwrap());
-        dc.set_spare(poisoned_spare(&ctx, degree, cap));
+        dc.set_spare(poisoned_spare_shaped(&ctx, &state.shape(), cap));
         let out = dc
             .step(&mut rec, &mut state, &args, scale_buf.as_ref())
             .unwrap();
@@ -857,5 +887,85 @@ fn decisions_can_be_edited_between_decide_and_apply() {
         ..args
     };
     assert!(dc.record_decide(&mut rec, &state, &bad, None).is_err());
+    ctx.check_validation().unwrap();
+}
+
+/// LPM's point addition writes the model's extra groups of every new Gaussian from the
+/// model's row (`DensityContext::new_extras`), keeps the old rows, grows past the capacity, and
+/// refuses rows that do not match the groups.
+#[test]
+fn added_gaussians_carry_the_models_extra_groups() {
+    use lpmsplat::lpm::strategy::{append_gaussians, NewGaussian};
+    use lpmsplat::train::strategy::{DensityContext, Primitive};
+    let ctx = ctx();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
+    let n = 40usize;
+    let params = with_extras(random_params(&mut rng, n, 1, 2.0), &mut rng);
+    let m = with_extras(random_moments(&mut rng, n, 1, false), &mut rng);
+    let v = with_extras(random_moments(&mut rng, n, 1, true), &mut rng);
+    let host = HostState { params, m, v };
+    let mut state = upload_state(&ctx, &host, n + 2);
+    let mut density = DensityControl::new(&ctx, n + 2, DensityConfig::default()).unwrap();
+    let mut rec = Recorder::new(&ctx).unwrap();
+    rec.begin().unwrap();
+    let dummy_f = GpuBuffer::<f32>::from_slice(&ctx, "render", &[0.0; 3]).unwrap();
+    let dummy_u = GpuBuffer::<u32>::from_slice(&ctx, "truth", &[0]).unwrap();
+    let rows: Vec<NewGaussian> = (0..5)
+        .map(|k| NewGaussian {
+            position: [k as f32, 1.0, 2.0],
+            scale: 0.1,
+            color: [0.2, 0.4, 0.6],
+            opacity: 0.1,
+            camera_center: [0.0, 0.0, -5.0],
+        })
+        .collect();
+    let mut append = |state: &mut SplatState, extras: Vec<Vec<f32>>| {
+        let mut t = DensityContext {
+            ctx: &ctx,
+            rec: &mut rec,
+            state,
+            density: &mut density,
+            extent: 1.0,
+            render: &dummy_f,
+            truth: &dummy_u,
+            truth_offset_px: 0,
+            width: 1,
+            height: 1,
+            primitive: Primitive::Gaussian,
+            new_extras: extras,
+        };
+        append_gaussians(&mut t, &rows)
+    };
+    let e = append(&mut state, vec![vec![0.0; 2]])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("1 extra rows for its 2 extra groups"), "{e}");
+    let e = append(&mut state, vec![vec![0.0; 3], vec![0.0]])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("extra"), "{e}");
+    append(&mut state, vec![vec![7.0, -7.0], vec![0.25]]).unwrap();
+    assert_eq!(state.count(), n + 5);
+    assert!(state.capacity() >= n + 5, "grew past the capacity");
+    let got = download_state(&state);
+    for (k, e) in got.params.extra.iter().enumerate() {
+        let s = e.group.stride;
+        assert_eq!(
+            e.values[..n * s],
+            host.params.extra[k].values[..],
+            "old rows kept"
+        );
+        let row = if k == 0 { vec![7.0, -7.0] } else { vec![0.25] };
+        for i in n..n + 5 {
+            assert_eq!(e.values[i * s..(i + 1) * s], row[..], "group {k} row {i}");
+        }
+        for set in [&got.m, &got.v] {
+            assert!(
+                set.extra[k].values[n * s..].iter().all(|&x| x == 0.0),
+                "zero moments"
+            );
+            assert_eq!(set.extra[k].values[..n * s].len(), n * s);
+        }
+    }
     ctx.check_validation().unwrap();
 }

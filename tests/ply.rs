@@ -40,6 +40,7 @@ fn random_model(n: usize, degree: u32, seed: u64) -> GaussianParams {
         sh_rest: (0..n * sh_rest_coeffs(degree) * 3)
             .map(|_| wild(r))
             .collect(),
+        extra: Vec::new(),
     }
 }
 

@@ -64,3 +64,55 @@ fn non_finite_parameters_never_reach_the_gpu() {
         "capacity below count must be refused"
     );
 }
+
+/// A model's extra groups upload and download with it, keep their shape in zeroed copies, and
+/// the NaN check scans and names them.
+#[test]
+fn extra_groups_round_trip_and_are_checked_for_nan() {
+    use lpmsplat::splats::gpu::SplatShape;
+    use lpmsplat::splats::{ExtraGroup, ExtraValues};
+    use lpmsplat::train::nan_check::NonFiniteCheck;
+    let ctx = GpuContext::new(&GpuOptions::for_tests()).unwrap();
+    let mut p = random_init(50, [0.0; 3], [1.0; 3], 3, 1).unwrap();
+    p.extra.push(ExtraValues {
+        group: ExtraGroup::new("motion", 9),
+        values: (0..450).map(|i| i as f32).collect(),
+    });
+    let g = GpuSplats::upload(&ctx, &p, 64).unwrap();
+    assert_eq!(g.download().unwrap(), p);
+    assert_eq!(g.groups().len(), 7);
+    assert_eq!(g.extra_group("motion").unwrap().len(), 64 * 9);
+    let shape = g.shape();
+    assert_eq!(shape.extra, vec![ExtraGroup::new("motion", 9)]);
+    let z = GpuSplats::zeroed_shape(&ctx, "z ", &shape, 50, 64).unwrap();
+    assert_eq!(z.shape(), shape);
+    assert!(z.download().unwrap().extra[0]
+        .values
+        .iter()
+        .all(|&v| v == 0.0));
+    assert_eq!(SplatShape::plain(1).strides().len(), 6);
+    let mut check = NonFiniteCheck::new(&ctx).unwrap();
+    assert_eq!(check.first(&g).unwrap(), None);
+    p.extra[0].values[9 * 17 + 4] = f32::NAN;
+    let e = p.validate().unwrap_err().to_string();
+    assert!(
+        e.contains("Gaussian 17") && e.contains("extra group 0[4]"),
+        "{e}"
+    );
+    let g = GpuSplats::upload(&ctx, &p, 64);
+    assert!(g.is_err(), "NaN never reaches the GPU");
+    let g = GpuSplats::upload(
+        &ctx,
+        &{
+            let mut q = p.clone();
+            q.extra[0].values[9 * 17 + 4] = 0.0;
+            q
+        },
+        64,
+    )
+    .unwrap();
+    g.extra[0].upload(&p.extra[0].values).unwrap();
+    let nf = check.first(&g).unwrap().unwrap();
+    assert_eq!((nf.group.as_str(), nf.gaussian), ("motion", 17));
+    ctx.check_validation().unwrap();
+}

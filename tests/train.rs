@@ -6,7 +6,7 @@
 
 use lpmsplat::gpu::{GpuContext, GpuOptions};
 use lpmsplat::scene::{images, Image, LoadOptions, Scene};
-use lpmsplat::splats::{init::random_init, read_ply, GaussianParams};
+use lpmsplat::splats::{init::random_init, read_ply, ExtraGroup, GaussianParams};
 use lpmsplat::train::checkpoint::{Checkpoint, FORMAT_VERSION};
 use lpmsplat::train::nan_check::NonFiniteCheck;
 use lpmsplat::train::schedule::LearningRates;
@@ -388,6 +388,27 @@ fn checkpoint_round_trips_and_parser_rejects_inconsistent_lengths() {
         Checkpoint::from_bytes(Path::new("mem"), &bad.to_bytes()).unwrap_err()
     );
     assert!(msg.contains("params.positions"), "{msg}");
+    // A model's extra groups travel with the checkpoint, named in its errors.
+    let mut ex = ck.clone();
+    let n = ex.count as usize;
+    ex.fingerprint.extra = vec![ExtraGroup::new("motion", 9), ExtraGroup::new("t_center", 1)];
+    for set in &mut ex.sets {
+        set.push((0..9 * n).map(|i| i as f32 * 0.5).collect());
+        set.push((0..n).map(|i| -(i as f32)).collect());
+    }
+    let back = Checkpoint::from_bytes(Path::new("mem"), &ex.to_bytes()).unwrap();
+    let p = back.params();
+    assert_eq!(p.extra.len(), 2);
+    assert_eq!(p.extra[0].group, ExtraGroup::new("motion", 9));
+    assert_eq!(p.extra[0].values, ex.sets[0][6]);
+    assert_eq!(p.extra[1].values, ex.sets[0][7]);
+    p.validate().unwrap();
+    ex.sets[2][7].pop();
+    let msg = format!(
+        "{:#}",
+        Checkpoint::from_bytes(Path::new("mem"), &ex.to_bytes()).unwrap_err()
+    );
+    assert!(msg.contains("adam v.t_center"), "{msg}");
     ctx.check_validation().unwrap();
 }
 

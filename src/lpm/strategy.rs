@@ -982,7 +982,7 @@ pub fn append_gaussians(t: &mut DensityContext, rows: &[NewGaussian]) -> anyhow:
     let new = n + rows.len();
     if new > t.state.capacity() {
         let cap = grown_capacity(new);
-        let mut dst = SplatState::allocate(&ctx, t.state.sh_degree(), cap)?;
+        let mut dst = SplatState::allocate(&ctx, &t.state.shape(), cap)?;
         {
             let src = [
                 t.state.params.groups(),
@@ -991,8 +991,8 @@ pub fn append_gaussians(t: &mut DensityContext, rows: &[NewGaussian]) -> anyhow:
             ];
             let dsts = [dst.params.groups(), dst.m.groups(), dst.v.groups()];
             for (s, d) in src.iter().zip(dsts.iter()) {
-                for k in 0..6 {
-                    t.rec.copy(s[k].0, d[k].0, n * s[k].1);
+                for (sk, dk) in s.iter().zip(d) {
+                    t.rec.copy(sk.0, dk.0, n * sk.1);
                 }
             }
         }
@@ -1003,9 +1003,20 @@ pub fn append_gaussians(t: &mut DensityContext, rows: &[NewGaussian]) -> anyhow:
         t.density.ensure_capacity(cap)?;
     }
     let m = rows.len();
-    let rest = t.state.params.groups()[5].1;
+    let strides: Vec<usize> = t.state.params.groups().iter().map(|g| g.1).collect();
+    let rest = strides[5];
+    anyhow::ensure!(
+        t.new_extras.len() == strides.len() - 6
+            && t.new_extras
+                .iter()
+                .zip(&strides[6..])
+                .all(|(e, &s)| e.len() == s),
+        "LPM: the model gives new Gaussians {} extra rows for its {} extra groups",
+        t.new_extras.len(),
+        strides.len() - 6
+    );
     let logit = |p: f64| (p / (1.0 - p)).ln() as f32;
-    let mut data: [Vec<f32>; 6] = Default::default();
+    let mut data: Vec<Vec<f32>> = vec![Vec::new(); strides.len()];
     for r in rows {
         anyhow::ensure!(
             r.position.iter().all(|v| v.is_finite()) && r.scale > 0.0 && r.scale.is_finite(),
@@ -1020,8 +1031,10 @@ pub fn append_gaussians(t: &mut DensityContext, rows: &[NewGaussian]) -> anyhow:
         data[3].push(logit(r.opacity));
         data[4].extend(r.color.map(|c| ((c as f64 - 0.5) / SH_C0) as f32));
         data[5].extend(std::iter::repeat_n(0.0, rest));
+        for (d, e) in data[6..].iter_mut().zip(&t.new_extras) {
+            d.extend(e);
+        }
     }
-    let strides = [3usize, 3, 4, 1, 3, rest];
     let staging: Vec<Option<GpuBuffer<f32>>> = data
         .iter()
         .map(|d| {
@@ -1042,8 +1055,7 @@ pub fn append_gaussians(t: &mut DensityContext, rows: &[NewGaussian]) -> anyhow:
             t.state.m.groups(),
             t.state.v.groups(),
         );
-        for k in 0..6 {
-            let s = strides[k];
+        for (k, &s) in strides.iter().enumerate() {
             if s == 0 {
                 continue;
             }

@@ -113,6 +113,7 @@ pub fn gaussian_params(g: &RefGaussians, sh_degree: u32) -> GaussianParams {
             .iter()
             .flat_map(|s| s[1..rest].iter().flatten().map(|&v| f(v)))
             .collect(),
+        extra: Vec::new(),
     }
 }
 

@@ -4,9 +4,10 @@
 //!
 //! Layout (flat f32 arrays, Gaussian `i` at `i * stride`): positions stride 3, log-scales 3,
 //! rotations 4 (w, x, y, z), opacity logits 1, SH DC 3, SH rest `3 * ((d+1)² − 1)` stored
-//! coefficient-major (`[coef][channel]`, as in [`GaussianParams`]).
+//! coefficient-major (`[coef][channel]`, as in [`GaussianParams`]), then the model's extra
+//! groups ([`ExtraGroup`]) in their order.
 
-use super::GaussianParams;
+use super::{ExtraGroup, ExtraValues, GaussianParams};
 use crate::gpu::{BufferKind, GpuBuffer, GpuContext};
 use anyhow::bail;
 use std::sync::Arc;
@@ -21,6 +22,44 @@ pub struct GpuSplats {
     pub opacity_logits: GpuBuffer<f32>,
     pub sh_dc: GpuBuffer<f32>,
     pub sh_rest: GpuBuffer<f32>,
+    /// The model's extra groups, one buffer each, described by `extra_groups`.
+    pub extra: Vec<GpuBuffer<f32>>,
+    pub extra_groups: Vec<ExtraGroup>,
+}
+
+/// What a set of Gaussian buffers holds per Gaussian: the SH degree and the extra groups. Sets
+/// that move together (parameters, gradients, Adam moments) have one shape.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct SplatShape {
+    pub sh_degree: u32,
+    pub extra: Vec<ExtraGroup>,
+}
+
+impl SplatShape {
+    /// The 3DGS groups only.
+    pub fn plain(sh_degree: u32) -> Self {
+        Self {
+            sh_degree,
+            extra: Vec::new(),
+        }
+    }
+
+    /// `(name, floats per Gaussian)` of every group, in [`GpuSplats::groups`] order.
+    pub fn strides(&self) -> Vec<(String, usize)> {
+        let rest = GaussianParams::empty(self.sh_degree).rest_stride();
+        let base = [
+            ("positions", 3),
+            ("log_scales", 3),
+            ("rotations", 4),
+            ("opacity_logits", 1),
+            ("sh_dc", 3),
+            ("sh_rest", rest),
+        ];
+        base.iter()
+            .map(|&(n, s)| (n.to_string(), s))
+            .chain(self.extra.iter().map(|g| (g.name.clone(), g.stride)))
+            .collect()
+    }
 }
 
 /// Capacity for `count` Gaussians with room to grow: 1.5× (at least 1024 more), the geometric
@@ -58,11 +97,24 @@ impl GpuSplats {
             opacity_logits: make("opacity_logits", 1, &params.opacity_logits)?,
             sh_dc: make("sh_dc", 3, bytemuck::cast_slice(&params.sh_dc))?,
             sh_rest: make("sh_rest", rest, &params.sh_rest)?,
+            extra: params
+                .extra
+                .iter()
+                .map(|e| make(&e.group.name, e.group.stride, &e.values))
+                .collect::<anyhow::Result<_>>()?,
+            extra_groups: params.extra.iter().map(|e| e.group.clone()).collect(),
         })
     }
 
-    /// Buffers of the same layout filled with zeros on the host side (for gradients and Adam
-    /// moments: they mirror the parameters group by group). Names get `prefix`.
+    /// What this set holds per Gaussian.
+    pub fn shape(&self) -> SplatShape {
+        SplatShape {
+            sh_degree: self.sh_degree,
+            extra: self.extra_groups.clone(),
+        }
+    }
+
+    /// Buffers of the 3DGS layout at `sh_degree` filled with zeros (see [`Self::zeroed_shape`]).
     pub fn zeroed(
         ctx: &Arc<GpuContext>,
         prefix: &str,
@@ -70,43 +122,90 @@ impl GpuSplats {
         count: usize,
         capacity: usize,
     ) -> anyhow::Result<Self> {
-        let rest = GaussianParams::empty(sh_degree).rest_stride();
-        let make = |name: &str, stride: usize| -> anyhow::Result<GpuBuffer<f32>> {
-            let len = (capacity * stride).max(1);
-            let b = GpuBuffer::new(
+        Self::zeroed_shape(ctx, prefix, &SplatShape::plain(sh_degree), count, capacity)
+    }
+
+    /// Buffers of `shape` filled with zeros on the host side (for gradients and Adam moments:
+    /// they mirror the parameters group by group). Names get `prefix`.
+    pub fn zeroed_shape(
+        ctx: &Arc<GpuContext>,
+        prefix: &str,
+        shape: &SplatShape,
+        count: usize,
+        capacity: usize,
+    ) -> anyhow::Result<Self> {
+        let mut s = Self::allocate_shape(ctx, prefix, shape, capacity)?;
+        for (b, _) in s.groups() {
+            b.upload(&vec![0.0; b.len()])?;
+        }
+        s.count = count;
+        Ok(s)
+    }
+
+    /// Buffers of `shape` for `capacity` Gaussians, count 0, contents undefined (for a
+    /// destination every row of which is written before it is read).
+    pub fn allocate_shape(
+        ctx: &Arc<GpuContext>,
+        prefix: &str,
+        shape: &SplatShape,
+        capacity: usize,
+    ) -> anyhow::Result<Self> {
+        let buf = |name: &str, stride: usize| {
+            GpuBuffer::new(
                 ctx,
                 &format!("{prefix}{name}"),
-                len,
+                (capacity * stride).max(1),
                 BufferKind::DeviceLocal,
-            )?;
-            b.upload(&vec![0.0; len])?;
-            Ok(b)
+            )
         };
+        let rest = GaussianParams::empty(shape.sh_degree).rest_stride();
         Ok(Self {
-            count,
+            count: 0,
             capacity,
-            sh_degree,
-            positions: make("positions", 3)?,
-            log_scales: make("log_scales", 3)?,
-            rotations: make("rotations", 4)?,
-            opacity_logits: make("opacity_logits", 1)?,
-            sh_dc: make("sh_dc", 3)?,
-            sh_rest: make("sh_rest", rest)?,
+            sh_degree: shape.sh_degree,
+            positions: buf("positions", 3)?,
+            log_scales: buf("log_scales", 3)?,
+            rotations: buf("rotations", 4)?,
+            opacity_logits: buf("opacity_logits", 1)?,
+            sh_dc: buf("sh_dc", 3)?,
+            sh_rest: buf("sh_rest", rest)?,
+            extra: shape
+                .extra
+                .iter()
+                .map(|g| buf(&g.name, g.stride))
+                .collect::<anyhow::Result<_>>()?,
+            extra_groups: shape.extra.clone(),
         })
     }
 
-    /// The parameter groups in Adam's order with their per-Gaussian stride (floats):
-    /// positions, log-scales, rotations, opacity logits, SH DC, SH rest.
-    pub fn groups(&self) -> [(&GpuBuffer<f32>, usize); 6] {
+    /// Every parameter group with its per-Gaussian stride (floats), in Adam's order:
+    /// positions, log-scales, rotations, opacity logits, SH DC, SH rest (indices 0–5, the same
+    /// for every model), then the model's extra groups.
+    pub fn groups(&self) -> Vec<(&GpuBuffer<f32>, usize)> {
         let rest = GaussianParams::empty(self.sh_degree).rest_stride();
-        [
+        let mut g = vec![
             (&self.positions, 3),
             (&self.log_scales, 3),
             (&self.rotations, 4),
             (&self.opacity_logits, 1),
             (&self.sh_dc, 3),
             (&self.sh_rest, rest),
-        ]
+        ];
+        g.extend(
+            self.extra
+                .iter()
+                .zip(&self.extra_groups)
+                .map(|(b, e)| (b, e.stride)),
+        );
+        g
+    }
+
+    /// The buffer of the extra group called `name`.
+    pub fn extra_group(&self, name: &str) -> Option<&GpuBuffer<f32>> {
+        self.extra_groups
+            .iter()
+            .position(|g| g.name == name)
+            .map(|k| &self.extra[k])
     }
 
     /// Reads the first `count` Gaussians back.
@@ -120,6 +219,17 @@ impl GpuSplats {
         p.opacity_logits = self.opacity_logits.read_range(0, n)?;
         p.sh_dc = bytemuck::cast_slice(&self.sh_dc.read_range(0, n * 3)?).to_vec();
         p.sh_rest = self.sh_rest.read_range(0, n * rest)?;
+        p.extra = self
+            .extra
+            .iter()
+            .zip(&self.extra_groups)
+            .map(|(b, g)| {
+                Ok(ExtraValues {
+                    group: g.clone(),
+                    values: b.read_range(0, n * g.stride)?,
+                })
+            })
+            .collect::<anyhow::Result<_>>()?;
         Ok(p)
     }
 }

@@ -77,6 +77,7 @@ pub fn from_sfm_points(
             .map(|c| c.map(|v| rgb_to_sh_dc(v as f32 / 255.0)))
             .collect(),
         sh_rest: vec![0.0; n * sh_rest_coeffs(sh_degree) * 3],
+        extra: Vec::new(),
     })
 }
 

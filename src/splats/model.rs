@@ -65,6 +65,8 @@ pub enum ParamField {
     ShDc(usize),
     /// Rest coefficient `coef` (0-based, excluding DC) of colour channel `channel`.
     ShRest { coef: usize, channel: usize },
+    /// Float `index` of the model's extra group `group` (see [`ExtraGroup`]).
+    Extra { group: usize, index: usize },
 }
 
 impl std::fmt::Display for ParamField {
@@ -78,8 +80,35 @@ impl std::fmt::Display for ParamField {
             ParamField::ShRest { coef, channel } => {
                 write!(f, "sh_rest[coef {coef}][channel {channel}]")
             }
+            ParamField::Extra { group, index } => write!(f, "extra group {group}[{index}]"),
         }
     }
+}
+
+/// A per-Gaussian parameter group a base model adds to the 3DGS ones (SpacetimeGaussians'
+/// motion, angular velocity, temporal centre and scale): its name and floats per Gaussian. Every
+/// path that moves Gaussians (density control, LPM, checkpoints, Adam) carries these groups
+/// like the built-in ones, so a model with extra groups needs no change there.
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+pub struct ExtraGroup {
+    pub name: String,
+    pub stride: usize,
+}
+
+impl ExtraGroup {
+    pub fn new(name: &str, stride: usize) -> Self {
+        Self {
+            name: name.to_string(),
+            stride,
+        }
+    }
+}
+
+/// One extra group's values for every Gaussian (Gaussian `i` at `i * stride`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExtraValues {
+    pub group: ExtraGroup,
+    pub values: Vec<f32>,
 }
 
 /// The trainable parameters of a set of 3D Gaussians, one entry per Gaussian in every array.
@@ -103,6 +132,8 @@ pub struct GaussianParams {
     pub sh_dc: Vec<[f32; 3]>,
     /// Higher-order SH coefficients, layout described on the struct.
     pub sh_rest: Vec<f32>,
+    /// The model's extra groups (none for 3DGS, 2DGS, Pixel-GS, Mip-Splatting).
+    pub extra: Vec<ExtraValues>,
 }
 
 impl GaussianParams {
@@ -156,7 +187,11 @@ impl GaussianParams {
             ("sh_dc", self.sh_dc.len(), n),
             ("sh_rest", self.sh_rest.len(), n * self.rest_stride()),
         ];
-        for (name, got, want) in lens {
+        let extra = self
+            .extra
+            .iter()
+            .map(|e| (e.group.name.as_str(), e.values.len(), n * e.group.stride));
+        for (name, got, want) in lens.into_iter().chain(extra) {
             if got != want {
                 bail!(
                     "Gaussian model: {name} has {got} entries, expected {want} for {n} Gaussians \
@@ -186,6 +221,10 @@ impl GaussianParams {
             ParamField::ShRest { coef, channel } => {
                 self.sh_rest[i * self.rest_stride() + coef * 3 + channel]
             }
+            ParamField::Extra { group, index } => {
+                let e = &self.extra[group];
+                e.values[i * e.group.stride + index]
+            }
         }
     }
 
@@ -213,12 +252,19 @@ impl GaussianParams {
                 return Some(ParamField::ShDc(c));
             }
             let rest = &self.sh_rest[i * stride..(i + 1) * stride];
-            rest.iter()
-                .position(|v| !v.is_finite())
-                .map(|j| ParamField::ShRest {
+            if let Some(j) = rest.iter().position(|v| !v.is_finite()) {
+                return Some(ParamField::ShRest {
                     coef: j / 3,
                     channel: j % 3,
-                })
+                });
+            }
+            self.extra.iter().enumerate().find_map(|(group, e)| {
+                let s = e.group.stride;
+                e.values[i * s..(i + 1) * s]
+                    .iter()
+                    .position(|v| !v.is_finite())
+                    .map(|index| ParamField::Extra { group, index })
+            })
         };
         let i = (0..self.len())
             .into_par_iter()

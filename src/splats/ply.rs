@@ -110,6 +110,7 @@ pub fn property_name(field: ParamField, rest_coeffs: usize) -> String {
         ParamField::Opacity => "opacity".to_string(),
         ParamField::ShDc(c) => format!("f_dc_{c}"),
         ParamField::ShRest { coef, channel } => format!("f_rest_{}", channel * rest_coeffs + coef),
+        ParamField::Extra { group, index } => format!("extra_{group}_{index}"),
     }
 }
 
@@ -894,5 +895,6 @@ fn gather(rows: &[u8], stride: usize, n: usize, l: &Layout, degree: u32) -> Gaus
         opacity_logits,
         sh_dc,
         sh_rest,
+        extra: Vec::new(),
     }
 }

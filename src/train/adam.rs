@@ -17,18 +17,18 @@
 //! The update is dense: every Gaussian below `count` moves, seen this iteration or not, as in
 //! the reference (moments keep decaying for Gaussians with zero gradient).
 
-use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder};
+use crate::gpu::{ComputePipeline, GpuContext, Recorder};
 use crate::shaders;
-use crate::splats::gpu::GpuSplats;
+use crate::splats::gpu::{GpuSplats, SplatShape};
 use anyhow::{bail, ensure};
 use std::sync::Arc;
 
 const WG: u32 = 256;
 
 /// Learning rates in `GpuSplats::groups()` order: positions, log-scales, rotations, opacity
-/// logits, SH DC, SH rest.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct GroupLrs(pub [f64; 6]);
+/// logits, SH DC, SH rest, then the model's extra groups.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GroupLrs(pub Vec<f64>);
 
 /// Adam's constants (torch defaults except eps, which 3DGS sets to 1e-15).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -148,20 +148,9 @@ pub struct SplatState {
 impl SplatState {
     /// Wraps uploaded parameters with zero moments of the same capacity.
     pub fn new(ctx: &Arc<GpuContext>, params: GpuSplats) -> anyhow::Result<Self> {
-        let m = GpuSplats::zeroed(
-            ctx,
-            "adam m ",
-            params.sh_degree,
-            params.count,
-            params.capacity,
-        )?;
-        let v = GpuSplats::zeroed(
-            ctx,
-            "adam v ",
-            params.sh_degree,
-            params.count,
-            params.capacity,
-        )?;
+        let shape = params.shape();
+        let m = GpuSplats::zeroed_shape(ctx, "adam m ", &shape, params.count, params.capacity)?;
+        let v = GpuSplats::zeroed_shape(ctx, "adam v ", &shape, params.count, params.capacity)?;
         Ok(Self { params, m, v })
     }
 
@@ -185,35 +174,13 @@ impl SplatState {
     /// upload that [`SplatState::zeroed`] pays, gigabytes at millions of Gaussians).
     pub fn allocate(
         ctx: &Arc<GpuContext>,
-        sh_degree: u32,
+        shape: &SplatShape,
         capacity: usize,
     ) -> anyhow::Result<Self> {
-        let rest = crate::splats::GaussianParams::empty(sh_degree).rest_stride();
-        let set = |prefix: &str| -> anyhow::Result<GpuSplats> {
-            let buf = |name: &str, stride: usize| {
-                GpuBuffer::new(
-                    ctx,
-                    &format!("{prefix}{name}"),
-                    capacity * stride,
-                    BufferKind::DeviceLocal,
-                )
-            };
-            Ok(GpuSplats {
-                count: 0,
-                capacity,
-                sh_degree,
-                positions: buf("positions", 3)?,
-                log_scales: buf("log_scales", 3)?,
-                rotations: buf("rotations", 4)?,
-                opacity_logits: buf("opacity_logits", 1)?,
-                sh_dc: buf("sh_dc", 3)?,
-                sh_rest: buf("sh_rest", rest)?,
-            })
-        };
         Ok(Self {
-            params: set("params ")?,
-            m: set("adam m ")?,
-            v: set("adam v ")?,
+            params: GpuSplats::allocate_shape(ctx, "params ", shape, capacity)?,
+            m: GpuSplats::allocate_shape(ctx, "adam m ", shape, capacity)?,
+            v: GpuSplats::allocate_shape(ctx, "adam v ", shape, capacity)?,
         })
     }
 
@@ -225,6 +192,9 @@ impl SplatState {
     }
     pub fn sh_degree(&self) -> u32 {
         self.params.sh_degree
+    }
+    pub fn shape(&self) -> SplatShape {
+        self.params.shape()
     }
 
     /// Sets the count of all three sets.
@@ -285,6 +255,12 @@ impl Adam {
                 s.sh_degree,
                 params.sh_degree
             );
+            ensure!(
+                s.extra_groups == params.extra_groups,
+                "Adam: {name} have extra groups {:?}, the parameters {:?}",
+                s.extra_groups,
+                params.extra_groups
+            );
         }
         for (name, s) in [
             ("parameters", params),
@@ -301,9 +277,15 @@ impl Adam {
         if let Some((g, lr)) = lrs.0.iter().enumerate().find(|(_, lr)| !lr.is_finite()) {
             bail!("Adam: learning rate of group {g} is {lr}");
         }
-        rec.barrier();
         let (p, g, mm, vv) = (params.groups(), grads.groups(), m.groups(), v.groups());
-        for k in 0..6 {
+        ensure!(
+            lrs.0.len() == p.len(),
+            "Adam: {} learning rates for {} parameter groups",
+            lrs.0.len(),
+            p.len()
+        );
+        rec.barrier();
+        for k in 0..p.len() {
             let n = (count * p[k].1) as u64;
             if n == 0 {
                 continue;

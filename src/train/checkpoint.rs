@@ -1,16 +1,19 @@
 //! Training checkpoints: everything needed to continue a run exactly where it stopped.
 //!
-//! Binary, little-endian, versioned. Layout (format version 1):
+//! Binary, little-endian, versioned. Layout (format version 2; version 1, without the extra
+//! groups, is still read):
 //!
 //! ```text
 //! magic "LPMSCKPT"  u32 version
-//! fingerprint: u32 sh_degree, u32 views, per view (u32 name length, name bytes, u32 width,
+//! fingerprint: u32 sh_degree, (version 2) u32 extra groups, per group (u32 name length, name
+//!              bytes, u32 stride), u32 views, per view (u32 name length, name bytes, u32 width,
 //!              u32 height), u32 train views, u32 per train view (index into the views)
 //! u32 iteration  u32 adam_step  u64 epoch  u64 position in the epoch  u32 dropped frames
 //! u64 intersection capacity
 //! u64 count
 //! parameters, Adam m, Adam v: 6 groups each (positions, log-scales, rotations, opacity
-//!              logits, SH DC, SH rest), each u64 length then f32 data (count × stride)
+//!              logits, SH DC, SH rest) then the extra groups, each u64 length then f32 data
+//!              (count × stride)
 //! density statistics grad_accum, denom, max_radii: u64 length then f32 data (count each)
 //! config: u64 length then the config's JSON (UTF-8)
 //! u64 FNV-1a hash of every byte before it
@@ -37,33 +40,29 @@ use super::trainer::{TrainConfig, Trainer};
 use crate::error::{bad_input, write_atomic};
 use crate::gpu::{GpuBuffer, GpuContext};
 use crate::scene::{Image, Scene};
-use crate::splats::gpu::GpuSplats;
-use crate::splats::GaussianParams;
+use crate::splats::gpu::{GpuSplats, SplatShape};
+use crate::splats::{ExtraGroup, ExtraValues, GaussianParams};
 
 pub const MAGIC: &[u8; 8] = b"LPMSCKPT";
-pub const FORMAT_VERSION: u32 = 1;
-const GROUP_NAMES: [&str; 6] = [
-    "positions",
-    "log_scales",
-    "rotations",
-    "opacity_logits",
-    "sh_dc",
-    "sh_rest",
-];
+pub const FORMAT_VERSION: u32 = 2;
 
 /// What ties a checkpoint to a scene and a model layout.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SceneFingerprint {
     pub sh_degree: u32,
+    /// The model's extra parameter groups (part of the model's shape; the configuration, which
+    /// names the model, is compared separately).
+    pub extra: Vec<ExtraGroup>,
     /// (name, width, height) of every view at the loaded resolution.
     pub views: Vec<(String, u32, u32)>,
     pub train: Vec<u32>,
 }
 
 impl SceneFingerprint {
-    pub fn of(scene: &Scene, sh_degree: u32) -> Self {
+    pub fn of(scene: &Scene, shape: &SplatShape) -> Self {
         Self {
-            sh_degree,
+            sh_degree: shape.sh_degree,
+            extra: shape.extra.clone(),
             views: scene
                 .views
                 .iter()
@@ -132,8 +131,9 @@ pub struct Checkpoint {
     pub dropped_frames: u32,
     pub intersection_capacity: u64,
     pub count: u64,
-    /// Parameters, Adam m, Adam v: the six groups each, `count × stride` floats.
-    pub sets: [[Vec<f32>; 6]; 3],
+    /// Parameters, Adam m, Adam v: every group each (`GpuSplats::groups` order), `count ×
+    /// stride` floats.
+    pub sets: [Vec<Vec<f32>>; 3],
     /// grad_accum, denom, max_radii (`count` floats each).
     pub stats: [Vec<f32>; 3],
     pub config_json: String,
@@ -243,18 +243,6 @@ impl Reader<'_> {
     }
 }
 
-/// Floats per Gaussian of each group at `sh_degree`.
-fn strides(sh_degree: u32) -> [usize; 6] {
-    [
-        3,
-        3,
-        4,
-        1,
-        3,
-        GaussianParams::empty(sh_degree).rest_stride(),
-    ]
-}
-
 impl Checkpoint {
     pub fn to_bytes(&self) -> Vec<u8> {
         let mut w = Writer(Vec::new());
@@ -262,6 +250,11 @@ impl Checkpoint {
         w.u32(FORMAT_VERSION);
         let f = &self.fingerprint;
         w.u32(f.sh_degree);
+        w.u32(f.extra.len() as u32);
+        for g in &f.extra {
+            w.bytes(g.name.as_bytes());
+            w.u32(g.stride as u32);
+        }
         w.u32(f.views.len() as u32);
         for (name, width, height) in &f.views {
             w.bytes(name.as_bytes());
@@ -305,11 +298,13 @@ impl Checkpoint {
             );
         }
         let version = u32::from_le_bytes(data[8..12].try_into().unwrap());
-        if version != FORMAT_VERSION {
+        if version != FORMAT_VERSION && version != 1 {
             return bad_input(
                 path,
                 "format version",
-                format!("format version {version}; this build reads version {FORMAT_VERSION}"),
+                format!(
+                    "format version {version}; this build reads versions 1 and {FORMAT_VERSION}"
+                ),
                 "resume with the lpmsplat version that wrote it, or start a fresh run (its \
                  point_cloud.ply can seed one with --init-ply)",
             );
@@ -336,6 +331,15 @@ impl Checkpoint {
         if sh_degree > 3 {
             return bad_input(path, "sh_degree", format!("{sh_degree} > 3"), corrupt);
         }
+        let mut extra = Vec::new();
+        if version >= 2 {
+            let n = r.u32("extra groups")?;
+            for i in 0..n {
+                let name = r.string(&format!("extra[{i}].name"))?;
+                let stride = r.u32(&format!("extra[{i}].stride"))? as usize;
+                extra.push(ExtraGroup { name, stride });
+            }
+        }
         let nviews = r.u32("views")? as usize;
         let mut views = Vec::new();
         for i in 0..nviews {
@@ -356,14 +360,17 @@ impl Checkpoint {
         let dropped_frames = r.u32("dropped frames")?;
         let intersection_capacity = r.u64("intersection capacity")?;
         let count = r.u64("count")?;
-        let st = strides(sh_degree);
-        let mut sets: [[Vec<f32>; 6]; 3] = Default::default();
+        let shape = SplatShape {
+            sh_degree,
+            extra: extra.clone(),
+        };
+        let mut sets: [Vec<Vec<f32>>; 3] = Default::default();
         for (s, set_name) in ["params", "adam m", "adam v"].iter().enumerate() {
-            for g in 0..6 {
+            for (group, stride) in shape.strides() {
                 let expect = (count as usize)
-                    .checked_mul(st[g])
+                    .checked_mul(stride)
                     .context("count overflows")?;
-                sets[s][g] = r.floats(&format!("{set_name}.{}", GROUP_NAMES[g]), expect)?;
+                sets[s].push(r.floats(&format!("{set_name}.{group}"), expect)?);
             }
         }
         let mut stats: [Vec<f32>; 3] = Default::default();
@@ -382,6 +389,7 @@ impl Checkpoint {
         Ok(Self {
             fingerprint: SceneFingerprint {
                 sh_degree,
+                extra,
                 views,
                 train,
             },
@@ -424,21 +432,30 @@ impl Checkpoint {
         p.opacity_logits = s[3].clone();
         p.sh_dc = bytemuck::cast_slice(&s[4]).to_vec();
         p.sh_rest = s[5].clone();
+        p.extra = self
+            .fingerprint
+            .extra
+            .iter()
+            .zip(&s[6..])
+            .map(|(group, values)| ExtraValues {
+                group: group.clone(),
+                values: values.clone(),
+            })
+            .collect();
         p
     }
 }
 
-fn read_groups(splats: &GpuSplats) -> anyhow::Result<[Vec<f32>; 6]> {
+fn read_groups(splats: &GpuSplats) -> anyhow::Result<Vec<Vec<f32>>> {
     let n = splats.count;
-    let g = splats.groups();
-    let mut out: [Vec<f32>; 6] = Default::default();
-    for (k, (buf, stride)) in g.iter().enumerate() {
-        out[k] = buf.read_range(0, n * stride)?;
-    }
-    Ok(out)
+    splats
+        .groups()
+        .iter()
+        .map(|(buf, stride)| buf.read_range(0, n * stride))
+        .collect()
 }
 
-fn upload_groups(splats: &GpuSplats, data: &[Vec<f32>; 6]) -> anyhow::Result<()> {
+fn upload_groups(splats: &GpuSplats, data: &[Vec<f32>]) -> anyhow::Result<()> {
     for ((buf, _), d) in splats.groups().iter().zip(data) {
         buf.upload(d)?;
     }
@@ -488,7 +505,7 @@ impl Trainer {
         let stats = self.density.stats();
         let n = self.state.count();
         Ok(Checkpoint {
-            fingerprint: SceneFingerprint::of(scene, self.state.sh_degree()),
+            fingerprint: SceneFingerprint::of(scene, &self.state.shape()),
             iteration: self.iteration,
             adam_step: self.adam_step,
             schedule_epoch: epoch,
@@ -582,7 +599,14 @@ impl Trainer {
         ck: &Checkpoint,
         path: &Path,
     ) -> anyhow::Result<Self> {
-        let here = SceneFingerprint::of(scene, config.sh_degree);
+        // The extra groups come with the model, which the configuration comparison below checks.
+        let here = SceneFingerprint::of(
+            scene,
+            &SplatShape {
+                sh_degree: config.sh_degree,
+                extra: ck.fingerprint.extra.clone(),
+            },
+        );
         if let Some((field, problem)) = ck.fingerprint.difference(&here) {
             return bad_input(
                 path,

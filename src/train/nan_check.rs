@@ -11,16 +11,6 @@ use crate::splats::gpu::GpuSplats;
 const WG: u32 = 256;
 const NONE: u32 = u32::MAX;
 
-/// The parameter groups in `GpuSplats::groups()` order.
-pub const GROUP_NAMES: [&str; 6] = [
-    "positions",
-    "log_scales",
-    "rotations",
-    "opacity_logits",
-    "sh_dc",
-    "sh_rest",
-];
-
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 struct Push {
@@ -30,9 +20,9 @@ struct Push {
 }
 
 /// A non-finite parameter: the group and the lowest Gaussian index holding one.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub struct NonFinite {
-    pub group: &'static str,
+    pub group: String,
     pub gaussian: usize,
 }
 
@@ -63,10 +53,25 @@ impl NonFiniteCheck {
         })
     }
 
-    /// The first non-finite value of every group (None where the group is finite), for the
-    /// first `splats.count` Gaussians. Submits and waits.
-    pub fn scan(&mut self, splats: &GpuSplats) -> anyhow::Result<[Option<usize>; 6]> {
+    /// The first non-finite value of every group in `GpuSplats::groups()` order (None where
+    /// the group is finite), for the first `splats.count` Gaussians. Submits and waits.
+    pub fn scan(&mut self, splats: &GpuSplats) -> anyhow::Result<Vec<Option<usize>>> {
         let n = splats.count;
+        let names = splats.shape().strides();
+        if self.first.len() < names.len() {
+            self.first = GpuBuffer::new(
+                &self.ctx,
+                "non-finite first",
+                names.len(),
+                BufferKind::DeviceLocal,
+            )?;
+            self.first_host = GpuBuffer::new(
+                &self.ctx,
+                "non-finite first (host)",
+                names.len(),
+                BufferKind::Readback,
+            )?;
+        }
         self.rec.begin()?;
         self.rec.fill(&self.first, NONE);
         self.rec.barrier();
@@ -78,7 +83,7 @@ impl NonFiniteCheck {
             anyhow::ensure!(
                 floats <= u32::MAX as usize,
                 "NaN check: {} holds {floats} floats, more than the kernel indexes",
-                GROUP_NAMES[slot]
+                names[slot].0
             );
             let push = Push {
                 n: floats as u32,
@@ -90,24 +95,21 @@ impl NonFiniteCheck {
                 .dispatch(&self.pipe, &[*buf, &self.first], &push, groups);
         }
         self.rec.barrier();
-        self.rec.copy(&self.first, &self.first_host, 6);
+        self.rec.copy(&self.first, &self.first_host, names.len());
         self.rec.submit_and_wait()?;
-        let v = self.first_host.read()?;
-        let mut out = [None; 6];
-        for (o, &x) in out.iter_mut().zip(&v) {
-            if x != NONE {
-                *o = Some(x as usize);
-            }
-        }
-        Ok(out)
+        let v = self.first_host.read_range(0, names.len())?;
+        Ok(v.iter()
+            .map(|&x| (x != NONE).then_some(x as usize))
+            .collect())
     }
 
-    /// The first non-finite parameter (lowest group in `GROUP_NAMES` order, then lowest
+    /// The first non-finite parameter (lowest group in `GpuSplats::groups()` order, then lowest
     /// Gaussian), if any.
     pub fn first(&mut self, splats: &GpuSplats) -> anyhow::Result<Option<NonFinite>> {
+        let names = splats.shape().strides();
         Ok(self.scan(splats)?.iter().enumerate().find_map(|(g, i)| {
             i.map(|gaussian| NonFinite {
-                group: GROUP_NAMES[g],
+                group: names[g].0.clone(),
                 gaussian,
             })
         }))

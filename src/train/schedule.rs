@@ -77,9 +77,10 @@ impl LearningRates {
         )
     }
 
-    /// All six rates in `GpuSplats::groups()` order at `iteration`.
+    /// The six 3DGS groups' rates in `GpuSplats::groups()` order at `iteration` (a model with
+    /// extra groups appends theirs).
     pub fn at(&self, iteration: u32, extent: f64) -> GroupLrs {
-        GroupLrs([
+        GroupLrs(vec![
             self.position_lr(iteration, extent),
             self.scaling,
             self.rotation,

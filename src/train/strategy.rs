@@ -60,6 +60,9 @@ pub struct DensityContext<'a> {
     pub height: u32,
     /// What a new primitive looks like in this model.
     pub primitive: Primitive,
+    /// The model's extra groups' values for a new Gaussian, one row per group
+    /// (`ModelPasses::new_gaussian_extras`).
+    pub new_extras: Vec<Vec<f32>>,
 }
 
 /// The iteration's inputs a strategy may use.

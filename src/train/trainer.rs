@@ -165,7 +165,7 @@ impl Trainer {
         let capacity = grown_capacity(init.len());
         let params = GpuSplats::upload(ctx, &init, capacity)?;
         let state = SplatState::new(ctx, params)?;
-        let grads = GpuSplats::zeroed(ctx, "grad ", config.sh_degree, init.len(), capacity)?;
+        let grads = GpuSplats::zeroed_shape(ctx, "grad ", &state.shape(), init.len(), capacity)?;
         let view_grad_norm =
             GpuBuffer::new(ctx, "view grad norm", capacity, BufferKind::DeviceLocal)?;
         let (mut max_w, mut max_h, mut max_tiles) = (1u32, 1u32, 1u32);
@@ -252,12 +252,16 @@ impl Trainer {
     /// Records copies of every parameter group of the first `count` Gaussians into the
     /// snapshot buffers (grown as needed) inside the iteration's command buffer.
     fn record_snapshot(&mut self, count: usize) -> anyhow::Result<()> {
-        let sh = self.state.sh_degree();
-        if self.snapshot.as_ref().is_none_or(|s| s.capacity < count) {
-            self.snapshot = Some(GpuSplats::zeroed(
+        let shape = self.state.shape();
+        if self
+            .snapshot
+            .as_ref()
+            .is_none_or(|s| s.capacity < count || s.shape() != shape)
+        {
+            self.snapshot = Some(GpuSplats::zeroed_shape(
                 &self.ctx,
                 "snapshot ",
-                sh,
+                &shape,
                 0,
                 grown_capacity(count),
             )?);
@@ -275,7 +279,7 @@ impl Trainer {
     pub(super) fn follow_capacity(&mut self) -> anyhow::Result<()> {
         let cap = self.state.capacity();
         if self.grads.capacity < cap {
-            self.grads = GpuSplats::zeroed(&self.ctx, "grad ", self.state.sh_degree(), 0, cap)?;
+            self.grads = GpuSplats::zeroed_shape(&self.ctx, "grad ", &self.state.shape(), 0, cap)?;
             self.view_grad_norm =
                 GpuBuffer::new(&self.ctx, "view grad norm", cap, BufferKind::DeviceLocal)?;
         }
@@ -521,6 +525,7 @@ impl Trainer {
             width: slot.width,
             height: slot.height,
             primitive: self.passes.primitive(),
+            new_extras: self.passes.new_gaussian_extras(),
         })
     }
 
@@ -553,7 +558,8 @@ impl Trainer {
     /// Records iteration `it`'s Adam step into `self.rec` (begun).
     fn record_adam_step(&mut self, it: u32) -> anyhow::Result<()> {
         self.adam_step += 1;
-        let lrs = self.config.lr.at(it, self.extent);
+        let mut lrs = self.config.lr.at(it, self.extent);
+        lrs.0.extend(self.passes.extra_lrs(it, self.extent));
         self.adam.record_state(
             &self.ctx,
             &mut self.rec,

@@ -694,13 +694,14 @@ impl DensityControl {
         } else {
             state.capacity()
         };
+        let shape = state.shape();
         let spare = self
             .spare
             .take()
-            .filter(|s| s.capacity() == capacity && s.sh_degree() == state.sh_degree());
+            .filter(|s| s.capacity() == capacity && s.shape() == shape);
         let mut dst = match spare {
             Some(s) => s,
-            None => SplatState::allocate(&self.ctx, state.sh_degree(), capacity)?,
+            None => SplatState::allocate(&self.ctx, &shape, capacity)?,
         };
         if grew {
             // Nothing pending uses the old statistics (phase 1 has completed).
@@ -709,12 +710,14 @@ impl DensityControl {
 
         // Phase 2: scatter every per-Gaussian buffer, then the children's geometry.
         rec.begin()?;
-        fn groups(s: &SplatState) -> [[(&GpuBuffer<f32>, usize); 6]; 3] {
+        fn groups(s: &SplatState) -> [Vec<(&GpuBuffer<f32>, usize)>; 3] {
             [s.params.groups(), s.m.groups(), s.v.groups()]
         }
+        // Positions and log-scales of split children come from the split kernel below; every
+        // other group, the model's extra groups included, is copied from the parent.
         let (src_sets, dst_sets) = (groups(state), groups(&dst));
         for (set, (src, dstg)) in src_sets.iter().zip(dst_sets.iter()).enumerate() {
-            for k in 0..6 {
+            for k in 0..src.len() {
                 let stride = src[k].1;
                 if stride == 0 {
                     continue;

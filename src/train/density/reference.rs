@@ -6,7 +6,7 @@
 use super::rng::rng_normal;
 use super::{Thresholds, DECIDE_CLONE, DECIDE_LOWERED, DECIDE_REMOVE, DECIDE_SPLIT};
 use crate::reference::project::{normalize_quat, quat_to_rotation};
-use crate::splats::GaussianParams;
+use crate::splats::{ExtraValues, GaussianParams};
 
 /// Parameters and their Adam moments (the moments use the parameter layout).
 #[derive(Debug, Clone, PartialEq)]
@@ -137,6 +137,25 @@ fn push_row(out: &mut GaussianParams, p: &GaussianParams, i: usize, zero: bool) 
     out.sh_dc.push(p.sh_dc[i].map(z));
     out.sh_rest
         .extend(p.sh_rest_of(i).unwrap_or(&[]).iter().map(|&v| z(v)));
+    for (o, e) in out.extra.iter_mut().zip(&p.extra) {
+        let s = e.group.stride;
+        o.values
+            .extend(e.values[i * s..(i + 1) * s].iter().map(|&v| z(v)));
+    }
+}
+
+/// An empty model of `p`'s shape (its SH degree and extra groups).
+fn empty_like(p: &GaussianParams) -> GaussianParams {
+    let mut out = GaussianParams::empty(p.sh_degree);
+    out.extra = p
+        .extra
+        .iter()
+        .map(|e| ExtraValues {
+            group: e.group.clone(),
+            values: Vec::new(),
+        })
+        .collect();
+    out
 }
 
 /// Position of split child `j` of Gaussian `i` (f64 math on the f32 inputs).
@@ -164,11 +183,10 @@ pub fn apply(
     step: u32,
     log_split_shrink: f32,
 ) -> HostState {
-    let deg = state.params.sh_degree;
     let mut out = HostState {
-        params: GaussianParams::empty(deg),
-        m: GaussianParams::empty(deg),
-        v: GaussianParams::empty(deg),
+        params: empty_like(&state.params),
+        m: empty_like(&state.m),
+        v: empty_like(&state.v),
     };
     let p = &state.params;
     for (i, &d) in decisions.iter().enumerate() {

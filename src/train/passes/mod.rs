@@ -98,6 +98,16 @@ pub trait ModelPasses: Send {
     ) -> Result<()>;
     /// Renders one view of `f.params` and waits; RGB interleaved.
     fn render_view(&mut self, f: &FrameArgs) -> Result<Vec<f32>>;
+    /// Learning rates of the model's extra parameter groups at `iteration`, in their order
+    /// (none for the 3DGS groups alone).
+    fn extra_lrs(&self, _iteration: u32, _extent: f64) -> Vec<f64> {
+        Vec::new()
+    }
+    /// The extra groups' values of a Gaussian a strategy adds (LPM's new points), one row per
+    /// group in their order.
+    fn new_gaussian_extras(&self) -> Vec<Vec<f32>> {
+        Vec::new()
+    }
     /// `model` (the download of `params`) as written for viewers.
     fn export(
         &mut self,
