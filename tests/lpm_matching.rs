@@ -63,6 +63,7 @@ fn scene(views: Vec<View>, points: Option<SfmPoints>) -> Scene {
         extent: 1.0,
         background: None,
         has_alpha: false,
+        view_times: None,
     }
 }
 

@@ -83,6 +83,7 @@ fn scene() -> Scene {
         extent: 1.1 * 3.0,
         background: None,
         has_alpha: false,
+        view_times: None,
     }
 }
 

@@ -59,7 +59,7 @@ fn print_scene(scene: &Scene) {
         }
         SceneFormat::NerfSynthetic => "NeRF-synthetic transforms_*.json".to_string(),
         SceneFormat::Nerfstudio => "nerfstudio transforms.json".to_string(),
-        SceneFormat::Video => "one frame of a multi-view video".to_string(),
+        SceneFormat::Video => "multi-view video (cameras × frames)".to_string(),
     };
     println!("scene {}", scene.root.display());
     println!("  format: {format}");

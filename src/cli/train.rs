@@ -512,7 +512,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
                 args.init_ply.as_deref(),
                 args.init_points,
                 args.seed,
-                args.sh_degree,
+                config.sh_degree,
             )?,
             args.seed,
         ),

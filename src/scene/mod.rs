@@ -82,7 +82,7 @@ pub enum SceneFormat {
     NerfSynthetic,
     /// A single `transforms.json` with `fl_x`/`fl_y`/`cx`/`cy`/`w`/`h`.
     Nerfstudio,
-    /// One frame of a multi-view video ([`video::VideoScene::frame_scene`]).
+    /// Frames of a multi-view video ([`video::VideoScene::to_scene`], `frame_scene`).
     Video,
 }
 
@@ -157,6 +157,9 @@ pub struct Scene {
     pub background: Option<[f32; 3]>,
     /// True when images carry an alpha channel to composite on the background.
     pub has_alpha: bool,
+    /// The time of every view, for a scene made of a video's frames
+    /// ([`video::VideoScene::to_scene`]); `None` for a still scene.
+    pub view_times: Option<Vec<f64>>,
 }
 
 impl Scene {
@@ -193,6 +196,10 @@ impl Scene {
                 "pass a folder holding sparse/0 (COLMAP) and images/, or transforms*.json",
             );
         }
+        if video::VideoScene::detect(root).is_some() {
+            let range = video::FrameRange::default();
+            return Ok(video::VideoScene::load(root, opts, range)?.to_scene());
+        }
         if let Some(sparse) = colmap::find_sparse_dir(root) {
             return colmap::load_scene(root, &sparse, opts);
         }
@@ -202,7 +209,7 @@ impl Scene {
         crate::error::bad_input(
             root,
             "scene folder",
-            "holds neither a COLMAP model (sparse/0/cameras.bin|txt or sparse/cameras.bin|txt) nor transforms*.json",
+            "holds neither a COLMAP model (sparse/0/cameras.bin|txt or sparse/cameras.bin|txt), transforms*.json, nor a video scene (poses_bounds.npy or train_meta.json)",
             "point at the scene's top folder",
         )
     }

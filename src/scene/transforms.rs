@@ -670,6 +670,7 @@ fn finish(
         extent,
         background,
         has_alpha,
+        view_times: None,
     })
 }
 

@@ -31,7 +31,13 @@ pub fn write_ply(path: &Path, params: &GaussianParams) -> anyhow::Result<()> {
         .with_context(|| format!("{}: refusing to write an invalid model", path.display()))?;
     let n = params.len();
     let rest = params.rest_coeffs();
-    let names = property_names(params.sh_degree);
+    let mut names = property_names(params.sh_degree);
+    names.extend(
+        params
+            .extra
+            .iter()
+            .flat_map(|e| extra_property_names(&e.group)),
+    );
     let mut header = format!("ply\nformat binary_little_endian 1.0\nelement vertex {n}\n");
     for name in &names {
         header.push_str("property float ");
@@ -83,6 +89,23 @@ fn encode_row(params: &GaussianParams, i: usize, rest: usize, row: &mut [u8]) {
     put(params.opacity_logits[i]);
     params.log_scales[i].iter().for_each(|&v| put(v));
     params.rotations[i].iter().for_each(|&v| put(v));
+    for e in &params.extra {
+        let s = e.group.stride;
+        e.values[i * s..(i + 1) * s].iter().for_each(|&v| put(v));
+    }
+}
+
+/// The properties an extra group is written as, after the Inria ones: the group's name for a
+/// one-float group (`trbf_center`), else `name_0`, `name_1`, … (`motion_0`..`motion_8`), the
+/// naming of SpacetimeGaussians' PLYs.
+pub fn extra_property_names(group: &crate::splats::ExtraGroup) -> Vec<String> {
+    if group.stride == 1 {
+        vec![group.name.clone()]
+    } else {
+        (0..group.stride)
+            .map(|k| format!("{}_{k}", group.name))
+            .collect()
+    }
 }
 
 /// The vertex property names of the Inria layout for `sh_degree`, in file order.

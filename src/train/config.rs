@@ -49,6 +49,9 @@ pub struct TrainConfig {
     pub mip_filters: bool,
     /// 2DGS: the model is surfels, with these regulariser settings (`None`: 3D Gaussians).
     pub surfels: Option<SurfelTraining>,
+    /// SpacetimeGaussians (lite): the model has the temporal groups, trained at these rates
+    /// (`None`: still scenes).
+    pub spacetime: Option<SpacetimeRates>,
 }
 
 impl Default for TrainConfig {
@@ -65,6 +68,7 @@ impl Default for TrainConfig {
             timestamps: false,
             mip_filters: false,
             surfels: None,
+            spacetime: None,
         }
     }
 }
@@ -106,6 +110,12 @@ impl TrainConfig {
                 "normal_weight": t.normal_weight, "normal_from": t.normal_from,
                 "distortion_weight": t.distortion_weight, "distortion_from": t.distortion_from,
                 "depth_ratio": t.depth_ratio,
+            });
+        }
+        if let Some(r) = &self.spacetime {
+            j["spacetime"] = serde_json::json!({
+                "lr_motion": r.motion, "lr_omega": r.omega, "lr_t_center": r.t_center,
+                "lr_t_log_scale": r.t_log_scale,
             });
         }
         // Only when not the 3DGS default, so checkpoints from before the key still resume.
@@ -159,6 +169,27 @@ impl SurfelTraining {
                 0.0
             },
             depth_ratio: self.depth_ratio,
+        }
+    }
+}
+
+/// The temporal groups' learning rates (the official N3DV settings, BASE_MODELS.md §4.2).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SpacetimeRates {
+    /// Motion, relative to the scene extent, not decayed (1.6e-4 × 0.5 × 3.5).
+    pub motion: f64,
+    pub omega: f64,
+    pub t_center: f64,
+    pub t_log_scale: f64,
+}
+
+impl Default for SpacetimeRates {
+    fn default() -> Self {
+        Self {
+            motion: 1.6e-4 * 0.5 * 3.5,
+            omega: 1e-4,
+            t_center: 1e-4,
+            t_log_scale: 0.03,
         }
     }
 }

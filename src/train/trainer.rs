@@ -183,6 +183,7 @@ impl Trainer {
             &config,
             &cameras_host,
             &scene.train,
+            scene.view_times.as_deref(),
             capacity,
             Capacity {
                 gaussians: capacity,

@@ -327,6 +327,7 @@ pub fn build_scene(
         extent,
         background: None,
         has_alpha: false,
+        view_times: None,
     })
 }
 

@@ -154,6 +154,37 @@ impl VideoScene {
         }
     }
 
+    /// Every camera at every segment frame as one scene (camera-major: view `c × frames + k` is
+    /// camera `c` at frame `k`, which is also name order) with each view's time; the split
+    /// follows the cameras (every frame of a test camera is a test view).
+    pub fn to_scene(&self) -> Scene {
+        let f = self.frames;
+        let mut views = Vec::with_capacity(self.cameras.len() * f);
+        let mut times = Vec::with_capacity(views.capacity());
+        for c in 0..self.cameras.len() {
+            for k in 0..f {
+                views.push(self.view(c, k));
+                times.push(self.time(k));
+            }
+        }
+        let expand = |cams: &[usize]| -> Vec<usize> {
+            cams.iter().flat_map(|&c| c * f..(c + 1) * f).collect()
+        };
+        Scene {
+            root: self.root.clone(),
+            format: SceneFormat::Video,
+            views,
+            train: expand(&self.train),
+            test: expand(&self.test),
+            points: None,
+            center: self.center,
+            extent: self.extent,
+            background: None,
+            has_alpha: false,
+            view_times: Some(times),
+        }
+    }
+
     /// Segment frame `frame` as a still scene: one view per camera (in camera order, so view
     /// `i` is camera `i`), the same split, centre and extent.
     pub fn frame_scene(&self, frame: usize) -> Scene {
@@ -170,6 +201,7 @@ impl VideoScene {
             extent: self.extent,
             background: None,
             has_alpha: false,
+            view_times: None,
         }
     }
 }

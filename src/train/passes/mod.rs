@@ -6,9 +6,12 @@
 //! - [`gaussians::GaussianPasses`]: 3D Gaussians (3DGS, Pixel-GS's pixel counts, Mip-Splatting's
 //!   filters);
 //! - [`surfels::SurfelPasses`]: 2DGS's surfels with the normal-consistency and distortion
-//!   regularisers.
+//!   regularisers;
+//! - [`spacetime::SpacetimePasses`]: SpacetimeGaussians (lite), the 3DGS passes on the model
+//!   at each view's time.
 
 pub mod gaussians;
+pub mod spacetime;
 pub mod surfels;
 
 use std::sync::Arc;
@@ -120,14 +123,33 @@ pub trait ModelPasses: Send {
 
 /// The passes of the model `config` trains, sized for `capacity` Gaussians and the largest
 /// training view (`frame`: pixels and tiles).
+#[allow(clippy::too_many_arguments)]
 pub fn for_config(
     ctx: &Arc<GpuContext>,
     config: &TrainConfig,
     cameras: &[CameraGpu],
     train_views: &[usize],
+    view_times: Option<&[f64]>,
     capacity: usize,
     frame: Capacity,
 ) -> Result<Box<dyn ModelPasses>> {
+    if config.spacetime.is_some() {
+        let Some(times) = view_times else {
+            anyhow::bail!(
+                "SpacetimeGaussians trains on a video scene (views with times); this scene is \
+                 still. Fix: point at a Neural 3D Video or Panoptic scene folder"
+            );
+        };
+        return Ok(Box::new(spacetime::SpacetimePasses::new(
+            ctx,
+            config,
+            cameras,
+            train_views,
+            times,
+            capacity,
+            frame,
+        )?));
+    }
     Ok(match &config.surfels {
         Some(_) => Box::new(surfels::SurfelPasses::new(ctx, capacity, frame)?),
         None => Box::new(gaussians::GaussianPasses::new(

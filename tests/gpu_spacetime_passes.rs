@@ -1,0 +1,347 @@
+//! SpacetimeGaussians' model passes (`train::passes::spacetime`) against the 3DGS passes on the
+//! still model the f64 reference computes for the view's time: the same image, the scales' and
+//! colours' gradients passed through, and the temporal groups' gradients the reference's chain
+//! rule of the 3DGS gradients. A still scene is refused.
+
+use std::sync::Arc;
+
+use lpmsplat::gpu::{BufferKind, GpuBuffer, GpuContext, GpuOptions, Recorder};
+use lpmsplat::models::{with_temporal_groups, BaseModel};
+use lpmsplat::reference::scenes::random_view;
+use lpmsplat::reference::spacetime::{instant, instant_backward, Instant, Temporal};
+use lpmsplat::render::forward::Capacity;
+use lpmsplat::render::layout::CameraGpu;
+use lpmsplat::splats::gpu::GpuSplats;
+use lpmsplat::splats::{random_init, GaussianParams};
+use lpmsplat::train::config::TrainConfig;
+use lpmsplat::train::passes::gaussians::GaussianPasses;
+use lpmsplat::train::passes::spacetime::SpacetimePasses;
+use lpmsplat::train::passes::{FrameArgs, GradArgs, ModelPasses};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+
+fn ctx() -> Arc<GpuContext> {
+    GpuContext::new(&GpuOptions::for_tests()).expect("a Vulkan device with the validation layer")
+}
+
+fn extra<'a>(p: &'a GaussianParams, name: &str) -> &'a [f32] {
+    &p.extra
+        .iter()
+        .find(|e| e.group.name == name)
+        .unwrap()
+        .values
+}
+
+fn temporal_of(p: &GaussianParams, i: usize) -> Temporal {
+    let d = |v: f32| v as f64;
+    let m = extra(p, "motion");
+    let w = extra(p, "omega");
+    Temporal {
+        position: p.positions[i].map(d),
+        motion: std::array::from_fn(|k| d(m[9 * i + k])),
+        rotation: p.rotations[i].map(d),
+        omega: std::array::from_fn(|k| d(w[4 * i + k])),
+        opacity_logit: d(p.opacity_logits[i]),
+        t_center: d(extra(p, "trbf_center")[i]),
+        t_log_scale: d(extra(p, "trbf_scale")[i]),
+    }
+}
+
+/// The still model at time `t`, from the reference (no extra groups).
+fn still_at(p: &GaussianParams, t: f64) -> GaussianParams {
+    let mut s = p.clone();
+    s.extra.clear();
+    for i in 0..p.len() {
+        let x = instant(&temporal_of(p, i), t);
+        s.positions[i] = x.position.map(|v| v as f32);
+        s.rotations[i] = x.rotation.map(|v| v as f32);
+        s.opacity_logits[i] = x.opacity_logit as f32;
+    }
+    s
+}
+
+struct Frame {
+    image: Vec<f32>,
+    grads: GaussianParams,
+}
+
+/// Forward and backward of `passes` on `params` for `view`, with `dl` as the image gradient.
+fn run(
+    ctx: &Arc<GpuContext>,
+    passes: &mut dyn ModelPasses,
+    params: &GaussianParams,
+    cams: &GpuBuffer<CameraGpu>,
+    cam: &CameraGpu,
+    view: u32,
+    dl: &GpuBuffer<f32>,
+) -> Frame {
+    let n = params.len();
+    let config = TrainConfig::default();
+    let gpu = GpuSplats::upload(ctx, params, n).unwrap();
+    let grads = GpuSplats::zeroed_shape(ctx, "g ", &gpu.shape(), n, n).unwrap();
+    for (b, _) in grads.groups() {
+        b.upload(&vec![f32::NAN; b.len()]).unwrap();
+    }
+    let norm = GpuBuffer::<f32>::new(ctx, "norm", n, BufferKind::DeviceLocal).unwrap();
+    let frame = FrameArgs {
+        params: &gpu,
+        cameras: cams,
+        view,
+        camera: cam,
+        sh_degree: 0,
+        background: [0.1, 0.2, 0.3],
+        iteration: 1,
+    };
+    let mut rec = Recorder::new(ctx).unwrap();
+    rec.begin().unwrap();
+    passes.record_forward(&mut rec, &frame, None).unwrap();
+    rec.barrier();
+    let g = GradArgs {
+        frame,
+        dl_dimage: dl,
+        grads: &grads,
+        view_grad_norm: &norm,
+        count: n,
+    };
+    passes
+        .record_backward(ctx, &mut rec, &g, &config, None)
+        .unwrap();
+    rec.submit_and_wait().unwrap();
+    assert!(!passes.after_frame().unwrap(), "no intersections dropped");
+    let mut grads = grads.download().unwrap();
+    grads.sh_degree = 0;
+    Frame {
+        image: passes.image().read().unwrap(),
+        grads,
+    }
+}
+
+#[test]
+#[allow(clippy::needless_range_loop)]
+fn spacetime_passes_are_the_3dgs_passes_at_the_views_time() {
+    let ctx = ctx();
+    let mut rng = Pcg64::seed_from_u64(0x5747);
+    let mut config = TrainConfig::default();
+    BaseModel::SpacetimeLite.configure(&mut config);
+    assert_eq!(config.sh_degree, 0);
+    let (w, h) = (48u32, 40u32);
+    let views: Vec<CameraGpu> = (0..2)
+        .map(|_| {
+            let (c, p) = random_view(&mut rng, w, h);
+            CameraGpu::new(&c, &p)
+        })
+        .collect();
+    let times = [0.25, 0.7];
+    let cams = GpuBuffer::from_slice(&ctx, "cameras", &views).unwrap();
+    let n = 400;
+    let mut model = with_temporal_groups(random_init(n, [0.0; 3], [1.2; 3], 9, 0).unwrap(), 4);
+    // Motion, spin, spread of temporal scales and opacities: every term of the step matters.
+    for e in &mut model.extra {
+        let scale = match e.group.name.as_str() {
+            "motion" => 0.6,
+            "omega" => 0.8,
+            "trbf_scale" => 1.5,
+            _ => 0.0,
+        };
+        for v in &mut e.values {
+            *v += rng.gen_range(-scale..=scale);
+        }
+    }
+    for (i, o) in model.opacity_logits.iter_mut().enumerate() {
+        *o = rng.gen_range(-1.0..3.0);
+        // Anisotropic, so that rotations (and the angular velocity) change the image.
+        model.log_scales[i] = model.log_scales[i].map(|l| l - 0.7 + rng.gen_range(-0.8..0.8));
+        model.sh_dc[i] = [0; 3].map(|_| rng.gen_range(-1.0..1.0));
+    }
+    let capacity = Capacity {
+        gaussians: n,
+        intersections: 0,
+        pixels: (w * h) as usize,
+        tiles: views[0].tile_count().max(views[1].tile_count()) as usize,
+    };
+    let dl = GpuBuffer::from_slice(
+        &ctx,
+        "dl",
+        &(0..3 * w * h)
+            .map(|_| rng.gen_range(-1.0f32..1.0))
+            .collect::<Vec<_>>(),
+    )
+    .unwrap();
+    let mut st = SpacetimePasses::new(&ctx, &config, &views, &[0, 1], &times, n, capacity).unwrap();
+    let plain = TrainConfig {
+        sh_degree: 0,
+        ..Default::default()
+    };
+    let mut gs = GaussianPasses::new(&ctx, &plain, &views, &[0, 1], n, capacity).unwrap();
+    for view in 0..2u32 {
+        let t = times[view as usize];
+        let got = run(
+            &ctx,
+            &mut st,
+            &model,
+            &cams,
+            &views[view as usize],
+            view,
+            &dl,
+        );
+        let still = still_at(&model, t);
+        let want = run(
+            &ctx,
+            &mut gs,
+            &still,
+            &cams,
+            &views[view as usize],
+            view,
+            &dl,
+        );
+        let worst = got
+            .image
+            .iter()
+            .zip(&want.image)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(worst < 2e-5, "view {view}: image differs by {worst}");
+        let lit = want.image.iter().filter(|&&v| v > 0.35).count();
+        assert!(
+            lit > 100,
+            "the scene must cover the view ({lit} bright values)"
+        );
+        // Scales and colour: passed through.
+        let close = |a: f32, b: f32, s: f32| (a - b).abs() <= 1e-4 * s + 1e-7;
+        let s_ls = want
+            .grads
+            .log_scales
+            .iter()
+            .flatten()
+            .fold(0.0f32, |m, v| m.max(v.abs()));
+        for (a, b) in got
+            .grads
+            .log_scales
+            .iter()
+            .flatten()
+            .zip(want.grads.log_scales.iter().flatten())
+        {
+            assert!(close(*a, *b, s_ls), "log-scale gradient {a} vs {b}");
+        }
+        // The still model's positions and opacities are the GPU's f32 evaluation on one side
+        // and the reference's rounded f64 on the other: gradients agree to f32 rounding.
+        let max_abs = |v: &mut dyn Iterator<Item = f32>| v.fold(0.0f32, |m, x| m.max(x.abs()));
+        let s_dc = max_abs(&mut want.grads.sh_dc.iter().flatten().copied());
+        for (a, b) in got
+            .grads
+            .sh_dc
+            .iter()
+            .flatten()
+            .zip(want.grads.sh_dc.iter().flatten())
+        {
+            assert!(close(*a, *b, s_dc), "colour gradient {a} vs {b}");
+        }
+        let s_p = max_abs(&mut want.grads.positions.iter().flatten().copied());
+        let s_r = max_abs(&mut want.grads.rotations.iter().flatten().copied());
+        let s_o = max_abs(&mut want.grads.opacity_logits.iter().copied()) as f64;
+        // The temporal groups: the reference chain rule of the 3DGS gradients.
+        let (mut want_motion, mut want_tc) = (Vec::new(), Vec::new());
+        let mut maxima = [0.0f64; 4];
+        let mut expected = Vec::new();
+        for i in 0..n {
+            let d = Instant {
+                position: want.grads.positions[i].map(|v| v as f64),
+                rotation: want.grads.rotations[i].map(|v| v as f64),
+                opacity_logit: want.grads.opacity_logits[i] as f64,
+            };
+            let g = instant_backward(&temporal_of(&model, i), t, &d);
+            for (k, v) in [
+                g.motion.iter().fold(0.0f64, |m, x| m.max(x.abs())),
+                g.omega.iter().fold(0.0f64, |m, x| m.max(x.abs())),
+                g.t_center.abs(),
+                g.t_log_scale.abs(),
+            ]
+            .into_iter()
+            .enumerate()
+            {
+                maxima[k] = maxima[k].max(v);
+            }
+            want_motion.extend(g.motion);
+            want_tc.push(g.t_center);
+            expected.push(g);
+        }
+        assert!(
+            maxima.iter().all(|&m| m > 0.0),
+            "every temporal group gets a gradient: {maxima:?}"
+        );
+        for (i, g) in expected.iter().enumerate() {
+            let gm = &extra(&got.grads, "motion")[9 * i..9 * i + 9];
+            let go = &extra(&got.grads, "omega")[4 * i..4 * i + 4];
+            for k in 0..9 {
+                assert!(
+                    (gm[k] as f64 - g.motion[k]).abs() <= 1e-4 * maxima[0],
+                    "view {view} Gaussian {i} motion[{k}]: {} vs {}",
+                    gm[k],
+                    g.motion[k]
+                );
+            }
+            for k in 0..4 {
+                assert!(
+                    (go[k] as f64 - g.omega[k]).abs() <= 1e-4 * maxima[1],
+                    "view {view} Gaussian {i} omega[{k}]: {} vs {} (rotation grad {:?})",
+                    go[k],
+                    g.omega[k],
+                    want.grads.rotations[i]
+                );
+            }
+            let tc = extra(&got.grads, "trbf_center")[i] as f64;
+            let ts = extra(&got.grads, "trbf_scale")[i] as f64;
+            assert!(
+                (tc - g.t_center).abs() <= 1e-4 * maxima[2],
+                "t_center {i}: {tc} vs {}",
+                g.t_center
+            );
+            assert!(
+                (ts - g.t_log_scale).abs() <= 1e-4 * maxima[3],
+                "t_log_scale {i}: {ts} vs {}",
+                g.t_log_scale
+            );
+            for k in 0..3 {
+                let (a, b) = (got.grads.positions[i][k], want.grads.positions[i][k]);
+                assert!(close(a, b, s_p), "position gradient {i}: {a} vs {b}");
+            }
+            for k in 0..4 {
+                let (a, b) = (got.grads.rotations[i][k], want.grads.rotations[i][k]);
+                assert!(close(a, b, s_r), "rotation gradient {i}: {a} vs {b}");
+            }
+            let go = got.grads.opacity_logits[i] as f64;
+            assert!(
+                (go - g.opacity_logit).abs() <= 1e-4 * s_o,
+                "opacity {i}: {go} vs {}",
+                g.opacity_logit
+            );
+        }
+        // New Gaussians are centred at the frame's time.
+        assert_eq!(st.new_gaussian_extras()[2], vec![t as f32]);
+    }
+    assert_eq!(st.extra_lrs(1, 2.0).len(), 4);
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn a_still_scene_is_refused() {
+    let ctx = ctx();
+    let mut config = TrainConfig::default();
+    BaseModel::SpacetimeLite.configure(&mut config);
+    let mut rng = Pcg64::seed_from_u64(1);
+    let (c, p) = random_view(&mut rng, 16, 16);
+    let cams = [CameraGpu::new(&c, &p)];
+    let e = lpmsplat::train::passes::for_config(
+        &ctx,
+        &config,
+        &cams,
+        &[0],
+        None,
+        10,
+        Capacity::for_frame(10, &cams[0]),
+    )
+    .err()
+    .unwrap()
+    .to_string();
+    assert!(e.contains("video scene") && e.contains("Fix:"), "{e}");
+}
