@@ -171,19 +171,41 @@ impl Scene {
     /// optical axes converge, with half side half the cameras' radius; the cameras' mean is a
     /// poor centre for a capture from one side (the lego cameras' mean is 2.3 units above the
     /// object, and a box there left the object without a single initial point), so it is only
-    /// the fallback when the axes do not converge within the cameras' extent.
+    /// the fallback when the axes do not converge within the cameras' extent. A forward-facing
+    /// rig, whose axes meet in front of it beyond its extent, gets a box there as wide as its
+    /// mean view at that depth.
     pub fn random_init_box(&self) -> ([f64; 3], f64) {
         if self.format == SceneFormat::NerfSynthetic {
             return ([0.0; 3], NERF_SYNTHETIC_INIT_HALF_SIDE);
         }
         let half = self.extent / 1.1 * 0.5;
-        let center = split::axes_convergence_point(&self.views, &self.train)
-            .filter(|p| {
-                let d2: f64 = (0..3).map(|k| (p[k] - self.center[k]).powi(2)).sum();
-                d2.sqrt() <= self.extent
+        let Some(p) = split::axes_convergence_point(&self.views, &self.train) else {
+            return (self.center, half);
+        };
+        let dist =
+            |a: [f64; 3], b: [f64; 3]| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt();
+        if dist(p, self.center) <= self.extent {
+            return (p, half);
+        }
+        // A forward-facing rig (Neural 3D Video's cameras): the cameras stand close together
+        // relative to the depth they look at, so the point their axes meet lies beyond their
+        // radius, and a box of that radius would hold a sliver of what they see. Such a point
+        // in front of every camera, within ten radii, centres a box as wide as the mean view
+        // at that depth.
+        let train: Vec<&View> = self.train_views().collect();
+        let in_front = train.iter().all(|v| v.pose.transform(p)[2] > 0.0);
+        if !in_front || dist(p, self.center) > 10.0 * self.extent || train.is_empty() {
+            return (self.center, half);
+        }
+        let seen: f64 = train
+            .iter()
+            .map(|v| {
+                let (fx, fy) = v.camera.fov();
+                dist(v.pose.center(), p) * (0.5 * fx.max(fy)).tan()
             })
-            .unwrap_or(self.center);
-        (center, half)
+            .sum::<f64>()
+            / train.len() as f64;
+        (p, seen.max(half))
     }
 
     /// Loads the scene in `root`, detecting its format.
