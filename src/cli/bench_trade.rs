@@ -142,6 +142,12 @@ pub const RUNS: [(&str, [u8; 3]); 7] = [
 
 pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
     anyhow::ensure!(
+        args.model != BaseModel::SpacetimeLite,
+        "bench trade --model spacetime-lite: LPM in time (zones on the Gaussians' positions at \
+         the frame's time) and the time-aware evaluation and FPS it needs are not built yet. \
+         Fix: train the video model with `train --model spacetime-lite` (no --lpm)"
+    );
+    anyhow::ensure!(
         args.iterations > 0,
         "bench trade: --iterations 0. Fix: pass at least 1"
     );
