@@ -120,21 +120,29 @@ impl BaseModel {
     }
 
     /// A renderer for this model's trained PLYs (eval, render, orbit).
+    ///
+    /// `times`: the time of every camera the renders index (video scenes); a video model needs
+    /// them, other models ignore them.
     pub fn view_renderer(
         &self,
         ctx: &std::sync::Arc<crate::gpu::GpuContext>,
         gaussians: usize,
         camera: &crate::render::layout::CameraGpu,
+        times: Option<Vec<f32>>,
     ) -> anyhow::Result<Box<dyn crate::render::view::ViewRenderer>> {
-        use crate::render::view::{GaussianView, SurfelView};
+        use crate::render::view::{GaussianView, SpacetimeView, SurfelView};
         Ok(match self {
             BaseModel::Surfels2d => Box::new(SurfelView::new(ctx, gaussians, camera)?),
-            BaseModel::SpacetimeLite => anyhow::bail!(
-                "--model spacetime-lite: eval and render of a saved video model are not built \
-                 yet (the PLY holds the temporal groups, but these tools render still models). \
-                 Fix: use train's own evaluation (--eval-every N and the end of training), \
-                 which renders every test view at its time"
-            ),
+            BaseModel::SpacetimeLite => {
+                let Some(times) = times else {
+                    anyhow::bail!(
+                        "--model spacetime-lite renders a video model at each view's time; \
+                         this scene is still (or these cameras have no time). Fix: point at \
+                         the video scene the model was trained on"
+                    );
+                };
+                Box::new(SpacetimeView::new(ctx, gaussians, camera, times)?)
+            }
             _ => Box::new(GaussianView::new(
                 ctx,
                 gaussians,
@@ -142,6 +150,16 @@ impl BaseModel {
                 self.render_constants(),
             )?),
         })
+    }
+
+    /// Reads a trained PLY of this model (a video model's with its temporal groups).
+    pub fn read_ply(&self, path: &std::path::Path) -> anyhow::Result<GaussianParams> {
+        match self {
+            BaseModel::SpacetimeLite => {
+                crate::splats::ply::read_ply_extras(path, &crate::render::spacetime::extra_groups())
+            }
+            _ => crate::splats::read_ply(path),
+        }
     }
 
     /// The rasterizer constants its renders use (eval, render, viewers of an exported PLY).

@@ -2,8 +2,8 @@
 //! (`tests/data/n3v_tiny`, made by `examples/make_video_fixture.rs`: a known dynamic scene in
 //! the Neural 3D Video layout): the scene loads as cameras × frames, `--model spacetime-lite`
 //! learns the motion a still 3DGS model cannot (measured against 3DGS on the same run), the PLY
-//! carries the temporal groups under the official names, the config names the model, and the
-//! tools that cannot render a video model yet say so. Validation layer on.
+//! carries the temporal groups under the official names, the config names the model, and
+//! `eval` / `render` read them back and render each view at its time. Validation layer on.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -83,7 +83,8 @@ fn spacetime_lite_learns_the_motion_a_still_model_cannot() {
         );
     }
     assert!(!header.contains("f_rest_0"), "SH degree 0");
-    // eval cannot render a video model yet, and says what to use instead.
+    // eval reads the temporal groups back and renders every test view at its time: the
+    // training run's own figure; render writes one image per camera and frame.
     let o = lpmsplat()
         .args([
             "eval",
@@ -92,11 +93,53 @@ fn spacetime_lite_learns_the_motion_a_still_model_cannot() {
             out.join("point_cloud.ply").to_str().unwrap(),
             "--model",
             "spacetime-lite",
+            "--json",
+            out.join("eval.json").to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let e: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("eval.json")).unwrap()).unwrap();
+    let again = e["psnr"].as_f64().unwrap_or_else(|| panic!("{e}"));
+    assert!((again - st).abs() < 1e-3, "eval {again} vs training {st}");
+    let o = lpmsplat()
+        .args([
+            "render",
+            fixture().to_str().unwrap(),
+            "--ply",
+            out.join("point_cloud.ply").to_str().unwrap(),
+            "--model",
+            "spacetime-lite",
+            "--out",
+            out.join("r").to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for k in 0..8 {
+        assert!(
+            out.join(format!("r/cam00_{k:06}.png")).exists(),
+            "frame {k}"
+        );
+    }
+    // The still model read as a video model lacks the temporal groups: named.
+    let o = lpmsplat()
+        .args([
+            "eval",
+            fixture().to_str().unwrap(),
+            "--ply",
+            dir.path().join("still/point_cloud.ply").to_str().unwrap(),
+            "--model",
+            "spacetime-lite",
         ])
         .output()
         .unwrap();
     let e = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success() && e.contains("--eval-every"), "{e}");
+    assert!(
+        !o.status.success() && e.contains("motion_0") && e.contains("Fix:"),
+        "{e}"
+    );
 }
 
 #[test]

@@ -15,7 +15,7 @@ use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions};
 use lpmsplat::models::BaseModel;
 use lpmsplat::render::layout::CameraGpu;
 use lpmsplat::scene::{images, Image, Scene};
-use lpmsplat::splats::{gpu::GpuSplats, read_ply};
+use lpmsplat::splats::gpu::GpuSplats;
 use lpmsplat::train::trainer::{Background, ViewMetrics};
 use std::io::Write;
 use std::path::PathBuf;
@@ -104,7 +104,7 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
         args.split.name()
     );
     let lpips = args.lpips.load()?;
-    let params = read_ply(&args.ply)?;
+    let params = args.model.read_ply(&args.ply)?;
     anyhow::ensure!(
         !params.is_empty(),
         "{}: the PLY holds no Gaussians. Fix: pass a trained point_cloud.ply",
@@ -129,9 +129,12 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
     let biggest = (0..cams.len())
         .max_by_key(|&k| cams[k].width() as u64 * cams[k].height() as u64)
         .unwrap_or(0);
-    let mut renderer = args
-        .model
-        .view_renderer(&ctx, params.len(), &cams[biggest])?;
+    let mut renderer = args.model.view_renderer(
+        &ctx,
+        params.len(),
+        &cams[biggest],
+        view_times(&scene, views),
+    )?;
     let mut per_view = Vec::new();
     let mut renders = Vec::new();
     for (k, &v) in views.iter().enumerate() {
@@ -210,4 +213,10 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
     }
     ctx.check_validation()?;
     Ok(())
+}
+
+/// The times of `views` when the scene is a video's frames.
+pub fn view_times(scene: &lpmsplat::scene::Scene, views: &[usize]) -> Option<Vec<f32>> {
+    let t = scene.view_times.as_ref()?;
+    Some(views.iter().map(|&v| t[v] as f32).collect())
 }

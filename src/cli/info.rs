@@ -25,6 +25,7 @@ pub fn run(gpu: &GpuOptions, args: &InfoArgs) -> anyhow::Result<()> {
                 scene: path.clone(),
                 resolution: args.resolution,
                 test_split: args.test_split.clone(),
+                frames: None,
             };
             Some(Scene::load(path, &s.load_options()?)?)
         }

@@ -62,7 +62,9 @@ pub enum Command {
 /// Scene-loading flags shared by the subcommands that read a scene.
 #[derive(Args, Debug, Clone)]
 pub struct SceneArgs {
-    /// Scene folder: a COLMAP model (sparse/0 or sparse, with images/) or transforms*.json.
+    /// Scene folder: a COLMAP model (sparse/0 or sparse, with images/), transforms*.json, or a
+    /// multi-view video (Neural 3D Video's poses_bounds.npy + camNN/ frames, or Panoptic's
+    /// train_meta.json).
     pub scene: PathBuf,
     /// Downscale images by this factor (e.g. 2, 4, 8). Default: keep, capped at 1600 px wide.
     #[arg(short = 'r', long = "resolution")]
@@ -70,6 +72,12 @@ pub struct SceneArgs {
     /// NeRF-synthetic: use `val` or `test` as the test split (default: test if present, else val).
     #[arg(long, value_parser = ["val", "test"])]
     pub test_split: Option<String>,
+    /// Video scenes: the segment of frames, START..END (END excluded) or START.. (50 frames,
+    /// SpacetimeGaussians' segment length, fewer when the video is shorter). Frame k of the
+    /// segment has time k / its length, so evaluate and render a video model with the segment
+    /// it was trained on. Default: 0..
+    #[arg(long, value_name = "START..END")]
+    pub frames: Option<lpmsplat::scene::video::FrameRange>,
 }
 
 impl SceneArgs {
@@ -86,6 +94,7 @@ impl SceneArgs {
                 Some("test") => NerfTestSplit::Test,
                 _ => NerfTestSplit::TestOrVal,
             },
+            frames: self.frames.unwrap_or_default(),
             ..LoadOptions::default()
         })
     }

@@ -9,7 +9,7 @@ use lpmsplat::models::BaseModel;
 use lpmsplat::render::layout::CameraGpu;
 use lpmsplat::scene::orbit::Orbit;
 use lpmsplat::scene::{images, Image, Scene};
-use lpmsplat::splats::{gpu::GpuSplats, read_ply, GaussianParams};
+use lpmsplat::splats::{gpu::GpuSplats, GaussianParams};
 use std::path::PathBuf;
 
 #[derive(Args, Debug)]
@@ -69,7 +69,7 @@ pub fn parse_rgb(s: &str) -> Result<[f32; 3], String> {
 
 pub fn run(gpu: &GpuOptions, args: &RenderArgs) -> anyhow::Result<()> {
     let scene = Scene::load(&args.scene.scene, &args.scene.load_options()?)?;
-    let params = read_ply(&args.ply)?;
+    let params = args.model.read_ply(&args.ply)?;
     if let Some(frames) = args.orbit {
         return render_orbit(gpu, args, &scene, &params, frames as usize);
     }
@@ -93,7 +93,10 @@ pub fn run(gpu: &GpuOptions, args: &RenderArgs) -> anyhow::Result<()> {
         .map(|&i| CameraGpu::new(&scene.views[i].camera, &scene.views[i].pose))
         .collect();
     let cameras = GpuBuffer::from_slice(&ctx, "cameras", &cams)?;
-    let mut renderer = args.model.view_renderer(&ctx, params.len(), &cams[0])?;
+    let times = super::eval::view_times(&scene, &indices);
+    let mut renderer = args
+        .model
+        .view_renderer(&ctx, params.len(), &cams[0], times)?;
     let bg = args.background.or(scene.background).unwrap_or([0.0; 3]);
     anyhow::ensure!(
         !(args.depth || args.normals) || args.model == BaseModel::Surfels2d,
@@ -176,7 +179,13 @@ fn render_orbit(
     let ctx = GpuContext::new(gpu)?;
     let splats = GpuSplats::upload(&ctx, params, params.len())?;
     let cameras = GpuBuffer::from_slice(&ctx, "cameras", &cams)?;
-    let mut renderer = args.model.view_renderer(&ctx, params.len(), &cams[0])?;
+    // An orbit of a video model runs through its segment, one time per frame.
+    let times = (0..cams.len())
+        .map(|k| k as f32 / cams.len() as f32)
+        .collect();
+    let mut renderer = args
+        .model
+        .view_renderer(&ctx, params.len(), &cams[0], Some(times))?;
     let bg = args.background.or(scene.background).unwrap_or([0.0; 3]);
     let path = args.out.join("orbit.gif");
     let mut gif = OrbitGif::new(camera.width, camera.height, args.fps);

@@ -10,8 +10,27 @@ use anyhow::ensure;
 
 use crate::gpu::{ComputePipeline, GpuBuffer, GpuContext, Recorder};
 use crate::shaders;
+use crate::splats::gpu::GpuSplats;
 
 const WG: u32 = 128;
+
+/// The extra groups, in their order: motion (m₁, m₂, m₃), angular velocity, temporal centre,
+/// temporal log-scale, named as the official PLY names them (`motion_0`..`motion_8`,
+/// `omega_0`..`omega_3`, `trbf_center`, `trbf_scale`).
+pub const GROUPS: [(&str, usize); 4] = [
+    ("motion", 9),
+    ("omega", 4),
+    ("trbf_center", 1),
+    ("trbf_scale", 1),
+];
+
+/// The extra groups as [`ExtraGroup`]s.
+pub fn extra_groups() -> Vec<crate::splats::ExtraGroup> {
+    GROUPS
+        .iter()
+        .map(|&(n, s)| crate::splats::ExtraGroup::new(n, s))
+        .collect()
+}
 
 /// Floats per Gaussian of each temporal group.
 pub const MOTION_STRIDE: usize = 9;
@@ -30,7 +49,25 @@ pub struct TemporalBuffers<'a> {
     pub t_log_scale: &'a GpuBuffer<f32>,
 }
 
-impl TemporalBuffers<'_> {
+impl<'a> TemporalBuffers<'a> {
+    /// The temporal groups of a model that has them ([`GROUPS`] as extra groups).
+    pub fn of(s: &'a GpuSplats) -> anyhow::Result<Self> {
+        let group = |name: &str| {
+            s.extra_group(name).ok_or_else(|| {
+                anyhow::anyhow!("SpacetimeGaussians: the model has no '{name}' group")
+            })
+        };
+        Ok(TemporalBuffers {
+            positions: &s.positions,
+            motion: group("motion")?,
+            rotations: &s.rotations,
+            omega: group("omega")?,
+            opacity_logits: &s.opacity_logits,
+            t_center: group("trbf_center")?,
+            t_log_scale: group("trbf_scale")?,
+        })
+    }
+
     fn check(&self, what: &str, count: usize) -> anyhow::Result<()> {
         let groups = [
             ("positions", self.positions.len(), 3),
@@ -60,7 +97,16 @@ pub struct InstantBuffers<'a> {
     pub opacity_logits: &'a GpuBuffer<f32>,
 }
 
-impl InstantBuffers<'_> {
+impl<'a> InstantBuffers<'a> {
+    /// The positions, rotations and opacity logits of a still model.
+    pub fn of(s: &'a GpuSplats) -> Self {
+        InstantBuffers {
+            positions: &s.positions,
+            rotations: &s.rotations,
+            opacity_logits: &s.opacity_logits,
+        }
+    }
+
     fn check(&self, what: &str, count: usize) -> anyhow::Result<()> {
         for (name, len, stride) in [
             ("positions", self.positions.len(), 3),

@@ -156,3 +156,69 @@ impl ViewRenderer for SurfelView {
         }))
     }
 }
+
+/// SpacetimeGaussians: the model at each camera's time (the temporal step, then the 3D-Gaussian
+/// renderer on the still model).
+pub struct SpacetimeView {
+    ctx: Arc<GpuContext>,
+    inner: GaussianView,
+    step: super::spacetime::TemporalStep,
+    /// The time of every camera in the buffer the renders index.
+    times: Vec<f32>,
+    instant: GpuSplats,
+}
+
+impl SpacetimeView {
+    pub fn new(
+        ctx: &Arc<GpuContext>,
+        gaussians: usize,
+        camera: &CameraGpu,
+        times: Vec<f32>,
+    ) -> Result<Self> {
+        Ok(Self {
+            ctx: ctx.clone(),
+            inner: GaussianView::new(ctx, gaussians, camera, RenderConstants::for_mip(false))?,
+            step: super::spacetime::TemporalStep::new(ctx)?,
+            times,
+            instant: GpuSplats::zeroed(ctx, "instant ", 0, 0, gaussians.max(1))?,
+        })
+    }
+}
+
+impl ViewRenderer for SpacetimeView {
+    fn render(
+        &mut self,
+        splats: &GpuSplats,
+        cameras: &GpuBuffer<CameraGpu>,
+        index: u32,
+        camera: &CameraGpu,
+        background: [f32; 3],
+    ) -> Result<Vec<f32>> {
+        use super::spacetime::{At, InstantBuffers, TemporalBuffers};
+        let t = *self.times.get(index as usize).ok_or_else(|| {
+            anyhow::anyhow!("camera {index} has no time ({} cameras)", self.times.len())
+        })?;
+        let n = splats.count;
+        if self.instant.capacity < n {
+            self.instant = GpuSplats::zeroed(&self.ctx, "instant ", 0, 0, n)?;
+        }
+        self.instant.count = n;
+        let mut rec = crate::gpu::Recorder::new(&self.ctx)?;
+        rec.begin()?;
+        self.step.record_forward(
+            &mut rec,
+            &TemporalBuffers::of(splats)?,
+            &InstantBuffers::of(&self.instant),
+            At { count: n, t },
+        )?;
+        rec.copy(&splats.log_scales, &self.instant.log_scales, 3 * n);
+        rec.copy(&splats.sh_dc, &self.instant.sh_dc, 3 * n);
+        rec.submit_and_wait()?;
+        self.inner
+            .render(&self.instant, cameras, index, camera, background)
+    }
+
+    fn geometry(&self, _: &CameraGpu) -> Result<Option<GeometryMaps>> {
+        Ok(None)
+    }
+}

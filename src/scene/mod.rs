@@ -119,6 +119,8 @@ pub struct LoadOptions {
     pub holdout_every: usize,
     /// When false, every view is a training view (no test set).
     pub eval_split: bool,
+    /// Video scenes: the segment of frames.
+    pub frames: video::FrameRange,
 }
 
 impl Default for LoadOptions {
@@ -130,6 +132,7 @@ impl Default for LoadOptions {
             nerf_test_split: NerfTestSplit::TestOrVal,
             holdout_every: 8,
             eval_split: true,
+            frames: video::FrameRange::default(),
         }
     }
 }
@@ -219,8 +222,7 @@ impl Scene {
             );
         }
         if video::VideoScene::detect(root).is_some() {
-            let range = video::FrameRange::default();
-            return Ok(video::VideoScene::load(root, opts, range)?.to_scene());
+            return Ok(video::VideoScene::load(root, opts, opts.frames)?.to_scene());
         }
         if let Some(sparse) = colmap::find_sparse_dir(root) {
             return colmap::load_scene(root, &sparse, opts);

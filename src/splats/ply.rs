@@ -147,6 +147,24 @@ pub fn read_ply(path: &Path) -> anyhow::Result<GaussianParams> {
 /// degree drops the higher bands; higher keeps the file's degree). Coefficients dropped this way
 /// are not checked for NaN.
 pub fn read_ply_with_degree(path: &Path, max_degree: u32) -> anyhow::Result<GaussianParams> {
+    read_ply_full(path, max_degree, &[])
+}
+
+/// Reads a model with extra parameter groups (a base model's own, e.g. SpacetimeGaussians'
+/// temporal groups), stored as [`extra_property_names`] writes them; a missing one is an
+/// error naming the property.
+pub fn read_ply_extras(
+    path: &Path,
+    extra: &[crate::splats::ExtraGroup],
+) -> anyhow::Result<GaussianParams> {
+    read_ply_full(path, MAX_SH_DEGREE, extra)
+}
+
+fn read_ply_full(
+    path: &Path,
+    max_degree: u32,
+    extra: &[crate::splats::ExtraGroup],
+) -> anyhow::Result<GaussianParams> {
     let bytes = std::fs::read(path).map_err(|e| {
         let (problem, fix) = if e.kind() == std::io::ErrorKind::NotFound {
             ("the file does not exist".to_string(), "check the path")
@@ -158,7 +176,7 @@ pub fn read_ply_with_degree(path: &Path, max_degree: u32) -> anyhow::Result<Gaus
         };
         InputError::new(path, "file", problem, fix)
     })?;
-    parse_ply(path, &bytes, max_degree)
+    parse_ply(path, &bytes, max_degree, extra)
 }
 
 /// An error for a model that has no Gaussians (which [`read_ply`] itself accepts).
@@ -583,7 +601,12 @@ fn layout_from_slots(slots: &[Slot], degree: u32) -> Layout {
     }
 }
 
-fn parse_ply(path: &Path, bytes: &[u8], max_degree: u32) -> anyhow::Result<GaussianParams> {
+fn parse_ply(
+    path: &Path,
+    bytes: &[u8],
+    max_degree: u32,
+    extra: &[crate::splats::ExtraGroup],
+) -> anyhow::Result<GaussianParams> {
     let header = parse_header(path, bytes)?;
     let Some(vi) = header.elements.iter().position(|e| e.name == "vertex") else {
         return bad_input(
@@ -606,11 +629,27 @@ fn parse_ply(path: &Path, bytes: &[u8], max_degree: u32) -> anyhow::Result<Gauss
             "export the Gaussians with scalar properties only",
         );
     }
-    let (indices, file_degree) = required_indices(path, vertex)?;
+    let (mut indices, file_degree) = required_indices(path, vertex)?;
+    let base_len = indices.len();
+    for g in extra {
+        for name in extra_property_names(g) {
+            match vertex.props.iter().position(|p| p.name == name) {
+                Some(i) => indices.push(i),
+                None => {
+                    return bad_input(
+                        path,
+                        format!("property {name}"),
+                        format!("is missing: the model needs the '{}' group", g.name),
+                        "pass a PLY written by a training run of this model",
+                    )
+                }
+            }
+        }
+    }
     let n = vertex.count;
     let body = &bytes[header.body..];
 
-    let (rows, stride, layout);
+    let (rows, stride, layout, extra_slots): (&[u8], usize, Layout, Vec<Slot>);
     let owned: Vec<u8>;
     match header.format {
         Format::BinaryLe | Format::BinaryBe => {
@@ -636,7 +675,8 @@ fn parse_ply(path: &Path, bytes: &[u8], max_degree: u32) -> anyhow::Result<Gauss
                     big,
                 })
                 .collect();
-            layout = layout_from_slots(&slots, file_degree);
+            layout = layout_from_slots(&slots[..base_len], file_degree);
+            extra_slots = slots[base_len..].to_vec();
             let data = &body[start..];
             let needed = n.saturating_mul(stride);
             if data.len() < needed {
@@ -664,14 +704,35 @@ fn parse_ply(path: &Path, bytes: &[u8], max_degree: u32) -> anyhow::Result<Gauss
                     big: false,
                 })
                 .collect();
-            layout = layout_from_slots(&slots, file_degree);
+            layout = layout_from_slots(&slots[..base_len], file_degree);
+            extra_slots = slots[base_len..].to_vec();
             rows = &owned;
         }
     }
     let degree = file_degree.min(max_degree);
-    let params = gather(rows, stride, n, &layout, degree);
+    let mut params = gather(rows, stride, n, &layout, degree);
+    let mut at = 0;
+    for g in extra {
+        let slots = &extra_slots[at..at + g.stride];
+        at += g.stride;
+        let values = (0..n)
+            .flat_map(|i| {
+                let r = &rows[i * stride..(i + 1) * stride];
+                slots.iter().map(move |s| s.get(r))
+            })
+            .collect();
+        params.extra.push(crate::splats::ExtraValues {
+            group: g.clone(),
+            values,
+        });
+    }
     if let Some((i, field)) = params.find_non_finite() {
-        let name = property_name(field, layout.file_rest);
+        let name = match field {
+            ParamField::Extra { group, index } => {
+                extra_property_names(&params.extra[group].group)[index].clone()
+            }
+            _ => property_name(field, layout.file_rest),
+        };
         return bad_input(
             path,
             format!("vertex {i}, property {name}"),

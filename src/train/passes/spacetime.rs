@@ -19,27 +19,13 @@ use crate::render::forward::Capacity;
 use crate::render::layout::{CameraGpu, ProjectedGpu};
 use crate::render::spacetime::{At, InstantBuffers, TemporalBuffers, TemporalStep};
 use crate::splats::gpu::{grown_capacity, GpuSplats};
-use crate::splats::{ExtraGroup, GaussianParams};
+use crate::splats::GaussianParams;
 use crate::train::adam::SplatState;
 use crate::train::config::TrainConfig;
 use crate::train::density::DensityControl;
 use crate::train::strategy::Primitive;
 
-/// The extra groups, in their order: motion (m₁, m₂, m₃), angular velocity, temporal centre,
-/// temporal log-scale, named as the official PLY names them (`motion_0`..`motion_8`,
-/// `omega_0`..`omega_3`, `trbf_center`, `trbf_scale`).
-pub const GROUPS: [(&str, usize); 4] = [
-    ("motion", 9),
-    ("omega", 4),
-    ("trbf_center", 1),
-    ("trbf_scale", 1),
-];
-
-/// The extra groups as [`ExtraGroup`]s.
-pub fn extra_groups() -> Vec<ExtraGroup> {
-    GROUPS.iter().map(|&(n, s)| ExtraGroup::new(n, s)).collect()
-}
-
+pub use crate::render::spacetime::{extra_groups, GROUPS};
 pub use crate::train::config::SpacetimeRates;
 
 pub struct SpacetimePasses {
@@ -57,28 +43,12 @@ pub struct SpacetimePasses {
     rec: Recorder,
 }
 
-fn temporal<'a>(s: &'a GpuSplats) -> Result<TemporalBuffers<'a>> {
-    let group = |name: &str| {
-        s.extra_group(name)
-            .ok_or_else(|| anyhow::anyhow!("SpacetimeGaussians: the model has no '{name}' group"))
-    };
-    Ok(TemporalBuffers {
-        positions: &s.positions,
-        motion: group("motion")?,
-        rotations: &s.rotations,
-        omega: group("omega")?,
-        opacity_logits: &s.opacity_logits,
-        t_center: group("trbf_center")?,
-        t_log_scale: group("trbf_scale")?,
-    })
+fn temporal(s: &GpuSplats) -> Result<TemporalBuffers<'_>> {
+    TemporalBuffers::of(s)
 }
 
 fn instant(s: &GpuSplats) -> InstantBuffers<'_> {
-    InstantBuffers {
-        positions: &s.positions,
-        rotations: &s.rotations,
-        opacity_logits: &s.opacity_logits,
-    }
+    InstantBuffers::of(s)
 }
 
 impl SpacetimePasses {
