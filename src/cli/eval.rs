@@ -129,12 +129,9 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
     let biggest = (0..cams.len())
         .max_by_key(|&k| cams[k].width() as u64 * cams[k].height() as u64)
         .unwrap_or(0);
-    let mut renderer = args.model.view_renderer(
-        &ctx,
-        params.len(),
-        &cams[biggest],
-        view_times(&scene, views),
-    )?;
+    let mut renderer =
+        args.model
+            .view_renderer(&ctx, params.len(), &cams[biggest], scene.times_of(views))?;
     let mut per_view = Vec::new();
     let mut renders = Vec::new();
     for (k, &v) in views.iter().enumerate() {
@@ -213,10 +210,4 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
     }
     ctx.check_validation()?;
     Ok(())
-}
-
-/// The times of `views` when the scene is a video's frames.
-pub fn view_times(scene: &lpmsplat::scene::Scene, views: &[usize]) -> Option<Vec<f32>> {
-    let t = scene.view_times.as_ref()?;
-    Some(views.iter().map(|&v| t[v] as f32).collect())
 }

@@ -93,7 +93,7 @@ pub fn run(gpu: &GpuOptions, args: &RenderArgs) -> anyhow::Result<()> {
         .map(|&i| CameraGpu::new(&scene.views[i].camera, &scene.views[i].pose))
         .collect();
     let cameras = GpuBuffer::from_slice(&ctx, "cameras", &cams)?;
-    let times = super::eval::view_times(&scene, &indices);
+    let times = scene.times_of(&indices);
     let mut renderer = args
         .model
         .view_renderer(&ctx, params.len(), &cams[0], times)?;

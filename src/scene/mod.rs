@@ -238,6 +238,13 @@ impl Scene {
         )
     }
 
+    /// The times of `views` when the scene is a video's frames (f32, as the renderers take
+    /// them); `None` for a still scene.
+    pub fn times_of(&self, views: &[usize]) -> Option<Vec<f32>> {
+        let t = self.view_times.as_ref()?;
+        Some(views.iter().map(|&v| t[v] as f32).collect())
+    }
+
     pub fn train_views(&self) -> impl Iterator<Item = &View> {
         self.train.iter().map(|&i| &self.views[i])
     }
