@@ -83,6 +83,10 @@ fn spacetime_lite_learns_the_motion_a_still_model_cannot() {
         );
     }
     assert!(!header.contains("f_rest_0"), "SH degree 0");
+    assert!(
+        !out.join("point_cloud.splat").exists(),
+        "no .splat for a video model"
+    );
     // eval reads the temporal groups back and renders every test view at its time: the
     // training run's own figure; render writes one image per camera and frame.
     let o = lpmsplat()

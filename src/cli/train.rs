@@ -701,7 +701,10 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     let trained = (config.iterations - start_iteration).max(1);
     let model = trainer.export_model()?;
     write_ply(&args.out.join("point_cloud.ply"), &model)?;
-    write_splat(&args.out.join("point_cloud.splat"), &model)?;
+    // A .splat holds still Gaussians: a video model's would show it at no time at all.
+    if model.extra.is_empty() {
+        write_splat(&args.out.join("point_cloud.splat"), &model)?;
+    }
     trainer.save_checkpoint(&scene, &checkpoint_path)?;
 
     // Final evaluation and renders.
