@@ -6,10 +6,12 @@ use anyhow::Context;
 use clap::{Args, Subcommand};
 use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder, StageTimes, TimestampPool};
+use lpmsplat::models::BaseModel;
 use lpmsplat::render::forward::{FrameSettings, Renderer};
 use lpmsplat::render::layout::{CameraGpu, RenderConstants};
+use lpmsplat::render::spacetime::TimedModel;
 use lpmsplat::render::synthetic;
-use lpmsplat::splats::{gpu::GpuSplats, read_ply};
+use lpmsplat::splats::gpu::GpuSplats;
 use serde::Serialize;
 use std::io::Write;
 use std::path::PathBuf;
@@ -60,6 +62,13 @@ pub struct FpsArgs {
     /// a 128 MiB storage binding).
     #[arg(long, default_value_t = 3)]
     pub sh_degree: u32,
+    /// The model the PLY was trained as: `spacetime-lite` reads its temporal groups and times
+    /// every frame with the temporal step (the model at --time) before the render.
+    #[arg(long, default_value = "3dgs", value_parser = BaseModel::parse)]
+    pub model: BaseModel,
+    /// Video models: the time rendered, in the segment's [0, 1).
+    #[arg(long, default_value_t = 0.0)]
+    pub time: f32,
 }
 
 #[derive(Serialize, Debug)]
@@ -111,7 +120,7 @@ fn fps(gpu: &GpuOptions, args: &FpsArgs) -> anyhow::Result<()> {
     let ctx = GpuContext::new(gpu)?;
     let mut results = Vec::new();
     let sources: Vec<(String, lpmsplat::splats::GaussianParams)> = match &args.ply {
-        Some(path) => vec![(path.display().to_string(), read_ply(path)?)],
+        Some(path) => vec![(path.display().to_string(), args.model.read_ply(path)?)],
         None => args
             .gaussians
             .iter()
@@ -149,17 +158,37 @@ fn fps_one(
         synthetic::bench_camera(args.width, args.height)
     };
     let cam = CameraGpu::new(&camera, &pose);
-    let splats = GpuSplats::upload(ctx, params, params.len().max(1))?;
+    let model = GpuSplats::upload(ctx, params, params.len().max(1))?;
     let cameras = GpuBuffer::from_slice(ctx, "cameras", &[cam])?;
+    // A video model: every frame first writes the model at --time as still Gaussians (what a
+    // player does per displayed time), so the temporal step is part of the frame time.
+    let temporal = if args.model == BaseModel::SpacetimeLite {
+        Some(TimedModel::new(ctx, &model)?)
+    } else {
+        None
+    };
+    let record_temporal = |rec: &mut Recorder| -> anyhow::Result<()> {
+        match &temporal {
+            Some(timed) => timed.record(rec, &model, args.time),
+            None => Ok(()),
+        }
+    };
+    let splats = temporal.as_ref().map_or(&model, |t| &t.instant);
+    if temporal.is_some() {
+        let mut rec = Recorder::new(ctx)?;
+        rec.begin()?;
+        record_temporal(&mut rec)?;
+        rec.submit_and_wait()?;
+    }
     let settings = FrameSettings {
-        sh_degree: params.sh_degree,
+        sh_degree: splats.sh_degree,
         background: [0.0; 3],
         constants: RenderConstants::default(),
         filter3d: None,
     };
     let mut renderer = Renderer::for_camera(ctx, params.len(), &cam)?;
     // First frame sizes the intersection buffers.
-    renderer.render_blocking(&splats, &cameras, 0, &cam, &settings)?;
+    renderer.render_blocking(splats, &cameras, 0, &cam, &settings)?;
     let intersections = renderer.last_intersections()?;
     let mut pool = TimestampPool::new(ctx, 16)?;
     let mut rec = Recorder::new(ctx)?;
@@ -169,9 +198,10 @@ fn fps_one(
         rec.begin()?;
         rec.start_timestamps(&mut pool);
         let t0 = Instant::now();
+        record_temporal(&mut rec)?;
         renderer.record(
             &mut rec,
-            &splats,
+            splats,
             &cameras,
             0,
             &cam,
