@@ -933,6 +933,7 @@ fn added_gaussians_carry_the_models_extra_groups() {
             height: 1,
             primitive: Primitive::Gaussian,
             new_extras: extras,
+            moving: None,
         };
         append_gaussians(&mut t, &rows)
     };

@@ -687,3 +687,42 @@ fn weighted_rank_selection_matches_the_expanded_multiset() {
     }
     ctx.check_validation().unwrap();
 }
+
+/// LPM in time marks a Gaussian absent from the frame with a NaN centre: it must be inside no
+/// zone, in front of none, in no ball, and counted in no zone, while the present ones keep
+/// exactly the flags and counts they have without the absent ones.
+#[test]
+fn absent_gaussians_are_in_no_zone() {
+    let ctx = ctx();
+    let lpm = LpmGpu::new(&ctx, 1).unwrap();
+    let mut rng = Pcg64::seed_from_u64(79);
+    let zones = random_zones(&mut rng, 60);
+    let mut positions = random_positions(&mut rng, &zones, 20_000);
+    let n = positions.len() / 3;
+    let absent: Vec<bool> = (0..n).map(|_| rng.gen_bool(0.4)).collect();
+    let mut present_positions = Vec::new();
+    for (i, &a) in absent.iter().enumerate() {
+        if a {
+            positions[3 * i..3 * i + 3].fill(f32::NAN);
+        } else {
+            present_positions.extend_from_slice(&positions[3 * i..3 * i + 3]);
+        }
+    }
+    let cpu = membership(&present_positions, &zones);
+    let (flags, counts) = run_membership(&ctx, &lpm, &positions, &zones);
+    let mut k = 0;
+    for (i, &a) in absent.iter().enumerate() {
+        if a {
+            assert_eq!(flags[i], 0, "absent Gaussian {i}");
+        } else {
+            assert_eq!(flags[i], cpu.flags[k], "present Gaussian {i}");
+            k += 1;
+        }
+    }
+    assert_eq!(counts, cpu.inside_counts);
+    // The case is not vacuous: some present Gaussians are inside, in front and in balls.
+    for bit in [FLAG_INSIDE, FLAG_IN_FRONT, FLAG_IN_BALL] {
+        assert!(cpu.flags.iter().any(|f| f & bit != 0), "flag {bit}");
+    }
+    ctx.check_validation().unwrap();
+}

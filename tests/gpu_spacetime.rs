@@ -277,3 +277,83 @@ fn temporal_step_matches_the_reference() {
     assert!(e.contains("output positions") && e.contains("15000"), "{e}");
     ctx.check_validation().unwrap();
 }
+
+/// LPM in time: the centres at the frame's time, NaN for Gaussians whose temporal weight there
+/// is below the presence weight; cases within a hair of the weight are skipped (f32 vs f64).
+#[test]
+fn frame_positions_match_the_reference() {
+    use lpmsplat::reference::spacetime::{frame_position, temporal_weight, PRESENT_MIN_WEIGHT};
+    let ctx = ctx();
+    let step = TemporalStep::new(&ctx).unwrap();
+    let mut rng = Pcg64::seed_from_u64(0xF7A3);
+    let n = 4_000;
+    let params = random_params(&mut rng, n);
+    let dev = Device::upload(&ctx, &flatten(&params));
+    let out = GpuBuffer::<f32>::from_slice(&ctx, "frame positions", &vec![7.0; 3 * n]).unwrap();
+    for t in [0.0f32, 0.5, 0.93] {
+        out.upload(&vec![7.0; 3 * n]).unwrap();
+        let mut rec = Recorder::new(&ctx).unwrap();
+        step.record_positions(
+            &mut rec,
+            &dev.buffers(),
+            &out,
+            At { count: n, t },
+            PRESENT_MIN_WEIGHT,
+        )
+        .unwrap();
+        rec.submit_and_wait().unwrap();
+        let got = out.read().unwrap();
+        let (mut present, mut absent) = (0, 0);
+        for (i, p) in params.iter().enumerate() {
+            let w = temporal_weight(p, t as f64);
+            if (w / PRESENT_MIN_WEIGHT - 1.0).abs() < 1e-4 {
+                continue;
+            }
+            let g = &got[3 * i..3 * i + 3];
+            match frame_position(p, t as f64, PRESENT_MIN_WEIGHT) {
+                Some(want) => {
+                    present += 1;
+                    let scale = p
+                        .position
+                        .iter()
+                        .chain(&p.motion)
+                        .fold(0.0f64, |a, v| a.max(v.abs()));
+                    for k in 0..3 {
+                        assert_close("frame position", i, g[k], want[k], scale);
+                    }
+                }
+                None => {
+                    absent += 1;
+                    assert!(
+                        g.iter().all(|v| v.is_nan()),
+                        "Gaussian {i} (weight {w}): {g:?}"
+                    );
+                }
+            }
+        }
+        // The random set exercises both sides at every time.
+        assert!(
+            present > n / 10 && absent > n / 10,
+            "t {t}: {present} present, {absent} absent"
+        );
+    }
+    // The presence weight must be a weight.
+    let mut rec = Recorder::new(&ctx).unwrap();
+    let e = step
+        .record_positions(&mut rec, &dev.buffers(), &out, At { count: n, t: 0.5 }, 0.0)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("presence weight"), "{e}");
+    let small = GpuBuffer::<f32>::from_slice(&ctx, "small", &[0.0; 6]).unwrap();
+    let e = step
+        .record_positions(
+            &mut rec,
+            &dev.buffers(),
+            &small,
+            At { count: n, t: 0.5 },
+            0.05,
+        )
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("need"), "{e}");
+}

@@ -127,6 +127,35 @@ fn spacetime_lite_learns_the_motion_a_still_model_cannot() {
             "frame {k}"
         );
     }
+    // bench fps times the temporal step with the render, at a chosen time.
+    let o = lpmsplat()
+        .args([
+            "bench",
+            "fps",
+            "--ply",
+            out.join("point_cloud.ply").to_str().unwrap(),
+            "--model",
+            "spacetime-lite",
+            "--time",
+            "0.4",
+            "--width",
+            "160",
+            "--height",
+            "120",
+            "--frames",
+            "2",
+            "--warmup",
+            "0",
+            "--json",
+            out.join("fps.json").to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let f: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("fps.json")).unwrap()).unwrap();
+    assert!(f[0]["fps_median"].as_f64().unwrap() > 0.0, "{f}");
+    assert!(f[0]["intersections"].as_u64().unwrap() > 0, "{f}");
     // The still model read as a video model lacks the temporal groups: named.
     let o = lpmsplat()
         .args([
@@ -170,4 +199,88 @@ fn spacetime_lite_refuses_a_still_scene() {
         !o.status.success() && e.contains("video scene") && e.contains("Fix:"),
         "{e}"
     );
+}
+
+/// LPM in time on the video fixture: `train --lpm` runs LPM's steps on the video model, each
+/// step pairs the trained view with another camera's view of the same frame (its per-step
+/// telemetry names both), and `bench trade --model spacetime-lite` evaluates ADC and ADC+LPM
+/// on the test camera over all frames and times each model at the test view's time.
+#[test]
+fn lpm_runs_in_time_on_a_video_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("lpm");
+    let o = lpmsplat()
+        .args([
+            "train",
+            fixture().to_str().unwrap(),
+            "--model",
+            "spacetime-lite",
+            "--lpm",
+            "--iterations",
+            "700",
+            "--init-points",
+            "3000",
+            "-o",
+            out.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{text}");
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
+    let steps = m["lpm"]["per_step"]
+        .as_array()
+        .expect("LPM per-step telemetry");
+    assert_eq!(steps.len(), 2, "LPM at 600 and 700: {steps:?}");
+    let scene =
+        lpmsplat::scene::Scene::load(&fixture(), &lpmsplat::scene::LoadOptions::default()).unwrap();
+    let times = scene.view_times.clone().unwrap();
+    for s in steps {
+        let v = s["view"].as_u64().unwrap() as usize;
+        let r = s["reference"].as_u64().expect("every view has a neighbour") as usize;
+        assert_eq!(times[v], times[r], "step {s}");
+        assert_ne!(
+            scene.views[v].pose.center(),
+            scene.views[r].pose.center(),
+            "step {s}"
+        );
+    }
+    assert!(m["psnr"].as_f64().unwrap() > 26.0, "{}", m["psnr"]);
+
+    let trade = dir.path().join("trade");
+    let o = lpmsplat()
+        .args([
+            "bench",
+            "trade",
+            fixture().to_str().unwrap(),
+            "--model",
+            "spacetime-lite",
+            "--runs",
+            "adc,lpm",
+            "--iterations",
+            "200",
+            "--init-points",
+            "2000",
+            "--fps-frames",
+            "1",
+            "-o",
+            trade.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let t: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(trade.join("trade.json")).unwrap()).unwrap();
+    let runs = t["runs"].as_array().unwrap();
+    assert_eq!(runs.len(), 2, "{t}");
+    for r in runs {
+        assert!(r["psnr"].as_f64().unwrap() > 20.0, "{r}");
+        assert!(r["fps_1352x1014"].as_f64().unwrap() > 0.0, "{r}");
+    }
+    assert_eq!(t["model"], "spacetime-lite", "{t}");
+    // The final models carry the temporal groups.
+    let ply = std::fs::read(trade.join("adc+lpm.ply")).unwrap();
+    let end = ply.windows(10).position(|w| w == b"end_header").unwrap();
+    assert!(String::from_utf8_lossy(&ply[..end]).contains("trbf_center"));
 }

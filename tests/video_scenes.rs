@@ -351,3 +351,39 @@ fn shared_panoptic_basketball_when_present() {
     let img = load_view_image(&s.view(s.test[0], 49)).unwrap();
     assert_eq!((img.width, img.height), (640, 360));
 }
+
+/// LPM in time pairs a view with other cameras' views of the same instant: a zone is
+/// triangulated from two views of one time. Without the times the same cameras' other frames
+/// compete (and the nearest-centre fallback would pick the same camera at another frame, with
+/// no baseline at all).
+#[test]
+fn lpm_neighbours_of_a_video_view_share_its_time() {
+    use lpmsplat::lpm::neighbours::{
+        select_neighbours, select_neighbours_at_times, NeighbourSettings,
+    };
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/n3v_tiny");
+    let scene = lpmsplat::scene::Scene::load(&dir, &LoadOptions::default()).unwrap();
+    let times = scene.view_times.clone().unwrap();
+    let s = NeighbourSettings::default();
+    let n = select_neighbours_at_times(&scene.views, &scene.train, Some(&times), &s);
+    for &v in &scene.train {
+        assert!(!n.of[v].is_empty(), "view {v} has no neighbour");
+        for &o in &n.of[v] {
+            assert_eq!(
+                times[o], times[v],
+                "view {v} paired with {o} of another time"
+            );
+            let (a, b) = (scene.views[v].pose.center(), scene.views[o].pose.center());
+            let d: f64 = (0..3).map(|k| a[k] - b[k]).map(|x| x * x).sum();
+            assert!(d > 1e-6, "view {v} paired with its own camera ({o})");
+        }
+    }
+    let plain = select_neighbours(&scene.views, &scene.train, &s);
+    assert!(
+        scene
+            .train
+            .iter()
+            .any(|&v| plain.of[v].iter().any(|&o| times[o] != times[v])),
+        "without times, some neighbour is of another time (the case the filter exists for)"
+    );
+}

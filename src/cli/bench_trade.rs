@@ -12,12 +12,13 @@ use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use lpmsplat::error::write_atomic;
-use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions};
+use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder};
 use lpmsplat::lpips::Lpips;
 use lpmsplat::lpm::strategy::{LpmConfig, LpmStrategy, PruneMode};
 use lpmsplat::lpm::ZoneGeometry;
 use lpmsplat::render::forward::{FrameSettings, Renderer};
 use lpmsplat::render::layout::{CameraGpu, RenderConstants};
+use lpmsplat::render::spacetime::TimedModel;
 use lpmsplat::scene::{images, Scene};
 use lpmsplat::splats::gpu::GpuSplats;
 use lpmsplat::splats::write_ply;
@@ -54,6 +55,10 @@ pub struct TradeArgs {
     /// interrupted benchmark keeps the rows it reached.
     #[arg(long, value_delimiter = ',')]
     pub eval_at: Vec<u32>,
+    /// Random initial points when the scene has no point cloud (video scenes, transforms.json
+    /// without points).
+    #[arg(long, default_value_t = 100_000)]
+    pub init_points: usize,
     /// Output folder for trade.json, trade.md and trade.png.
     #[arg(long, short = 'o', default_value = "bench_trade")]
     pub out: PathBuf,
@@ -142,12 +147,6 @@ pub const RUNS: [(&str, [u8; 3]); 7] = [
 
 pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
     anyhow::ensure!(
-        args.model != BaseModel::SpacetimeLite,
-        "bench trade --model spacetime-lite: LPM in time (zones on the Gaussians' positions at \
-         the frame's time) and the time-aware evaluation and FPS it needs are not built yet. \
-         Fix: train the video model with `train --model spacetime-lite` (no --lpm)"
-    );
-    anyhow::ensure!(
         args.iterations > 0,
         "bench trade: --iterations 0. Fix: pass at least 1"
     );
@@ -171,10 +170,17 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
     let train_images = images::load_images(&scene, &scene.train)?;
     let test_images = images::load_images(&scene, &scene.test)?;
     let seeds: Vec<u64> = (0..args.seeds as u64).map(|i| args.seed + i).collect();
+    // The model's own colour degree (SpacetimeGaussians lite: none), 3 otherwise.
+    let sh_degree = {
+        let mut c = TrainConfig::default();
+        args.model.configure(&mut c);
+        c.sh_degree
+    };
     let inits = seeds
         .iter()
         .map(|&seed| {
-            initial_model(&scene, None, 100_000, seed, 3).map(|m| args.model.initialise(m, seed))
+            initial_model(&scene, None, args.init_points, seed, sh_degree)
+                .map(|m| args.model.initialise(m, seed))
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
     let ctx = GpuContext::new(gpu)?;
@@ -550,20 +556,40 @@ fn fps_of(
 ) -> anyhow::Result<f64> {
     let v = &scene.views[scene.test[0]];
     let cam = CameraGpu::new(&v.camera.resized(1352, 1014), &v.pose);
-    let splats = GpuSplats::upload(ctx, model, model.len().max(1))?;
+    let model_gpu = GpuSplats::upload(ctx, model, model.len().max(1))?;
+    // A video model: each frame is the temporal step at the view's time, then the render.
+    let timed = match scene.times_of(&scene.test[..1]) {
+        Some(t) if !model.extra.is_empty() => {
+            let timed = TimedModel::new(ctx, &model_gpu)?;
+            Some((timed, t[0]))
+        }
+        _ => None,
+    };
+    let splats = timed.as_ref().map_or(&model_gpu, |t| &t.0.instant);
+    let refresh = || -> anyhow::Result<()> {
+        if let Some((timed, t)) = &timed {
+            let mut rec = Recorder::new(ctx)?;
+            rec.begin()?;
+            timed.record(&mut rec, &model_gpu, *t)?;
+            rec.submit_and_wait()?;
+        }
+        Ok(())
+    };
     let cameras = GpuBuffer::from_slice(ctx, "cameras", &[cam])?;
     let settings = FrameSettings {
-        sh_degree: model.sh_degree,
+        sh_degree: splats.sh_degree,
         background: [0.0; 3],
         constants: RenderConstants::default(),
         filter3d: None,
     };
     let mut r = Renderer::for_camera(ctx, model.len().max(1), &cam)?;
-    r.render_blocking(&splats, &cameras, 0, &cam, &settings)?;
+    refresh()?;
+    r.render_blocking(splats, &cameras, 0, &cam, &settings)?;
     let mut ms = Vec::new();
     for _ in 0..frames.max(1) {
         let t0 = Instant::now();
-        r.render_blocking(&splats, &cameras, 0, &cam, &settings)?;
+        refresh()?;
+        r.render_blocking(splats, &cameras, 0, &cam, &settings)?;
         ms.push(t0.elapsed().as_secs_f64());
     }
     ms.sort_by(|a, b| a.total_cmp(b));

@@ -483,11 +483,6 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     let scene = Scene::load(&args.scene.scene, &args.scene.load_options()?)?;
     let config = args.config(&scene)?;
     let lpm_config = args.lpm.config(args.densify_interval, args.seed)?;
-    anyhow::ensure!(
-        !(lpm_config.is_some() && args.model == BaseModel::SpacetimeLite),
-        "--lpm with --model spacetime-lite: LPM in time (zones on the Gaussians' positions at the \
-         frame's time, counting only those present then) is not built yet. Fix: drop --lpm"
-    );
     let lpips = args.lpips.load()?;
     prepare_output(&args.out)?;
     let checkpoint_path = args.out.join("checkpoint.bin");

@@ -305,8 +305,12 @@ pub fn extract_correspondences(
     progress: Option<&indicatif::ProgressBar>,
 ) -> anyhow::Result<(Correspondences, MatchSummary)> {
     let start = Instant::now();
-    let neighbours =
-        neighbours::select_neighbours(&scene.views, &scene.train, &settings.neighbours);
+    let neighbours = neighbours::select_neighbours_at_times(
+        &scene.views,
+        &scene.train,
+        scene.view_times.as_deref(),
+        &settings.neighbours,
+    );
     let pair_list = neighbours.pairs();
     let source = settings.resolved_source(scene);
     let thr = settings.epipolar_threshold_px;
@@ -418,8 +422,12 @@ pub fn load_or_build(
     let (sh, st) = (cache::scene_hash(scene), settings.hash());
     let miss = match cache::read_cache(cache_path, sh, st, scene.views.len()) {
         Ok(pairs) => {
-            let neighbours =
-                neighbours::select_neighbours(&scene.views, &scene.train, &settings.neighbours);
+            let neighbours = neighbours::select_neighbours_at_times(
+                &scene.views,
+                &scene.train,
+                scene.view_times.as_deref(),
+                &settings.neighbours,
+            );
             let expected = neighbours.pairs();
             let got: Vec<(usize, usize)> =
                 pairs.iter().map(|p| (p.a as usize, p.b as usize)).collect();

@@ -82,6 +82,20 @@ pub fn select_neighbours(
     candidates: &[usize],
     s: &NeighbourSettings,
 ) -> Neighbours {
+    select_neighbours_at_times(views, candidates, None, s)
+}
+
+/// [`select_neighbours`] for a video scene: `times[v]` is view `v`'s time, and a view's
+/// neighbours are other cameras' views of the same time (LPM in time: a zone is triangulated
+/// from two views of one instant; the same camera at another time has no baseline and sees
+/// other content). `None`: a still scene, every view a candidate.
+pub fn select_neighbours_at_times(
+    views: &[View],
+    candidates: &[usize],
+    times: Option<&[f64]>,
+    s: &NeighbourSettings,
+) -> Neighbours {
+    let same_time = |a: usize, b: usize| times.is_none_or(|t| t[a] == t[b]);
     let mut of = vec![Vec::new(); views.len()];
     let mut kind = vec![NeighbourKind::None; views.len()];
     let max_angle = s.max_angle_deg.to_radians();
@@ -91,7 +105,7 @@ pub fn select_neighbours(
         let mut within: Vec<usize> = candidates
             .iter()
             .copied()
-            .filter(|&o| o != v)
+            .filter(|&o| o != v && same_time(o, v))
             .filter(|&o| {
                 let a = optical_axis_angle(pose, &views[o].pose);
                 a > 0.0 && a <= max_angle
@@ -109,7 +123,7 @@ pub fn select_neighbours(
         let nearest = candidates
             .iter()
             .copied()
-            .filter(|&o| o != v)
+            .filter(|&o| o != v && same_time(o, v))
             .min_by(|&x, &y| {
                 let dx = DVec3::from(views[x].pose.center()).distance_squared(c);
                 let dy = DVec3::from(views[y].pose.center()).distance_squared(c);

@@ -399,6 +399,8 @@ pub struct LpmStrategy {
     flags: GpuBuffer<u32>,
     scale: GpuBuffer<f32>,
     candidates: GpuBuffer<u32>,
+    /// The centres at the frame's time, for a model whose Gaussians move (LPM in time).
+    frame_positions: GpuBuffer<f32>,
     counters: GpuBuffer<u32>,
     pending: Option<Pending>,
     pub totals: LpmTotals,
@@ -473,6 +475,12 @@ impl LpmStrategy {
             flags: per("lpm flags")?,
             scale: GpuBuffer::new(ctx, "lpm threshold scale", 1024, BufferKind::DeviceLocal)?,
             candidates: per("lpm prune candidates")?,
+            frame_positions: GpuBuffer::new(
+                ctx,
+                "lpm frame positions",
+                3 * 1024,
+                BufferKind::DeviceLocal,
+            )?,
             counters: GpuBuffer::new(ctx, "lpm counters", 4, BufferKind::DeviceLocal)?,
             pending: None,
             totals: LpmTotals::default(),
@@ -492,6 +500,8 @@ impl LpmStrategy {
         self.scale = GpuBuffer::new(ctx, "lpm threshold scale", cap, BufferKind::DeviceLocal)?;
         self.candidates =
             GpuBuffer::new(ctx, "lpm prune candidates", cap, BufferKind::DeviceLocal)?;
+        self.frame_positions =
+            GpuBuffer::new(ctx, "lpm frame positions", 3 * cap, BufferKind::DeviceLocal)?;
         Ok(())
     }
 
@@ -620,6 +630,23 @@ impl LpmStrategy {
         Ok((report, records))
     }
 
+    /// For a model whose Gaussians move: records the current Gaussians' centres at the frame's
+    /// time (NaN for those absent from it) and returns them for the membership; `None`: the
+    /// stored positions are where they are. The per-Gaussian scratch must be sized.
+    fn record_positions(&self, t: &mut DensityContext) -> anyhow::Result<Option<&GpuBuffer<f32>>> {
+        let Some(moving) = t.moving else {
+            return Ok(None);
+        };
+        moving.record_frame_positions(
+            t.rec,
+            &t.state.params,
+            t.state.count(),
+            &self.frame_positions,
+        )?;
+        t.rec.barrier();
+        Ok(Some(&self.frame_positions))
+    }
+
     /// Records the LPM opacity reset of the current Gaussians from the flags of the last
     /// membership pass.
     fn record_reset(&self, t: &mut DensityContext) -> anyhow::Result<()> {
@@ -652,9 +679,10 @@ impl LpmStrategy {
         self.ensure_gaussians(t.state.capacity().max(count))?;
         self.ensure_zones(records.len())?;
         self.zones.upload(records)?;
+        let positions = self.record_positions(t)?;
         self.gpu.record_membership(
             t.rec,
-            &t.state.params.positions,
+            positions.unwrap_or(&t.state.params.positions),
             count as u32,
             &self.zones,
             records.len() as u32,
@@ -784,9 +812,10 @@ impl LpmStrategy {
         let resets = nz > 0 && self.config.resets_at(p.report.iteration);
         if nz > 0 && (resets || self.config.add_points) {
             self.ensure_gaussians(t.state.capacity().max(count))?;
+            let positions = self.record_positions(t)?;
             self.gpu.record_membership(
                 t.rec,
-                &t.state.params.positions,
+                positions.unwrap_or(&t.state.params.positions),
                 count as u32,
                 &self.zones,
                 nz,

@@ -142,3 +142,15 @@ pub fn instant_backward(p: &Temporal, t: f64, d: &Instant) -> TemporalGrads {
     g.t_log_scale = dl * 2.0 * u2;
     g
 }
+
+/// Temporal weight below which LPM in time treats a Gaussian as absent from the frame (our
+/// decision, issue 18): at 5 % of its opacity a Gaussian cannot be what an error region of this
+/// frame shows, and densifying or resetting it for that region would act on content that lives
+/// at other times. `e^{−u²} ≥ 0.05` keeps `|t − c| ≤ 1.73·e^{s}`.
+pub const PRESENT_MIN_WEIGHT: f64 = 0.05;
+
+/// The centre of a Gaussian at time `t` when its temporal weight there is at least
+/// `min_weight` (`glsl/spacetime/positions_at_time.comp`, which writes NaN for `None`).
+pub fn frame_position(p: &Temporal, t: f64, min_weight: f64) -> Option<[f64; 3]> {
+    (temporal_weight(p, t) >= min_weight).then(|| instant(p, t).position)
+}

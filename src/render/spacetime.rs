@@ -145,10 +145,19 @@ pub struct At {
     pub t: f32,
 }
 
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct PositionsPush {
+    count: u32,
+    t: f32,
+    max_u2: f32,
+}
+
 pub struct TemporalStep {
     ctx: Arc<GpuContext>,
     forward: ComputePipeline,
     backward: ComputePipeline,
+    positions: ComputePipeline,
 }
 
 impl TemporalStep {
@@ -171,6 +180,15 @@ impl TemporalStep {
                 shaders::SPACETIME_TEMPORAL_BACKWARD,
                 13,
                 size_of::<BackwardPush>() as u32,
+                WG,
+                &[],
+            )?,
+            positions: ComputePipeline::new(
+                ctx,
+                "spacetime/positions_at_time",
+                shaders::SPACETIME_POSITIONS_AT_TIME,
+                5,
+                size_of::<PositionsPush>() as u32,
                 WG,
                 &[],
             )?,
@@ -261,6 +279,93 @@ impl TemporalStep {
             },
             self.ctx.groups_1d(count as u64, WG),
         );
+        Ok(())
+    }
+
+    /// Records the centres of the first `at.count` Gaussians of `params` at time `at.t` into
+    /// `out` (3 floats each), NaN for those whose temporal weight there is below `min_weight`
+    /// (LPM in time: [`crate::reference::spacetime::frame_position`]). No barriers.
+    pub fn record_positions(
+        &self,
+        rec: &mut Recorder,
+        params: &TemporalBuffers,
+        out: &GpuBuffer<f32>,
+        at: At,
+        min_weight: f64,
+    ) -> anyhow::Result<()> {
+        let At { count, t } = at;
+        params.check("parameter", count)?;
+        ensure!(
+            out.len() >= 3 * count,
+            "temporal positions: the output holds {} floats, {count} Gaussians need {}",
+            out.len(),
+            3 * count
+        );
+        ensure!(t.is_finite(), "temporal positions: time {t} is not finite");
+        ensure!(
+            min_weight > 0.0 && min_weight <= 1.0,
+            "temporal positions: the presence weight {min_weight} must lie in (0, 1]"
+        );
+        if count == 0 {
+            return Ok(());
+        }
+        rec.dispatch(
+            &self.positions,
+            &[
+                params.positions,
+                params.motion,
+                params.t_center,
+                params.t_log_scale,
+                out,
+            ],
+            &PositionsPush {
+                count: count as u32,
+                t,
+                max_u2: -(min_weight.ln()) as f32,
+            },
+            self.ctx.groups_1d(count as u64, WG),
+        );
+        Ok(())
+    }
+}
+
+/// A video model drawn at any time as still Gaussians, as a player does: each displayed time,
+/// the temporal step writes the model at that time into `instant`, which any 3DGS renderer
+/// draws (`bench fps`, `bench trade`'s FPS). Scales and colour are copied once.
+pub struct TimedModel {
+    step: TemporalStep,
+    pub instant: GpuSplats,
+}
+
+impl TimedModel {
+    /// For the video model `model` (its temporal groups as extra groups).
+    pub fn new(ctx: &Arc<GpuContext>, model: &GpuSplats) -> anyhow::Result<Self> {
+        TemporalBuffers::of(model)?;
+        let n = model.count;
+        let instant = GpuSplats::zeroed(ctx, "instant ", 0, n, n.max(1))?;
+        let mut rec = Recorder::new(ctx)?;
+        rec.begin()?;
+        rec.copy(&model.log_scales, &instant.log_scales, 3 * n);
+        rec.copy(&model.sh_dc, &instant.sh_dc, 3 * n);
+        rec.submit_and_wait()?;
+        Ok(Self {
+            step: TemporalStep::new(ctx)?,
+            instant,
+        })
+    }
+
+    /// Records `model` at time `t` into `self.instant`, then a barrier.
+    pub fn record(&self, rec: &mut Recorder, model: &GpuSplats, t: f32) -> anyhow::Result<()> {
+        self.step.record_forward(
+            rec,
+            &TemporalBuffers::of(model)?,
+            &InstantBuffers::of(&self.instant),
+            At {
+                count: model.count,
+                t,
+            },
+        )?;
+        rec.barrier();
         Ok(())
     }
 }

@@ -21,6 +21,7 @@ use std::sync::Arc;
 use super::adam::SplatState;
 use super::density::{DensifyArgs, DensifyOutcome, DensityControl};
 use crate::gpu::{GpuBuffer, GpuContext, Recorder};
+use crate::splats::gpu::GpuSplats;
 
 /// What a strategy reports for one iteration (telemetry; typed access through `as_any`).
 pub trait StrategyEvent: Any + Debug + Send + Sync {
@@ -44,6 +45,22 @@ pub enum Primitive {
     Surfel,
 }
 
+/// Where the Gaussians are in the frame being trained, for a model whose Gaussians move (a video
+/// model): strategies that test positions against the frame (LPM's zones) use these centres
+/// instead of the stored ones.
+pub trait FramePositions {
+    /// Records into `rec` the centres of Gaussians `0..count` of `params` at the time of the
+    /// frame rendered last into `out` (3 floats each), NaN for a Gaussian absent from that frame
+    /// (NaN is outside every zone). No barriers.
+    fn record_frame_positions(
+        &self,
+        rec: &mut Recorder,
+        params: &GpuSplats,
+        count: usize,
+        out: &GpuBuffer<f32>,
+    ) -> anyhow::Result<()>;
+}
+
 pub struct DensityContext<'a> {
     pub ctx: &'a Arc<GpuContext>,
     pub rec: &'a mut Recorder,
@@ -63,6 +80,9 @@ pub struct DensityContext<'a> {
     /// The model's extra groups' values for a new Gaussian, one row per group
     /// (`ModelPasses::new_gaussian_extras`).
     pub new_extras: Vec<Vec<f32>>,
+    /// The model's centres at the frame's time, when its Gaussians move; `None`: the stored
+    /// positions are where they are.
+    pub moving: Option<&'a dyn FramePositions>,
 }
 
 /// The iteration's inputs a strategy may use.

@@ -527,6 +527,7 @@ impl Trainer {
             height: slot.height,
             primitive: self.passes.primitive(),
             new_extras: self.passes.new_gaussian_extras(),
+            moving: self.passes.frame_positions(),
         })
     }
 

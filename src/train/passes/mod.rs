@@ -21,7 +21,7 @@ use anyhow::Result;
 use super::adam::SplatState;
 use super::config::TrainConfig;
 use super::density::DensityControl;
-use super::strategy::Primitive;
+use super::strategy::{FramePositions, Primitive};
 use crate::gpu::{GpuBuffer, GpuContext, Recorder, TimestampPool};
 use crate::render::forward::Capacity;
 use crate::render::layout::{CameraGpu, ProjectedGpu};
@@ -110,6 +110,10 @@ pub trait ModelPasses: Send {
     /// group in their order.
     fn new_gaussian_extras(&self) -> Vec<Vec<f32>> {
         Vec::new()
+    }
+    /// The centres at the current frame's time, for a model whose Gaussians move.
+    fn frame_positions(&self) -> Option<&dyn FramePositions> {
+        None
     }
     /// `model` (the download of `params`) as written for viewers.
     fn export(

@@ -15,6 +15,7 @@ use anyhow::{ensure, Result};
 use super::gaussians::GaussianPasses;
 use super::{FrameArgs, GradArgs, ModelPasses};
 use crate::gpu::{GpuBuffer, GpuContext, Recorder, TimestampPool};
+use crate::reference::spacetime::PRESENT_MIN_WEIGHT;
 use crate::render::forward::Capacity;
 use crate::render::layout::{CameraGpu, ProjectedGpu};
 use crate::render::spacetime::{At, InstantBuffers, TemporalBuffers, TemporalStep};
@@ -23,7 +24,7 @@ use crate::splats::GaussianParams;
 use crate::train::adam::SplatState;
 use crate::train::config::TrainConfig;
 use crate::train::density::DensityControl;
-use crate::train::strategy::Primitive;
+use crate::train::strategy::{FramePositions, Primitive};
 
 pub use crate::render::spacetime::{extra_groups, GROUPS};
 pub use crate::train::config::SpacetimeRates;
@@ -279,6 +280,10 @@ impl ModelPasses for SpacetimePasses {
         vec![vec![0.0; 9], vec![0.0; 4], vec![self.time], vec![0.0]]
     }
 
+    fn frame_positions(&self) -> Option<&dyn FramePositions> {
+        Some(self)
+    }
+
     fn export(
         &mut self,
         _params: &GpuSplats,
@@ -287,5 +292,29 @@ impl ModelPasses for SpacetimePasses {
         model: GaussianParams,
     ) -> Result<GaussianParams> {
         Ok(model)
+    }
+}
+
+/// LPM in time: zones are tested against the centres at the trained frame's time, and a
+/// Gaussian whose temporal weight there is below [`PRESENT_MIN_WEIGHT`] is absent (neither
+/// inside nor in front of a zone, not counted), so a zone acts on what the frame shows.
+impl FramePositions for SpacetimePasses {
+    fn record_frame_positions(
+        &self,
+        rec: &mut Recorder,
+        params: &GpuSplats,
+        count: usize,
+        out: &GpuBuffer<f32>,
+    ) -> Result<()> {
+        self.step.record_positions(
+            rec,
+            &temporal(params)?,
+            out,
+            At {
+                count,
+                t: self.time,
+            },
+            PRESENT_MIN_WEIGHT,
+        )
     }
 }
