@@ -9,7 +9,7 @@
 //! [`crate::train::passes::spacetime`]).
 
 use crate::splats::GaussianParams;
-use crate::train::config::SpacetimeRates;
+use crate::train::config::SpacetimeTraining;
 use crate::train::density::Statistic;
 use crate::train::passes::surfels::{SurfelTraining, UNUSED_LOG_SCALE};
 use crate::train::trainer::TrainConfig;
@@ -185,7 +185,7 @@ impl BaseModel {
         };
         config.spacetime = match (self, config.spacetime) {
             (BaseModel::SpacetimeLite, Some(r)) => Some(r),
-            (BaseModel::SpacetimeLite, None) => Some(SpacetimeRates::default()),
+            (BaseModel::SpacetimeLite, None) => Some(SpacetimeTraining::default()),
             _ => None,
         };
         if *self == BaseModel::SpacetimeLite {

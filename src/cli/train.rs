@@ -15,6 +15,7 @@ use lpmsplat::lpm::{self, ZoneGeometry};
 use lpmsplat::models::BaseModel;
 use lpmsplat::scene::{images, Image, Scene};
 use lpmsplat::splats::{self, read_ply, write_ply, write_splat, GaussianParams};
+use lpmsplat::train::config::ChildTime;
 use lpmsplat::train::nan_check::NonFiniteCheck;
 use lpmsplat::train::passes::surfels::SurfelTraining;
 use lpmsplat::train::trainer::{Background, TrainConfig, Trainer, ViewMetrics};
@@ -125,6 +126,10 @@ pub struct TrainArgs {
     /// reference's test never fires).
     #[arg(long)]
     pub screen_size_limit: Option<f32>,
+    /// spacetime-lite: the temporal centre of clones and split children: random (uniform over
+    /// the segment, the official rule) or parent.
+    #[arg(long, value_parser = ChildTime::parse)]
+    pub child_time: Option<ChildTime>,
     #[command(flatten)]
     pub lpm: Box<LpmArgs>,
 }
@@ -385,6 +390,15 @@ impl TrainArgs {
             }
         }
         self.model.configure(&mut c);
+        match (c.spacetime.as_mut(), self.child_time) {
+            (Some(st), Some(ct)) => st.child_time = ct,
+            (None, Some(_)) => anyhow::bail!(
+                "--child-time applies to --model spacetime-lite only (this run trains {}). Fix: \
+                 drop the flag",
+                self.model.name()
+            ),
+            _ => {}
+        }
         Ok(c)
     }
 }

@@ -51,7 +51,7 @@ pub struct TrainConfig {
     pub surfels: Option<SurfelTraining>,
     /// SpacetimeGaussians (lite): the model has the temporal groups, trained at these rates
     /// (`None`: still scenes).
-    pub spacetime: Option<SpacetimeRates>,
+    pub spacetime: Option<SpacetimeTraining>,
 }
 
 impl Default for TrainConfig {
@@ -115,7 +115,7 @@ impl TrainConfig {
         if let Some(r) = &self.spacetime {
             j["spacetime"] = serde_json::json!({
                 "lr_motion": r.motion, "lr_omega": r.omega, "lr_t_center": r.t_center,
-                "lr_t_log_scale": r.t_log_scale,
+                "lr_t_log_scale": r.t_log_scale, "child_time": r.child_time.name(),
             });
         }
         // Only when not the 3DGS default, so checkpoints from before the key still resume.
@@ -173,23 +173,56 @@ impl SurfelTraining {
     }
 }
 
-/// The temporal groups' learning rates (the official N3DV settings, BASE_MODELS.md §4.2).
+/// The temporal centre of a Gaussian that density control creates by cloning or splitting.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ChildTime {
+    /// Uniform in [0, 1), the whole segment: the official `densify_and_clone` and
+    /// `densify_and_splitv2` (BASE_MODELS.md §4.6), so detail found at one time can serve any.
+    #[default]
+    Random,
+    /// The parent's centre (what every other per-Gaussian group does).
+    Parent,
+}
+
+impl ChildTime {
+    pub fn parse(s: &str) -> anyhow::Result<ChildTime> {
+        Ok(match s {
+            "random" => ChildTime::Random,
+            "parent" => ChildTime::Parent,
+            other => anyhow::bail!(
+                "--child-time {other:?} is unknown. Fix: choose random (the official rule) or parent"
+            ),
+        })
+    }
+    pub fn name(&self) -> &'static str {
+        match self {
+            ChildTime::Random => "random",
+            ChildTime::Parent => "parent",
+        }
+    }
+}
+
+/// SpacetimeGaussians' training settings: the temporal groups' learning rates (the official
+/// N3DV settings, BASE_MODELS.md §4.2) and the temporal centre of new Gaussians.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct SpacetimeRates {
+pub struct SpacetimeTraining {
     /// Motion, relative to the scene extent, not decayed (1.6e-4 × 0.5 × 3.5).
     pub motion: f64,
     pub omega: f64,
     pub t_center: f64,
     pub t_log_scale: f64,
+    /// Clones' and split children's temporal centre.
+    pub child_time: ChildTime,
 }
 
-impl Default for SpacetimeRates {
+impl Default for SpacetimeTraining {
     fn default() -> Self {
         Self {
             motion: 1.6e-4 * 0.5 * 3.5,
             omega: 1e-4,
             t_center: 1e-4,
             t_log_scale: 0.03,
+            child_time: ChildTime::Random,
         }
     }
 }

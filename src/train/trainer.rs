@@ -475,6 +475,14 @@ impl Trainer {
             };
             let outcome = strategy.densify(&mut self.density_context(at.view)?, at, &args)?;
             self.follow_capacity()?;
+            if !outcome.skipped && outcome.after > outcome.kept {
+                self.passes.record_new_gaussians(
+                    &mut self.rec,
+                    &self.state,
+                    outcome.kept..outcome.after,
+                    it,
+                )?;
+            }
             // New and moved Gaussians need their derived per-Gaussian data (Mip-Splatting's 3D
             // filter: the official code recomputes it after every densification).
             if !outcome.skipped {

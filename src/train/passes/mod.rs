@@ -111,6 +111,18 @@ pub trait ModelPasses: Send {
     fn new_gaussian_extras(&self) -> Vec<Vec<f32>> {
         Vec::new()
     }
+    /// Density control just created Gaussians `new` (clones and split children, rows after
+    /// the survivors, which copied their parent's every group) at density step `iteration`:
+    /// the model may re-initialise its own data of them. Recorded into the begun `rec`.
+    fn record_new_gaussians(
+        &mut self,
+        _rec: &mut Recorder,
+        _state: &SplatState,
+        _new: std::ops::Range<usize>,
+        _iteration: u32,
+    ) -> Result<()> {
+        Ok(())
+    }
     /// The centres at the current frame's time, for a model whose Gaussians move.
     fn frame_positions(&self) -> Option<&dyn FramePositions> {
         None

@@ -4,6 +4,11 @@
 //! Gaussians, which the 3DGS passes draw and differentiate unchanged, and the still Gaussians'
 //! gradients go back through the temporal step to the model's.
 //!
+//! New Gaussians: clones and split children get a temporal centre uniform over the segment
+//! (the official rule; `glsl/spacetime/random_centres.comp`, [`ChildTime`]), LPM's added points
+//! the time of the frame whose error asked for them; the rest of the official density schedule
+//! (six clone/split rounds, then pruning only) is not followed: ADC's schedule runs.
+//!
 //! Colour: the official lite model uses its three features as RGB directly; here they are the
 //! SH DC coefficients at degree 0 (colour `0.5 + C₀·f`, clamped at 0 like every 3DGS colour), the
 //! same model up to an affine change of variable except that a colour cannot go negative.
@@ -14,7 +19,7 @@ use anyhow::{ensure, Result};
 
 use super::gaussians::GaussianPasses;
 use super::{FrameArgs, GradArgs, ModelPasses};
-use crate::gpu::{GpuBuffer, GpuContext, Recorder, TimestampPool};
+use crate::gpu::{ComputePipeline, GpuBuffer, GpuContext, Recorder, TimestampPool};
 use crate::reference::spacetime::PRESENT_MIN_WEIGHT;
 use crate::render::forward::Capacity;
 use crate::render::layout::{CameraGpu, ProjectedGpu};
@@ -22,18 +27,19 @@ use crate::render::spacetime::{At, InstantBuffers, TemporalBuffers, TemporalStep
 use crate::splats::gpu::{grown_capacity, GpuSplats};
 use crate::splats::GaussianParams;
 use crate::train::adam::SplatState;
-use crate::train::config::TrainConfig;
+use crate::train::config::{ChildTime, TrainConfig};
+use crate::train::density::rng::{fold_seed, rng_uniform};
 use crate::train::density::DensityControl;
 use crate::train::strategy::{FramePositions, Primitive};
 
 pub use crate::render::spacetime::{extra_groups, GROUPS};
-pub use crate::train::config::SpacetimeRates;
+pub use crate::train::config::SpacetimeTraining;
 
 pub struct SpacetimePasses {
     ctx: Arc<GpuContext>,
     inner: GaussianPasses,
     step: TemporalStep,
-    rates: SpacetimeRates,
+    rates: SpacetimeTraining,
     /// The time of every view (indices into the camera buffer).
     view_times: Vec<f32>,
     /// The model at the current frame's time, and its gradients.
@@ -41,7 +47,30 @@ pub struct SpacetimePasses {
     instant_grads: GpuSplats,
     /// The time of the last recorded frame (new Gaussians are centred there).
     time: f32,
+    /// Draws clones' and split children's temporal centres ([`ChildTime::Random`]).
+    random_centres: Option<ComputePipeline>,
+    seed: u32,
     rec: Recorder,
+}
+
+const WG: u32 = 256;
+
+/// Keeps the child-time draws apart from the split's position draws of the same step.
+const CHILD_TIME_SALT: u32 = 0x5354_4354;
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct CentresPush {
+    first: u32,
+    end: u32,
+    seed: u32,
+    step: u32,
+}
+
+/// The temporal centre `glsl/spacetime/random_centres.comp` gives new row `row` at density step
+/// `step` of a run with `seed` (the kernel's numbers, for tests).
+pub fn random_child_centre(seed: u64, step: u32, row: u32) -> f32 {
+    rng_uniform(fold_seed(seed) ^ CHILD_TIME_SALT, step, row, 0) as f32
 }
 
 fn temporal(s: &GpuSplats) -> Result<TemporalBuffers<'_>> {
@@ -86,6 +115,19 @@ impl SpacetimePasses {
             instant: GpuSplats::zeroed(ctx, "instant ", 0, 0, capacity.max(1))?,
             instant_grads: GpuSplats::zeroed(ctx, "instant grad ", 0, 0, capacity.max(1))?,
             time: 0.0,
+            random_centres: match rates.child_time {
+                ChildTime::Random => Some(ComputePipeline::new(
+                    ctx,
+                    "spacetime/random_centres",
+                    crate::shaders::SPACETIME_RANDOM_CENTRES,
+                    1,
+                    std::mem::size_of::<CentresPush>() as u32,
+                    WG,
+                    &[],
+                )?),
+                ChildTime::Parent => None,
+            },
+            seed: fold_seed(config.seed) ^ CHILD_TIME_SALT,
             rec: Recorder::new(ctx)?,
         })
     }
@@ -282,6 +324,41 @@ impl ModelPasses for SpacetimePasses {
 
     fn frame_positions(&self) -> Option<&dyn FramePositions> {
         Some(self)
+    }
+
+    fn record_new_gaussians(
+        &mut self,
+        rec: &mut Recorder,
+        state: &SplatState,
+        new: std::ops::Range<usize>,
+        iteration: u32,
+    ) -> Result<()> {
+        let Some(pipe) = &self.random_centres else {
+            return Ok(());
+        };
+        let centres = temporal(&state.params)?.t_center;
+        ensure!(
+            new.end <= centres.len() && new.start <= new.end,
+            "SpacetimeGaussians: new rows {new:?} outside the {} temporal centres",
+            centres.len()
+        );
+        if new.is_empty() {
+            return Ok(());
+        }
+        rec.barrier();
+        rec.dispatch(
+            pipe,
+            &[centres],
+            &CentresPush {
+                first: new.start as u32,
+                end: new.end as u32,
+                seed: self.seed,
+                step: iteration,
+            },
+            self.ctx.groups_1d(new.len() as u64, WG),
+        );
+        rec.barrier();
+        Ok(())
     }
 
     fn export(
