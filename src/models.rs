@@ -190,6 +190,8 @@ impl BaseModel {
         };
         if *self == BaseModel::SpacetimeLite {
             config.sh_degree = 0;
+            // The official batch: two cameras at one time per step.
+            config.batch_views = 2;
         }
     }
 

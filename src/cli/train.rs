@@ -130,6 +130,11 @@ pub struct TrainArgs {
     /// the segment, the official rule) or parent.
     #[arg(long, value_parser = ChildTime::parse)]
     pub child_time: Option<ChildTime>,
+    /// Views per optimizer step, their gradients averaged: the scheduled view and others of its
+    /// time (another camera of the same frame in a video). Default 2 for spacetime-lite (the
+    /// official batch), 1 otherwise.
+    #[arg(long)]
+    pub batch_views: Option<u32>,
     #[command(flatten)]
     pub lpm: Box<LpmArgs>,
 }
@@ -398,6 +403,13 @@ impl TrainArgs {
                 self.model.name()
             ),
             _ => {}
+        }
+        if let Some(b) = self.batch_views {
+            anyhow::ensure!(
+                (1..=16).contains(&b),
+                "--batch-views {b}: choose 1 to 16 views per step"
+            );
+            c.batch_views = b;
         }
         Ok(c)
     }

@@ -52,6 +52,9 @@ pub struct TrainConfig {
     /// SpacetimeGaussians (lite): the model has the temporal groups, trained at these rates
     /// (`None`: still scenes).
     pub spacetime: Option<SpacetimeTraining>,
+    /// Views per optimizer step: the scheduled view and `batch_views − 1` other training views
+    /// of its time, their gradients averaged (`train::batch`; SpacetimeGaussians: 2).
+    pub batch_views: u32,
 }
 
 impl Default for TrainConfig {
@@ -69,6 +72,7 @@ impl Default for TrainConfig {
             mip_filters: false,
             surfels: None,
             spacetime: None,
+            batch_views: 1,
         }
     }
 }
@@ -100,6 +104,10 @@ impl TrainConfig {
                 "white_background_reset": s.white_background,
             },
         });
+        // Only when batched, so checkpoints from before the key still resume.
+        if self.batch_views != 1 {
+            j["batch_views"] = serde_json::json!(self.batch_views);
+        }
         // Only when on, so checkpoints from before the key still resume.
         if self.mip_filters {
             j["mip_filters"] = serde_json::json!(true);

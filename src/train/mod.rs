@@ -2,6 +2,7 @@
 //! the training data, the base models' passes (`passes`) and the trainer loop.
 
 pub mod adam;
+pub mod batch;
 pub mod checkpoint;
 pub mod config;
 pub mod data;

@@ -26,6 +26,7 @@ use std::sync::Arc;
 use anyhow::Context;
 
 use super::adam::{Adam, SplatState};
+use super::batch::{batch_partners, GradBlend};
 use super::data::{scene_cameras, GpuImages, ViewSchedule};
 use super::density::{DensifyArgs, DensifyOutcome, DensityControl};
 use super::loss::{Loss, LOSS_SLOT_FLOATS};
@@ -45,7 +46,11 @@ pub use super::config::{Background, TrainConfig};
 #[derive(Debug, Clone, Default)]
 pub struct StepReport {
     pub iteration: u32,
+    /// The view whose render density control saw (the last of `views`).
     pub view: usize,
+    /// Every view of the step, the scheduled one first (`batch_views` of them when its time has
+    /// that many).
+    pub views: Vec<usize>,
     pub l1: f32,
     pub ssim: f32,
     pub loss: f32,
@@ -85,6 +90,12 @@ pub struct Trainer {
     image_of_view: Vec<Option<usize>>,
     pub state: SplatState,
     grads: GpuSplats,
+    /// A later view's gradients in a batched step (allocated on the first batched step).
+    batch_grads: Option<GpuSplats>,
+    blend: GradBlend,
+    /// The training views and, for a video, every view's time (batch partners).
+    train_views: Vec<usize>,
+    view_times: Option<Vec<f64>>,
     view_grad_norm: GpuBuffer<f32>,
     /// The base model's forward, backward, own losses and per-Gaussian buffers.
     passes: Box<dyn ModelPasses>,
@@ -200,6 +211,10 @@ impl Trainer {
             images,
             image_of_view,
             grads,
+            batch_grads: None,
+            blend: GradBlend::new(ctx)?,
+            train_views: scene.train.clone(),
+            view_times: scene.view_times.clone(),
             view_grad_norm,
             passes,
             loss: Loss::new(ctx, max_w, max_h)?,
@@ -212,7 +227,8 @@ impl Trainer {
             iteration: 0,
             adam_step: 0,
             rec: Recorder::new(ctx)?,
-            pool: TimestampPool::new(ctx, 32)?,
+            // About a dozen stamps per view of a step, plus density statistics and Adam.
+            pool: TimestampPool::new(ctx, 16 + 16 * config.batch_views.max(1))?,
             dropped_frames: 0,
             strategy: Box::new(Adc),
             snapshot_requested: false,
@@ -286,6 +302,29 @@ impl Trainer {
         }
         self.passes.reserve(cap)?;
         self.grads.count = self.state.count();
+        if self.batch_grads.as_ref().is_some_and(|b| b.capacity < cap) {
+            self.batch_grads = None;
+            self.ensure_batch_grads()?;
+        }
+        Ok(())
+    }
+
+    /// The second gradient set of batched steps, at the state's capacity and shape.
+    fn ensure_batch_grads(&mut self) -> anyhow::Result<()> {
+        let (cap, shape) = (self.state.capacity(), self.state.shape());
+        if self
+            .batch_grads
+            .as_ref()
+            .is_none_or(|b| b.capacity < cap || b.shape() != shape)
+        {
+            self.batch_grads = Some(GpuSplats::zeroed_shape(
+                &self.ctx,
+                "batch grad ",
+                &shape,
+                self.state.count(),
+                cap,
+            )?);
+        }
         Ok(())
     }
 
@@ -305,9 +344,20 @@ impl Trainer {
         self.iteration += 1;
         let it = self.iteration;
         let cfg = self.config.clone();
-        let view = self.views.next_view();
-        let slot = self.image_of_view[view].context("trainer: scheduled a non-training view")?;
-        let cam = self.cameras_host[view];
+        let first = self.views.next_view();
+        // The step's views: the scheduled one, then its batch partners; the last one's render
+        // stays in the passes (the density strategy's error map) and gives the statistics.
+        let views: Vec<usize> = std::iter::once(first)
+            .chain(batch_partners(
+                first,
+                &self.train_views,
+                self.view_times.as_deref(),
+                cfg.batch_views,
+                cfg.seed,
+                it,
+            ))
+            .collect();
+        let view = *views.last().expect("at least the scheduled view");
         let bg = match cfg.background {
             Background::Fixed(c) => c,
             Background::Random => random_background(cfg.seed, it),
@@ -316,64 +366,96 @@ impl Trainer {
         let densifies = cfg.schedule.densifies(it);
         let count = self.state.count();
         self.grads.count = count;
+        if views.len() > 1 {
+            self.ensure_batch_grads()?;
+        }
+        if let Some(b) = self.batch_grads.as_mut() {
+            b.count = count;
+        }
 
         self.rec.begin()?;
         if cfg.timestamps {
             self.rec.start_timestamps(&mut self.pool);
         }
-        let frame = FrameArgs {
-            params: &self.state.params,
-            cameras: &self.cameras,
-            view: view as u32,
-            camera: &cam,
-            sh_degree: sh,
-            background: bg,
-            iteration: it,
-        };
-        self.passes.record_prepare(&mut self.rec, &frame, &cfg)?;
-        self.passes.record_forward(
-            &mut self.rec,
-            &frame,
+        for (k, &v) in views.iter().enumerate() {
+            let slot = self.image_of_view[v].context("trainer: scheduled a non-training view")?;
+            let cam = self.cameras_host[v];
+            if k > 0 {
+                // The previous view's backward reads the image and dL/dimage this view rewrites.
+                self.rec.barrier();
+            }
+            let frame = FrameArgs {
+                params: &self.state.params,
+                cameras: &self.cameras,
+                view: v as u32,
+                camera: &cam,
+                sh_degree: sh,
+                background: bg,
+                iteration: it,
+            };
+            if k == 0 {
+                self.passes.record_prepare(&mut self.rec, &frame, &cfg)?;
+            }
+            self.passes.record_forward(
+                &mut self.rec,
+                &frame,
+                if cfg.timestamps {
+                    Some(&mut self.pool)
+                } else {
+                    None
+                },
+            )?;
+            let img = self.images.slots[slot];
+            self.loss.record(
+                &mut self.rec,
+                self.passes.image(),
+                &self.images.buffers[img.buffer],
+                img.offset_px,
+                img.width,
+                img.height,
+                bg,
+                &self.dl_dimage,
+                &self.loss_out,
+                0,
+                cfg.ssim_weight,
+            )?;
             if cfg.timestamps {
-                Some(&mut self.pool)
-            } else {
-                None
-            },
-        )?;
-        let img = self.images.slots[slot];
-        self.loss.record(
-            &mut self.rec,
-            self.passes.image(),
-            &self.images.buffers[img.buffer],
-            img.offset_px,
-            img.width,
-            img.height,
-            bg,
-            &self.dl_dimage,
-            &self.loss_out,
-            0,
-            cfg.ssim_weight,
-        )?;
-        if cfg.timestamps {
-            self.rec.timestamp(&mut self.pool, "loss");
+                self.rec.timestamp(&mut self.pool, "loss");
+            }
+            // The first view writes the step's gradients; later ones write theirs aside and
+            // are added in, the last scaling the sum to the mean.
+            let grads = match (k, &self.batch_grads) {
+                (0, _) => &self.grads,
+                (_, Some(b)) => b,
+                (_, None) => anyhow::bail!("trainer: batch gradients missing"),
+            };
+            self.passes.record_backward(
+                &self.ctx,
+                &mut self.rec,
+                &GradArgs {
+                    frame,
+                    dl_dimage: &self.dl_dimage,
+                    grads,
+                    view_grad_norm: &self.view_grad_norm,
+                    count,
+                },
+                &cfg,
+                if cfg.timestamps {
+                    Some(&mut self.pool)
+                } else {
+                    None
+                },
+            )?;
+            if k > 0 {
+                let scale = if k + 1 == views.len() {
+                    1.0 / views.len() as f32
+                } else {
+                    1.0
+                };
+                self.blend
+                    .record(&mut self.rec, &self.grads, grads, count, scale)?;
+            }
         }
-        self.passes.record_backward(
-            &self.ctx,
-            &mut self.rec,
-            &GradArgs {
-                frame,
-                dl_dimage: &self.dl_dimage,
-                grads: &self.grads,
-                view_grad_norm: &self.view_grad_norm,
-                count,
-            },
-            &cfg,
-            if cfg.timestamps {
-                Some(&mut self.pool)
-            } else {
-                None
-            },
-        )?;
         if cfg.schedule.accumulates(it) {
             self.density.record_accumulate(
                 &mut self.rec,
@@ -423,6 +505,7 @@ impl Trainer {
         let mut report = StepReport {
             iteration: it,
             view,
+            views: views.clone(),
             l1: l[0],
             ssim: l[1],
             loss: l[2],
@@ -592,6 +675,12 @@ impl Trainer {
     }
 
     /// The model to evaluate or export (see [`Trainer::eval_params`]).
+    /// The last step's gradients (the batch mean when batched), downloaded: for tests and
+    /// debugging.
+    pub fn gradients(&self) -> anyhow::Result<GaussianParams> {
+        self.grads.download()
+    }
+
     pub fn model(&self) -> anyhow::Result<GaussianParams> {
         self.eval_params().download()
     }
