@@ -10,8 +10,8 @@ use lpmsplat::train::adam::SplatState;
 use lpmsplat::train::density::reference::{self, HostState, HostStats};
 use lpmsplat::train::density::rng::fold_seed;
 use lpmsplat::train::density::{
-    reset_logit, DensifyArgs, DensityConfig, DensityControl, Statistic, Thresholds, DECIDE_CLONE,
-    DECIDE_REMOVE, DECIDE_SPLIT,
+    reset_logit, DensifyArgs, DensifyPhase, DensityConfig, DensityControl, Statistic, Thresholds,
+    DECIDE_CLONE, DECIDE_REMOVE, DECIDE_SPLIT,
 };
 use rand::{Rng, SeedableRng};
 use std::sync::Arc;
@@ -255,6 +255,7 @@ fn constructed_cases_clone_split_and_prune_exactly_the_expected_gaussians() {
         extent: extent as f64,
         prune_large: true,
         iteration: 700,
+        phase: DensifyPhase::Both,
     };
     let mut rec = Recorder::new(&ctx).unwrap();
     let out = dc.step(&mut rec, &mut state, &args, None).unwrap();
@@ -360,6 +361,7 @@ fn random_steps_match_the_host_reference_and_grow_past_the_capacity() {
             extent: extent as f64,
             prune_large: step % 2 == 1,
             iteration: 600 + 100 * step,
+            phase: DensifyPhase::Both,
         };
         // Some steps lower the threshold for part of the Gaussians (the LPM input).
         let scale: Option<Vec<f32>> = (step % 3 == 2).then(|| {
@@ -454,6 +456,7 @@ fn split_children_are_samples_of_the_parent_and_deterministic() {
         extent: extent as f64,
         prune_large: false,
         iteration: 1200,
+        phase: DensifyPhase::Both,
     };
     let run = |seed: u64| {
         let mut state = upload_state(&ctx, &host, n);
@@ -669,6 +672,7 @@ fn pixel_weighting_densifies_large_gaussians_adc_averages_away() {
         extent,
         prune_large: false,
         iteration: 500,
+        phase: DensifyPhase::Both,
     };
     let mut densified = Vec::new();
     for statistic in [Statistic::Gradient, Statistic::pixel_gs()] {
@@ -856,6 +860,7 @@ fn decisions_can_be_edited_between_decide_and_apply() {
         extent: extent as f64,
         prune_large: false,
         iteration: 900,
+        phase: DensifyPhase::Both,
     };
     let mut rec = Recorder::new(&ctx).unwrap();
     dc.record_decide(&mut rec, &state, &args, None).unwrap();

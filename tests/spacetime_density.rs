@@ -92,3 +92,53 @@ fn clones_and_children_get_random_temporal_centres() {
         }
     }
 }
+
+/// SpacetimeGaussians' rounds (`--growth-rounds`): the first densify steps clone and split and
+/// prune nothing, even with every Gaussian below the opacity floor; the later ones prune and
+/// never clone or split, even with every gradient above the threshold.
+#[test]
+fn growth_rounds_grow_first_then_only_prune() {
+    let ctx = GpuContext::new(&GpuOptions::for_tests()).unwrap();
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/n3v_tiny");
+    let scene = Scene::load(&dir, &LoadOptions::default()).unwrap();
+    let train_images = images::load_images(&scene, &scene.train).unwrap();
+    let mut cfg = TrainConfig {
+        iterations: 6,
+        seed: 2,
+        ..TrainConfig::default()
+    };
+    BaseModel::SpacetimeLite.configure(&mut cfg);
+    cfg.schedule.densify_from = 0;
+    cfg.schedule.interval = 2;
+    cfg.schedule.growth_rounds = Some(2);
+    cfg.density.grad_threshold = 1e-12;
+    // Initial opacity 0.1: all of them under this floor.
+    cfg.density.min_opacity = 0.5;
+    let (center, half) = scene.random_init_box();
+    let init =
+        BaseModel::SpacetimeLite.initialise(random_init(300, center, [half; 3], 2, 0).unwrap(), 2);
+    let mut t = Trainer::new(&ctx, &scene, &train_images, &init, cfg).unwrap();
+    let mut outcomes = Vec::new();
+    for _ in 0..6 {
+        if let Some(o) = t.step().unwrap().densified {
+            outcomes.push(o);
+        }
+    }
+    assert_eq!(outcomes.len(), 3, "densify at 2, 4 and 6");
+    for o in &outcomes[..2] {
+        assert!(
+            o.clones + o.split_children > 0,
+            "a growth round grows: {o:?}"
+        );
+        // Only split parents leave (each replaced by two children): no prune.
+        assert_eq!(o.before - o.kept, o.split_children / 2, "{o:?}");
+    }
+    let o = &outcomes[2];
+    assert_eq!(
+        o.clones + o.split_children,
+        0,
+        "a prune round never grows: {o:?}"
+    );
+    assert!(o.kept < o.before, "and prunes the faint Gaussians: {o:?}");
+    ctx.check_validation().unwrap();
+}

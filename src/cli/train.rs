@@ -130,6 +130,10 @@ pub struct TrainArgs {
     /// the segment, the official rule) or parent.
     #[arg(long, value_parser = ChildTime::parse)]
     pub child_time: Option<ChildTime>,
+    /// Only the first N densify steps clone and split (without pruning); the later ones only
+    /// prune (SpacetimeGaussians' official rule: 6).
+    #[arg(long)]
+    pub growth_rounds: Option<u32>,
     /// Views per optimizer step, their gradients averaged: the scheduled view and others of its
     /// time (another camera of the same frame in a video). Default 2 for spacetime-lite (the
     /// official batch), 1 otherwise.
@@ -358,6 +362,7 @@ impl TrainArgs {
         c.schedule.densify_until = self.densify_until;
         c.schedule.interval = self.densify_interval;
         c.schedule.opacity_reset_interval = self.opacity_reset_interval;
+        c.schedule.growth_rounds = self.growth_rounds;
         c.schedule.white_background = c.background == Background::Fixed([1.0; 3]);
         if self.model == BaseModel::Surfels2d {
             let mut t = SurfelTraining::default();

@@ -104,6 +104,10 @@ impl TrainConfig {
                 "white_background_reset": s.white_background,
             },
         });
+        // Only when set, so checkpoints from before the key still resume.
+        if let Some(n) = s.growth_rounds {
+            j["density"]["growth_rounds"] = serde_json::json!(n);
+        }
         // Only when batched, so checkpoints from before the key still resume.
         if self.batch_views != 1 {
             j["batch_views"] = serde_json::json!(self.batch_views);

@@ -107,6 +107,10 @@ pub struct DensitySchedule {
     pub opacity_reset_interval: u32,
     /// The reference also resets opacities at `densify_from` on white-background scenes.
     pub white_background: bool,
+    /// Only the first N densify steps clone and split, without pruning; the later ones only
+    /// prune (SpacetimeGaussians' `desicnt`, 6 in the official code). `None`: every densify
+    /// step does both (3DGS).
+    pub growth_rounds: Option<u32>,
 }
 
 impl Default for DensitySchedule {
@@ -117,6 +121,7 @@ impl Default for DensitySchedule {
             interval: 100,
             opacity_reset_interval: 3000,
             white_background: false,
+            growth_rounds: None,
         }
     }
 }
@@ -134,6 +139,25 @@ impl DensitySchedule {
             && iteration > self.densify_from
             && self.interval > 0
             && iteration.is_multiple_of(self.interval)
+    }
+
+    /// What the densify step at `iteration` (a densify iteration) may do: with
+    /// `growth_rounds` N, the first N densify steps grow only and the later ones prune only.
+    pub fn phase(&self, iteration: u32) -> crate::train::density::DensifyPhase {
+        use crate::train::density::DensifyPhase;
+        let Some(n) = self.growth_rounds else {
+            return DensifyPhase::Both;
+        };
+        if self.interval == 0 {
+            return DensifyPhase::Both;
+        }
+        // 1-based index of this densify step: the multiples of the interval in (from, it].
+        let round = iteration / self.interval - self.densify_from / self.interval;
+        if round <= n {
+            DensifyPhase::GrowOnly
+        } else {
+            DensifyPhase::PruneOnly
+        }
     }
 
     /// Whether the world-size (and, when enabled, screen-size) pruning applies at a densify
@@ -216,6 +240,32 @@ mod tests {
     }
 
     #[test]
+    fn growth_rounds_grow_first_then_only_prune() {
+        use crate::train::density::DensifyPhase;
+        let mut s = DensitySchedule::default();
+        assert_eq!(s.phase(600), DensifyPhase::Both);
+        // SpacetimeGaussians: densify from 500 every 100, six rounds (600..=1100).
+        s.growth_rounds = Some(6);
+        let densify: Vec<u32> = (1..=3000).filter(|&t| s.densifies(t)).collect();
+        let grow: Vec<u32> = densify
+            .iter()
+            .copied()
+            .filter(|&t| s.phase(t) == DensifyPhase::GrowOnly)
+            .collect();
+        assert_eq!(grow, vec![600, 700, 800, 900, 1000, 1100]);
+        assert!(densify
+            .iter()
+            .filter(|&&t| t > 1100)
+            .all(|&t| s.phase(t) == DensifyPhase::PruneOnly));
+        // A start that is not a multiple of the interval: rounds count from the first step.
+        s.densify_from = 250;
+        s.growth_rounds = Some(2);
+        assert_eq!(s.phase(300), DensifyPhase::GrowOnly);
+        assert_eq!(s.phase(400), DensifyPhase::GrowOnly);
+        assert_eq!(s.phase(500), DensifyPhase::PruneOnly);
+    }
+
+    #[test]
     fn density_calendar_matches_the_reference_loop() {
         let s = DensitySchedule::default();
         let densify: Vec<u32> = (1..=30_000).filter(|&t| s.densifies(t)).collect();
@@ -227,6 +277,7 @@ mod tests {
         assert!(!s.prunes_large(3000) && s.prunes_large(3100));
         assert!(s.accumulates(14_999) && !s.accumulates(15_000));
         let white = DensitySchedule {
+            growth_rounds: None,
             white_background: true,
             ..s
         };

@@ -555,6 +555,7 @@ impl Trainer {
                 extent: self.extent,
                 prune_large: schedule.prunes_large(it),
                 iteration: it,
+                phase: schedule.phase(it),
             };
             let outcome = strategy.densify(&mut self.density_context(at.view)?, at, &args)?;
             self.follow_capacity()?;

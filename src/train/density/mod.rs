@@ -162,6 +162,23 @@ pub struct DensifyArgs {
     pub prune_large: bool,
     /// The training iteration: keys the split samples.
     pub iteration: u32,
+    /// Which half of densify-and-prune this step runs ([`DensitySchedule::phase`]).
+    ///
+    /// [`DensitySchedule::phase`]: crate::train::schedule::DensitySchedule::phase
+    pub phase: DensifyPhase,
+}
+
+/// What a density step may do: both clone/split and prune (3DGS), or only one of them
+/// (SpacetimeGaussians: its first rounds grow without pruning, the later ones only prune).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum DensifyPhase {
+    #[default]
+    Both,
+    /// Clone and split; nothing is pruned (the official code computes the prune mask in these
+    /// rounds but does not apply it).
+    GrowOnly,
+    /// Prune only: no Gaussian crosses the gradient threshold.
+    PruneOnly,
 }
 
 /// The f32 thresholds the kernels compare against, formed once on the host (shared by the GPU
@@ -221,14 +238,29 @@ impl Thresholds {
             _ => -1.0,
         };
         let p = cfg.min_opacity;
+        let (grows, prunes) = match args.phase {
+            DensifyPhase::Both => (true, true),
+            DensifyPhase::GrowOnly => (true, false),
+            DensifyPhase::PruneOnly => (false, true),
+        };
+        // A phase turns its other half off through the thresholds themselves: no gradient
+        // norm reaches +∞ (nor does a lowered one, ∞ × ratio), no logit lies below −∞.
         Ok(Self {
-            grad_threshold: cfg.grad_threshold,
+            grad_threshold: if grows {
+                cfg.grad_threshold
+            } else {
+                f32::INFINITY
+            },
             log_clone_max: (cfg.percent_dense * args.extent).ln() as f32,
-            min_opacity_logit: (p / (1.0 - p)).ln() as f32,
+            min_opacity_logit: if prunes {
+                (p / (1.0 - p)).ln() as f32
+            } else {
+                f32::NEG_INFINITY
+            },
             log_world_max: (cfg.max_world_fraction * args.extent).ln() as f32,
             log_split_shrink: cfg.split_shrink.ln() as f32,
-            screen_max,
-            prune_large: args.prune_large,
+            screen_max: if prunes { screen_max } else { -1.0 },
+            prune_large: args.prune_large && prunes,
         })
     }
 }

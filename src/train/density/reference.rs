@@ -229,7 +229,7 @@ pub fn reset_opacity(state: &mut HostState, max_logit: f32) {
 
 #[cfg(test)]
 mod tests {
-    use super::super::{DensifyArgs, DensityConfig};
+    use super::super::{DensifyArgs, DensifyPhase, DensityConfig};
     use super::*;
 
     fn one(log_scale: f32, opacity_logit: f32) -> GaussianParams {
@@ -250,6 +250,7 @@ mod tests {
             extent,
             prune_large,
             iteration: 1000,
+            phase: DensifyPhase::Both,
         };
         let t = Thresholds::new(&DensityConfig::default(), &args(false)).unwrap();
         let tl = Thresholds::new(&DensityConfig::default(), &args(true)).unwrap();
