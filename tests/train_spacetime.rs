@@ -127,6 +127,44 @@ fn spacetime_lite_learns_the_motion_a_still_model_cannot() {
             "frame {k}"
         );
     }
+    // render --time: every camera once at one time; at a frame's time, that frame's image.
+    let render_at = |t: &str, dir: &str, extra: &[&str]| {
+        lpmsplat()
+            .args([
+                "render",
+                fixture().to_str().unwrap(),
+                "--ply",
+                out.join("point_cloud.ply").to_str().unwrap(),
+                "--model",
+                "spacetime-lite",
+                "--time",
+                t,
+                "--out",
+                out.join(dir).to_str().unwrap(),
+            ])
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let o = render_at("0.375", "t", &["--cameras", "all"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let written = std::fs::read_dir(out.join("t")).unwrap().count();
+    assert_eq!(written, 5, "one image per camera");
+    assert_eq!(
+        std::fs::read(out.join("t/cam00_t0.3750.png")).unwrap(),
+        std::fs::read(out.join("r/cam00_000003.png")).unwrap(),
+        "frame 3 of 8 is time 0.375"
+    );
+    // Between frames: a different image.
+    let o = render_at("0.4", "t2", &[]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_ne!(
+        std::fs::read(out.join("t2/cam00_t0.4000.png")).unwrap(),
+        std::fs::read(out.join("t/cam00_t0.3750.png")).unwrap()
+    );
+    let o = render_at("1.5", "t3", &[]);
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && e.contains("[0, 1]"), "{e}");
     // bench fps times the temporal step with the render, at a chosen time.
     let o = lpmsplat()
         .args([

@@ -50,6 +50,11 @@ pub struct RenderArgs {
     /// 2dgs: the surface depth of --depth: 0 the expected depth, 1 the median depth.
     #[arg(long, default_value_t = 0.0)]
     pub depth_ratio: f32,
+    /// Video models: render every chosen camera once, at this time of the segment ([0, 1]; any
+    /// time, not only a frame's), as OUT/<camera>_t<T>.png. Without it each view is rendered
+    /// at its own frame's time.
+    #[arg(long)]
+    pub time: Option<f32>,
     /// Frames per second of the orbit GIF.
     #[arg(long, default_value_t = 25, value_parser = clap::value_parser!(u32).range(1..=100))]
     pub fps: u32,
@@ -70,14 +75,44 @@ pub fn parse_rgb(s: &str) -> Result<[f32; 3], String> {
 pub fn run(gpu: &GpuOptions, args: &RenderArgs) -> anyhow::Result<()> {
     let scene = Scene::load(&args.scene.scene, &args.scene.load_options()?)?;
     let params = args.model.read_ply(&args.ply)?;
+    if let Some(t) = args.time {
+        anyhow::ensure!(
+            args.model == BaseModel::SpacetimeLite && scene.view_times.is_some(),
+            "--time renders a video model at one time; this is --model {} on a {} scene. Fix: \
+             pass --model spacetime-lite with the video scene it was trained on, or drop --time",
+            args.model.name(),
+            if scene.view_times.is_some() {
+                "video"
+            } else {
+                "still"
+            }
+        );
+        anyhow::ensure!(
+            t.is_finite() && (0.0..=1.0).contains(&t),
+            "--time {t}: a time of the segment lies in [0, 1] (frame k of n at k/n)"
+        );
+    }
     if let Some(frames) = args.orbit {
         return render_orbit(gpu, args, &scene, &params, frames as usize);
     }
-    let indices: Vec<usize> = match args.cameras.as_str() {
+    let mut indices: Vec<usize> = match args.cameras.as_str() {
         "train" => scene.train.clone(),
         "test" => scene.test.clone(),
         _ => (0..scene.views.len()).collect(),
     };
+    if args.time.is_some() {
+        // One view per camera: a video's cameras do not move, so the frames of a camera share
+        // its pose.
+        let mut seen: Vec<&lpmsplat::scene::Pose> = Vec::new();
+        indices.retain(|&i| {
+            let pose = &scene.views[i].pose;
+            let new = !seen.contains(&pose);
+            if new {
+                seen.push(pose);
+            }
+            new
+        });
+    }
     anyhow::ensure!(
         !indices.is_empty(),
         "{}: the scene has no {} cameras. Fix: pass --cameras all",
@@ -93,7 +128,10 @@ pub fn run(gpu: &GpuOptions, args: &RenderArgs) -> anyhow::Result<()> {
         .map(|&i| CameraGpu::new(&scene.views[i].camera, &scene.views[i].pose))
         .collect();
     let cameras = GpuBuffer::from_slice(&ctx, "cameras", &cams)?;
-    let times = scene.times_of(&indices);
+    let times = match args.time {
+        Some(t) => Some(vec![t; indices.len()]),
+        None => scene.times_of(&indices),
+    };
     let mut renderer = args
         .model
         .view_renderer(&ctx, params.len(), &cams[0], times)?;
@@ -131,7 +169,14 @@ pub fn run(gpu: &GpuOptions, args: &RenderArgs) -> anyhow::Result<()> {
             rgb: rgb.iter().map(|v| v.clamp(0.0, 1.0)).collect(),
             alpha: None,
         };
-        let path = args.out.join(format!("{}.png", scene.views[i].stem));
+        let path = match args.time {
+            // A video view is named <camera>/<frame>: the camera at the chosen time.
+            Some(t) => {
+                let camera = scene.views[i].name.split('/').next().unwrap_or("view");
+                args.out.join(format!("{camera}_t{t:.4}.png"))
+            }
+            None => args.out.join(format!("{}.png", scene.views[i].stem)),
+        };
         images::save_png(&path, &img)?;
         println!("{}", path.display());
     }
@@ -179,9 +224,10 @@ fn render_orbit(
     let ctx = GpuContext::new(gpu)?;
     let splats = GpuSplats::upload(&ctx, params, params.len())?;
     let cameras = GpuBuffer::from_slice(&ctx, "cameras", &cams)?;
-    // An orbit of a video model runs through its segment, one time per frame.
+    // An orbit of a video model runs through its segment, one time per frame (or stays at
+    // --time: bullet time).
     let times = (0..cams.len())
-        .map(|k| k as f32 / cams.len() as f32)
+        .map(|k| args.time.unwrap_or(k as f32 / cams.len() as f32))
         .collect();
     let mut renderer = args
         .model
