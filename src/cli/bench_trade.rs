@@ -37,6 +37,8 @@ use std::time::Instant;
 pub struct TradeArgs {
     #[command(flatten)]
     pub scene: SceneArgs,
+    #[command(flatten)]
+    pub images: crate::cli::image_cache_args::ImageCacheArgs,
     /// Iterations per run.
     #[arg(long, default_value_t = 30_000)]
     pub iterations: u32,
@@ -167,7 +169,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
         [scene.test[trade_report::report_view(&scene, args.report_view.as_deref())?]]
     .name
     .clone();
-    let train_images = images::load_images(&scene, &scene.train)?;
+    let train_images = args.images.train_images(&scene)?;
     let test_images = images::load_images(&scene, &scene.test)?;
     let seeds: Vec<u64> = (0..args.seeds as u64).map(|i| args.seed + i).collect();
     // The model's own colour degree (SpacetimeGaussians lite: none), 3 otherwise.
@@ -295,7 +297,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
         for &i in &group {
             let r = &mut runs[i];
             let init = &inits[r.init];
-            let mut t = Trainer::new(&ctx, &scene, &train_images, init, r.cfg.clone())?;
+            let mut t = Trainer::new(&ctx, &scene, train_images.clone(), init, r.cfg.clone())?;
             if let Some(c) = r.lpm.clone() {
                 t.set_strategy(Box::new(build_lpm(
                     &ctx,

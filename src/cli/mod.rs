@@ -4,6 +4,7 @@ mod bench;
 mod eval;
 mod export;
 mod geometry_outputs;
+mod image_cache_args;
 mod info;
 mod interrupt;
 mod lpips_scores;

@@ -13,6 +13,7 @@ use lpmsplat::gpu::{GpuContext, GpuOptions, StageTimes};
 use lpmsplat::lpm::strategy::{LpmConfig, LpmStrategy, PruneMode};
 use lpmsplat::lpm::{self, ZoneGeometry};
 use lpmsplat::models::BaseModel;
+use lpmsplat::scene::image_source::TrainImages;
 use lpmsplat::scene::{images, Image, Scene};
 use lpmsplat::splats::{self, read_ply, write_ply, write_splat, GaussianParams};
 use lpmsplat::train::config::ChildTime;
@@ -27,6 +28,8 @@ use std::time::Instant;
 pub struct TrainArgs {
     #[command(flatten)]
     pub scene: SceneArgs,
+    #[command(flatten)]
+    pub images: super::image_cache_args::ImageCacheArgs,
     /// Output folder (created; existing files in it are replaced atomically).
     #[arg(long, short = 'o')]
     pub out: PathBuf,
@@ -286,20 +289,20 @@ pub fn parse_zone(name: &str) -> anyhow::Result<ZoneGeometry> {
 pub fn build_lpm(
     ctx: &std::sync::Arc<GpuContext>,
     scene: &Scene,
-    train_images: &[Image],
+    train_images: &TrainImages,
     config: LpmConfig,
     cache_dir: &Path,
 ) -> anyhow::Result<LpmStrategy> {
     let loader = |i: usize| -> anyhow::Result<Image> {
         match scene.train.iter().position(|&v| v == i) {
-            Some(k) => Ok(train_images[k].clone()),
+            Some(k) => train_images.source.load(k),
             None => Ok(images::load_images(scene, &[i])?.remove(0)),
         }
     };
     let cache = cache_dir.join(lpm::CACHE_FILE_NAME);
     let (corr, summary) = lpm::load_or_build(scene, &config.matching, &cache, &loader, None)?;
     eprintln!("LPM correspondences: {summary}");
-    LpmStrategy::new(ctx, scene, train_images, corr, config)
+    LpmStrategy::new(ctx, scene, train_images.clone(), corr, config)
 }
 
 pub fn background_from(arg: Option<&str>, scene: &Scene) -> anyhow::Result<Background> {
@@ -518,7 +521,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     prepare_output(&args.out)?;
     let checkpoint_path = args.out.join("checkpoint.bin");
     let t_load = Instant::now();
-    let train_images = images::load_images(&scene, &scene.train)?;
+    let train_images = args.images.train_images(&scene)?;
     let test_images = images::load_images(&scene, &scene.test)?;
     let resumed = match &args.resume {
         Some(p) => Some(lpmsplat::train::checkpoint::Checkpoint::read(p)?),
@@ -564,11 +567,11 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     );
     let mut trainer = match (&resumed, &args.resume) {
         (Some(ck), Some(p)) => {
-            let t = Trainer::restore(&ctx, &scene, &train_images, config.clone(), ck, p)?;
+            let t = Trainer::restore(&ctx, &scene, train_images.clone(), config.clone(), ck, p)?;
             eprintln!("resuming {} at iteration {}", p.display(), t.iteration);
             t
         }
-        _ => Trainer::new(&ctx, &scene, &train_images, &init, config.clone())?,
+        _ => Trainer::new(&ctx, &scene, train_images.clone(), &init, config.clone())?,
     };
     let resumed_at = resumed.as_ref().map(|ck| (ck.iteration, init.len()));
     drop(resumed);

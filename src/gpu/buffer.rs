@@ -139,9 +139,18 @@ impl<T: Pod> GpuBuffer<T> {
     /// mapping; device-local ones through a staging buffer and a one-off submission (not for the
     /// per-iteration path).
     pub fn upload(&self, data: &[T]) -> anyhow::Result<()> {
-        if data.len() > self.len {
+        self.upload_at(0, data)
+    }
+
+    /// Writes `data` starting at element `first` (as [`GpuBuffer::upload`]). On a host-visible
+    /// buffer the caller makes sure no submitted work still reads that range.
+    pub fn upload_at(&self, first: usize, data: &[T]) -> anyhow::Result<()> {
+        if first
+            .checked_add(data.len())
+            .is_none_or(|end| end > self.len)
+        {
             bail!(
-                "upload of {} elements into '{}' of {} elements",
+                "upload of {} elements at {first} into '{}' of {} elements",
                 data.len(),
                 self.name,
                 self.len
@@ -155,7 +164,7 @@ impl<T: Pod> GpuBuffer<T> {
             unsafe {
                 std::ptr::copy_nonoverlapping(
                     bytes.as_ptr(),
-                    mapped.as_ptr() as *mut u8,
+                    (mapped.as_ptr() as *mut u8).add(first * std::mem::size_of::<T>()),
                     bytes.len(),
                 )
             };
@@ -165,7 +174,7 @@ impl<T: Pod> GpuBuffer<T> {
             GpuBuffer::<T>::new(&self.ctx, "staging upload", data.len(), BufferKind::Upload)?;
         staging.upload(data)?;
         let mut rec = super::Recorder::new(&self.ctx)?;
-        rec.copy(&staging, self, data.len());
+        rec.copy_region(&staging, 0, self, first, data.len());
         rec.submit_and_wait()?;
         Ok(())
     }

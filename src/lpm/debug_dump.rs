@@ -69,7 +69,7 @@ pub(super) fn dump_step(
     gpu: &LpmGpu,
     mask: &BlockMask,
     views: &[View],
-    gt: &[Option<Image>],
+    (gt_view, gt_reference): (Option<&Image>, Option<&Image>),
     view: usize,
     reference: Option<usize>,
     zones: &[Zone],
@@ -78,7 +78,7 @@ pub(super) fn dump_step(
 ) -> anyhow::Result<()> {
     std::fs::create_dir_all(dir)
         .map_err(|e| anyhow::anyhow!("{}: cannot create --lpm-debug folder: {e}", dir.display()))?;
-    let Some(gv) = gt.get(view).and_then(|g| g.as_ref()) else {
+    let Some(gv) = gt_view else {
         return Ok(());
     };
     let (w, h) = (mask.width, mask.height);
@@ -112,7 +112,7 @@ pub(super) fn dump_step(
     }
     save_png(&name("blocks"), &b)?;
 
-    if let (Some(r), Some((xy_v, xy_r))) = (reference, matches) {
+    if let (Some(_), Some((xy_v, xy_r))) = (reference, matches) {
         let (pairs, _) = pair_regions(regions, xy_v, xy_r);
         let mut pv = dimmed(gv);
         for p in xy_v {
@@ -123,7 +123,7 @@ pub(super) fn dump_step(
             rect(&mut pv, &p.in_view, [0.0, 1.0, 0.0]);
         }
         save_png(&name("pairs_view"), &pv)?;
-        if let Some(gr) = gt.get(r).and_then(|g| g.as_ref()) {
+        if let Some(gr) = gt_reference {
             let mut pr = dimmed(gr);
             for p in xy_r {
                 dot(&mut pr, *p, [0.0, 1.0, 1.0]);

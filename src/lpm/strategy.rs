@@ -38,6 +38,7 @@ use crate::lpm::{
     regions, zones_for_step, ConeRadius, Correspondences, MatchSettings, RegionSettings,
     ZoneGeometry, ZoneRecord, ZoneSettings,
 };
+use crate::scene::image_source::{ImageSource, TrainImages};
 use crate::scene::{Image, Scene, View};
 use crate::shaders;
 use crate::splats::gpu::grown_capacity;
@@ -388,8 +389,10 @@ pub struct LpmStrategy {
     gpu: LpmGpu,
     corr: Correspondences,
     views: Vec<View>,
-    /// Ground truth per scene view (training views only), for zone colours and debug images.
-    gt: Vec<Option<Image>>,
+    /// The training images (read at LPM steps, for zone colours and debug images) and the
+    /// image number of each scene view (training views only).
+    images: Arc<dyn ImageSource>,
+    image_of_view: Vec<Option<usize>>,
     threshold_scale: ComputePipeline,
     lowered_count: ComputePipeline,
     prune_lowest: ComputePipeline,
@@ -409,30 +412,31 @@ pub struct LpmStrategy {
 }
 
 impl LpmStrategy {
-    /// `train_images[k]` is the image of `scene.train[k]` (as given to the trainer);
+    /// Image `k` of `train_images` is that of `scene.train[k]` (as given to the trainer);
     /// `corr` comes from [`crate::lpm::load_or_build`] with `config.matching`.
     pub fn new(
         ctx: &Arc<GpuContext>,
         scene: &Scene,
-        train_images: &[Image],
+        train_images: impl Into<TrainImages>,
         corr: Correspondences,
         config: LpmConfig,
     ) -> anyhow::Result<Self> {
         config.validate()?;
+        let images = train_images.into().source;
         anyhow::ensure!(
-            train_images.len() == scene.train.len(),
+            images.count() == scene.train.len(),
             "LPM: {} images for {} training views",
-            train_images.len(),
+            images.count(),
             scene.train.len()
         );
-        let mut gt = vec![None; scene.views.len()];
+        let mut image_of_view = vec![None; scene.views.len()];
         let (mut max_px, mut max_blocks) = (1u32, 1u32);
         for (k, &v) in scene.train.iter().enumerate() {
-            let (w, h) = (train_images[k].width, train_images[k].height);
+            let (w, h) = images.size(k);
             max_px = max_px.max(w * h);
             let (bx, by) = block_grid(w, h, config.regions.resolved(w, h).block);
             max_blocks = max_blocks.max(bx * by);
-            gt[v] = Some(train_images[k].clone());
+            image_of_view[v] = Some(k);
         }
         let pipe = |name: &str, spv: &[u8], buffers: u32, push: usize| {
             ComputePipeline::new(ctx, name, spv, buffers, push as u32, WG, &[])
@@ -445,7 +449,8 @@ impl LpmStrategy {
             gpu: LpmGpu::new(ctx, max_px)?,
             corr,
             views: scene.views.clone(),
-            gt,
+            images,
+            image_of_view,
             threshold_scale: pipe(
                 "lpm/threshold_scale",
                 shaders::LPM_THRESHOLD_SCALE,
@@ -580,8 +585,8 @@ impl LpmStrategy {
         let step = match reference {
             Some(r) if !regions.is_empty() => {
                 let (xy_v, xy_r) = self.corr.oriented(view, r).unwrap_or((&[], &[]));
-                let gt = self.gt[view]
-                    .as_ref()
+                let gt = self
+                    .ground_truth(view)?
                     .context("LPM: the current view has no ground truth")?;
                 zones_for_step(
                     &self.views[view],
@@ -589,7 +594,7 @@ impl LpmStrategy {
                     &regions,
                     xy_v,
                     xy_r,
-                    gt,
+                    &gt,
                     bg,
                     &self.config.zones,
                     self.config.cone,
@@ -613,13 +618,18 @@ impl LpmStrategy {
             report.radius_max = rel.iter().copied().fold(0.0, f64::max);
         }
         if let Some(dir) = self.config.debug_dir.clone() {
+            let gt_view = self.ground_truth(view)?;
+            let gt_reference = match reference {
+                Some(r) => self.ground_truth(r)?,
+                None => None,
+            };
             super::debug_dump::dump_step(
                 &dir,
                 iteration,
                 &self.gpu,
                 &mask,
                 &self.views,
-                &self.gt,
+                (gt_view.as_ref(), gt_reference.as_ref()),
                 view,
                 reference,
                 &step.zones,
@@ -628,6 +638,14 @@ impl LpmStrategy {
             )?;
         }
         Ok((report, records))
+    }
+
+    /// The training image of scene view `view` (`None` for a view not trained on).
+    fn ground_truth(&self, view: usize) -> anyhow::Result<Option<Image>> {
+        match self.image_of_view.get(view).copied().flatten() {
+            Some(k) => Ok(Some(self.images.load(k)?)),
+            None => Ok(None),
+        }
     }
 
     /// For a model whose Gaussians move: records the current Gaussians' centres at the frame's

@@ -7,6 +7,7 @@
 
 pub mod camera;
 pub mod colmap;
+pub mod image_source;
 pub mod images;
 pub mod orbit;
 pub mod split;

@@ -39,7 +39,8 @@ use anyhow::Context;
 use super::trainer::{TrainConfig, Trainer};
 use crate::error::{bad_input, write_atomic};
 use crate::gpu::{GpuBuffer, GpuContext};
-use crate::scene::{Image, Scene};
+use crate::scene::image_source::TrainImages;
+use crate::scene::Scene;
 use crate::splats::gpu::{GpuSplats, SplatShape};
 use crate::splats::{ExtraGroup, ExtraValues, GaussianParams};
 
@@ -582,7 +583,7 @@ impl Trainer {
     pub fn resume(
         ctx: &Arc<GpuContext>,
         scene: &Scene,
-        train_images: &[Image],
+        train_images: impl Into<TrainImages>,
         config: TrainConfig,
         path: &Path,
     ) -> anyhow::Result<Self> {
@@ -594,7 +595,7 @@ impl Trainer {
     pub fn restore(
         ctx: &Arc<GpuContext>,
         scene: &Scene,
-        train_images: &[Image],
+        train_images: impl Into<TrainImages>,
         config: TrainConfig,
         ck: &Checkpoint,
         path: &Path,

@@ -7,6 +7,7 @@ pub mod checkpoint;
 pub mod config;
 pub mod data;
 pub mod density;
+pub mod image_cache;
 pub mod loss;
 pub mod nan_check;
 pub mod passes;

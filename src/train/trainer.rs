@@ -27,8 +27,9 @@ use anyhow::Context;
 
 use super::adam::{Adam, SplatState};
 use super::batch::{batch_partners, GradBlend};
-use super::data::{scene_cameras, GpuImages, ViewSchedule};
+use super::data::{scene_cameras, ViewSchedule};
 use super::density::{DensifyArgs, DensifyOutcome, DensityControl};
+use super::image_cache::{CacheStats, ImageCache, ImageSlot};
 use super::loss::{Loss, LOSS_SLOT_FLOATS};
 use super::passes::{self, FrameArgs, GradArgs, ModelPasses};
 use super::schedule::sh_degree_at;
@@ -36,6 +37,7 @@ use super::strategy::{Adc, DensityContext, DensityStrategy, IterationView, Strat
 use crate::gpu::{BufferKind, GpuBuffer, GpuContext, Recorder, StageTimes, TimestampPool};
 use crate::render::forward::Capacity;
 use crate::render::layout::{CameraGpu, RenderConstants};
+use crate::scene::image_source::TrainImages;
 use crate::scene::{Image, Scene};
 use crate::splats::gpu::{grown_capacity, GpuSplats};
 use crate::splats::GaussianParams;
@@ -85,8 +87,8 @@ pub struct Trainer {
     pub extent: f64,
     cameras_host: Vec<CameraGpu>,
     cameras: GpuBuffer<CameraGpu>,
-    pub(super) images: GpuImages,
-    /// `scene.views` index → slot in `images` (training views only).
+    pub(super) images: ImageCache,
+    /// `scene.views` index → image in `images` (training views only).
     image_of_view: Vec<Option<usize>>,
     pub state: SplatState,
     grads: GpuSplats,
@@ -123,6 +125,9 @@ pub struct Trainer {
     pub(super) resumed_strategy: Option<serde_json::Value>,
 }
 
+/// Steps ahead whose images a streaming cache decodes while the GPU works on the current one.
+const LOOKAHEAD_STEPS: u32 = 2;
+
 /// Per-iteration background colour for `Background::Random`: a hash of (seed, iteration), so a
 /// resumed run draws the same colours.
 fn random_background(seed: u64, iteration: u32) -> [f32; 3] {
@@ -145,19 +150,21 @@ fn snapshot_or<'a>(
 }
 
 impl Trainer {
-    /// Sets up training of `init` on the training views of `scene` (`train_images[k]` is the
-    /// image of `scene.train[k]`).
+    /// Sets up training of `init` on the training views of `scene` (image `k` of
+    /// `train_images` is that of `scene.train[k]`: a `&Vec<Image>` in memory, or
+    /// [`TrainImages::streamed`] from the files).
     pub fn new(
         ctx: &Arc<GpuContext>,
         scene: &Scene,
-        train_images: &[Image],
+        train_images: impl Into<TrainImages>,
         init: &GaussianParams,
         config: TrainConfig,
     ) -> anyhow::Result<Self> {
+        let train_images = train_images.into();
         anyhow::ensure!(
-            train_images.len() == scene.train.len(),
+            train_images.source.count() == scene.train.len(),
             "trainer: {} images for {} training views",
-            train_images.len(),
+            train_images.source.count(),
             scene.train.len()
         );
         anyhow::ensure!(
@@ -168,7 +175,7 @@ impl Trainer {
         let init = init.clone().with_sh_degree(config.sh_degree)?;
         let cameras_host = scene_cameras(scene);
         let cameras = GpuBuffer::from_slice(ctx, "cameras", &cameras_host)?;
-        let images = GpuImages::upload(ctx, train_images)?;
+        let images = ImageCache::new(ctx, &train_images, config.batch_views.max(1) as usize)?;
         let mut image_of_view = vec![None; scene.views.len()];
         for (k, &v) in scene.train.iter().enumerate() {
             image_of_view[v] = Some(k);
@@ -329,14 +336,46 @@ impl Trainer {
     }
 
     /// Where the ground truth of training view `view` lives on the GPU.
-    pub(super) fn image_slot(&self, view: usize) -> anyhow::Result<super::data::ImageSlot> {
-        let slot = self
-            .image_of_view
+    pub(super) fn image_slot(&self, view: usize) -> anyhow::Result<ImageSlot> {
+        let k = self.train_image(view)?;
+        self.images
+            .slot(k)
+            .with_context(|| format!("trainer: the image of view {view} is not on the GPU"))
+    }
+
+    /// The training image number of scene view `view`.
+    fn train_image(&self, view: usize) -> anyhow::Result<usize> {
+        self.image_of_view
             .get(view)
             .copied()
             .flatten()
-            .context("trainer: not a training view")?;
-        Ok(self.images.slots[slot])
+            .context("trainer: scheduled a non-training view")
+    }
+
+    /// What the ground-truth cache has done (slots, uploads, time spent waiting for frames).
+    pub fn image_cache_stats(&self) -> CacheStats {
+        self.images.stats()
+    }
+
+    /// The training images of the `steps` steps after iteration `iteration` (each step's
+    /// scheduled view and its batch partners), for the cache to decode ahead.
+    fn upcoming_images(&self, iteration: u32, steps: u32) -> anyhow::Result<Vec<usize>> {
+        let mut schedule = self.views.clone();
+        let mut out = Vec::new();
+        for s in 1..=steps {
+            let first = schedule.next_view();
+            for v in std::iter::once(first).chain(batch_partners(
+                first,
+                &self.train_views,
+                self.view_times.as_deref(),
+                self.config.batch_views,
+                self.config.seed,
+                iteration + s,
+            )) {
+                out.push(self.train_image(v)?);
+            }
+        }
+        Ok(out)
     }
 
     /// Runs one training iteration (waits for it).
@@ -377,8 +416,21 @@ impl Trainer {
         if cfg.timestamps {
             self.rec.start_timestamps(&mut self.pool);
         }
+        let needed = views
+            .iter()
+            .map(|&v| self.train_image(v))
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        let upcoming = if self.images.streams() {
+            self.upcoming_images(it, LOOKAHEAD_STEPS)?
+        } else {
+            Vec::new()
+        };
+        self.images.prepare(&mut self.rec, &needed, &upcoming)?;
         for (k, &v) in views.iter().enumerate() {
-            let slot = self.image_of_view[v].context("trainer: scheduled a non-training view")?;
+            let img = self
+                .images
+                .slot(needed[k])
+                .context("trainer: image not prepared")?;
             let cam = self.cameras_host[v];
             if k > 0 {
                 // The previous view's backward reads the image and dL/dimage this view rewrites.
@@ -405,11 +457,10 @@ impl Trainer {
                     None
                 },
             )?;
-            let img = self.images.slots[slot];
             self.loss.record(
                 &mut self.rec,
                 self.passes.image(),
-                &self.images.buffers[img.buffer],
+                self.images.buffer(&img),
                 img.offset_px,
                 img.width,
                 img.height,
@@ -613,7 +664,7 @@ impl Trainer {
             density: &mut self.density,
             extent: self.extent,
             render: self.passes.image(),
-            truth: &self.images.buffers[slot.buffer],
+            truth: self.images.buffer(&slot),
             truth_offset_px: slot.offset_px,
             width: slot.width,
             height: slot.height,

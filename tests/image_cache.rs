@@ -1,0 +1,200 @@
+//! The ground-truth image cache (`train::image_cache`): a streaming cache holds exactly the
+//! images asked for (read back against the packed source), gives way least recently used first,
+//! decodes ahead, refuses a budget below one step; training through it equals training with every
+//! image resident. On the video fixture, validation layer on.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use lpmsplat::gpu::{GpuContext, GpuOptions, Recorder};
+use lpmsplat::models::BaseModel;
+use lpmsplat::scene::image_source::{ImageSource, TrainImages, ViewImages};
+use lpmsplat::scene::{images, LoadOptions, Scene};
+use lpmsplat::splats::random_init;
+use lpmsplat::train::image_cache::{pack_rgba8, ImageCache};
+use lpmsplat::train::trainer::{TrainConfig, Trainer};
+
+fn ctx() -> Arc<GpuContext> {
+    GpuContext::new(&GpuOptions::for_tests()).expect("a Vulkan device with the validation layer")
+}
+
+fn fixture() -> Scene {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/n3v_tiny");
+    Scene::load(&dir, &LoadOptions::default()).unwrap()
+}
+
+fn source(scene: &Scene) -> Arc<dyn ImageSource> {
+    Arc::new(ViewImages::new(scene, &scene.train).unwrap())
+}
+
+/// Bytes of `n` images of the fixture's size (all its images are 64×48).
+fn images_bytes(n: u64) -> u64 {
+    n * 64 * 48 * 4
+}
+
+/// Image `k`'s pixels as the cache holds them, read back.
+fn held(cache: &ImageCache, k: usize) -> Option<Vec<u32>> {
+    let s = cache.slot(k)?;
+    let n = (s.width * s.height) as usize;
+    Some(
+        cache
+            .buffer(&s)
+            .read_range(s.offset_px as usize, n)
+            .unwrap(),
+    )
+}
+
+#[test]
+fn a_streaming_cache_holds_what_was_asked_and_evicts_the_least_recently_used() {
+    let ctx = ctx();
+    let scene = fixture();
+    let src = source(&scene);
+    let packed = |k: usize| pack_rgba8(&src.load(k).unwrap());
+    // Three slots (and a little spare that holds no fourth image).
+    let mut cache = ImageCache::new(
+        &ctx,
+        &TrainImages::streamed(src.clone(), images_bytes(3) + 100),
+        2,
+    )
+    .unwrap();
+    assert!(cache.streams());
+    let st = cache.stats();
+    assert_eq!((st.images, st.slots, st.resident), (32, 3, false));
+    assert_eq!(st.bytes, images_bytes(3));
+    assert!((0..32).all(|k| cache.slot(k).is_none()), "empty at first");
+
+    let mut rec = Recorder::new(&ctx).unwrap();
+    let step = |cache: &mut ImageCache, rec: &mut Recorder, needed: &[usize], next: &[usize]| {
+        rec.begin().unwrap();
+        cache.prepare(rec, needed, next).unwrap();
+        rec.submit_and_wait().unwrap();
+    };
+    // Images of different frames and cameras (distinct pixels).
+    let (a, b, c, d) = (0, 9, 17, 30);
+    assert!(packed(a) != packed(b) && packed(c) != packed(d));
+    step(&mut cache, &mut rec, &[a, b], &[c]);
+    assert_eq!(held(&cache, a).unwrap(), packed(a));
+    assert_eq!(held(&cache, b).unwrap(), packed(b));
+    assert_eq!(cache.stats().uploads, 2);
+    assert_eq!(
+        cache.stats().waited,
+        2,
+        "nothing was decoded ahead of the first step"
+    );
+    // c was asked for ahead: it comes from the loader (waiting at most for the decode to end).
+    step(&mut cache, &mut rec, &[c], &[]);
+    assert_eq!(held(&cache, c).unwrap(), packed(c));
+    // Asked again: resident, no upload.
+    step(&mut cache, &mut rec, &[b], &[]);
+    assert_eq!(cache.stats().uploads, 3);
+    // d takes a's slot, the least recently used (b and c were used since).
+    step(&mut cache, &mut rec, &[d], &[]);
+    assert!(cache.slot(a).is_none(), "a should have given way");
+    for (k, want) in [(b, packed(b)), (c, packed(c)), (d, packed(d))] {
+        assert_eq!(held(&cache, k).unwrap(), want, "image {k}");
+    }
+    // A step reading two images never evicts one of its own for the other.
+    step(&mut cache, &mut rec, &[a, d], &[]);
+    assert_eq!(held(&cache, a).unwrap(), packed(a));
+    assert_eq!(held(&cache, d).unwrap(), packed(d));
+    assert_eq!(cache.stats().uploads, 5);
+    // More images in one step than it was sized for is an error, not a silent overwrite.
+    rec.begin().unwrap();
+    let e = cache.prepare(&mut rec, &[1, 2, 3], &[]).unwrap_err();
+    assert!(format!("{e:#}").contains("more images"), "{e:#}");
+    rec.submit_and_wait().unwrap();
+    ctx.check_validation().unwrap();
+}
+
+#[test]
+fn a_budget_below_one_step_is_refused_with_the_size_to_ask_for() {
+    let ctx = ctx();
+    let scene = fixture();
+    let e = ImageCache::new(
+        &ctx,
+        &TrainImages::streamed(source(&scene), images_bytes(1)),
+        2,
+    )
+    .err()
+    .expect("one slot for a two-view step");
+    let m = format!("{e:#}");
+    assert!(m.contains("--image-cache") && m.contains("reads 2"), "{m}");
+    // Everything fits: resident, uploaded once, with each image where the source has it.
+    let src = source(&scene);
+    let cache = ImageCache::new(&ctx, &TrainImages::streamed(src.clone(), 1 << 30), 2).unwrap();
+    let st = cache.stats();
+    assert!(st.resident && !cache.streams());
+    assert_eq!((st.slots, st.bytes), (32, images_bytes(32)));
+    for k in [0, 13, 31] {
+        assert_eq!(held(&cache, k).unwrap(), pack_rgba8(&src.load(k).unwrap()));
+    }
+    ctx.check_validation().unwrap();
+}
+
+/// `iterations` steps of spacetime-lite (two views a step) on the fixture; the final model's
+/// floats and the cache's statistics.
+fn train(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    images: TrainImages,
+    iterations: u32,
+) -> (Vec<f32>, Vec<f32>, lpmsplat::train::image_cache::CacheStats) {
+    let mut cfg = TrainConfig {
+        iterations,
+        seed: 5,
+        ..TrainConfig::default()
+    };
+    BaseModel::SpacetimeLite.configure(&mut cfg);
+    assert_eq!(cfg.batch_views, 2);
+    let (center, half) = scene.random_init_box();
+    let init = BaseModel::SpacetimeLite
+        .initialise(random_init(1_500, center, [half; 3], 4, 0).unwrap(), 4);
+    let mut t = Trainer::new(ctx, scene, images, &init, cfg).unwrap();
+    let mut losses = Vec::new();
+    for _ in 0..iterations {
+        losses.push(t.step().unwrap().l1);
+    }
+    let m = t.export_model().unwrap();
+    let floats: Vec<f32> = m.positions.iter().flatten().copied().collect();
+    (floats, losses, t.image_cache_stats())
+}
+
+#[test]
+fn training_through_a_streaming_cache_equals_training_with_every_image_resident() {
+    let ctx = ctx();
+    let scene = fixture();
+    let gt = images::load_images(&scene, &scene.train).unwrap();
+    let n = 24;
+    let (a, la, sa) = train(&ctx, &scene, TrainImages::from(&gt), n);
+    let (b, _, _) = train(&ctx, &scene, TrainImages::from(&gt), n);
+    // Three slots for 32 images, two read a step: nearly every step uploads.
+    let (c, lc, sc) = train(
+        &ctx,
+        &scene,
+        TrainImages::streamed(source(&scene), images_bytes(3)),
+        n,
+    );
+    assert!(sa.resident && sa.uploads == 0, "{sa:?}");
+    assert!(!sc.resident && sc.slots == 3, "{sc:?}");
+    assert!(sc.uploads >= n as u64, "{sc:?}");
+    assert!(
+        sc.waited < sc.uploads,
+        "the loader decoded nothing ahead: {sc:?}"
+    );
+    // The first step reads the same pixels through either cache: the same loss exactly.
+    assert_eq!(la[0].to_bits(), lc[0].to_bits());
+    let diff = |x: &[f32], y: &[f32]| {
+        assert_eq!(x.len(), y.len());
+        x.iter()
+            .zip(y)
+            .map(|(p, q)| (p - q).abs())
+            .fold(0.0, f32::max)
+    };
+    let (noise, got) = (diff(&a, &b), diff(&a, &c));
+    eprintln!("resident runs differ by {noise:e}, streamed by {got:e}");
+    assert!(
+        got <= 4.0 * noise,
+        "streamed training differs by {got}, run-to-run noise {noise}"
+    );
+    ctx.check_validation().unwrap();
+}
