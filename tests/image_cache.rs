@@ -198,3 +198,59 @@ fn training_through_a_streaming_cache_equals_training_with_every_image_resident(
     );
     ctx.check_validation().unwrap();
 }
+
+fn lpmsplat() -> std::process::Command {
+    let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_lpmsplat"));
+    c.env("LPMSPLAT_VALIDATION", "1");
+    c
+}
+
+/// `train --image-cache MIB` on the fixture.
+fn cli_train(cache_mib: &str, out: &Path) -> std::process::Output {
+    let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/n3v_tiny");
+    lpmsplat()
+        .arg("train")
+        .arg(&fixture)
+        .args(["--model", "spacetime-lite", "--iterations", "6"])
+        .args(["--init-points", "500", "--image-cache", cache_mib, "-o"])
+        .arg(out)
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn cli_train_streams_within_the_budget_and_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    // 0.05 MiB: four 64×48 slots for 32 images.
+    let out = dir.path().join("streamed");
+    let o = cli_train("0.05", &out);
+    let text = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(o.status.success(), "{text}");
+    assert!(
+        text.contains("training images: streamed from disk, 4 slots for 32 images"),
+        "{text}"
+    );
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
+    let c = &m["image_cache"];
+    assert_eq!(c["resident"], false, "{c}");
+    assert_eq!(c["slots"], 4, "{c}");
+    assert!(c["uploads"].as_u64().unwrap() >= 6, "{c}");
+    assert!(m["psnr"].as_f64().unwrap().is_finite());
+
+    // Below one two-view step: refused, naming the flag and the size to give, and the
+    // output folder's earlier files are left alone.
+    let kept = dir.path().join("kept");
+    std::fs::create_dir_all(&kept).unwrap();
+    std::fs::write(kept.join("notes.txt"), "mine").unwrap();
+    let o = cli_train("0.01", &kept);
+    let text = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(!o.status.success());
+    assert!(
+        text.contains("--image-cache") && text.contains("at least 1 MiB"),
+        "{text}"
+    );
+    assert_eq!(std::fs::read_to_string(kept.join("notes.txt")).unwrap(), "mine");
+    let o = cli_train("0", &kept);
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--image-cache 0"));
+}

@@ -592,6 +592,10 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         trainer.check_resumed_strategy(p)?;
     }
     let load_s = t_load.elapsed().as_secs_f64();
+    eprintln!(
+        "training images: {}",
+        trainer.image_cache_stats().describe()
+    );
     let start_iteration = trainer.iteration;
     let bar = ProgressBar::new(config.iterations as u64);
     bar.set_position(start_iteration as u64);
@@ -801,6 +805,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         "resumed_from": start_iteration,
         "setup_seconds": load_s,
         "dropped_frames": trainer.dropped_frames,
+        "image_cache": trainer.image_cache_stats(),
         "device": ctx.info.name,
         "gpu_memory_mib": ctx.memory_in_use().1 as f64 / (1u64 << 20) as f64,
         "stages": if config.timestamps { stage_shares(&stages) } else { serde_json::Value::Null },

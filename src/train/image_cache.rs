@@ -68,6 +68,21 @@ pub struct CacheStats {
     pub wait_seconds: f64,
 }
 
+impl CacheStats {
+    /// One line for the console: how the images are held.
+    pub fn describe(&self) -> String {
+        let mib = self.bytes as f64 / (1u64 << 20) as f64;
+        if self.resident {
+            format!("all {} resident ({mib:.1} MiB)", self.images)
+        } else {
+            format!(
+                "streamed from disk, {} slots for {} images ({mib:.1} MiB)",
+                self.slots, self.images
+            )
+        }
+    }
+}
+
 /// Images decoded at most this many at a time while filling a resident cache, so that the
 /// host holds one chunk of f32 pixels rather than the whole set.
 const RESIDENT_CHUNK: usize = 32;
