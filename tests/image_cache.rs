@@ -250,7 +250,10 @@ fn cli_train_streams_within_the_budget_and_says_so() {
         text.contains("--image-cache") && text.contains("at least 1 MiB"),
         "{text}"
     );
-    assert_eq!(std::fs::read_to_string(kept.join("notes.txt")).unwrap(), "mine");
+    assert_eq!(
+        std::fs::read_to_string(kept.join("notes.txt")).unwrap(),
+        "mine"
+    );
     let o = cli_train("0", &kept);
     assert!(String::from_utf8_lossy(&o.stderr).contains("--image-cache 0"));
 }

@@ -169,7 +169,17 @@ fn fitting_fixed_gaussians_lowers_the_loss_tenfold() {
         first >= 10.0 * last,
         "the loss fell only from {first} to {last}"
     );
-    let (metrics, _) = t.evaluate(&scene, &scene.train, &gt).unwrap();
+    // The views come to the callback in order, each render the truth's size.
+    let mut seen = Vec::new();
+    let metrics = t
+        .evaluate(&scene, &scene.train, &gt, |k, m, render, truth| {
+            assert_eq!(render.len(), truth.rgb.len());
+            assert_eq!(m.view, scene.views[scene.train[k]].name);
+            seen.push(k);
+            Ok(())
+        })
+        .unwrap();
+    assert_eq!(seen, (0..scene.train.len()).collect::<Vec<_>>());
     let psnr = metrics.iter().map(|m| m.psnr).sum::<f64>() / metrics.len() as f64;
     eprintln!("PSNR against the ground-truth renders: {psnr:.2} dB");
     assert!(psnr >= 37.0, "PSNR {psnr} dB after the fit");

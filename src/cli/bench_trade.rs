@@ -19,7 +19,8 @@ use lpmsplat::lpm::ZoneGeometry;
 use lpmsplat::render::forward::{FrameSettings, Renderer};
 use lpmsplat::render::layout::{CameraGpu, RenderConstants};
 use lpmsplat::render::spacetime::TimedModel;
-use lpmsplat::scene::{images, Scene};
+use lpmsplat::scene::image_source::{ImageSource, ViewImages};
+use lpmsplat::scene::Scene;
 use lpmsplat::splats::gpu::GpuSplats;
 use lpmsplat::splats::write_ply;
 
@@ -170,7 +171,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
     .name
     .clone();
     let train_images = args.images.train_images(&scene)?;
-    let test_images = images::load_images(&scene, &scene.test)?;
+    let test_images = ViewImages::new(&scene, &scene.test)?;
     let seeds: Vec<u64> = (0..args.seeds as u64).map(|i| args.seed + i).collect();
     // The model's own colour degree (SpacetimeGaussians lite: none), 3 otherwise.
     let sh_degree = {
@@ -465,7 +466,7 @@ pub fn selected_runs(names: &[String]) -> anyhow::Result<Vec<usize>> {
 /// What every run is scored on: the scene's test views, their images, and LPIPS if loaded.
 struct TestSet<'a> {
     scene: &'a Scene,
-    images: &'a [images::Image],
+    images: &'a dyn ImageSource,
     lpips: Option<&'a Lpips>,
 }
 
@@ -480,23 +481,20 @@ fn evaluate_run(
 ) -> anyhow::Result<TradeRow> {
     let (scene, test_images, lpips) = (test.scene, test.images, test.lpips);
     let (name, colour) = RUNS[r.k];
-    let (mut m, renders) = t.evaluate(scene, &scene.test, test_images)?;
-    let lpips_mean = lpips_scores::score(
-        lpips,
-        &mut m,
-        &renders,
-        test_images,
-        t.config.background.eval_colour(),
-    )?;
+    // The report view's render and truth are saved at the final iteration of the first seed.
+    let report = (iteration == args.iterations && r.seed == args.seed)
+        .then(|| trade_report::report_view(scene, args.report_view.as_deref()))
+        .transpose()?;
+    let m = t.evaluate(scene, &scene.test, test_images, |k, m, render, truth| {
+        lpips_scores::score_view(lpips, m, render, truth)?;
+        if report == Some(k) {
+            trade_report::save_view_images(&args.out, name, render, truth)?;
+        }
+        Ok(())
+    })?;
+    let lpips_mean = lpips_scores::mean(&m);
     let (psnr, ssim) = mean_metrics(&m);
-    let mut view_psnr = None;
-    if iteration == args.iterations && r.seed == args.seed {
-        let k = trade_report::report_view(scene, args.report_view.as_deref())?;
-        let bg = t.config.background.eval_colour();
-        let truth = images::composite_on_background(&test_images[k], bg);
-        trade_report::save_view_images(&args.out, name, &renders[k], &truth)?;
-        view_psnr = Some(m[k].psnr);
-    }
+    let view_psnr = report.map(|k| m[k].psnr);
     let model = t.export_model()?;
     let lpm_totals = t
         .strategy_as::<LpmStrategy>()

@@ -14,6 +14,7 @@ use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions};
 use lpmsplat::models::BaseModel;
 use lpmsplat::render::layout::CameraGpu;
+use lpmsplat::scene::image_source::{load_range, ViewImages};
 use lpmsplat::scene::{images, Image, Scene};
 use lpmsplat::splats::gpu::GpuSplats;
 use lpmsplat::train::trainer::{Background, ViewMetrics};
@@ -118,7 +119,7 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
             )
         })?;
     }
-    let gts = images::load_images(&scene, views)?;
+    let truths = ViewImages::new(&scene, views)?;
     let ctx = GpuContext::new(gpu)?;
     let splats = GpuSplats::upload(&ctx, &params, params.len())?;
     let cams: Vec<CameraGpu> = views
@@ -133,28 +134,35 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
         args.model
             .view_renderer(&ctx, params.len(), &cams[biggest], scene.times_of(views))?;
     let mut per_view = Vec::new();
-    let mut renders = Vec::new();
-    for (k, &v) in views.iter().enumerate() {
-        let render: Vec<f32> = renderer
-            .render(&splats, &cameras, k as u32, &cams[k], bg)?
-            .iter()
-            .map(|x| x.clamp(0.0, 1.0))
-            .collect();
-        let gt = images::composite_on_background(&gts[k], bg);
-        let (w, h) = (gt.width as usize, gt.height as usize);
-        per_view.push(ViewMetrics {
-            view: scene.views[v].name.clone(),
-            psnr: lpmsplat::metrics::psnr(&render, &gt.rgb)?,
-            ssim: lpmsplat::metrics::ssim(&render, &gt.rgb, w, h)?,
-            lpips: None,
-        });
-        if let Some(dir) = &args.side_by_side {
-            let path = dir.join(format!("{}.png", scene.views[v].stem));
-            images::save_png(&path, &side_by_side(&render, &gt))?;
+    // A few images decoded at a time, nothing kept: a video's test frames take the memory of a
+    // handful.
+    for start in (0..views.len()).step_by(8) {
+        let end = (start + 8).min(views.len());
+        let chunk = load_range(&truths, start..end)?;
+        for (k, truth) in (start..end).zip(chunk) {
+            let v = views[k];
+            let render: Vec<f32> = renderer
+                .render(&splats, &cameras, k as u32, &cams[k], bg)?
+                .iter()
+                .map(|x| x.clamp(0.0, 1.0))
+                .collect();
+            let gt = images::composite_on_background(&truth, bg);
+            let (w, h) = (gt.width as usize, gt.height as usize);
+            let mut m = ViewMetrics {
+                view: scene.views[v].name.clone(),
+                psnr: lpmsplat::metrics::psnr(&render, &gt.rgb)?,
+                ssim: lpmsplat::metrics::ssim(&render, &gt.rgb, w, h)?,
+                lpips: None,
+            };
+            lpips_scores::score_view(lpips.as_ref(), &mut m, &render, &gt)?;
+            if let Some(dir) = &args.side_by_side {
+                let path = dir.join(format!("{}.png", scene.views[v].stem));
+                images::save_png(&path, &side_by_side(&render, &gt))?;
+            }
+            per_view.push(m);
         }
-        renders.push(render);
     }
-    let lpips_mean = lpips_scores::score(lpips.as_ref(), &mut per_view, &renders, &gts, bg)?;
+    let lpips_mean = lpips_scores::mean(&per_view);
     let (psnr, ssim) = mean_metrics(&per_view);
     let name_w = per_view
         .iter()

@@ -3,7 +3,7 @@
 
 use clap::Args;
 use lpmsplat::lpips::Lpips;
-use lpmsplat::scene::{images, Image};
+use lpmsplat::scene::Image;
 use lpmsplat::train::trainer::ViewMetrics;
 use std::path::PathBuf;
 
@@ -29,22 +29,27 @@ impl LpipsArgs {
 pub const NOT_COMPUTED: &str =
     "LPIPS not computed: pass --lpips-weights FILE (see the README's \"LPIPS weights\")";
 
-/// Scores each view's render against its ground truth (composited on `background`, as PSNR and
-/// SSIM are) and stores it in the view's metrics. Returns the mean, or `None` without weights.
-pub fn score(
+/// Scores one view's render against its ground truth (already composited on the background
+/// PSNR and SSIM used) into its metrics; nothing without weights.
+pub fn score_view(
     lpips: Option<&Lpips>,
-    metrics: &mut [ViewMetrics],
-    renders: &[Vec<f32>],
-    truths: &[Image],
-    background: [f32; 3],
-) -> anyhow::Result<Option<f64>> {
-    let Some(net) = lpips else { return Ok(None) };
-    let mut sum = 0.0;
-    for ((m, render), truth) in metrics.iter_mut().zip(renders).zip(truths) {
-        let gt = images::composite_on_background(truth, background);
-        let d = net.distance(render, &gt.rgb, gt.width as usize, gt.height as usize)?;
-        m.lpips = Some(d);
-        sum += d;
+    metrics: &mut ViewMetrics,
+    render: &[f32],
+    truth: &Image,
+) -> anyhow::Result<()> {
+    if let Some(net) = lpips {
+        metrics.lpips = Some(net.distance(
+            render,
+            &truth.rgb,
+            truth.width as usize,
+            truth.height as usize,
+        )?);
     }
-    Ok(Some(sum / metrics.len().max(1) as f64))
+    Ok(())
+}
+
+/// The mean LPIPS of views scored by [`score_view`] (`None` when none was).
+pub fn mean(metrics: &[ViewMetrics]) -> Option<f64> {
+    let scored: Vec<f64> = metrics.iter().filter_map(|m| m.lpips).collect();
+    (!scored.is_empty()).then(|| scored.iter().sum::<f64>() / scored.len() as f64)
 }

@@ -13,7 +13,7 @@ use lpmsplat::gpu::{GpuContext, GpuOptions, StageTimes};
 use lpmsplat::lpm::strategy::{LpmConfig, LpmStrategy, PruneMode};
 use lpmsplat::lpm::{self, ZoneGeometry};
 use lpmsplat::models::BaseModel;
-use lpmsplat::scene::image_source::TrainImages;
+use lpmsplat::scene::image_source::{TrainImages, ViewImages};
 use lpmsplat::scene::{images, Image, Scene};
 use lpmsplat::splats::{self, read_ply, write_ply, write_splat, GaussianParams};
 use lpmsplat::train::config::ChildTime;
@@ -522,7 +522,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     let checkpoint_path = args.out.join("checkpoint.bin");
     let t_load = Instant::now();
     let train_images = args.images.train_images(&scene)?;
-    let test_images = images::load_images(&scene, &scene.test)?;
+    let test_images = ViewImages::new(&scene, &scene.test)?;
     let resumed = match &args.resume {
         Some(p) => Some(lpmsplat::train::checkpoint::Checkpoint::read(p)?),
         None => None,
@@ -691,14 +691,10 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
             && !scene.test.is_empty()
         {
             let t_pause = Instant::now();
-            let (mut m, renders) = trainer.evaluate(&scene, &scene.test, &test_images)?;
-            let lp = lpips_scores::score(
-                lpips.as_ref(),
-                &mut m,
-                &renders,
-                &test_images,
-                trainer.config.background.eval_colour(),
-            )?;
+            let m = trainer.evaluate(&scene, &scene.test, &test_images, |_, m, r, gt| {
+                lpips_scores::score_view(lpips.as_ref(), m, r, gt)
+            })?;
+            let lp = lpips_scores::mean(&m);
             let (p, s) = mean_metrics(&m);
             eval_points.push(EvalPoint {
                 iteration: r.iteration,
@@ -740,35 +736,22 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     }
     trainer.save_checkpoint(&scene, &checkpoint_path)?;
 
-    // Final evaluation and renders.
-    let (mut per_view, renders) = if scene.test.is_empty() {
-        (Vec::new(), Vec::new())
-    } else {
-        trainer.evaluate(&scene, &scene.test, &test_images)?
-    };
-    let lpips_mean = lpips_scores::score(
-        lpips.as_ref(),
-        &mut per_view,
-        &renders,
-        &test_images,
-        trainer.config.background.eval_colour(),
-    )?;
+    // Final evaluation and renders (written as each view is scored).
     let render_dir = args.out.join("renders").join("test");
     std::fs::create_dir_all(&render_dir)
         .with_context(|| format!("creating {}", render_dir.display()))?;
-    for (k, &v) in scene.test.iter().enumerate() {
-        let cam = &scene.views[v].camera;
+    let per_view = trainer.evaluate(&scene, &scene.test, &test_images, |k, m, r, gt| {
+        lpips_scores::score_view(lpips.as_ref(), m, r, gt)?;
         let img = Image {
-            width: cam.width,
-            height: cam.height,
-            rgb: renders[k].clone(),
+            width: gt.width,
+            height: gt.height,
+            rgb: r.to_vec(),
             alpha: None,
         };
-        images::save_png(
-            &render_dir.join(format!("{}.png", scene.views[v].stem)),
-            &img,
-        )?;
-    }
+        let stem = &scene.views[scene.test[k]].stem;
+        images::save_png(&render_dir.join(format!("{stem}.png")), &img)
+    })?;
+    let lpips_mean = lpips_scores::mean(&per_view);
     let (psnr, ssim) = mean_metrics(&per_view);
     if !per_view.is_empty() {
         eval_points.push(EvalPoint {

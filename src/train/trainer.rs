@@ -37,7 +37,7 @@ use super::strategy::{Adc, DensityContext, DensityStrategy, IterationView, Strat
 use crate::gpu::{BufferKind, GpuBuffer, GpuContext, Recorder, StageTimes, TimestampPool};
 use crate::render::forward::Capacity;
 use crate::render::layout::{CameraGpu, RenderConstants};
-use crate::scene::image_source::TrainImages;
+use crate::scene::image_source::{load_range, ImageSource, TrainImages};
 use crate::scene::{Image, Scene};
 use crate::splats::gpu::{grown_capacity, GpuSplats};
 use crate::splats::GaussianParams;
@@ -127,6 +127,9 @@ pub struct Trainer {
 
 /// Steps ahead whose images a streaming cache decodes while the GPU works on the current one.
 const LOOKAHEAD_STEPS: u32 = 2;
+
+/// Test images decoded at once by [`Trainer::evaluate`] (in parallel, then dropped).
+const EVAL_CHUNK: usize = 8;
 
 /// Per-iteration background colour for `Background::Random`: a hash of (seed, iteration), so a
 /// resumed run draws the same colours.
@@ -773,30 +776,48 @@ impl Trainer {
         })
     }
 
-    /// PSNR and SSIM of every view in `views` against `images` (composited on the evaluation
-    /// background).
+    /// PSNR and SSIM of every view in `views` against `images` (image `k` is that of
+    /// `views[k]`, composited on the evaluation background). `each` sees every view's metrics,
+    /// clamped render and composited truth as they are made (LPIPS, saving renders): images are
+    /// decoded a few at a time and nothing is kept, so a video's thousands of test frames take
+    /// the memory of a handful.
     pub fn evaluate(
         &mut self,
         scene: &Scene,
         views: &[usize],
-        images: &[Image],
-    ) -> anyhow::Result<(Vec<ViewMetrics>, Vec<Vec<f32>>)> {
+        images: &dyn ImageSource,
+        mut each: impl FnMut(usize, &mut ViewMetrics, &[f32], &Image) -> anyhow::Result<()>,
+    ) -> anyhow::Result<Vec<ViewMetrics>> {
+        anyhow::ensure!(
+            images.count() == views.len(),
+            "evaluate: {} images for {} views",
+            images.count(),
+            views.len()
+        );
         let bg = self.config.background.eval_colour();
-        let mut out = Vec::new();
-        let mut renders = Vec::new();
-        for (k, &v) in views.iter().enumerate() {
-            let render = self.render_view(v, bg)?;
-            let gt = crate::scene::images::composite_on_background(&images[k], bg);
-            let clamped: Vec<f32> = render.iter().map(|x| x.clamp(0.0, 1.0)).collect();
-            let (w, h) = (gt.width as usize, gt.height as usize);
-            out.push(ViewMetrics {
-                view: scene.views[v].name.clone(),
-                psnr: crate::metrics::psnr(&clamped, &gt.rgb)?,
-                ssim: crate::metrics::ssim(&clamped, &gt.rgb, w, h)?,
-                lpips: None,
-            });
-            renders.push(clamped);
+        let mut out = Vec::with_capacity(views.len());
+        for start in (0..views.len()).step_by(EVAL_CHUNK) {
+            let end = (start + EVAL_CHUNK).min(views.len());
+            let truths = load_range(images, start..end)?;
+            for (k, truth) in (start..end).zip(truths) {
+                let v = views[k];
+                let render: Vec<f32> = self
+                    .render_view(v, bg)?
+                    .iter()
+                    .map(|x| x.clamp(0.0, 1.0))
+                    .collect();
+                let gt = crate::scene::images::composite_on_background(&truth, bg);
+                let (w, h) = (gt.width as usize, gt.height as usize);
+                let mut m = ViewMetrics {
+                    view: scene.views[v].name.clone(),
+                    psnr: crate::metrics::psnr(&render, &gt.rgb)?,
+                    ssim: crate::metrics::ssim(&render, &gt.rgb, w, h)?,
+                    lpips: None,
+                };
+                each(k, &mut m, &render, &gt)?;
+                out.push(m);
+            }
         }
-        Ok((out, renders))
+        Ok(out)
     }
 }
