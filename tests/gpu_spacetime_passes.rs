@@ -8,7 +8,7 @@ use std::sync::Arc;
 use lpmsplat::gpu::{BufferKind, GpuBuffer, GpuContext, GpuOptions, Recorder};
 use lpmsplat::models::{with_temporal_groups, BaseModel};
 use lpmsplat::reference::scenes::random_view;
-use lpmsplat::reference::spacetime::{instant, instant_backward, Instant, Temporal};
+use lpmsplat::reference::spacetime::{instant_backward, Instant, Temporal};
 use lpmsplat::render::forward::Capacity;
 use lpmsplat::render::layout::CameraGpu;
 use lpmsplat::splats::gpu::GpuSplats;
@@ -33,31 +33,12 @@ fn extra<'a>(p: &'a GaussianParams, name: &str) -> &'a [f32] {
 }
 
 fn temporal_of(p: &GaussianParams, i: usize) -> Temporal {
-    let d = |v: f32| v as f64;
-    let m = extra(p, "motion");
-    let w = extra(p, "omega");
-    Temporal {
-        position: p.positions[i].map(d),
-        motion: std::array::from_fn(|k| d(m[9 * i + k])),
-        rotation: p.rotations[i].map(d),
-        omega: std::array::from_fn(|k| d(w[4 * i + k])),
-        opacity_logit: d(p.opacity_logits[i]),
-        t_center: d(extra(p, "trbf_center")[i]),
-        t_log_scale: d(extra(p, "trbf_scale")[i]),
-    }
+    lpmsplat::reference::spacetime::temporal_of(p, i).expect("a video model")
 }
 
 /// The still model at time `t`, from the reference (no extra groups).
 fn still_at(p: &GaussianParams, t: f64) -> GaussianParams {
-    let mut s = p.clone();
-    s.extra.clear();
-    for i in 0..p.len() {
-        let x = instant(&temporal_of(p, i), t);
-        s.positions[i] = x.position.map(|v| v as f32);
-        s.rotations[i] = x.rotation.map(|v| v as f32);
-        s.opacity_logits[i] = x.opacity_logit as f32;
-    }
-    s
+    lpmsplat::reference::spacetime::still_at(p, t).expect("a video model")
 }
 
 struct Frame {

@@ -214,6 +214,11 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
     base.lr.position_max_steps = calendar;
     base.density.min_opacity = args.model.default_min_opacity();
     args.model.configure(&mut base);
+    if let Some(g) = base.spacetime.as_mut().and_then(|s| s.guided.as_mut()) {
+        // SpacetimeGaussians' guided sampling on the same calendar (official 1600 and 100).
+        g.from = scale(g.from);
+        g.gap = scale(g.gap);
+    }
     if let Some(t) = base.surfels.as_mut() {
         // 2DGS's regularisers start on the same calendar (official 7000 and 3000 of 30k).
         t.normal_from = scale(t.normal_from);

@@ -137,6 +137,13 @@ pub struct TrainArgs {
     /// prune (SpacetimeGaussians' official rule: 6).
     #[arg(long)]
     pub growth_rounds: Option<u32>,
+    /// spacetime-lite: the official guided error sampling (on) or off.
+    #[arg(long, value_parser = ["on", "off"])]
+    pub guided_sampling: Option<String>,
+    /// spacetime-lite: the iteration guided sampling starts recording the cameras' SSIM
+    /// (official 1600).
+    #[arg(long)]
+    pub guided_from: Option<u32>,
     /// Views per optimizer step, their gradients averaged: the scheduled view and others of its
     /// time (another camera of the same frame in a video). Default 2 for spacetime-lite (the
     /// official batch), 1 otherwise.
@@ -412,6 +419,25 @@ impl TrainArgs {
             ),
             _ => {}
         }
+        if self.guided_sampling.is_some() || self.guided_from.is_some() {
+            let Some(st) = c.spacetime.as_mut() else {
+                anyhow::bail!(
+                    "--guided-sampling and --guided-from apply to --model spacetime-lite only \
+                     (this run trains {}). Fix: drop the flag",
+                    self.model.name()
+                );
+            };
+            if self.guided_sampling.as_deref() == Some("off") {
+                anyhow::ensure!(
+                    self.guided_from.is_none(),
+                    "--guided-from with --guided-sampling off: nothing would sample. Fix: drop \
+                     one of them"
+                );
+                st.guided = None;
+            } else if let (Some(g), Some(from)) = (st.guided.as_mut(), self.guided_from) {
+                g.from = from;
+            }
+        }
         if let Some(b) = self.batch_views {
             anyhow::ensure!(
                 (1..=16).contains(&b),
@@ -617,6 +643,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     let mut samples: Vec<Sample> = Vec::new();
     let mut eval_points: Vec<EvalPoint> = Vec::new();
     let mut paused_s = 0.0;
+    let mut model_events = Vec::new();
     for _ in start_iteration..config.iterations {
         let next = trainer.iteration + 1;
         if next == config.iterations || (args.eval_every > 0 && next % args.eval_every == 0) {
@@ -625,6 +652,14 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
             trainer.snapshot_next_step();
         }
         let r = trainer.step()?;
+        for e in &r.model_events {
+            if plain {
+                eprintln!("{}", e.describe());
+            } else {
+                bar.println(e.describe());
+            }
+            model_events.push(e.to_json());
+        }
         if let (Some(check), Some(every)) = (nan_check.as_mut(), args.nan_check) {
             if r.iteration % every == 0 || r.iteration == config.iterations {
                 check.check(&trainer.state.params, r.iteration)?;
@@ -789,6 +824,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         "setup_seconds": load_s,
         "dropped_frames": trainer.dropped_frames,
         "image_cache": trainer.image_cache_stats(),
+        "model_events": model_events,
         "device": ctx.info.name,
         "gpu_memory_mib": ctx.memory_in_use().1 as f64 / (1u64 << 20) as f64,
         "stages": if config.timestamps { stage_shares(&stages) } else { serde_json::Value::Null },

@@ -83,6 +83,11 @@ pub struct RasterOutput {
     pub contributors: Vec<u32>,
     /// Per Gaussian: the pixels it contributed to (Pixel-GS's n_v(i)).
     pub pixel_count: Vec<u32>,
+    /// The median depth: the view-space depth of the splat that takes the pixel's
+    /// transmittance below ½ (`None` where it stays at ½ or above). SpacetimeGaussians' guided
+    /// sampling reads its maximum as a view's depth (the official rasterizer's depth output,
+    /// which writes 15 where there is none).
+    pub median_depth: Vec<Option<f64>>,
 }
 
 /// One splat evaluated at one pixel centre.
@@ -167,6 +172,7 @@ pub fn rasterize(
         last_contributor: vec![0; n],
         contributors: vec![0; n],
         pixel_count: vec![0; projected.len()],
+        median_depth: vec![None; n],
     };
     for j in 0..camera.height {
         for i in 0..camera.width {
@@ -188,6 +194,9 @@ pub fn rasterize(
                 }
                 for (c, rgb) in color.iter_mut().zip(p.rgb) {
                     *c += rgb * s.alpha * t;
+                }
+                if t >= 0.5 && next_t < 0.5 {
+                    out.median_depth[pix] = Some(p.depth);
                 }
                 t = next_t;
                 out.last_contributor[pix] = k as u32 + 1;

@@ -154,3 +154,43 @@ pub const PRESENT_MIN_WEIGHT: f64 = 0.05;
 pub fn frame_position(p: &Temporal, t: f64, min_weight: f64) -> Option<[f64; 3]> {
     (temporal_weight(p, t) >= min_weight).then(|| instant(p, t).position)
 }
+
+/// The temporal parameters of Gaussian `i` of a model with SpacetimeGaussians' extra groups
+/// (`motion`, `omega`, `trbf_center`, `trbf_scale`); `None` when the model lacks them.
+pub fn temporal_of(p: &crate::splats::GaussianParams, i: usize) -> Option<Temporal> {
+    let group = |name: &str| {
+        p.extra
+            .iter()
+            .find(|e| e.group.name == name)
+            .map(|e| e.values.as_slice())
+    };
+    let (m, w) = (group("motion")?, group("omega")?);
+    let (c, s) = (group("trbf_center")?, group("trbf_scale")?);
+    let d = |v: f32| v as f64;
+    Some(Temporal {
+        position: p.positions[i].map(d),
+        motion: std::array::from_fn(|k| d(m[9 * i + k])),
+        rotation: p.rotations[i].map(d),
+        omega: std::array::from_fn(|k| d(w[4 * i + k])),
+        opacity_logit: d(p.opacity_logits[i]),
+        t_center: d(c[i]),
+        t_log_scale: d(s[i]),
+    })
+}
+
+/// The still model a video model is at time `t` (no extra groups): what the temporal step
+/// hands the projection. `None` when the model has no temporal groups.
+pub fn still_at(
+    p: &crate::splats::GaussianParams,
+    t: f64,
+) -> Option<crate::splats::GaussianParams> {
+    let mut s = p.clone();
+    s.extra.clear();
+    for i in 0..p.len() {
+        let x = instant(&temporal_of(p, i)?, t);
+        s.positions[i] = x.position.map(|v| v as f32);
+        s.rotations[i] = x.rotation.map(|v| v as f32);
+        s.opacity_logits[i] = x.opacity_logit as f32;
+    }
+    Some(s)
+}

@@ -529,6 +529,16 @@ impl Trainer {
                 // The density strategy is part of the run's settings: a resumed run must keep
                 // it, with the same settings (an ADC run must not gain LPM, nor lose it).
                 c["strategy"] = self.strategy().settings_json();
+                // The base model's own rules' state (guided sampling's chosen cameras), so a
+                // resumed run goes on where it stopped; not compared on resume.
+                if !self.model_rules.is_empty() {
+                    c["model_rules"] = self
+                        .model_rules
+                        .iter()
+                        .map(|r| (r.name().to_string(), r.state_json()))
+                        .collect::<serde_json::Map<_, _>>()
+                        .into();
+                }
                 c.to_string()
             },
         })
@@ -642,6 +652,10 @@ impl Trainer {
                 })
             })
         });
+        let rule_states = saved
+            .as_object_mut()
+            .and_then(|o| o.remove("model_rules"))
+            .unwrap_or(serde_json::Value::Null);
         let diffs = config_differences(&saved, &config.to_json());
         if !diffs.is_empty() {
             return bad_input(
@@ -671,6 +685,12 @@ impl Trainer {
             )
         })?;
         let mut t = Trainer::new(ctx, scene, train_images, &params, config)?;
+        for rule in t.model_rules.iter_mut() {
+            if let Some(state) = rule_states.get(rule.name()) {
+                rule.restore_state(state)
+                    .with_context(|| path.display().to_string())?;
+            }
+        }
         upload_groups(&t.state.m, &ck.sets[1])?;
         upload_groups(&t.state.v, &ck.sets[2])?;
         let stats = t.density.stats();

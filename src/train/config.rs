@@ -129,6 +129,17 @@ impl TrainConfig {
                 "lr_motion": r.motion, "lr_omega": r.omega, "lr_t_center": r.t_center,
                 "lr_t_log_scale": r.t_log_scale, "child_time": r.child_time.name(),
             });
+            // Always written: a checkpoint from before guided sampling existed was trained
+            // without it, and resuming it with the sampler on is a different run.
+            j["spacetime"]["guided_sampling"] = match &r.guided {
+                Some(g) => serde_json::json!({
+                    "from": g.from, "select_below": g.select_below, "cameras": g.cameras,
+                    "gap": g.gap, "sample_below": g.sample_below, "quantile": g.quantile,
+                    "patch": g.patch, "patch_fraction": g.patch_fraction, "border": g.border,
+                    "depth_ratios": g.depth_ratios, "jitter": g.jitter, "opacity": g.opacity,
+                }),
+                None => serde_json::Value::Null,
+            };
         }
         // Only when not the 3DGS default, so checkpoints from before the key still resume.
         if let Statistic::PixelWeighted { depth_threshold } = d.statistic {
@@ -225,6 +236,56 @@ pub struct SpacetimeTraining {
     pub t_log_scale: f64,
     /// Clones' and split children's temporal centre.
     pub child_time: ChildTime,
+    /// The official guided error sampling (`None`: off).
+    pub guided: Option<GuidedSamplingSettings>,
+}
+
+/// SpacetimeGaussians' guided error sampling (the official train.py "ems", BASE_MODELS.md §4.6;
+/// `train::passes::guided_sampling`): the official defaults.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GuidedSamplingSettings {
+    /// From this iteration the first SSIM of every training camera is recorded (1600).
+    pub from: u32,
+    /// Cameras whose first SSIM is below this are candidates (0.91) ...
+    pub select_below: f32,
+    /// ... the `cameras` lowest are chosen, none when fewer than that are below (2) ...
+    pub cameras: usize,
+    /// ... and each is sampled once, when it is a step's last view more than `gap` iterations
+    /// after the previous sampling (100) and its SSIM there is below `sample_below` (0.88).
+    pub gap: u32,
+    pub sample_below: f32,
+    /// Error pixels: above this quantile of the mean-normalised error (0.6).
+    pub quantile: f64,
+    /// Patches of this side (16) with more than `patch_fraction` error pixels (0.85) seed
+    /// points; a `border` fraction of the image at each edge is left out (0.1).
+    pub patch: u32,
+    pub patch_fraction: f64,
+    pub border: f64,
+    /// Two points on each seed pixel's ray at these multiples of the view's depth (0.7, 7.5),
+    /// each depth jittered by up to ± `jitter` / 2 of it (0.1).
+    pub depth_ratios: [f64; 2],
+    pub jitter: f64,
+    /// The new points' opacity (0.1).
+    pub opacity: f64,
+}
+
+impl Default for GuidedSamplingSettings {
+    fn default() -> Self {
+        Self {
+            from: 1600,
+            select_below: 0.91,
+            cameras: 2,
+            gap: 100,
+            sample_below: 0.88,
+            quantile: 0.6,
+            patch: 16,
+            patch_fraction: 0.85,
+            border: 0.1,
+            depth_ratios: [0.7, 7.5],
+            jitter: 0.1,
+            opacity: 0.1,
+        }
+    }
 }
 
 impl Default for SpacetimeTraining {
@@ -235,6 +296,7 @@ impl Default for SpacetimeTraining {
             t_center: 1e-4,
             t_log_scale: 0.03,
             child_time: ChildTime::Random,
+            guided: Some(GuidedSamplingSettings::default()),
         }
     }
 }

@@ -26,6 +26,10 @@ use crate::splats::gpu::GpuSplats;
 /// What a strategy reports for one iteration (telemetry; typed access through `as_any`).
 pub trait StrategyEvent: Any + Debug + Send + Sync {
     fn to_json(&self) -> serde_json::Value;
+    /// One line for the console.
+    fn describe(&self) -> String {
+        self.to_json().to_string()
+    }
     fn as_any(&self) -> &dyn Any;
 }
 
@@ -138,6 +142,33 @@ pub trait DensityStrategy: Any {
 
     fn as_any(&self) -> &dyn Any;
     fn as_any_mut(&mut self) -> &mut dyn Any;
+}
+
+/// What a step did, for a base model's own rules.
+#[derive(Debug, Clone, Copy)]
+pub struct StepSeen<'a> {
+    pub iteration: u32,
+    /// The step's views (the last one's render and ground truth are in the context).
+    pub views: &'a [usize],
+    /// Each view's SSIM against its ground truth this step.
+    pub view_ssim: &'a [f32],
+    pub background: [f32; 3],
+}
+
+/// A base model's own density rule, run by the trainer after every step besides the density
+/// strategy (SpacetimeGaussians' guided error sampling); made by `passes::rules_for_config`.
+pub trait ModelRule {
+    fn name(&self) -> &'static str;
+    /// After the step and the strategy's work, with `t.rec` idle (begin it to record, and
+    /// submit and wait before returning).
+    fn after_step(
+        &mut self,
+        t: &mut DensityContext,
+        step: &StepSeen,
+    ) -> anyhow::Result<Option<Arc<dyn StrategyEvent>>>;
+    /// Its state, saved in checkpoints so a resumed run goes on where it stopped.
+    fn state_json(&self) -> serde_json::Value;
+    fn restore_state(&mut self, state: &serde_json::Value) -> anyhow::Result<()>;
 }
 
 /// Plain adaptive density control (the Inria rules), with whatever statistic the trainer's

@@ -33,7 +33,9 @@ use super::image_cache::{CacheStats, ImageCache, ImageSlot};
 use super::loss::{Loss, LOSS_SLOT_FLOATS};
 use super::passes::{self, FrameArgs, GradArgs, ModelPasses};
 use super::schedule::sh_degree_at;
-use super::strategy::{Adc, DensityContext, DensityStrategy, IterationView, StrategyEvent};
+use super::strategy::{
+    Adc, DensityContext, DensityStrategy, IterationView, ModelRule, StepSeen, StrategyEvent,
+};
 use crate::gpu::{BufferKind, GpuBuffer, GpuContext, Recorder, StageTimes, TimestampPool};
 use crate::render::forward::Capacity;
 use crate::render::layout::{CameraGpu, RenderConstants};
@@ -53,14 +55,19 @@ pub struct StepReport {
     /// Every view of the step, the scheduled one first (`batch_views` of them when its time has
     /// that many).
     pub views: Vec<usize>,
+    /// The last view's L1, SSIM and loss.
     pub l1: f32,
     pub ssim: f32,
     pub loss: f32,
+    /// SSIM of each view of `views`, in order (a model's own rules read them).
+    pub view_ssim: Vec<f32>,
     pub gaussians: usize,
     pub densified: Option<DensifyOutcome>,
     pub stages: Option<StageTimes>,
     /// What the density strategy reported at this iteration, if anything.
     pub strategy: Option<Arc<dyn StrategyEvent>>,
+    /// What the base model's own rules reported (guided sampling's choices and points).
+    pub model_events: Vec<Arc<dyn StrategyEvent>>,
 }
 
 impl StepReport {
@@ -115,6 +122,8 @@ pub struct Trainer {
     pub dropped_frames: u32,
     /// Decides clone / split / prune / reset ([`Adc`] unless [`Trainer::set_strategy`]).
     strategy: Box<dyn DensityStrategy>,
+    /// The base model's own density rules, run after the strategy every step.
+    pub(super) model_rules: Vec<Box<dyn ModelRule>>,
     /// Set by [`Trainer::snapshot_next_step`]: the next step copies the model before its
     /// density control into `snapshot`.
     snapshot_requested: bool,
@@ -183,6 +192,7 @@ impl Trainer {
         for (k, &v) in scene.train.iter().enumerate() {
             image_of_view[v] = Some(k);
         }
+        let model_rules = passes::rules_for_config(&config, scene, &init)?;
         let capacity = grown_capacity(init.len());
         let params = GpuSplats::upload(ctx, &init, capacity)?;
         let state = SplatState::new(ctx, params)?;
@@ -231,8 +241,19 @@ impl Trainer {
             adam: Adam::new(ctx)?,
             density: DensityControl::new(ctx, capacity, density)?,
             dl_dimage: GpuBuffer::new(ctx, "dL/dimage", pixels * 3, BufferKind::DeviceLocal)?,
-            loss_out: GpuBuffer::new(ctx, "loss", LOSS_SLOT_FLOATS, BufferKind::DeviceLocal)?,
-            loss_host: GpuBuffer::new(ctx, "loss (host)", LOSS_SLOT_FLOATS, BufferKind::Readback)?,
+            // One loss slot per view of a step.
+            loss_out: GpuBuffer::new(
+                ctx,
+                "loss",
+                LOSS_SLOT_FLOATS * config.batch_views.max(1) as usize,
+                BufferKind::DeviceLocal,
+            )?,
+            loss_host: GpuBuffer::new(
+                ctx,
+                "loss (host)",
+                LOSS_SLOT_FLOATS * config.batch_views.max(1) as usize,
+                BufferKind::Readback,
+            )?,
             views: ViewSchedule::new(scene.train.clone(), config.seed)?,
             iteration: 0,
             adam_step: 0,
@@ -241,6 +262,7 @@ impl Trainer {
             pool: TimestampPool::new(ctx, 16 + 16 * config.batch_views.max(1))?,
             dropped_frames: 0,
             strategy: Box::new(Adc),
+            model_rules,
             snapshot_requested: false,
             snapshot: None,
             snapshot_iteration: None,
@@ -353,6 +375,14 @@ impl Trainer {
             .copied()
             .flatten()
             .context("trainer: scheduled a non-training view")
+    }
+
+    /// The base model's own rules' states, by name (what a checkpoint saves of them).
+    pub fn model_rule_states(&self) -> Vec<(&'static str, serde_json::Value)> {
+        self.model_rules
+            .iter()
+            .map(|r| (r.name(), r.state_json()))
+            .collect()
     }
 
     /// What the ground-truth cache has done (slots, uploads, time spent waiting for frames).
@@ -470,7 +500,7 @@ impl Trainer {
                 bg,
                 &self.dl_dimage,
                 &self.loss_out,
-                0,
+                k as u32,
                 cfg.ssim_weight,
             )?;
             if cfg.timestamps {
@@ -536,8 +566,11 @@ impl Trainer {
             self.record_snapshot(count)?;
             self.snapshot_iteration = Some(it);
         }
-        self.rec
-            .copy(&self.loss_out, &self.loss_host, LOSS_SLOT_FLOATS);
+        self.rec.copy(
+            &self.loss_out,
+            &self.loss_host,
+            LOSS_SLOT_FLOATS * views.len(),
+        );
         self.rec.submit_and_wait()?;
         let stages = if cfg.timestamps {
             Some(self.pool.read()?)
@@ -548,9 +581,12 @@ impl Trainer {
         if self.passes.after_frame()? {
             self.dropped_frames += 1;
         }
-        let l = self.loss_host.read()?;
+        let slots = self
+            .loss_host
+            .read_range(0, LOSS_SLOT_FLOATS * views.len())?;
+        let l = &slots[LOSS_SLOT_FLOATS * (views.len() - 1)..];
         anyhow::ensure!(
-            l.iter().all(|v| v.is_finite()),
+            slots.iter().all(|v| v.is_finite()),
             "iteration {it}: the loss is not finite (L1 {}, SSIM {}); the model diverged. \
              Fix: lower the learning rates or report the scene",
             l[0],
@@ -563,10 +599,12 @@ impl Trainer {
             l1: l[0],
             ssim: l[1],
             loss: l[2],
+            view_ssim: slots.chunks(LOSS_SLOT_FLOATS).map(|c| c[1]).collect(),
             gaussians: count,
             densified: None,
             stages,
             strategy: None,
+            model_events: Vec::new(),
         };
 
         let control_start = std::time::Instant::now();
@@ -654,7 +692,38 @@ impl Trainer {
         {
             report.strategy = Some(e);
         }
-        self.follow_capacity()
+        self.follow_capacity()?;
+        // The base model's own rules (taken out while they drive the trainer's buffers).
+        let mut rules = std::mem::take(&mut self.model_rules);
+        let views = report.views.clone();
+        let view_ssim = report.view_ssim.clone();
+        let seen = StepSeen {
+            iteration: it,
+            views: &views,
+            view_ssim: &view_ssim,
+            background: at.background,
+        };
+        let mut result = Ok(());
+        for rule in rules.iter_mut() {
+            let count = self.state.count();
+            match rule.after_step(&mut self.density_context(at.view)?, &seen) {
+                Ok(e) => report.model_events.extend(e),
+                Err(e) => {
+                    result = Err(e);
+                    break;
+                }
+            }
+            if let Err(e) = self.follow_capacity() {
+                result = Err(e);
+                break;
+            }
+            if self.state.count() != count {
+                self.passes.model_changed();
+                report.gaussians = self.state.count();
+            }
+        }
+        self.model_rules = rules;
+        result
     }
 
     /// What a strategy gets to work on for training view `view` (see [`DensityContext`]).

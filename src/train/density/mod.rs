@@ -41,6 +41,7 @@
 //! `logit < logit(0.005)`): monotone, so these are the reference's tests up to the rounding of
 //! the threshold itself, and they need no transcendental on the GPU.
 
+pub mod append;
 pub mod reference;
 pub mod rng;
 

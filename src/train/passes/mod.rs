@@ -11,6 +11,7 @@
 //!   at each view's time.
 
 pub mod gaussians;
+pub mod guided_sampling;
 pub mod spacetime;
 pub mod surfels;
 
@@ -21,7 +22,7 @@ use anyhow::Result;
 use super::adam::SplatState;
 use super::config::TrainConfig;
 use super::density::DensityControl;
-use super::strategy::{FramePositions, Primitive};
+use super::strategy::{FramePositions, ModelRule, Primitive};
 use crate::gpu::{GpuBuffer, GpuContext, Recorder, TimestampPool};
 use crate::render::forward::Capacity;
 use crate::render::layout::{CameraGpu, ProjectedGpu};
@@ -177,4 +178,28 @@ pub fn for_config(
             frame,
         )?),
     })
+}
+
+/// The base model's own density rules besides the strategy (SpacetimeGaussians' guided error
+/// sampling when its settings ask for it), for `scene`'s training views from `initial`.
+pub fn rules_for_config(
+    config: &TrainConfig,
+    scene: &crate::scene::Scene,
+    initial: &GaussianParams,
+) -> Result<Vec<Box<dyn ModelRule>>> {
+    let mut rules: Vec<Box<dyn ModelRule>> = Vec::new();
+    if let (Some(g), Some(times)) = (
+        config.spacetime.as_ref().and_then(|s| s.guided),
+        scene.view_times.as_deref(),
+    ) {
+        rules.push(Box::new(guided_sampling::GuidedSampler::new(
+            g,
+            config.seed,
+            &scene.views,
+            &scene.train,
+            times,
+            initial,
+        )?));
+    }
+    Ok(rules)
 }
