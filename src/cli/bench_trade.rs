@@ -134,6 +134,10 @@ pub struct TradeRow {
     /// PSNR on the report's test view (final iteration, first seed only: the rows whose render
     /// trade.html shows).
     pub view_psnr: Option<f64>,
+    /// What the base model's own rules did up to this iteration (SpacetimeGaussians' guided
+    /// sampling: its choice and each sampling), as `train`'s `metrics.json` has them.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub model_events: Vec<serde_json::Value>,
 }
 
 pub const RUNS: [(&str, [u8; 3]); 7] = [
@@ -277,6 +281,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                 lpm,
                 trainer: None,
                 seconds: 0.0,
+                model_events: Vec::new(),
             });
         }
     }
@@ -323,8 +328,10 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                     t.snapshot_next_step();
                 }
                 let t0 = Instant::now();
-                t.step()?;
+                let report = t.step()?;
                 r.seconds += t0.elapsed().as_secs_f64();
+                r.model_events
+                    .extend(report.model_events.iter().map(|e| e.to_json()));
             }
             done += group.len() as u64;
             if done.is_multiple_of(20) || done == total {
@@ -435,6 +442,8 @@ struct Run {
     lpm: Option<LpmConfig>,
     trainer: Option<Trainer>,
     seconds: f64,
+    /// The base model's own rules' events so far.
+    model_events: Vec<serde_json::Value>,
 }
 
 /// Indices into [`RUNS`] for the `--runs` list (all when empty), in table order.
@@ -539,6 +548,7 @@ fn evaluate_run(
         lpm_radius: lpm_totals.radius_mean,
         fps_1352x1014: fps,
         view_psnr,
+        model_events: r.model_events.clone(),
     };
     let name = if args.seeds > 1 {
         format!("{name} (seed {})", r.seed)
@@ -661,6 +671,7 @@ impl Summary {
             lpm_radius: self.lpm_radius,
             fps_1352x1014: self.fps_1352x1014,
             view_psnr: None,
+            model_events: Vec::new(),
         }
     }
 }
@@ -935,6 +946,7 @@ mod tests {
             lpm_radius: 0.0,
             fps_1352x1014: 1.0,
             view_psnr: None,
+            model_events: Vec::new(),
         }
     }
 

@@ -147,13 +147,7 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
                 .map(|x| x.clamp(0.0, 1.0))
                 .collect();
             let gt = images::composite_on_background(&truth, bg);
-            let (w, h) = (gt.width as usize, gt.height as usize);
-            let mut m = ViewMetrics {
-                view: scene.views[v].name.clone(),
-                psnr: lpmsplat::metrics::psnr(&render, &gt.rgb)?,
-                ssim: lpmsplat::metrics::ssim(&render, &gt.rgb, w, h)?,
-                lpips: None,
-            };
+            let mut m = ViewMetrics::of(&scene.views[v].name, &render, &gt)?;
             lpips_scores::score_view(lpips.as_ref(), &mut m, &render, &gt)?;
             if let Some(dir) = &args.side_by_side {
                 let path = dir.join(format!("{}.png", scene.views[v].stem));

@@ -88,6 +88,19 @@ pub struct ViewMetrics {
     pub lpips: Option<f64>,
 }
 
+impl ViewMetrics {
+    /// PSNR and SSIM of a clamped render against its composited truth (RGB interleaved).
+    pub fn of(view: &str, render: &[f32], truth: &Image) -> anyhow::Result<ViewMetrics> {
+        let (w, h) = (truth.width as usize, truth.height as usize);
+        Ok(ViewMetrics {
+            view: view.to_string(),
+            psnr: crate::metrics::psnr(render, &truth.rgb)?,
+            ssim: crate::metrics::ssim(render, &truth.rgb, w, h)?,
+            lpips: None,
+        })
+    }
+}
+
 pub struct Trainer {
     pub ctx: Arc<GpuContext>,
     pub config: TrainConfig,
@@ -876,13 +889,7 @@ impl Trainer {
                     .map(|x| x.clamp(0.0, 1.0))
                     .collect();
                 let gt = crate::scene::images::composite_on_background(&truth, bg);
-                let (w, h) = (gt.width as usize, gt.height as usize);
-                let mut m = ViewMetrics {
-                    view: scene.views[v].name.clone(),
-                    psnr: crate::metrics::psnr(&render, &gt.rgb)?,
-                    ssim: crate::metrics::ssim(&render, &gt.rgb, w, h)?,
-                    lpips: None,
-                };
+                let mut m = ViewMetrics::of(&scene.views[v].name, &render, &gt)?;
                 each(k, &mut m, &render, &gt)?;
                 out.push(m);
             }
