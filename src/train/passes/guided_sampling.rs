@@ -33,6 +33,7 @@ use std::sync::Arc;
 
 use anyhow::Context;
 use rand::{Rng, SeedableRng};
+use rayon::prelude::*;
 
 use crate::reference::{self, RefGaussians, RenderSettings};
 use crate::scene::{PinholeCamera, Pose, View};
@@ -318,8 +319,9 @@ impl GuidedSampler {
         let t0 = if t0.is_finite() { t0 } else { 0.0 };
         let still = crate::reference::spacetime::still_at(initial, t0)
             .context("guided sampling: the initial model has no temporal groups")?;
+        // One f64 reference render per camera, in parallel (seconds each at 30k Gaussians).
         let depth = first_view
-            .iter()
+            .par_iter()
             .map(|&v| view_depth(&still, &views[v].camera, &views[v].pose))
             .collect::<anyhow::Result<Vec<_>>>()?;
         let cameras = first_view.len();
