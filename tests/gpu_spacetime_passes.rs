@@ -25,11 +25,7 @@ fn ctx() -> Arc<GpuContext> {
 }
 
 fn extra<'a>(p: &'a GaussianParams, name: &str) -> &'a [f32] {
-    &p.extra
-        .iter()
-        .find(|e| e.group.name == name)
-        .unwrap()
-        .values
+    p.extra_values(name).expect("the model has the group")
 }
 
 fn temporal_of(p: &GaussianParams, i: usize) -> Temporal {

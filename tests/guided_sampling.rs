@@ -167,11 +167,7 @@ fn ctx() -> Arc<GpuContext> {
 }
 
 fn extra<'a>(p: &'a GaussianParams, name: &str) -> &'a [f32] {
-    &p.extra
-        .iter()
-        .find(|e| e.group.name == name)
-        .unwrap()
-        .values
+    p.extra_values(name).expect("the model has the group")
 }
 
 /// The last `added` rows of `m`, just added: centres uniform in [0, 1), no motion or spin,

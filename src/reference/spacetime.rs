@@ -158,14 +158,11 @@ pub fn frame_position(p: &Temporal, t: f64, min_weight: f64) -> Option<[f64; 3]>
 /// The temporal parameters of Gaussian `i` of a model with SpacetimeGaussians' extra groups
 /// (`motion`, `omega`, `trbf_center`, `trbf_scale`); `None` when the model lacks them.
 pub fn temporal_of(p: &crate::splats::GaussianParams, i: usize) -> Option<Temporal> {
-    let group = |name: &str| {
-        p.extra
-            .iter()
-            .find(|e| e.group.name == name)
-            .map(|e| e.values.as_slice())
-    };
-    let (m, w) = (group("motion")?, group("omega")?);
-    let (c, s) = (group("trbf_center")?, group("trbf_scale")?);
+    let (m, w) = (p.extra_values("motion")?, p.extra_values("omega")?);
+    let (c, s) = (
+        p.extra_values("trbf_center")?,
+        p.extra_values("trbf_scale")?,
+    );
     let d = |v: f32| v as f64;
     Some(Temporal {
         position: p.positions[i].map(d),

@@ -137,6 +137,14 @@ pub struct GaussianParams {
 }
 
 impl GaussianParams {
+    /// The values of the extra group called `name` (every Gaussian's, row after row).
+    pub fn extra_values(&self, name: &str) -> Option<&[f32]> {
+        self.extra
+            .iter()
+            .find(|e| e.group.name == name)
+            .map(|e| e.values.as_slice())
+    }
+
     /// An empty model of the given SH degree.
     pub fn empty(sh_degree: u32) -> Self {
         Self {
