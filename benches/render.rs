@@ -80,6 +80,7 @@ fn main() -> anyhow::Result<()> {
                 background: [0.1, 0.2, 0.3],
                 constants: RenderConstants::default(),
                 filter3d: None,
+                features: None,
             };
             let mut renderer = Renderer::for_camera(&ctx, n, &cam)?;
             renderer.render_blocking(&splats, &cameras, 0, &cam, &settings)?;
@@ -129,6 +130,7 @@ fn main() -> anyhow::Result<()> {
                             constants: settings.constants,
                             background: settings.background,
                             filter3d: None,
+                            features: None,
                         },
                     )?;
                     rec.barrier();

@@ -200,6 +200,7 @@ fn run_gpu_pixels(
             view_grad_norm: &view_grad_norm,
             pixel_count: count_pixels.then_some(&pixel_count),
             filter3d: filter_buf.as_ref(),
+            features: None,
             count: n,
             sh_degree: s.degree as u32,
             constants,
@@ -832,6 +833,7 @@ fn record_refuses_mismatched_arguments() {
         constants: RenderConstants::default(),
         background: [0.0; 3],
         filter3d: None,
+        features: None,
     };
     let mut rec = Recorder::new(&ctx).unwrap();
     let err = |r: anyhow::Result<()>| r.unwrap_err().to_string();

@@ -89,6 +89,7 @@ fn render_gpu_filtered(
                 background,
                 constants: RenderConstants::from_settings(settings),
                 filter3d: filter_buf.as_ref(),
+                features: None,
             },
         )
         .unwrap();
@@ -529,6 +530,7 @@ fn a_4096_square_image_renders_or_is_refused_with_the_binding_limit() {
         background: [0.0; 3],
         constants: RenderConstants::from_settings(&settings),
         filter3d: None,
+        features: None,
     };
     // 4096² RGB f32 is 192 MiB: above lavapipe's 128 MiB storage binding limit.
     let need = 4096u64 * 4096 * 12;

@@ -110,12 +110,18 @@ void main() {
     vec3 view = pos - cam.center.xyz;
     float view_len = length(view);
     vec3 dir = view / view_len;
-    uint n_active = (pc.sh_degree + 1u) * (pc.sh_degree + 1u);
+    // Flag 8: raw DC features (the forward's colour is sh_dc itself, see preprocess.comp).
+    bool raw_colour = (pc.rc.flags & 8u) != 0u;
+    uint n_active = raw_colour ? 1u : (pc.sh_degree + 1u) * (pc.sh_degree + 1u);
     uint rest = 3u * pc.rest_coeffs;
     vec3 dl_ddir = vec3(0.0);
     for (uint k = 0u; k < n_active; k++) {
         vec3 bgrad;
         float b = sh_basis(k, dir, bgrad);
+        if (raw_colour) {
+            b = 1.0;
+            bgrad = vec3(0.0);
+        }
         vec3 coeff;
         if (k == 0u) {
             coeff = vec3(sh_dc[3u * i], sh_dc[3u * i + 1u], sh_dc[3u * i + 2u]);

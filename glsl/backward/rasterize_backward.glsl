@@ -29,6 +29,12 @@
 // forward's blended set), added to pixel_count[g] (binding 8, zeroed by the caller): Pixel-GS's
 // n_v(i). The count rides in the shared sums as a tenth float (exact: at most 256 per tile).
 //
+// With EXTRA > 0 (specialisation constant 5; SpacetimeGaussians' full model) every splat also
+// carries EXTRA feature channels (binding 9, features[g·EXTRA + c]) blended over a zero
+// background like the colour (render/rasterize.comp); dL/d(feature image) is binding 10 and the
+// features' gradients are added to g_features[g·EXTRA + c] (binding 11, zeroed by the caller).
+// The channels enter dL/dalpha exactly as the colour does, minus a background term.
+//
 // HAS_FLOAT_ATOMICS (a #define of the including file) says whether the SPIR-V may declare
 // the float atomic-add capability; USE_FLOAT_ATOMICS (specialisation constant 2) picks the
 // float atomicAdd (1) or a compare-and-swap loop on the bits (0) at pipeline creation.
@@ -45,6 +51,8 @@ layout(constant_id = 1) const uint SUBGROUP_SIZE = 32;
 layout(constant_id = 2) const uint USE_FLOAT_ATOMICS = 0;
 layout(constant_id = 3) const uint PIXELS = 1;  // pixels per invocation: 1, 2, 4, 8 or 16
 layout(constant_id = 4) const uint COUNT_PIXELS = 0;  // 1: count contributing pixels per splat
+layout(constant_id = 5) const uint EXTRA = 0;  // feature channels beyond the colour
+const uint EXTRA_N = EXTRA > 0u ? EXTRA : 1u;  // array sizes (EXTRA = 0 never reads them)
 layout(local_size_x_id = 0) in;
 
 #include "camera.glsl"
@@ -53,8 +61,10 @@ layout(local_size_x_id = 0) in;
 
 const uint TILE = 16u;
 const uint GRAD2D_STRIDE = 9u;
-// Floats per (splat, subgroup) in the shared sums: the gradients, then the pixel count.
-const uint ACC_STRIDE = GRAD2D_STRIDE + COUNT_PIXELS;
+// Floats per (splat, subgroup) in the shared sums: the gradients, the pixel count, the extra
+// channels' gradients.
+const uint ACC_EXTRA = GRAD2D_STRIDE + COUNT_PIXELS;
+const uint ACC_STRIDE = ACC_EXTRA + EXTRA;
 
 layout(std430, set = 0, binding = 0) readonly buffer Cameras { Camera cameras[]; };
 layout(std430, set = 0, binding = 1) readonly buffer ProjectedBuf { Projected projected[]; };
@@ -65,9 +75,13 @@ layout(std430, set = 0, binding = 5) readonly buffer LastIndex { uint last_index
 layout(std430, set = 0, binding = 6) readonly buffer DlDImage { float dl_dimage[]; };
 layout(std430, set = 0, binding = 7) buffer Grad2dBits { uint grad2d_bits[]; };
 layout(std430, set = 0, binding = 8) buffer PixelCount { uint pixel_count[]; };
+layout(std430, set = 0, binding = 9) readonly buffer Features { float features[]; };
+layout(std430, set = 0, binding = 10) readonly buffer DlDFeatures { float dl_dfeature_image[]; };
+layout(std430, set = 0, binding = 11) buffer GFeaturesBits { uint g_features_bits[]; };
 #if HAS_FLOAT_ATOMICS
-// The same binding seen as floats, for the native float atomicAdd.
+// The same bindings seen as floats, for the native float atomicAdd.
 layout(std430, set = 0, binding = 7) buffer Grad2dFloat { float grad2d_f[]; };
+layout(std430, set = 0, binding = 11) buffer GFeaturesFloat { float g_features_f[]; };
 #endif
 
 layout(push_constant) uniform Push {
@@ -89,6 +103,23 @@ void atomic_add_float(uint idx, float v) {
     for (;;) {
         uint assumed = old;
         old = atomicCompSwap(grad2d_bits[idx], assumed,
+                             floatBitsToUint(uintBitsToFloat(assumed) + v));
+        if (old == assumed) break;
+    }
+}
+
+// atomic_add_float on g_features (binding 11).
+void atomic_add_feature(uint idx, float v) {
+#if HAS_FLOAT_ATOMICS
+    if (USE_FLOAT_ATOMICS != 0u) {
+        atomicAdd(g_features_f[idx], v);
+        return;
+    }
+#endif
+    uint old = g_features_bits[idx];
+    for (;;) {
+        uint assumed = old;
+        old = atomicCompSwap(g_features_bits[idx], assumed,
                              floatBitsToUint(uintBitsToFloat(assumed) + v));
         if (old == assumed) break;
     }
@@ -116,6 +147,7 @@ shared uint s_id[BATCH];
 shared vec4 s_mean_opacity[BATCH];  // mean_x, mean_y, opacity, half width of the reach
 shared vec4 s_conic[BATCH];         // a, b, c, half height of the reach
 shared vec4 s_rgb[BATCH];           // r, g, b, splat_q_cut
+shared float s_feat[BATCH * EXTRA_N];  // [i · EXTRA + c]: the extra channels
 // [(splat in batch · NUM_SG + subgroup) · ACC_STRIDE + k]: the subgroup's sums.
 shared float s_acc[ACC_FLOATS];
 // [subgroup · BATCH + i]: the batch entries that may touch the subgroup's pixels, in order.
@@ -145,6 +177,10 @@ void main() {
     vec3 behind[PIXELS];
     float next_alpha[PIXELS];
     vec3 next_rgb[PIXELS];
+    // The same three for the extra channels.
+    float dl_df[PIXELS][EXTRA_N];
+    float behind_f[PIXELS][EXTRA_N];
+    float next_f[PIXELS][EXTRA_N];
     uint my_max_last = 0u;
     [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
         uint q = tile_pixel(li, k);
@@ -164,6 +200,11 @@ void main() {
         behind[k] = vec3(0.0);
         next_alpha[k] = 0.0;
         next_rgb[k] = vec3(0.0);
+        for (uint c = 0u; c < EXTRA; c++) {
+            dl_df[k][c] = inside ? dl_dfeature_image[EXTRA * pix + c] : 0.0;
+            behind_f[k][c] = 0.0;
+            next_f[k][c] = 0.0;
+        }
         my_max_last = max(my_max_last, last[k]);
     }
 
@@ -200,6 +241,7 @@ void main() {
             s_conic[li] = vec4(p.conic_a, p.conic_b, p.conic_c, reach.y);
             float q_cut = splat_q_cut(p.opacity, pc.rc.alpha_min, smooth_mode);
             s_rgb[li] = vec4(p.r, p.g, p.b, q_cut);
+            for (uint c = 0u; c < EXTRA; c++) s_feat[li * EXTRA + c] = features[g * EXTRA + c];
         }
         barrier();
         // Zero sums for the entries this subgroup skips (e >= sg_max_last, i.e. j < j_first).
@@ -243,6 +285,8 @@ void main() {
             vec3 g_rgb = vec3(0.0);
             float g_opacity = 0.0;
             float n_pixels = 0.0;
+            float g_feat[EXTRA_N];
+            for (uint c = 0u; c < EXTRA; c++) g_feat[c] = 0.0;
             [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
                 if (e >= last[k]) continue;
                 vec2 d = mo.xy - centre[k];
@@ -267,6 +311,14 @@ void main() {
                 g_rgb += alpha * t[k] * dl_dc[k];
                 float dl_dalpha = dot((rgb - behind[k]) * t[k], dl_dc[k])
                                   - t_final[k] * inv_one_minus * bg_dot[k];
+                for (uint c = 0u; c < EXTRA; c++) {
+                    float f = s_feat[j * EXTRA + c];
+                    behind_f[k][c] = next_alpha[k] * next_f[k][c]
+                                     + (1.0 - next_alpha[k]) * behind_f[k][c];
+                    g_feat[c] += alpha * t[k] * dl_df[k][c];
+                    dl_dalpha += (f - behind_f[k][c]) * t[k] * dl_df[k][c];
+                    next_f[k][c] = f;
+                }
                 next_alpha[k] = alpha;
                 next_rgb[k] = rgb;
                 if (!clamped) {
@@ -283,6 +335,7 @@ void main() {
             g_rgb = subgroupAdd(g_rgb);
             g_opacity = subgroupAdd(g_opacity);
             if (COUNT_PIXELS != 0u) n_pixels = subgroupAdd(n_pixels);
+            for (uint c = 0u; c < EXTRA; c++) g_feat[c] = subgroupAdd(g_feat[c]);
             if (subgroupElect()) {
                 uint a = (j * NUM_SG + gl_SubgroupID) * ACC_STRIDE;
                 s_acc[a + 0u] = g_mean.x;
@@ -295,6 +348,7 @@ void main() {
                 s_acc[a + 7u] = g_rgb.z;
                 s_acc[a + 8u] = g_opacity;
                 if (COUNT_PIXELS != 0u) s_acc[a + 9u] = n_pixels;
+                for (uint c = 0u; c < EXTRA; c++) s_acc[a + ACC_EXTRA + c] = g_feat[c];
             }
         }
         barrier();
@@ -310,6 +364,13 @@ void main() {
             }
             if (COUNT_PIXELS != 0u && sum[GRAD2D_STRIDE] != 0.0) {
                 atomicAdd(pixel_count[s_id[j]], uint(sum[GRAD2D_STRIDE]));
+            }
+            for (uint c = 0u; c < EXTRA; c++) {
+                float f_sum = 0.0;
+                for (uint sg = 0u; sg < NUM_SG; sg++) {
+                    f_sum += s_acc[(j * NUM_SG + sg) * ACC_STRIDE + ACC_EXTRA + c];
+                }
+                if (f_sum != 0.0) atomic_add_feature(s_id[j] * EXTRA + c, f_sum);
             }
             uint base = s_id[j] * GRAD2D_STRIDE;
             [[unroll]] for (uint c = 0u; c < GRAD2D_STRIDE; c++) {

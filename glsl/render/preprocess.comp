@@ -124,6 +124,12 @@ void main() {
     vec3 shifted = raw + 0.5;
     uint flags = (shifted.r < 0.0 ? 1u : 0u) | (shifted.g < 0.0 ? 2u : 0u) | (shifted.b < 0.0 ? 4u : 0u);
     vec3 rgb = max(shifted, vec3(0.0));
+    // Flag 8 (SpacetimeGaussians' full model): the DC coefficients are raw features, blended
+    // as they are (no offset, no clamp, no view dependence); the decoder makes them colours.
+    if ((rc.flags & 8u) != 0u) {
+        rgb = vec3(sh_dc[3u * i], sh_dc[3u * i + 1u], sh_dc[3u * i + 2u]);
+        flags = 0u;
+    }
 
     // Step 5 (Mip-Splatting's 2D filter, flag 2): opacity × ρ, ρ² = det0 / det1 with the
     // undilated determinant taken as |u0 × u1|² (no cancellation for thin footprints).

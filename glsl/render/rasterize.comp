@@ -3,6 +3,11 @@
 // The tile's Gaussians (front to back) are loaded into shared memory a batch at a time; every
 // pixel blends them in order and stops before its transmittance would fall under t_min. Mirrors src/reference/raster.rs.
 //
+// EXTRA > 0 (SpacetimeGaussians' full model): every Gaussian also carries EXTRA feature channels
+// (binding 7, `features[g·EXTRA + c]`), blended with the same weights as the colour over a zero
+// background into `feature_image[pix·EXTRA + c]` (binding 8). The blend weights depend on the
+// geometry only, so the extra channels are the colour blend applied to other values.
+//
 // Why several pixels per invocation: on a CPU driver (lavapipe) a subgroup is one SIMD loop
 // iteration and `if` only masks lanes, so the shared loads and the loop overhead per splat are
 // paid per subgroup; PIXELS = 8 shares them between 8 pixels. GPUs use PIXELS = 1.
@@ -14,6 +19,9 @@
 layout(constant_id = 0) const uint WG_SIZE = 256;  // must be 256 / PIXELS
 layout(constant_id = 1) const uint SUBGROUP_SIZE = 32;  // must divide WG_SIZE
 layout(constant_id = 2) const uint PIXELS = 1;     // 1, 2, 4 or 8
+layout(constant_id = 3) const uint EXTRA = 0;      // feature channels beyond the colour
+// Array sizes (an array cannot be empty; EXTRA = 0 never reads them).
+const uint EXTRA_N = EXTRA > 0u ? EXTRA : 1u;
 layout(local_size_x_id = 0) in;
 #include "camera.glsl"
 #include "projected.glsl"
@@ -25,6 +33,8 @@ layout(std430, set = 0, binding = 3) readonly buffer Cameras { Camera cameras[];
 layout(std430, set = 0, binding = 4) writeonly buffer Image { float image[]; };
 layout(std430, set = 0, binding = 5) writeonly buffer FinalT { float final_t[]; };
 layout(std430, set = 0, binding = 6) writeonly buffer LastIndex { uint last_index[]; };
+layout(std430, set = 0, binding = 7) readonly buffer Features { float features[]; };
+layout(std430, set = 0, binding = 8) writeonly buffer FeatureImage { float feature_image[]; };
 layout(push_constant) uniform Push {
     RenderConstants rc;
     uint camera_index;
@@ -44,6 +54,7 @@ shared vec4 s_mean_opacity[WG_SIZE];  // mean x, mean y, opacity, unused
 shared vec4 s_conic[WG_SIZE];         // a, b, c, power below which alpha < alpha_min
 shared vec4 s_rgb[WG_SIZE];           // r, g, b, splat_q_cut
 shared vec2 s_reach[WG_SIZE];         // splat_reach
+shared float s_feat[WG_SIZE * EXTRA_N];  // [i · EXTRA + c]: the extra channels
 // Splats per batch: at most one per invocation, and every subgroup's list must fit in s_list.
 const uint LIST_SLOTS = 2048u;
 const uint NUM_SG = WG_SIZE / SUBGROUP_SIZE;
@@ -62,6 +73,7 @@ void main() {
     vec2 centre[PIXELS];
     float T[PIXELS];
     vec3 color[PIXELS];
+    float feat[PIXELS][EXTRA_N];
     uint last[PIXELS];
     bool done[PIXELS];
     bool all_done = true;
@@ -71,6 +83,7 @@ void main() {
         centre[k] = vec2(float(px) + 0.5, float(py) + 0.5);
         T[k] = 1.0;
         color[k] = vec3(0.0);
+        for (uint c = 0u; c < EXTRA; c++) feat[k][c] = 0.0;
         last[k] = 0u;
         done[k] = !(px < cam.size.x && py < cam.size.y);
         all_done = all_done && done[k];
@@ -95,7 +108,9 @@ void main() {
         if (all_done) atomicAdd(s_done, 1u);
         uint k = base + li;
         if (li < BATCH && k < range.y) {
-            Projected p = projected[sorted_ids[k]];
+            uint g = sorted_ids[k];
+            Projected p = projected[g];
+            for (uint c = 0u; c < EXTRA; c++) s_feat[li * EXTRA + c] = features[g * EXTRA + c];
             s_mean_opacity[li] = vec4(p.mean_x, p.mean_y, p.opacity, 0.0);
             // A power this far below ln(alpha_min / opacity) gives alpha < alpha_min with room
             // for rounding, so the pixel can skip exp(); the exact test still follows.
@@ -151,7 +166,11 @@ void main() {
                             if (!smooth_mode && next_t < rc.t_min) {
                                 done[k] = true;
                             } else {
-                                color[k] += rgb * (alpha * T[k]);
+                                float w = alpha * T[k];
+                                color[k] += rgb * w;
+                                for (uint c = 0u; c < EXTRA; c++) {
+                                    feat[k][c] += s_feat[j * EXTRA + c] * w;
+                                }
                                 T[k] = next_t;
                                 last[k] = base - range.x + j + 1u;
                             }
@@ -171,6 +190,7 @@ void main() {
             image[3u * pix] = color[k].r + T[k] * bg_r;
             image[3u * pix + 1u] = color[k].g + T[k] * bg_g;
             image[3u * pix + 2u] = color[k].b + T[k] * bg_b;
+            for (uint c = 0u; c < EXTRA; c++) feature_image[EXTRA * pix + c] = feat[k][c];
             final_t[pix] = T[k];
             last_index[pix] = last[k];
         }

@@ -185,6 +185,7 @@ fn fps_one(
         background: [0.0; 3],
         constants: RenderConstants::default(),
         filter3d: None,
+        features: None,
     };
     let mut renderer = Renderer::for_camera(ctx, params.len(), &cam)?;
     // First frame sizes the intersection buffers.

@@ -596,6 +596,7 @@ fn fps_of(
         background: [0.0; 3],
         constants: RenderConstants::default(),
         filter3d: None,
+        features: None,
     };
     let mut r = Renderer::for_camera(ctx, model.len().max(1), &cam)?;
     refresh()?;

@@ -74,6 +74,7 @@
 //! The backward divides by `1 − alpha`, so smooth mode needs opacities below 1.
 
 pub mod backward;
+pub mod decoder;
 pub mod gpu_layout;
 pub mod linalg;
 pub mod mip;

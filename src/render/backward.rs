@@ -144,6 +144,19 @@ pub struct BackwardArgs<'a> {
     pub sh_degree: u32,
     pub constants: RenderConstants,
     pub background: [f32; 3],
+    /// The forward's feature channels ([`super::forward::FrameSettings::features`]), if any.
+    pub features: Option<FeatureGrads<'a>>,
+}
+
+/// Feature channels of a forward pass and their gradients.
+pub struct FeatureGrads<'a> {
+    /// Per Gaussian, `[g·channels + c]`, as the forward read them.
+    pub values: &'a GpuBuffer<f32>,
+    /// `dL/d(feature image)`, `[pix·channels + c]`.
+    pub dl_dimage: &'a GpuBuffer<f32>,
+    /// Output, `[g·channels + c]` for Gaussians `0..count` (zeroed, then accumulated).
+    pub grads: &'a GpuBuffer<f32>,
+    pub channels: u32,
 }
 
 /// The backward pass's pipelines and its intermediate per-Gaussian buffer.
@@ -151,6 +164,8 @@ pub struct Backward {
     raster: ComputePipeline,
     /// The rasterizer backward that also counts pixels per splat (built on request).
     raster_counting: Option<ComputePipeline>,
+    /// The rasterizer backward with feature channels (built on first use, per channel count).
+    raster_features: Option<(u32, ComputePipeline)>,
     /// Bound at binding 8 when no pixel counts are asked for (never written).
     no_counts: GpuBuffer<u32>,
     /// Bound in place of an absent 3D filter (never read).
@@ -194,7 +209,7 @@ impl Backward {
             ctx.info.subgroup_size
         );
         let float_atomics = mode == AtomicMode::Auto && ctx.info.float_atomic_add;
-        let raster = Self::raster_pipeline(ctx, float_atomics, pixels, false)?;
+        let raster = Self::raster_pipeline(ctx, float_atomics, pixels, false, 0)?;
         let preprocess = ComputePipeline::new(
             ctx,
             "backward/preprocess_backward",
@@ -208,6 +223,7 @@ impl Backward {
         Ok(Self {
             raster,
             raster_counting: None,
+            raster_features: None,
             no_counts: GpuBuffer::new(ctx, "no pixel counts", 1, BufferKind::DeviceLocal)?,
             no_filter: GpuBuffer::new(ctx, "no 3D filter", 1, BufferKind::DeviceLocal)?,
             pixels,
@@ -218,15 +234,17 @@ impl Backward {
         })
     }
 
-    /// The rasterizer backward pipeline; `count_pixels` adds the per-splat pixel count.
+    /// The rasterizer backward pipeline; `count_pixels` adds the per-splat pixel count,
+    /// `extra` feature channels.
     fn raster_pipeline(
         ctx: &Arc<GpuContext>,
         float_atomics: bool,
         pixels: u32,
         count_pixels: bool,
+        extra: u32,
     ) -> Result<ComputePipeline> {
         let wg = WG / pixels.max(1);
-        let spec = [float_atomics as u32, pixels, count_pixels as u32];
+        let spec = [float_atomics as u32, pixels, count_pixels as u32, extra];
         let push = std::mem::size_of::<RasterPush>() as u32;
         // A device without float atomics gets SPIR-V that does not declare the capability.
         let (name, spirv) = if ctx.info.float_atomic_add {
@@ -240,7 +258,7 @@ impl Backward {
                 shaders::BACKWARD_RASTERIZE_BACKWARD_CAS,
             )
         };
-        ComputePipeline::new(ctx, name, spirv, 9, push, wg, &spec)
+        ComputePipeline::new(ctx, name, spirv, 12, push, wg, &spec)
     }
 
     /// Also builds the pixel-counting variant of the rasterizer backward, so that
@@ -251,7 +269,17 @@ impl Backward {
             self.float_atomics,
             self.pixels,
             true,
+            0,
         )?);
+        Ok(self)
+    }
+
+    /// Also builds the variant of the rasterizer backward with `channels` feature channels,
+    /// so that [`BackwardArgs::features`] may be given (not with pixel counts).
+    pub fn with_feature_channels(mut self, ctx: &Arc<GpuContext>, channels: u32) -> Result<Self> {
+        ensure!(channels > 0, "GPU backward: 0 feature channels");
+        let pipe = Self::raster_pipeline(ctx, self.float_atomics, self.pixels, false, channels)?;
+        self.raster_features = Some((channels, pipe));
         Ok(self)
     }
 
@@ -308,6 +336,18 @@ impl Backward {
     ) -> Result<()> {
         self.check(a)?;
         let (raster, counts) = match (a.pixel_count, &self.raster_counting) {
+            (None, _) if a.features.is_some() => match &self.raster_features {
+                Some((c, p)) if Some(*c) == a.features.as_ref().map(|f| f.channels) => {
+                    (p, &self.no_counts)
+                }
+                _ => anyhow::bail!(
+                    "GPU backward: feature channels were given, but this Backward was built \
+                     without that many; build it with Backward::with_feature_channels"
+                ),
+            },
+            (Some(_), _) if a.features.is_some() => anyhow::bail!(
+                "GPU backward: pixel counts and feature channels cannot be asked for together"
+            ),
             (None, _) => (&self.raster, &self.no_counts),
             (Some(c), Some(p)) => (p, c),
             (Some(_), None) => anyhow::bail!(
@@ -319,6 +359,9 @@ impl Backward {
         rec.fill(&self.grad2d, 0);
         if a.pixel_count.is_some() {
             rec.fill_range(counts, a.count, 0);
+        }
+        if let Some(f) = &a.features {
+            rec.fill_range(f.grads, a.count * f.channels as usize, 0);
         }
         rec.barrier();
         let raster_push = RasterPush {
@@ -339,6 +382,9 @@ impl Backward {
                 a.dl_dimage,
                 &self.grad2d,
                 counts,
+                a.features.as_ref().map_or(&self.no_filter, |f| f.values),
+                a.features.as_ref().map_or(&self.no_filter, |f| f.dl_dimage),
+                a.features.as_ref().map_or(&self.no_filter, |f| f.grads),
             ],
             &raster_push,
             ctx.groups_1d(a.camera.tile_count() as u64, 1),
@@ -440,6 +486,20 @@ impl Backward {
             ("last_index", a.last_index.len(), w * h),
             ("dl_dimage", a.dl_dimage.len(), w * h * 3),
         ] {
+            ensure!(
+                len >= need,
+                "GPU backward: buffer {name} has {len} elements, needs {need}; size it for this \
+                 camera and Gaussian count"
+            );
+        }
+        let channels = a.features.as_ref().map_or(0, |f| f.channels as usize);
+        for (name, len, need) in a.features.iter().flat_map(|f| {
+            [
+                ("feature values", f.values.len(), n * channels),
+                ("feature gradients", f.grads.len(), n * channels),
+                ("dL/d(feature image)", f.dl_dimage.len(), w * h * channels),
+            ]
+        }) {
             ensure!(
                 len >= need,
                 "GPU backward: buffer {name} has {len} elements, needs {need}; size it for this \

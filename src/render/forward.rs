@@ -66,6 +66,16 @@ pub struct FrameSettings<'a> {
     /// Mip-Splatting's 3D smoothing filter, one standard deviation per Gaussian (world units):
     /// rendered with scales sqrt(s² + f²) and opacity × sqrt(Π s² / Π (s² + f²)).
     pub filter3d: Option<&'a GpuBuffer<f32>>,
+    /// Feature channels blended beside the colour with the same weights over a zero
+    /// background (SpacetimeGaussians' full model), into [`Renderer::feature_image`].
+    pub features: Option<FeatureChannels<'a>>,
+}
+
+/// Per-Gaussian feature channels: `values[g·channels + c]`.
+#[derive(Clone, Copy)]
+pub struct FeatureChannels<'a> {
+    pub values: &'a GpuBuffer<f32>,
+    pub channels: u32,
 }
 
 /// Capacities the renderer's buffers are sized for.
@@ -130,6 +140,10 @@ pub struct Renderer {
     emit: ComputePipeline,
     ranges: ComputePipeline,
     raster: ComputePipeline,
+    /// The rasterizer with feature channels (built on first use, per channel count).
+    raster_features: Option<(u32, ComputePipeline)>,
+    /// The last frame's feature channels, `[pix·channels + c]` (when it had some).
+    feature_image: Option<GpuBuffer<f32>>,
     depth_sort: RadixSort,
     tile_sort: RadixSort,
     scan: PrefixScan,
@@ -224,16 +238,10 @@ impl Renderer {
             raster: {
                 // Same pixels-per-invocation choice as the backward (CPU drivers: 8).
                 let pixels = default_pixels_per_invocation(&ctx.info);
-                ComputePipeline::new(
-                    ctx,
-                    "render/rasterize",
-                    shaders::RENDER_RASTERIZE,
-                    7,
-                    std::mem::size_of::<RasterPush>() as u32,
-                    WG / pixels,
-                    &[pixels],
-                )?
+                Self::raster_pipeline(ctx, pixels, 0)?
             },
+            raster_features: None,
+            feature_image: None,
             depth_sort: RadixSort::new(ctx, capacity.gaussians as u64)?,
             tile_sort: RadixSort::new(ctx, capacity.intersections as u64)?,
             scan: PrefixScan::new(ctx, capacity.gaussians as u64)?,
@@ -243,6 +251,28 @@ impl Renderer {
             depth_sorted_in: SortedIn::Input,
             last_camera: None,
         })
+    }
+
+    /// The rasterizer with `extra` feature channels (0: colour only).
+    fn raster_pipeline(
+        ctx: &Arc<GpuContext>,
+        pixels: u32,
+        extra: u32,
+    ) -> anyhow::Result<ComputePipeline> {
+        ComputePipeline::new(
+            ctx,
+            "render/rasterize",
+            shaders::RENDER_RASTERIZE,
+            9,
+            std::mem::size_of::<RasterPush>() as u32,
+            WG / pixels,
+            &[pixels, extra],
+        )
+    }
+
+    /// The last frame's feature channels (`[pix·channels + c]`), when it rendered some.
+    pub fn feature_image(&self) -> Option<&GpuBuffer<f32>> {
+        self.feature_image.as_ref()
     }
 
     /// A renderer sized for `gaussians` and one camera, with a first guess of 8 intersections
@@ -366,10 +396,42 @@ impl Renderer {
         self.record_binning(rec, n, camera, timestamps.as_deref_mut());
 
         // 5. Rasterize one workgroup per tile.
+        if let Some(fc) = settings.features {
+            anyhow::ensure!(
+                fc.channels > 0 && fc.values.len() >= splats.count * fc.channels as usize,
+                "renderer: {} feature values for {} Gaussians of {} channels",
+                fc.values.len(),
+                splats.count,
+                fc.channels
+            );
+            if self.raster_features.as_ref().map(|r| r.0) != Some(fc.channels) {
+                let pixels = default_pixels_per_invocation(&ctx.info);
+                let pipe = Self::raster_pipeline(&ctx, pixels, fc.channels)?;
+                self.raster_features = Some((fc.channels, pipe));
+            }
+            let need = self.capacity.pixels.max(1) * fc.channels as usize;
+            if self.feature_image.as_ref().is_none_or(|b| b.len() < need) {
+                self.feature_image = None;
+                self.feature_image = Some(GpuBuffer::new(
+                    &ctx,
+                    "feature image",
+                    need,
+                    BufferKind::DeviceLocal,
+                )?);
+            }
+        }
         let f = &self.frame;
         let (_, ids) = self.sorted_pairs();
+        let (raster, features, feature_image) = match settings.features {
+            Some(fc) => (
+                &self.raster_features.as_ref().expect("built above").1,
+                fc.values,
+                self.feature_image.as_ref().expect("allocated above"),
+            ),
+            None => (&self.raster, &self.no_filter, &self.no_filter),
+        };
         rec.dispatch(
-            &self.raster,
+            raster,
             &[
                 &f.projected,
                 ids,
@@ -378,6 +440,8 @@ impl Renderer {
                 &f.image,
                 &f.final_t,
                 &f.last_index,
+                features,
+                feature_image,
             ],
             &RasterPush {
                 rc: settings.constants,

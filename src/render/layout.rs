@@ -140,6 +140,10 @@ impl RenderConstants {
     /// Mip-Splatting's 3D filter: a per-Gaussian buffer is bound (set by the renderer and the
     /// backward when one is given).
     pub const FILTER_3D: u32 = 4;
+    /// SpacetimeGaussians' full model: the DC coefficients are blended as raw features (no
+    /// `+0.5`, no clamp, no view dependence; `glsl/render/preprocess.comp`), the decoder makes
+    /// them colours.
+    pub const RAW_COLOUR: u32 = 8;
 
     /// The constants of Mip-Splatting's renders (eps2d 0.1 with the 2D filter's compensation)
     /// when `mip`, else the 3DGS defaults.

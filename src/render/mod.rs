@@ -3,6 +3,7 @@
 //! (`surfel`, on the same binning), and generated scenes for benchmarks.
 
 pub mod backward;
+pub mod decoder;
 pub mod filter3d;
 pub mod forward;
 pub mod layout;

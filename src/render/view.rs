@@ -103,6 +103,7 @@ impl ViewRenderer for GaussianView {
             background,
             constants: self.constants,
             filter3d: None,
+            features: None,
         };
         self.renderer
             .render_blocking(splats, cameras, index, camera, &settings)?;

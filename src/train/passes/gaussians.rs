@@ -162,6 +162,7 @@ impl ModelPasses for GaussianPasses {
             background: f.background,
             constants: self.constants,
             filter3d: self.filter.as_ref().map(|f| f.values()),
+            features: None,
         };
         self.renderer.record(
             rec, f.params, f.cameras, f.view, f.camera, &settings, timestamps,
@@ -212,6 +213,7 @@ impl ModelPasses for GaussianPasses {
                 constants: self.constants,
                 background: f.background,
                 filter3d: self.filter.as_ref().map(|f| f.values()),
+                features: None,
             },
             timestamps,
         )
@@ -276,6 +278,7 @@ impl ModelPasses for GaussianPasses {
             background: f.background,
             constants: self.constants,
             filter3d: self.filter.as_ref().map(|f| f.values()),
+            features: None,
         };
         self.renderer
             .render_blocking(f.params, f.cameras, f.view, cam, &settings)?;
