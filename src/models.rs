@@ -19,18 +19,28 @@ use crate::train::trainer::TrainConfig;
 /// uniformly in the segment's [0, 1) (seeded): with no per-frame points (the official
 /// initialisation tags each SfM point with its frame's time), a uniform centre gives every
 /// frame Gaussians near its time.
-pub fn with_temporal_groups(mut params: GaussianParams, seed: u64) -> GaussianParams {
+///
+/// `full`: also the full model's feature groups, with the colour as its features (the
+/// official initialisation: `f_dc` = the point colour twice, `f_t` = 0): the DC coefficients
+/// become the raw base colour `0.5 + C₀·dc` (what the 3DGS colour was at degree 0, unclamped)
+/// and the specular feature `f_spec` the same values.
+pub fn with_temporal_groups(mut params: GaussianParams, seed: u64, full: bool) -> GaussianParams {
     use crate::splats::ExtraValues;
     use rand::{Rng, SeedableRng};
     let mut rng = rand_pcg::Pcg64::seed_from_u64(seed ^ 0x57D5);
     let n = params.len();
-    params.extra = crate::train::passes::spacetime::extra_groups()
+    if full {
+        for dc in params.sh_dc.iter_mut() {
+            *dc = dc.map(|v| (0.5 + crate::splats::SH_C0 * v as f64) as f32);
+        }
+    }
+    params.extra = crate::train::passes::spacetime::extra_groups_of(full)
         .into_iter()
         .map(|group| {
-            let values = if group.name == "trbf_center" {
-                (0..n).map(|_| rng.gen_range(0.0..1.0f32)).collect()
-            } else {
-                vec![0.0; n * group.stride]
+            let values = match group.name.as_str() {
+                "trbf_center" => (0..n).map(|_| rng.gen_range(0.0..1.0f32)).collect(),
+                "f_spec" => params.sh_dc.iter().flatten().copied().collect(),
+                _ => vec![0.0; n * group.stride],
             };
             ExtraValues { group, values }
         })
@@ -58,15 +68,20 @@ pub enum BaseModel {
     /// rotation and a temporal opacity, trained on multi-view video; colour without view
     /// dependence (SH degree 0).
     SpacetimeLite,
+    /// SpacetimeGaussians, full: the lite model's Gaussians with 9 feature channels (raw base
+    /// colour, specular feature, time feature) blended and turned into RGB per pixel by a small
+    /// MLP that also sees the viewing ray (view-dependent colour without SH).
+    SpacetimeFull,
 }
 
 impl BaseModel {
-    pub const ALL: [BaseModel; 5] = [
+    pub const ALL: [BaseModel; 6] = [
         BaseModel::Gaussians3d,
         BaseModel::PixelGs,
         BaseModel::MipSplatting,
         BaseModel::Surfels2d,
         BaseModel::SpacetimeLite,
+        BaseModel::SpacetimeFull,
     ];
 
     pub fn parse(s: &str) -> anyhow::Result<BaseModel> {
@@ -89,7 +104,13 @@ impl BaseModel {
             BaseModel::MipSplatting => "mip-splatting",
             BaseModel::Surfels2d => "2dgs",
             BaseModel::SpacetimeLite => "spacetime-lite",
+            BaseModel::SpacetimeFull => "spacetime-full",
         }
+    }
+
+    /// SpacetimeGaussians (lite or full): a video model.
+    pub fn is_spacetime(&self) -> bool {
+        matches!(self, BaseModel::SpacetimeLite | BaseModel::SpacetimeFull)
     }
 
     /// The prune threshold on opacity when the user gives none (2DGS's `opacity_cull` 0.05,
@@ -113,8 +134,8 @@ impl BaseModel {
                 *q = [0; 4].map(|_| rng.gen_range(0.0..1.0f32).max(1e-3));
             }
         }
-        if *self == BaseModel::SpacetimeLite {
-            params = with_temporal_groups(params, seed);
+        if self.is_spacetime() {
+            params = with_temporal_groups(params, seed, *self == BaseModel::SpacetimeFull);
         }
         params
     }
@@ -129,19 +150,30 @@ impl BaseModel {
         gaussians: usize,
         camera: &crate::render::layout::CameraGpu,
         times: Option<Vec<f32>>,
+        ply: Option<&std::path::Path>,
     ) -> anyhow::Result<Box<dyn crate::render::view::ViewRenderer>> {
         use crate::render::view::{GaussianView, SpacetimeView, SurfelView};
         Ok(match self {
             BaseModel::Surfels2d => Box::new(SurfelView::new(ctx, gaussians, camera)?),
-            BaseModel::SpacetimeLite => {
+            BaseModel::SpacetimeLite | BaseModel::SpacetimeFull => {
                 let Some(times) = times else {
                     anyhow::bail!(
-                        "--model spacetime-lite renders a video model at each view's time; \
-                         this scene is still (or these cameras have no time). Fix: point at \
-                         the video scene the model was trained on"
+                        "--model {} renders a video model at each view's time; this scene is \
+                         still (or these cameras have no time). Fix: point at the video scene \
+                         the model was trained on",
+                        self.name()
                     );
                 };
-                Box::new(SpacetimeView::new(ctx, gaussians, camera, times)?)
+                let decoder = match (self, ply) {
+                    (BaseModel::SpacetimeFull, Some(p)) => {
+                        Some(crate::splats::decoder_json::read_for(p)?)
+                    }
+                    (BaseModel::SpacetimeFull, None) => anyhow::bail!(
+                        "--model spacetime-full needs its PLY's path to find the decoder"
+                    ),
+                    _ => None,
+                };
+                Box::new(SpacetimeView::new(ctx, gaussians, camera, times, decoder)?)
             }
             _ => Box::new(GaussianView::new(
                 ctx,
@@ -158,6 +190,10 @@ impl BaseModel {
             BaseModel::SpacetimeLite => {
                 crate::splats::ply::read_ply_extras(path, &crate::render::spacetime::extra_groups())
             }
+            BaseModel::SpacetimeFull => crate::splats::ply::read_ply_extras(
+                path,
+                &crate::train::passes::spacetime::extra_groups_of(true),
+            ),
             _ => crate::splats::read_ply(path),
         }
     }
@@ -174,7 +210,8 @@ impl BaseModel {
             BaseModel::Gaussians3d
             | BaseModel::MipSplatting
             | BaseModel::Surfels2d
-            | BaseModel::SpacetimeLite => Statistic::Gradient,
+            | BaseModel::SpacetimeLite
+            | BaseModel::SpacetimeFull => Statistic::Gradient,
             BaseModel::PixelGs => Statistic::pixel_gs(),
         };
         config.mip_filters = *self == BaseModel::MipSplatting;
@@ -183,12 +220,19 @@ impl BaseModel {
             (BaseModel::Surfels2d, None) => Some(SurfelTraining::default()),
             _ => None,
         };
-        config.spacetime = match (self, config.spacetime) {
-            (BaseModel::SpacetimeLite, Some(r)) => Some(r),
-            (BaseModel::SpacetimeLite, None) => Some(SpacetimeTraining::default()),
+        config.spacetime = match (self.is_spacetime(), config.spacetime) {
+            (true, Some(r)) => Some(r),
+            (true, None) => Some(SpacetimeTraining::default()),
             _ => None,
         };
-        if *self == BaseModel::SpacetimeLite {
+        if let Some(st) = config.spacetime.as_mut() {
+            st.full = match (self, st.full) {
+                (BaseModel::SpacetimeFull, Some(f)) => Some(f),
+                (BaseModel::SpacetimeFull, None) => Some(Default::default()),
+                _ => None,
+            };
+        }
+        if self.is_spacetime() {
             config.sh_degree = 0;
             // The official batch: two cameras at one time per step.
             config.batch_views = 2;
@@ -200,8 +244,11 @@ impl BaseModel {
         if config.surfels.is_some() {
             return BaseModel::Surfels2d;
         }
-        if config.spacetime.is_some() {
-            return BaseModel::SpacetimeLite;
+        if let Some(st) = &config.spacetime {
+            return match st.full {
+                Some(_) => BaseModel::SpacetimeFull,
+                None => BaseModel::SpacetimeLite,
+            };
         }
         match (config.density.statistic, config.mip_filters) {
             (_, true) => BaseModel::MipSplatting,

@@ -405,7 +405,7 @@ fn decoder_matches_the_reference_forward_and_backward() {
         rec.barrier();
         decoder.record_forward(&mut rec, &frame).unwrap();
         decoder
-            .record_backward(&mut rec, &frame, &dl_buf, &wg, true)
+            .record_backward(&mut rec, &frame, &dl_buf, &wg, true, 0.5)
             .unwrap();
         rec.barrier();
         rec.submit_and_wait().unwrap();
@@ -436,9 +436,9 @@ fn decoder_matches_the_reference_forward_and_backward() {
             1e-4,
             1e-5,
         );
-        let want_acc: Vec<f64> = want_dw.iter().map(|v| v + 0.25).collect();
+        let want_acc: Vec<f64> = want_dw.iter().map(|v| 0.5 * v + 0.25).collect();
         compare(
-            &format!("{label} dL/dW (accumulated)"),
+            &format!("{label} dL/dW (accumulated, scaled by 1/2)"),
             &wg.read().unwrap(),
             &want_acc,
             1e-4,
@@ -448,7 +448,7 @@ fn decoder_matches_the_reference_forward_and_backward() {
         // Without `accumulate` the sum replaces the buffer, and it is the same bits each time.
         let mut rec = Recorder::new(&ctx).unwrap();
         decoder
-            .record_backward(&mut rec, &frame, &dl_buf, &wg, false)
+            .record_backward(&mut rec, &frame, &dl_buf, &wg, false, 1.0)
             .unwrap();
         rec.barrier();
         rec.submit_and_wait().unwrap();
@@ -456,7 +456,7 @@ fn decoder_matches_the_reference_forward_and_backward() {
         compare(&format!("{label} dL/dW"), &first, &want_dw, 1e-4, 1e-5);
         let mut rec = Recorder::new(&ctx).unwrap();
         decoder
-            .record_backward(&mut rec, &frame, &dl_buf, &wg, false)
+            .record_backward(&mut rec, &frame, &dl_buf, &wg, false, 1.0)
             .unwrap();
         rec.barrier();
         rec.submit_and_wait().unwrap();
@@ -466,4 +466,67 @@ fn decoder_matches_the_reference_forward_and_backward() {
             "{label}: the weight reduction is deterministic"
         );
     }
+}
+
+#[test]
+fn time_features_match_the_reference_forward_and_backward() {
+    use lpmsplat::render::decoder::{FeatureGroups, TimeFeatures};
+    let ctx = ctx();
+    let tf = TimeFeatures::new(&ctx).unwrap();
+    let mut rng = Pcg64::seed_from_u64(5);
+    let (n, spare) = (300usize, 7usize);
+    let mut r = |a: f32, b: f32| rng.gen_range(a..b);
+    let f_spec: Vec<f32> = (0..3 * n).map(|_| r(-2.0, 2.0)).collect();
+    let f_t: Vec<f32> = (0..3 * n).map(|_| r(-2.0, 2.0)).collect();
+    let centres: Vec<f32> = (0..n).map(|_| r(-0.5, 1.5)).collect();
+    let d_feat: Vec<f32> = (0..6 * n).map(|_| r(-1.0, 1.0)).collect();
+    let t = 0.37f32;
+    let b = |name: &str, v: &[f32]| GpuBuffer::from_slice(&ctx, name, v).unwrap();
+    let nan = |len: usize| vec![f32::NAN; len];
+    let (fs, ft, tc, dfb) = (
+        b("f_spec", &f_spec),
+        b("f_t", &f_t),
+        b("c", &centres),
+        b("d", &d_feat),
+    );
+    let out = b("features", &nan(6 * (n + spare)));
+    let (gs, gt) = (
+        b("g f_spec", &nan(3 * (n + spare))),
+        b("g f_t", &nan(3 * (n + spare))),
+    );
+    let params = FeatureGroups {
+        f_spec: &fs,
+        f_t: &ft,
+        t_center: &tc,
+    };
+    let grads = FeatureGroups {
+        f_spec: &gs,
+        f_t: &gt,
+        t_center: &tc,
+    };
+    let mut rec = Recorder::new(&ctx).unwrap();
+    tf.record_forward(&mut rec, &params, &out, n, t).unwrap();
+    tf.record_backward(&mut rec, &params, &dfb, &grads, n, t)
+        .unwrap();
+    rec.barrier();
+    rec.submit_and_wait().unwrap();
+    let (got, got_s, got_t) = (out.read().unwrap(), gs.read().unwrap(), gt.read().unwrap());
+    let d = |v: f32| v as f64;
+    for i in 0..n {
+        let at = |v: &[f32], k: usize| [0, 1, 2].map(|c| d(v[3 * i + c + k]));
+        let want = decoder::time_features(at(&f_spec, 0), at(&f_t, 0), d(t), d(centres[i]));
+        let dl = std::array::from_fn(|c| d(d_feat[6 * i + c]));
+        let (ws, wt) = decoder::time_features_backward(dl, d(t), d(centres[i]));
+        compare("features", &got[6 * i..6 * i + 6], &want, 1e-6, 0.0);
+        compare("d f_spec", &got_s[3 * i..3 * i + 3], &ws, 1e-6, 0.0);
+        compare("d f_t", &got_t[3 * i..3 * i + 3], &wt, 1e-6, 0.0);
+    }
+    assert!(
+        got[6 * n..].iter().all(|v| v.is_nan()),
+        "written past count"
+    );
+    assert!(
+        got_s[3 * n..].iter().all(|v| v.is_nan()),
+        "written past count"
+    );
 }

@@ -937,6 +937,7 @@ fn added_gaussians_carry_the_models_extra_groups() {
             width: 1,
             height: 1,
             primitive: Primitive::Gaussian,
+            raw_colour: false,
             new_extras: extras,
             moving: None,
         };

@@ -79,6 +79,8 @@ fn run(
         grads: &grads,
         view_grad_norm: &norm,
         count: n,
+        view_in_step: 0,
+        views_in_step: 1,
     };
     passes
         .record_backward(ctx, &mut rec, &g, &config, None)
@@ -111,7 +113,8 @@ fn spacetime_passes_are_the_3dgs_passes_at_the_views_time() {
     let times = [0.25, 0.7];
     let cams = GpuBuffer::from_slice(&ctx, "cameras", &views).unwrap();
     let n = 400;
-    let mut model = with_temporal_groups(random_init(n, [0.0; 3], [1.2; 3], 9, 0).unwrap(), 4);
+    let mut model =
+        with_temporal_groups(random_init(n, [0.0; 3], [1.2; 3], 9, 0).unwrap(), 4, false);
     // Motion, spin, spread of temporal scales and opacities: every term of the step matters.
     for e in &mut model.extra {
         let scale = match e.group.name.as_str() {
@@ -321,4 +324,219 @@ fn a_still_scene_is_refused() {
     .unwrap()
     .to_string();
     assert!(e.contains("video scene") && e.contains("Fix:"), "{e}");
+}
+
+/// `|g − r| ≤ rel·|r| + floor·max|r|` over a group, every value finite.
+fn compare(what: &str, gpu: &[f32], want: &[f64], rel: f64, floor: f64) {
+    assert_eq!(gpu.len(), want.len(), "{what}: length");
+    let scale = want.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    assert!(
+        scale > 0.0,
+        "{what}: the reference is all zero (the test checks nothing)"
+    );
+    for (i, (&g, &r)) in gpu.iter().zip(want).enumerate() {
+        let err = (g as f64 - r).abs();
+        assert!(
+            g.is_finite() && err <= rel * r.abs() + floor * scale,
+            "{what}[{i}]: GPU {g:e} vs reference {r:e} (max {scale:e})"
+        );
+    }
+}
+
+/// The full model's passes against the f64 reference chain: the model at the view's time,
+/// its raw base colour and feature channels blended, decoded per pixel; backward through the
+/// decoder, both blends, the projection and the temporal step.
+#[test]
+#[allow(clippy::needless_range_loop)]
+fn spacetime_full_passes_match_the_reference_chain() {
+    use lpmsplat::reference::backward::{preprocess_backward, rasterize_backward, ProjectedGrads};
+    use lpmsplat::reference::decoder::{self, FEATURE_CHANNELS};
+    use lpmsplat::reference::raster::rasterize;
+    use lpmsplat::reference::{render, RefGaussians, RenderSettings};
+    use lpmsplat::train::passes::spacetime::initial_decoder_weights;
+
+    let ctx = ctx();
+    let mut rng = Pcg64::seed_from_u64(0xF011);
+    let mut config = TrainConfig::default();
+    BaseModel::SpacetimeFull.configure(&mut config);
+    let (w, h) = (40u32, 32u32);
+    let (camera, pose) = random_view(&mut rng, w, h);
+    let cam = CameraGpu::new(&camera, &pose);
+    let cams = GpuBuffer::from_slice(&ctx, "cameras", &[cam]).unwrap();
+    let t = 0.4f64;
+    let n = 250;
+    let mut model =
+        BaseModel::SpacetimeFull.initialise(random_init(n, [0.0; 3], [1.2; 3], 9, 0).unwrap(), 4);
+    for e in &mut model.extra {
+        let scale = match e.group.name.as_str() {
+            "motion" => 0.6,
+            "omega" => 0.8,
+            "trbf_scale" => 1.5,
+            "f_spec" | "f_t" => 1.5,
+            _ => 0.0,
+        };
+        for v in &mut e.values {
+            *v += rng.gen_range(-scale..=scale);
+        }
+    }
+    for i in 0..n {
+        model.opacity_logits[i] = rng.gen_range(-1.0..3.0);
+        model.log_scales[i] = model.log_scales[i].map(|l| l - 0.7 + rng.gen_range(-0.8..0.8));
+        model.sh_dc[i] = [0; 3].map(|_| rng.gen_range(-1.5..1.5));
+    }
+    let capacity = Capacity {
+        gaussians: n,
+        intersections: 0,
+        pixels: (w * h) as usize,
+        tiles: cam.tile_count() as usize,
+    };
+    let dl: Vec<f32> = (0..3 * w * h)
+        .map(|_| rng.gen_range(-1.0f32..1.0))
+        .collect();
+    let dl_buf = GpuBuffer::from_slice(&ctx, "dl", &dl).unwrap();
+    let mut st = SpacetimePasses::new(&ctx, &config, &[cam], &[0], &[t], n, capacity).unwrap();
+    let got = run(&ctx, &mut st, &model, &cams, &cam, 0, &dl_buf);
+
+    // Reference forward.
+    let settings = RenderSettings::default();
+    let still = still_at(&model, t);
+    let g = RefGaussians::from_params(&still);
+    let out = render(&g, &camera, &pose, 0, [0.0; 3], &settings).unwrap();
+    let mut projected = out.projected.clone();
+    for (p, sh) in projected.iter_mut().zip(&g.sh) {
+        p.rgb = sh[0];
+        p.rgb_clamped = [false; 3];
+    }
+    let raster = rasterize(&projected, &out.bins, &camera, [0.0; 3], &settings).unwrap();
+    let (f_spec, f_t) = (extra(&model, "f_spec"), extra(&model, "f_t"));
+    let centres = extra(&model, "trbf_center");
+    let d = |v: f32| v as f64;
+    let features: Vec<f64> = (0..n)
+        .flat_map(|i| {
+            let at = |v: &[f32]| [0, 1, 2].map(|c| d(v[3 * i + c]));
+            decoder::time_features(at(f_spec), at(f_t), t, d(centres[i]))
+        })
+        .collect();
+    let fimg = decoder::rasterize_features(
+        &projected,
+        &out.bins,
+        &camera,
+        &features,
+        FEATURE_CHANNELS,
+        &settings,
+    )
+    .unwrap();
+    let fimg6: Vec<[f64; 6]> = fimg
+        .chunks(6)
+        .map(|c| std::array::from_fn(|k| c[k]))
+        .collect();
+    let weights: Vec<f64> = initial_decoder_weights(config.seed)
+        .iter()
+        .map(|&v| d(v))
+        .collect();
+    let rgb = decoder::decode_image(&weights, &raster.image, &fimg6, &camera, &pose);
+    let px = (w * h) as usize;
+    let want_image: Vec<f64> = rgb.iter().flatten().copied().collect();
+    compare(
+        "decoded image",
+        &got.image[..3 * px],
+        &want_image,
+        1e-4,
+        1e-5,
+    );
+    let lit = raster
+        .final_transmittance
+        .iter()
+        .filter(|&&t| t < 0.5)
+        .count();
+    assert!(
+        lit > px / 4,
+        "the scene must cover the view ({lit} of {px} pixels)"
+    );
+
+    // Reference backward.
+    let dl64: Vec<[f64; 3]> = dl.chunks(3).map(|c| [d(c[0]), d(c[1]), d(c[2])]).collect();
+    let (db, df, _) =
+        decoder::decode_image_backward(&weights, &raster.image, &fimg6, &camera, &pose, &dl64);
+    let colour =
+        rasterize_backward(&projected, &out.bins, &raster, [0.0; 3], &settings, &db).unwrap();
+    let df_flat: Vec<f64> = df.iter().flatten().copied().collect();
+    let (geometry, fgrads) = decoder::rasterize_features_backward(
+        &projected,
+        &out.bins,
+        &raster,
+        &features,
+        FEATURE_CHANNELS,
+        &settings,
+        &df_flat,
+    )
+    .unwrap();
+    let mut total = ProjectedGrads::zeros(n);
+    for i in 0..n {
+        total.mean2d[i] = [0, 1].map(|c| colour.mean2d[i][c] + geometry.mean2d[i][c]);
+        total.conic[i] = [0, 1, 2].map(|c| colour.conic[i][c] + geometry.conic[i][c]);
+        total.opacity[i] = colour.opacity[i] + geometry.opacity[i];
+    }
+    let pg = preprocess_backward(&g, &projected, &camera, &pose, 0, &settings, &total).unwrap();
+    let (mut motion, mut t_center, mut spec, mut ft) = (vec![], vec![], vec![], vec![]);
+    let mut positions = vec![];
+    for i in 0..n {
+        let tg = instant_backward(
+            &temporal_of(&model, i),
+            t,
+            &Instant {
+                position: pg.positions[i],
+                rotation: pg.rotations[i],
+                opacity_logit: pg.opacity_logits[i],
+            },
+        );
+        motion.extend(tg.motion);
+        t_center.push(tg.t_center);
+        positions.extend(tg.position);
+        let (s, f) = decoder::time_features_backward(
+            std::array::from_fn(|k| fgrads[6 * i + k]),
+            t,
+            d(centres[i]),
+        );
+        spec.extend(s);
+        ft.extend(f);
+    }
+    let (rel, floor) = (1e-2, 2e-3);
+    let flat3 = |v: &[[f32; 3]]| v.iter().flatten().copied().collect::<Vec<_>>();
+    compare(
+        "base colour (dc) gradients",
+        &flat3(&got.grads.sh_dc),
+        &colour.rgb.iter().flatten().copied().collect::<Vec<_>>(),
+        rel,
+        floor,
+    );
+    compare(
+        "f_spec gradients",
+        extra(&got.grads, "f_spec"),
+        &spec,
+        rel,
+        floor,
+    );
+    compare("f_t gradients", extra(&got.grads, "f_t"), &ft, rel, floor);
+    compare(
+        "position gradients",
+        &flat3(&got.grads.positions),
+        &positions,
+        rel,
+        floor,
+    );
+    compare(
+        "motion gradients",
+        extra(&got.grads, "motion"),
+        &motion,
+        rel,
+        floor,
+    );
+    compare(
+        "temporal centre gradients",
+        extra(&got.grads, "trbf_center"),
+        &t_center,
+        rel,
+        floor,
+    );
 }

@@ -1,8 +1,9 @@
 #version 460
 // SpacetimeGaussians' full model: the decoder's weight gradients, one workgroup per weight
 // summing the per-workgroup rows of decode_backward.comp (strided per invocation, then the
-// subgroups in order: a fixed order, so repeated runs give the same bits). With `accumulate`
-// the sum is added to the gradient already there (two-view batches), else it replaces it.
+// subgroups in order: a fixed order, so repeated runs give the same bits), times `scale`. With
+// `accumulate` that is added to the gradient already there (two-view batches: each view adds
+// its gradient / 2), else it replaces it.
 #extension GL_KHR_shader_subgroup_basic : require
 #extension GL_KHR_shader_subgroup_arithmetic : require
 
@@ -15,6 +16,7 @@ layout(push_constant) uniform Push {
     uint rows;      // workgroups of the backward
     uint weights;   // floats per row
     uint accumulate;
+    float scale;
 };
 
 shared float s_sum[WG_SIZE / SUBGROUP_SIZE];
@@ -32,6 +34,6 @@ void main() {
     if (gl_LocalInvocationIndex == 0u) {
         float total = 0.0;
         for (uint sg = 0u; sg < gl_WorkGroupSize.x / SUBGROUP_SIZE; sg++) total += s_sum[sg];
-        grads[k] = accumulate != 0u ? grads[k] + total : total;
+        grads[k] = accumulate != 0u ? grads[k] + scale * total : scale * total;
     }
 }

@@ -162,30 +162,40 @@ fn fps_one(
     let cameras = GpuBuffer::from_slice(ctx, "cameras", &[cam])?;
     // A video model: every frame first writes the model at --time as still Gaussians (what a
     // player does per displayed time), so the temporal step is part of the frame time.
-    let temporal = if args.model == BaseModel::SpacetimeLite {
-        Some(TimedModel::new(ctx, &model)?)
+    // The full model also writes its features at --time, and its decoder makes the RGB.
+    let decoder = match (&args.model, &args.ply) {
+        (BaseModel::SpacetimeFull, Some(p)) => Some(lpmsplat::splats::decoder_json::read_for(p)?),
+        (BaseModel::SpacetimeFull, None) => anyhow::bail!(
+            "bench fps --model spacetime-full times a trained model: pass --ply with its \
+             .decoder.json beside it"
+        ),
+        _ => None,
+    };
+    let mut temporal = if args.model.is_spacetime() {
+        Some(TimedModel::new(ctx, &model, decoder.as_deref())?)
     } else {
         None
     };
-    let record_temporal = |rec: &mut Recorder| -> anyhow::Result<()> {
-        match &temporal {
-            Some(timed) => timed.record(rec, &model, args.time),
-            None => Ok(()),
-        }
-    };
-    let splats = temporal.as_ref().map_or(&model, |t| &t.instant);
-    if temporal.is_some() {
+    if let Some(timed) = &temporal {
         let mut rec = Recorder::new(ctx)?;
         rec.begin()?;
-        record_temporal(&mut rec)?;
+        timed.record(&mut rec, &model, args.time)?;
         rec.submit_and_wait()?;
     }
-    let settings = FrameSettings {
-        sh_degree: splats.sh_degree,
-        background: [0.0; 3],
-        constants: RenderConstants::default(),
-        filter3d: None,
-        features: None,
+    if let Some(t) = temporal.as_mut() {
+        t.reserve_pixels((cam.width() * cam.height()) as usize)?;
+    }
+    let still = temporal.take();
+    let splats = still.as_ref().map_or(&model, |t| &t.instant);
+    let settings = match &still {
+        Some(t) => t.settings([0.0; 3]),
+        None => FrameSettings {
+            sh_degree: splats.sh_degree,
+            background: [0.0; 3],
+            constants: RenderConstants::default(),
+            filter3d: None,
+            features: None,
+        },
     };
     let mut renderer = Renderer::for_camera(ctx, params.len(), &cam)?;
     // First frame sizes the intersection buffers.
@@ -199,7 +209,9 @@ fn fps_one(
         rec.begin()?;
         rec.start_timestamps(&mut pool);
         let t0 = Instant::now();
-        record_temporal(&mut rec)?;
+        if let Some(t) = &still {
+            t.record(&mut rec, &model, args.time)?;
+        }
         renderer.record(
             &mut rec,
             splats,
@@ -209,6 +221,12 @@ fn fps_one(
             &settings,
             Some(&mut pool),
         )?;
+        if let Some(t) = &still {
+            t.record_decode(&mut rec, &renderer, &cameras, 0, &cam)?;
+            if t.full() {
+                rec.timestamp(&mut pool, "decode");
+            }
+        }
         rec.submit_and_wait()?;
         let ms = t0.elapsed().as_secs_f64() * 1e3;
         if k >= args.warmup {

@@ -515,7 +515,11 @@ fn evaluate_run(
         .map(|l| l.totals)
         .unwrap_or_default();
     let lpm_s = lpm_totals.seconds;
-    let fps = fps_of(ctx, &model, scene, args.fps_frames)?;
+    // The full SpacetimeGaussians model's decoder weights, for its FPS and beside its PLY.
+    let decoder: Option<Vec<f32>> = t
+        .model_state()?
+        .and_then(|s| serde_json::from_value(s["decoder_weights"].clone()).ok());
+    let fps = fps_of(ctx, &model, decoder.as_deref(), scene, args.fps_frames)?;
     if iteration == args.iterations {
         // The final models, to view or `eval` later: `adc+lpm.ply` (`adc+lpm-seed1.ply` with
         // several seeds) and so on.
@@ -524,7 +528,12 @@ fn evaluate_run(
         } else {
             format!("{name}.ply")
         };
-        write_ply(&args.out.join(file), &model)?;
+        let ply = args.out.join(file);
+        write_ply(&ply, &model)?;
+        if let Some(w) = &decoder {
+            let path = lpmsplat::splats::decoder_json::path_for(&ply);
+            std::fs::write(&path, lpmsplat::splats::decoder_json::to_json(w)?)?;
+        }
     }
     let train_s = r.seconds;
     let row = TradeRow {
@@ -566,46 +575,60 @@ fn evaluate_run(
 fn fps_of(
     ctx: &std::sync::Arc<GpuContext>,
     model: &lpmsplat::splats::GaussianParams,
+    decoder: Option<&[f32]>,
     scene: &Scene,
     frames: usize,
 ) -> anyhow::Result<f64> {
     let v = &scene.views[scene.test[0]];
     let cam = CameraGpu::new(&v.camera.resized(1352, 1014), &v.pose);
     let model_gpu = GpuSplats::upload(ctx, model, model.len().max(1))?;
-    // A video model: each frame is the temporal step at the view's time, then the render.
-    let timed = match scene.times_of(&scene.test[..1]) {
+    // A video model: each frame is the temporal step at the view's time, then the render (and
+    // the full model's decoder).
+    let mut timed = match scene.times_of(&scene.test[..1]) {
         Some(t) if !model.extra.is_empty() => {
-            let timed = TimedModel::new(ctx, &model_gpu)?;
+            let timed = TimedModel::new(ctx, &model_gpu, decoder)?;
             Some((timed, t[0]))
         }
         _ => None,
     };
+    if let Some((t, _)) = timed.as_mut() {
+        t.reserve_pixels((cam.width() * cam.height()) as usize)?;
+    }
+    let timed = timed;
     let splats = timed.as_ref().map_or(&model_gpu, |t| &t.0.instant);
-    let refresh = || -> anyhow::Result<()> {
+    let cameras = GpuBuffer::from_slice(ctx, "cameras", &[cam])?;
+    let settings = match &timed {
+        Some((t, _)) => t.settings([0.0; 3]),
+        None => FrameSettings {
+            sh_degree: splats.sh_degree,
+            background: [0.0; 3],
+            constants: RenderConstants::default(),
+            filter3d: None,
+            features: None,
+        },
+    };
+    let mut r = Renderer::for_camera(ctx, model.len().max(1), &cam)?;
+    let frame = |r: &mut Renderer| -> anyhow::Result<()> {
         if let Some((timed, t)) = &timed {
             let mut rec = Recorder::new(ctx)?;
             rec.begin()?;
             timed.record(&mut rec, &model_gpu, *t)?;
             rec.submit_and_wait()?;
         }
+        r.render_blocking(splats, &cameras, 0, &cam, &settings)?;
+        if let Some((timed, _)) = timed.as_ref().filter(|t| t.0.full()) {
+            let mut rec = Recorder::new(ctx)?;
+            rec.begin()?;
+            timed.record_decode(&mut rec, r, &cameras, 0, &cam)?;
+            rec.submit_and_wait()?;
+        }
         Ok(())
     };
-    let cameras = GpuBuffer::from_slice(ctx, "cameras", &[cam])?;
-    let settings = FrameSettings {
-        sh_degree: splats.sh_degree,
-        background: [0.0; 3],
-        constants: RenderConstants::default(),
-        filter3d: None,
-        features: None,
-    };
-    let mut r = Renderer::for_camera(ctx, model.len().max(1), &cam)?;
-    refresh()?;
-    r.render_blocking(splats, &cameras, 0, &cam, &settings)?;
+    frame(&mut r)?;
     let mut ms = Vec::new();
     for _ in 0..frames.max(1) {
         let t0 = Instant::now();
-        refresh()?;
-        r.render_blocking(splats, &cameras, 0, &cam, &settings)?;
+        frame(&mut r)?;
         ms.push(t0.elapsed().as_secs_f64());
     }
     ms.sort_by(|a, b| a.total_cmp(b));

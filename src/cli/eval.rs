@@ -130,9 +130,13 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
     let biggest = (0..cams.len())
         .max_by_key(|&k| cams[k].width() as u64 * cams[k].height() as u64)
         .unwrap_or(0);
-    let mut renderer =
-        args.model
-            .view_renderer(&ctx, params.len(), &cams[biggest], scene.times_of(views))?;
+    let mut renderer = args.model.view_renderer(
+        &ctx,
+        params.len(),
+        &cams[biggest],
+        scene.times_of(views),
+        Some(&args.ply),
+    )?;
     let mut per_view = Vec::new();
     // A few images decoded at a time, nothing kept: a video's test frames take the memory of a
     // handful.

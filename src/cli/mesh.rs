@@ -84,7 +84,8 @@ pub fn run(gpu: &GpuOptions, args: &MeshArgs) -> anyhow::Result<()> {
         .map(|&i| CameraGpu::new(&scene.views[i].camera, &scene.views[i].pose))
         .collect();
     let cameras = GpuBuffer::from_slice(&ctx, "cameras", &cams)?;
-    let mut renderer = BaseModel::Surfels2d.view_renderer(&ctx, params.len(), &cams[0], None)?;
+    let mut renderer =
+        BaseModel::Surfels2d.view_renderer(&ctx, params.len(), &cams[0], None, None)?;
     let depth_trunc = args.depth_trunc.unwrap_or(f64::INFINITY);
     // Render every view once: surface depth, colour and mask.
     let mut frames = Vec::new();

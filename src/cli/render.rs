@@ -77,7 +77,7 @@ pub fn run(gpu: &GpuOptions, args: &RenderArgs) -> anyhow::Result<()> {
     let params = args.model.read_ply(&args.ply)?;
     if let Some(t) = args.time {
         anyhow::ensure!(
-            args.model == BaseModel::SpacetimeLite && scene.view_times.is_some(),
+            args.model.is_spacetime() && scene.view_times.is_some(),
             "--time renders a video model at one time; this is --model {} on a {} scene. Fix: \
              pass --model spacetime-lite with the video scene it was trained on, or drop --time",
             args.model.name(),
@@ -132,9 +132,9 @@ pub fn run(gpu: &GpuOptions, args: &RenderArgs) -> anyhow::Result<()> {
         Some(t) => Some(vec![t; indices.len()]),
         None => scene.times_of(&indices),
     };
-    let mut renderer = args
-        .model
-        .view_renderer(&ctx, params.len(), &cams[0], times)?;
+    let mut renderer =
+        args.model
+            .view_renderer(&ctx, params.len(), &cams[0], times, Some(&args.ply))?;
     let bg = args.background.or(scene.background).unwrap_or([0.0; 3]);
     anyhow::ensure!(
         !(args.depth || args.normals) || args.model == BaseModel::Surfels2d,
@@ -229,9 +229,9 @@ fn render_orbit(
     let times = (0..cams.len())
         .map(|k| args.time.unwrap_or(k as f32 / cams.len() as f32))
         .collect();
-    let mut renderer = args
-        .model
-        .view_renderer(&ctx, params.len(), &cams[0], Some(times))?;
+    let mut renderer =
+        args.model
+            .view_renderer(&ctx, params.len(), &cams[0], Some(times), Some(&args.ply))?;
     let bg = args.background.or(scene.background).unwrap_or([0.0; 3]);
     let path = args.out.join("orbit.gif");
     let mut gif = OrbitGif::new(camera.width, camera.height, args.fps);

@@ -37,9 +37,11 @@ pub struct TrainArgs {
     pub iterations: u32,
     /// Base model: 3dgs, pixel-gs (Pixel-GS's pixel-weighted densification statistic),
     /// mip-splatting (3D smoothing and 2D Mip filters; the PLY has the 3D filter fused in,
-    /// evaluate it with `eval --model mip-splatting`) or 2dgs (surfels with the normal and
-    /// distortion regularisers; see --lambda-normal, --lambda-dist, --depth-ratio). Combines
-    /// with --lpm.
+    /// evaluate it with `eval --model mip-splatting`), 2dgs (surfels with the normal and
+    /// distortion regularisers; see --lambda-normal, --lambda-dist, --depth-ratio),
+    /// spacetime-lite (SpacetimeGaussians on a video scene: motion, rotation and opacity in
+    /// time, RGB colour) or spacetime-full (the same with 9 feature channels and the per-pixel
+    /// decoder, whose weights go to OUT/decoder.json). Combines with --lpm.
     #[arg(long, default_value = "3dgs", value_parser = BaseModel::parse)]
     pub model: BaseModel,
     #[arg(long, default_value_t = 0)]
@@ -765,6 +767,10 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     let trained = (config.iterations - start_iteration).max(1);
     let model = trainer.export_model()?;
     write_ply(&args.out.join("point_cloud.ply"), &model)?;
+    for (ext, contents) in trainer.export_files()? {
+        let path = args.out.join("point_cloud.ply").with_extension(&ext);
+        std::fs::write(&path, contents).with_context(|| format!("writing {}", path.display()))?;
+    }
     // A .splat holds still Gaussians: a video model's would show it at no time at all.
     if model.extra.is_empty() {
         write_splat(&args.out.join("point_cloud.splat"), &model)?;

@@ -237,3 +237,22 @@ pub fn rasterize_features_backward(
     }
     Ok((geometry, grads))
 }
+
+/// A Gaussian's feature channels at time `t` (temporal centre `c`): `[f_spec, (t − c)·f_t]`.
+pub fn time_features(f_spec: [f64; 3], f_t: [f64; 3], t: f64, c: f64) -> [f64; 6] {
+    let d = t - c;
+    [
+        f_spec[0],
+        f_spec[1],
+        f_spec[2],
+        d * f_t[0],
+        d * f_t[1],
+        d * f_t[2],
+    ]
+}
+
+/// The backward of [`time_features`] (`t − c` detached): `(∂L/∂f_spec, ∂L/∂f_t)`.
+pub fn time_features_backward(dl: [f64; 6], t: f64, c: f64) -> ([f64; 3], [f64; 3]) {
+    let d = t - c;
+    ([dl[0], dl[1], dl[2]], [d * dl[3], d * dl[4], d * dl[5]])
+}

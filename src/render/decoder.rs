@@ -28,6 +28,7 @@ struct ReducePush {
     rows: u32,
     weights: u32,
     accumulate: u32,
+    scale: f32,
 }
 
 /// One frame's decoder inputs: the rasterizer's base image (3 per pixel) and feature image
@@ -170,8 +171,9 @@ impl Decoder {
     }
 
     /// Records the backward of one frame from `dl_drgb` (3 per pixel): [`Decoder::dl_dbase`]
-    /// and [`Decoder::dl_dfeatures`] written, the weights' gradient written into
-    /// `weight_grads` or, with `accumulate`, added to it. Barriers inside between its two
+    /// and [`Decoder::dl_dfeatures`] written, the weights' gradient times `scale` written into
+    /// `weight_grads` or, with `accumulate`, added to it (a batch of `n` views: each adds its
+    /// gradient / `n`, as the trainer's per-Gaussian mean). Barriers inside between its two
     /// kernels, none around.
     pub fn record_backward(
         &self,
@@ -180,6 +182,7 @@ impl Decoder {
         dl_drgb: &GpuBuffer<f32>,
         weight_grads: &GpuBuffer<f32>,
         accumulate: bool,
+        scale: f32,
     ) -> Result<()> {
         let pixels = self.check(f)?;
         ensure!(
@@ -213,8 +216,139 @@ impl Decoder {
                 rows: self.rows(pixels) as u32,
                 weights: WEIGHTS as u32,
                 accumulate: accumulate as u32,
+                scale,
             },
             [WEIGHTS as u32, 1, 1],
+        );
+        Ok(())
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct TimePush {
+    count: u32,
+    t: f32,
+}
+
+/// The full model's per-Gaussian feature channels at a time (`glsl/spacetime/features_at_time
+/// .comp`, oracle [`crate::reference::decoder::time_features`]) and their backward.
+pub struct TimeFeatures {
+    ctx: Arc<GpuContext>,
+    forward: ComputePipeline,
+    backward: ComputePipeline,
+}
+
+/// The full model's feature groups (3 floats per Gaussian each) and temporal centres.
+pub struct FeatureGroups<'a> {
+    pub f_spec: &'a GpuBuffer<f32>,
+    pub f_t: &'a GpuBuffer<f32>,
+    pub t_center: &'a GpuBuffer<f32>,
+}
+
+impl FeatureGroups<'_> {
+    fn check(&self, count: usize) -> Result<()> {
+        for (name, len, stride) in [
+            ("f_spec", self.f_spec.len(), 3),
+            ("f_t", self.f_t.len(), 3),
+            ("temporal centres", self.t_center.len(), 1),
+        ] {
+            ensure!(
+                len >= count * stride,
+                "time features: {name} hold {len} floats, {count} Gaussians need {}",
+                count * stride
+            );
+        }
+        Ok(())
+    }
+}
+
+impl TimeFeatures {
+    pub fn new(ctx: &Arc<GpuContext>) -> Result<Self> {
+        let push = std::mem::size_of::<TimePush>() as u32;
+        Ok(Self {
+            ctx: ctx.clone(),
+            forward: ComputePipeline::new(
+                ctx,
+                "spacetime/features_at_time",
+                shaders::SPACETIME_FEATURES_AT_TIME,
+                4,
+                push,
+                WG,
+                &[],
+            )?,
+            backward: ComputePipeline::new(
+                ctx,
+                "spacetime/features_backward",
+                shaders::SPACETIME_FEATURES_BACKWARD,
+                4,
+                push,
+                WG,
+                &[],
+            )?,
+        })
+    }
+
+    /// Records `out[6i..6i + 6] = [f_spec, (t − c)·f_t]` for the first `count` Gaussians (no
+    /// barriers).
+    pub fn record_forward(
+        &self,
+        rec: &mut Recorder,
+        groups: &FeatureGroups,
+        out: &GpuBuffer<f32>,
+        count: usize,
+        t: f32,
+    ) -> Result<()> {
+        groups.check(count)?;
+        ensure!(
+            out.len() >= FEATURE_CHANNELS * count && t.is_finite(),
+            "time features: {} output floats for {count} Gaussians at time {t}",
+            out.len()
+        );
+        if count == 0 {
+            return Ok(());
+        }
+        rec.dispatch(
+            &self.forward,
+            &[groups.f_spec, groups.f_t, groups.t_center, out],
+            &TimePush {
+                count: count as u32,
+                t,
+            },
+            self.ctx.groups_1d(count as u64, WG),
+        );
+        Ok(())
+    }
+
+    /// Records the feature groups' gradients (`grads.f_spec`, `grads.f_t`, written) from the
+    /// channels' (`d_features`, 6 per Gaussian); reads `params.t_center` only. No barriers.
+    pub fn record_backward(
+        &self,
+        rec: &mut Recorder,
+        params: &FeatureGroups,
+        d_features: &GpuBuffer<f32>,
+        grads: &FeatureGroups,
+        count: usize,
+        t: f32,
+    ) -> Result<()> {
+        params.check(count)?;
+        grads.check(count)?;
+        ensure!(
+            d_features.len() >= FEATURE_CHANNELS * count && t.is_finite(),
+            "time features backward: {} gradient floats for {count} Gaussians at time {t}",
+            d_features.len()
+        );
+        if count == 0 {
+            return Ok(());
+        }
+        rec.dispatch(
+            &self.backward,
+            &[params.t_center, d_features, grads.f_spec, grads.f_t],
+            &TimePush {
+                count: count as u32,
+                t,
+            },
+            self.ctx.groups_1d(count as u64, WG),
         );
         Ok(())
     }

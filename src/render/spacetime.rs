@@ -8,6 +8,7 @@ use std::sync::Arc;
 
 use anyhow::ensure;
 
+use super::layout::RenderConstants;
 use crate::gpu::{ComputePipeline, GpuBuffer, GpuContext, Recorder};
 use crate::shaders;
 use crate::splats::gpu::GpuSplats;
@@ -331,18 +332,56 @@ impl TemporalStep {
 
 /// A video model drawn at any time as still Gaussians, as a player does: each displayed time,
 /// the temporal step writes the model at that time into `instant`, which any 3DGS renderer
-/// draws (`bench fps`, `bench trade`'s FPS). Scales and colour are copied once.
+/// draws (`bench fps`, `bench trade`'s FPS, `render`, `eval`). Scales and colour are copied
+/// once. The full model ([`TimedModel::full`]) also writes its feature channels at that time
+/// and turns the rendered base and feature images into RGB with its decoder.
 pub struct TimedModel {
     step: TemporalStep,
     pub instant: GpuSplats,
+    full: Option<FullDecoding>,
+}
+
+/// The full model's per-time features and its decoder.
+struct FullDecoding {
+    features: super::decoder::TimeFeatures,
+    instant_features: GpuBuffer<f32>,
+    decoder: super::decoder::Decoder,
+    weights: GpuBuffer<f32>,
 }
 
 impl TimedModel {
-    /// For the video model `model` (its temporal groups as extra groups).
-    pub fn new(ctx: &Arc<GpuContext>, model: &GpuSplats) -> anyhow::Result<Self> {
+    /// For the video model `model` (its temporal groups as extra groups); with `decoder`
+    /// weights, the full model (its `f_spec`, `f_t` groups too).
+    pub fn new(
+        ctx: &Arc<GpuContext>,
+        model: &GpuSplats,
+        decoder: Option<&[f32]>,
+    ) -> anyhow::Result<Self> {
+        use crate::reference::decoder::{FEATURE_CHANNELS, WEIGHTS};
         TemporalBuffers::of(model)?;
         let n = model.count;
         let instant = GpuSplats::zeroed(ctx, "instant ", 0, n, n.max(1))?;
+        let full = match decoder {
+            Some(w) => {
+                ensure!(
+                    w.len() == WEIGHTS && w.iter().all(|v| v.is_finite()),
+                    "the full model's decoder has {WEIGHTS} finite weights, not these {}",
+                    w.len()
+                );
+                Some(FullDecoding {
+                    features: super::decoder::TimeFeatures::new(ctx)?,
+                    instant_features: GpuBuffer::new(
+                        ctx,
+                        "instant features",
+                        FEATURE_CHANNELS * n.max(1),
+                        crate::gpu::BufferKind::DeviceLocal,
+                    )?,
+                    decoder: super::decoder::Decoder::new(ctx)?,
+                    weights: GpuBuffer::from_slice(ctx, "decoder weights", w)?,
+                })
+            }
+            None => None,
+        };
         let mut rec = Recorder::new(ctx)?;
         rec.begin()?;
         rec.copy(&model.log_scales, &instant.log_scales, 3 * n);
@@ -351,10 +390,17 @@ impl TimedModel {
         Ok(Self {
             step: TemporalStep::new(ctx)?,
             instant,
+            full,
         })
     }
 
-    /// Records `model` at time `t` into `self.instant`, then a barrier.
+    /// Whether this is the full model (feature channels and a decoder).
+    pub fn full(&self) -> bool {
+        self.full.is_some()
+    }
+
+    /// Records `model` at time `t` into `self.instant` (and the full model's features), then a
+    /// barrier.
     pub fn record(&self, rec: &mut Recorder, model: &GpuSplats, t: f32) -> anyhow::Result<()> {
         self.step.record_forward(
             rec,
@@ -365,7 +411,98 @@ impl TimedModel {
                 t,
             },
         )?;
+        if let Some(f) = &self.full {
+            let group = |name: &str| {
+                model
+                    .extra_group(name)
+                    .ok_or_else(|| anyhow::anyhow!("the full model has no '{name}' group"))
+            };
+            f.features.record_forward(
+                rec,
+                &super::decoder::FeatureGroups {
+                    f_spec: group("f_spec")?,
+                    f_t: group("f_t")?,
+                    t_center: group("trbf_center")?,
+                },
+                &f.instant_features,
+                model.count,
+                t,
+            )?;
+        }
         rec.barrier();
         Ok(())
+    }
+
+    /// The frame settings that draw `self.instant`: the full model's raw base colour and
+    /// feature channels over black, else 3DGS's with `background`.
+    pub fn settings(&self, background: [f32; 3]) -> super::forward::FrameSettings<'_> {
+        let mut constants = RenderConstants::default();
+        let (background, features) = match &self.full {
+            Some(f) => {
+                constants.flags |= RenderConstants::RAW_COLOUR;
+                let channels = super::forward::FeatureChannels {
+                    values: &f.instant_features,
+                    channels: crate::reference::decoder::FEATURE_CHANNELS as u32,
+                };
+                ([0.0; 3], Some(channels))
+            }
+            None => (background, None),
+        };
+        super::forward::FrameSettings {
+            sh_degree: 0,
+            background,
+            constants,
+            filter3d: None,
+            features,
+        }
+    }
+
+    /// Makes room for frames of `pixels` (the full model's decoder buffers; between
+    /// submissions).
+    pub fn reserve_pixels(&mut self, pixels: usize) -> anyhow::Result<()> {
+        match self.full.as_mut() {
+            Some(f) => f.decoder.reserve(pixels),
+            None => Ok(()),
+        }
+    }
+
+    /// After `renderer` recorded a frame with [`TimedModel::settings`]: the full model's
+    /// decoder (a barrier after); nothing for the lite model. The RGB is then
+    /// [`TimedModel::image`]. [`TimedModel::reserve_pixels`] first.
+    pub fn record_decode(
+        &self,
+        rec: &mut Recorder,
+        renderer: &super::forward::Renderer,
+        cameras: &GpuBuffer<super::layout::CameraGpu>,
+        index: u32,
+        camera: &super::layout::CameraGpu,
+    ) -> anyhow::Result<()> {
+        let Some(f) = self.full.as_ref() else {
+            return Ok(());
+        };
+        let features = renderer
+            .feature_image()
+            .ok_or_else(|| anyhow::anyhow!("decoder: the frame has no feature image"))?;
+        f.decoder.record_forward(
+            rec,
+            &super::decoder::DecoderFrame {
+                cameras,
+                camera_index: index,
+                camera,
+                base: &renderer.frame.image,
+                features,
+                weights: &f.weights,
+            },
+        )?;
+        rec.barrier();
+        Ok(())
+    }
+
+    /// The frame's RGB: the decoder's for the full model, else the renderer's.
+    pub fn image<'a>(&'a self, renderer: &'a super::forward::Renderer) -> &'a GpuBuffer<f32> {
+        match &self.full {
+            Some(f) => f.decoder.image(),
+            None => &renderer.frame.image,
+        }
     }
 }

@@ -162,26 +162,30 @@ impl ViewRenderer for SurfelView {
 /// renderer on the still model).
 pub struct SpacetimeView {
     ctx: Arc<GpuContext>,
-    inner: GaussianView,
-    step: super::spacetime::TemporalStep,
+    renderer: Renderer,
     /// The time of every camera in the buffer the renders index.
     times: Vec<f32>,
-    instant: GpuSplats,
+    /// The full model's decoder weights (`None`: lite).
+    decoder: Option<Vec<f32>>,
+    /// The temporal step for the model last rendered (its Gaussian count).
+    timed: Option<(usize, super::spacetime::TimedModel)>,
 }
 
 impl SpacetimeView {
+    /// `decoder`: the full model's weights (`None`: the lite model).
     pub fn new(
         ctx: &Arc<GpuContext>,
         gaussians: usize,
         camera: &CameraGpu,
         times: Vec<f32>,
+        decoder: Option<Vec<f32>>,
     ) -> Result<Self> {
         Ok(Self {
             ctx: ctx.clone(),
-            inner: GaussianView::new(ctx, gaussians, camera, RenderConstants::for_mip(false))?,
-            step: super::spacetime::TemporalStep::new(ctx)?,
+            renderer: Renderer::for_camera(ctx, gaussians, camera)?,
             times,
-            instant: GpuSplats::zeroed(ctx, "instant ", 0, 0, gaussians.max(1))?,
+            decoder,
+            timed: None,
         })
     }
 }
@@ -195,28 +199,44 @@ impl ViewRenderer for SpacetimeView {
         camera: &CameraGpu,
         background: [f32; 3],
     ) -> Result<Vec<f32>> {
-        use super::spacetime::{At, InstantBuffers, TemporalBuffers};
         let t = *self.times.get(index as usize).ok_or_else(|| {
             anyhow::anyhow!("camera {index} has no time ({} cameras)", self.times.len())
         })?;
         let n = splats.count;
-        if self.instant.capacity < n {
-            self.instant = GpuSplats::zeroed(&self.ctx, "instant ", 0, 0, n)?;
+        if self.timed.as_ref().map(|t| t.0) != Some(n) {
+            self.timed = None;
+            let timed =
+                super::spacetime::TimedModel::new(&self.ctx, splats, self.decoder.as_deref())?;
+            self.timed = Some((n, timed));
         }
-        self.instant.count = n;
+        let (_, timed) = self.timed.as_mut().expect("made above");
+        timed.reserve_pixels((camera.width() * camera.height()) as usize)?;
+        let c = self.renderer.capacity();
+        self.renderer.ensure_capacity(Capacity {
+            pixels: c.pixels.max((camera.width() * camera.height()) as usize),
+            tiles: c.tiles.max(camera.tile_count() as usize),
+            ..c
+        })?;
         let mut rec = crate::gpu::Recorder::new(&self.ctx)?;
         rec.begin()?;
-        self.step.record_forward(
-            &mut rec,
-            &TemporalBuffers::of(splats)?,
-            &InstantBuffers::of(&self.instant),
-            At { count: n, t },
-        )?;
-        rec.copy(&splats.log_scales, &self.instant.log_scales, 3 * n);
-        rec.copy(&splats.sh_dc, &self.instant.sh_dc, 3 * n);
+        timed.record(&mut rec, splats, t)?;
         rec.submit_and_wait()?;
-        self.inner
-            .render(&self.instant, cameras, index, camera, background)
+        self.renderer.render_blocking(
+            &timed.instant,
+            cameras,
+            index,
+            camera,
+            &timed.settings(background),
+        )?;
+        if !timed.full() {
+            return self.renderer.read_image();
+        }
+        let mut rec = crate::gpu::Recorder::new(&self.ctx)?;
+        rec.begin()?;
+        timed.record_decode(&mut rec, &self.renderer, cameras, index, camera)?;
+        rec.submit_and_wait()?;
+        let pixels = (camera.width() * camera.height()) as usize;
+        timed.image(&self.renderer).read_range(0, 3 * pixels)
     }
 
     fn geometry(&self, _: &CameraGpu) -> Result<Option<GeometryMaps>> {

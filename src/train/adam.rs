@@ -17,7 +17,7 @@
 //! The update is dense: every Gaussian below `count` moves, seen this iteration or not, as in
 //! the reference (moments keep decaying for Gaussians with zero gradient).
 
-use crate::gpu::{ComputePipeline, GpuContext, Recorder};
+use crate::gpu::{ComputePipeline, GpuBuffer, GpuContext, Recorder};
 use crate::shaders;
 use crate::splats::gpu::{GpuSplats, SplatShape};
 use anyhow::{bail, ensure};
@@ -312,6 +312,61 @@ impl Adam {
                 ctx.groups_1d(n / 4 + n % 4, WG),
             );
         }
+        rec.barrier();
+        Ok(())
+    }
+
+    /// Records step `step` on one flat parameter buffer (`n` floats: a model's own
+    /// parameters, not per Gaussian), with a barrier before and after.
+    #[allow(clippy::too_many_arguments)]
+    pub fn record_flat(
+        &self,
+        ctx: &GpuContext,
+        rec: &mut Recorder,
+        params: &GpuBuffer<f32>,
+        grads: &GpuBuffer<f32>,
+        m: &GpuBuffer<f32>,
+        v: &GpuBuffer<f32>,
+        n: usize,
+        step: u32,
+        lr: f64,
+    ) -> anyhow::Result<()> {
+        ensure!(step >= 1, "Adam step numbers start at 1 (got 0)");
+        ensure!(lr.is_finite(), "Adam: learning rate {lr}");
+        for (name, b) in [
+            ("parameters", params),
+            ("gradients", grads),
+            ("m", m),
+            ("v", v),
+        ] {
+            ensure!(
+                b.len() >= n,
+                "Adam: the {name} hold {} floats, not {n}",
+                b.len()
+            );
+        }
+        if n == 0 {
+            return Ok(());
+        }
+        let s = self.hyper.scalars(lr, step);
+        let push = AdamPush {
+            n: n as u32,
+            one_minus_beta1: s.one_minus_beta1,
+            beta2: s.beta2,
+            one_minus_beta2: s.one_minus_beta2,
+            neg_step_size: s.neg_step_size,
+            bias2_sqrt: s.bias2_sqrt,
+            eps: s.eps,
+            pad: 0,
+        };
+        let n = n as u64;
+        rec.barrier();
+        rec.dispatch(
+            &self.pipe,
+            &[params, grads, m, v],
+            &push,
+            ctx.groups_1d(n / 4 + n % 4, WG),
+        );
         rec.barrier();
         Ok(())
     }

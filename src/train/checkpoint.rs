@@ -539,6 +539,11 @@ impl Trainer {
                         .collect::<serde_json::Map<_, _>>()
                         .into();
                 }
+                // The base model's own parameters (the full SpacetimeGaussians' decoder weights
+                // and their Adam moments); not compared on resume.
+                if let Some(state) = self.model_state()? {
+                    c["model_state"] = state;
+                }
                 c.to_string()
             },
         })
@@ -656,6 +661,7 @@ impl Trainer {
             .as_object_mut()
             .and_then(|o| o.remove("model_rules"))
             .unwrap_or(serde_json::Value::Null);
+        let model_state = saved.as_object_mut().and_then(|o| o.remove("model_state"));
         let diffs = config_differences(&saved, &config.to_json());
         if !diffs.is_empty() {
             return bad_input(
@@ -690,6 +696,11 @@ impl Trainer {
                 rule.restore_state(state)
                     .with_context(|| path.display().to_string())?;
             }
+        }
+        if let Some(state) = &model_state {
+            t.passes
+                .restore_model_state(state)
+                .with_context(|| format!("{}: config.model_state", path.display()))?;
         }
         upload_groups(&t.state.m, &ck.sets[1])?;
         upload_groups(&t.state.v, &ck.sets[2])?;

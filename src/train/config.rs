@@ -140,6 +140,13 @@ impl TrainConfig {
                 }),
                 None => serde_json::Value::Null,
             };
+            // Only for the full model, so lite checkpoints from before the key still resume.
+            if let Some(f) = &r.full {
+                j["spacetime"]["full"] = serde_json::json!({
+                    "lr_features": f.features, "lr_time_features": f.time_features,
+                    "lr_decoder": f.decoder,
+                });
+            }
         }
         // Only when not the 3DGS default, so checkpoints from before the key still resume.
         if let Statistic::PixelWeighted { depth_threshold } = d.statistic {
@@ -238,6 +245,27 @@ pub struct SpacetimeTraining {
     pub child_time: ChildTime,
     /// The official guided error sampling (`None`: off).
     pub guided: Option<GuidedSamplingSettings>,
+    /// The full model (9 feature channels and the per-pixel decoder); `None`: the lite model.
+    pub full: Option<FullModelRates>,
+}
+
+/// SpacetimeGaussians' full model: the learning rates of its specular and time features and of
+/// its decoder (BASE_MODELS.md §4.2: 2.5e-3, 1e-3, 1e-4; the base colour keeps the DC rate).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FullModelRates {
+    pub features: f64,
+    pub time_features: f64,
+    pub decoder: f64,
+}
+
+impl Default for FullModelRates {
+    fn default() -> Self {
+        Self {
+            features: 2.5e-3,
+            time_features: 1e-3,
+            decoder: 1e-4,
+        }
+    }
 }
 
 /// SpacetimeGaussians' guided error sampling (the official train.py "ems", BASE_MODELS.md §4.6;
@@ -297,6 +325,7 @@ impl Default for SpacetimeTraining {
             t_log_scale: 0.03,
             child_time: ChildTime::Random,
             guided: Some(GuidedSamplingSettings::default()),
+            full: None,
         }
     }
 }

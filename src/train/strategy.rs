@@ -81,6 +81,9 @@ pub struct DensityContext<'a> {
     pub height: u32,
     /// What a new primitive looks like in this model.
     pub primitive: Primitive,
+    /// New Gaussians store their colour as it is in the DC coefficients (no SH encoding;
+    /// `ModelPasses::raw_colour`).
+    pub raw_colour: bool,
     /// The model's extra groups' values for a new Gaussian, one row per group
     /// (`ModelPasses::new_gaussian_extras`).
     pub new_extras: Vec<Vec<f32>>,

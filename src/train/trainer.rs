@@ -120,7 +120,7 @@ pub struct Trainer {
     view_times: Option<Vec<f64>>,
     view_grad_norm: GpuBuffer<f32>,
     /// The base model's forward, backward, own losses and per-Gaussian buffers.
-    passes: Box<dyn ModelPasses>,
+    pub(super) passes: Box<dyn ModelPasses>,
     loss: Loss,
     adam: Adam,
     pub density: DensityControl,
@@ -535,6 +535,8 @@ impl Trainer {
                     grads,
                     view_grad_norm: &self.view_grad_norm,
                     count,
+                    view_in_step: k,
+                    views_in_step: views.len(),
                 },
                 &cfg,
                 if cfg.timestamps {
@@ -754,6 +756,7 @@ impl Trainer {
             width: slot.width,
             height: slot.height,
             primitive: self.passes.primitive(),
+            raw_colour: self.passes.raw_colour(),
             new_extras: self.passes.new_gaussian_extras(),
             moving: self.passes.frame_positions(),
         })
@@ -797,7 +800,19 @@ impl Trainer {
             &self.grads,
             self.adam_step,
             &lrs,
-        )
+        )?;
+        self.passes
+            .record_model_step(&self.ctx, &mut self.rec, self.adam_step, it)
+    }
+
+    /// The base model's own parameters and optimizer state (a checkpoint's; waits).
+    pub fn model_state(&self) -> anyhow::Result<Option<serde_json::Value>> {
+        self.passes.model_state()
+    }
+
+    /// Files the model writes beside its exported PLY (name, contents).
+    pub fn export_files(&self) -> anyhow::Result<Vec<(String, String)>> {
+        self.passes.export_files()
     }
 
     /// The renderer's intersection capacity (saved in checkpoints: a frame that overflows it

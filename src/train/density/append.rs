@@ -129,7 +129,10 @@ pub fn append_with_extras(
         data[1].extend(log_scales);
         data[2].extend(rotation);
         data[3].push(logit(r.opacity));
-        data[4].extend(r.color.map(|c| ((c as f64 - 0.5) / SH_C0) as f32));
+        data[4].extend(r.color.map(|c| match t.raw_colour {
+            true => c,
+            false => ((c as f64 - 0.5) / SH_C0) as f32,
+        }));
         data[5].extend(std::iter::repeat_n(0.0, rest));
         if extras.is_none() {
             for (d, e) in data[6..].iter_mut().zip(&t.new_extras) {

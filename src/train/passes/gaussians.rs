@@ -9,9 +9,9 @@ use anyhow::Result;
 
 use super::{FrameArgs, GradArgs, ModelPasses};
 use crate::gpu::{BufferKind, GpuBuffer, GpuContext, Recorder, TimestampPool};
-use crate::render::backward::{Backward, BackwardArgs};
+use crate::render::backward::{Backward, BackwardArgs, FeatureGrads};
 use crate::render::filter3d::SmoothingFilter;
-use crate::render::forward::{Capacity, FrameSettings, Renderer};
+use crate::render::forward::{Capacity, FeatureChannels, FrameSettings, Renderer};
 use crate::render::layout::{CameraGpu, ProjectedGpu, RenderConstants};
 use crate::splats::gpu::GpuSplats;
 use crate::splats::GaussianParams;
@@ -74,6 +74,101 @@ impl GaussianPasses {
             filter_stale: true,
             filter_eval_at: None,
         })
+    }
+
+    /// Feature channels blended beside a raw base colour (SpacetimeGaussians' full model): the
+    /// backward gets their variant and the DC coefficients are drawn raw
+    /// ([`RenderConstants::RAW_COLOUR`]). The channels' values come with each frame
+    /// ([`GaussianPasses::record_forward_with`]).
+    pub fn with_features(mut self, channels: u32) -> Result<Self> {
+        self.backward = self.backward.with_feature_channels(&self.ctx, channels)?;
+        self.constants.flags |= RenderConstants::RAW_COLOUR;
+        Ok(self)
+    }
+
+    /// The last frame's feature image, when it had feature channels.
+    pub fn feature_image(&self) -> Option<&GpuBuffer<f32>> {
+        self.renderer.feature_image()
+    }
+
+    /// [`ModelPasses::record_forward`] with feature channels.
+    pub fn record_forward_with(
+        &mut self,
+        rec: &mut Recorder,
+        f: &FrameArgs,
+        features: Option<FeatureChannels>,
+        timestamps: Option<&mut TimestampPool>,
+    ) -> Result<()> {
+        let settings = FrameSettings {
+            sh_degree: f.sh_degree,
+            background: f.background,
+            constants: self.constants,
+            filter3d: self.filter.as_ref().map(|f| f.values()),
+            features,
+        };
+        self.renderer.record(
+            rec, f.params, f.cameras, f.view, f.camera, &settings, timestamps,
+        )
+    }
+
+    /// [`ModelPasses::record_backward`] with the feature channels' gradients.
+    pub fn record_backward_with(
+        &mut self,
+        ctx: &GpuContext,
+        rec: &mut Recorder,
+        g: &GradArgs,
+        features: Option<FeatureGrads>,
+        timestamps: Option<&mut TimestampPool>,
+    ) -> Result<()> {
+        let fr = &self.renderer.frame;
+        let f = &g.frame;
+        self.backward.record_timed(
+            ctx,
+            rec,
+            &BackwardArgs {
+                cameras: f.cameras,
+                camera_index: f.view,
+                camera: f.camera,
+                projected: &fr.projected,
+                tile_ranges: &fr.tile_ranges,
+                sorted_ids: self.renderer.sorted_ids(),
+                final_t: &fr.final_t,
+                last_index: &fr.last_index,
+                dl_dimage: g.dl_dimage,
+                splats: f.params,
+                grads: g.grads,
+                view_grad_norm: g.view_grad_norm,
+                pixel_count: self.pixel_count.as_ref(),
+                count: g.count,
+                sh_degree: f.sh_degree,
+                constants: self.constants,
+                background: f.background,
+                filter3d: self.filter.as_ref().map(|f| f.values()),
+                features,
+            },
+            timestamps,
+        )
+    }
+
+    /// Renders one view with feature channels and waits, leaving the base image
+    /// ([`ModelPasses::image`]) and the feature image on the GPU.
+    pub fn render_frame_with(&mut self, f: &FrameArgs, features: FeatureChannels) -> Result<()> {
+        let c = self.renderer.capacity();
+        let cam = f.camera;
+        self.renderer.ensure_capacity(Capacity {
+            pixels: c.pixels.max((cam.width() * cam.height()) as usize),
+            tiles: c.tiles.max(cam.tile_count() as usize),
+            ..c
+        })?;
+        let settings = FrameSettings {
+            sh_degree: f.sh_degree,
+            background: f.background,
+            constants: self.constants,
+            filter3d: None,
+            features: Some(features),
+        };
+        self.renderer
+            .render_blocking(f.params, f.cameras, f.view, cam, &settings)
     }
 
     /// Computes the 3D filter of `params` (waits), when the run has one, for an evaluation at
@@ -157,16 +252,7 @@ impl ModelPasses for GaussianPasses {
         f: &FrameArgs,
         timestamps: Option<&mut TimestampPool>,
     ) -> Result<()> {
-        let settings = FrameSettings {
-            sh_degree: f.sh_degree,
-            background: f.background,
-            constants: self.constants,
-            filter3d: self.filter.as_ref().map(|f| f.values()),
-            features: None,
-        };
-        self.renderer.record(
-            rec, f.params, f.cameras, f.view, f.camera, &settings, timestamps,
-        )
+        self.record_forward_with(rec, f, None, timestamps)
     }
 
     fn image(&self) -> &GpuBuffer<f32> {
@@ -189,34 +275,7 @@ impl ModelPasses for GaussianPasses {
         _config: &TrainConfig,
         timestamps: Option<&mut TimestampPool>,
     ) -> Result<()> {
-        let fr = &self.renderer.frame;
-        let f = &g.frame;
-        self.backward.record_timed(
-            ctx,
-            rec,
-            &BackwardArgs {
-                cameras: f.cameras,
-                camera_index: f.view,
-                camera: f.camera,
-                projected: &fr.projected,
-                tile_ranges: &fr.tile_ranges,
-                sorted_ids: self.renderer.sorted_ids(),
-                final_t: &fr.final_t,
-                last_index: &fr.last_index,
-                dl_dimage: g.dl_dimage,
-                splats: f.params,
-                grads: g.grads,
-                view_grad_norm: g.view_grad_norm,
-                pixel_count: self.pixel_count.as_ref(),
-                count: g.count,
-                sh_degree: f.sh_degree,
-                constants: self.constants,
-                background: f.background,
-                filter3d: self.filter.as_ref().map(|f| f.values()),
-                features: None,
-            },
-            timestamps,
-        )
+        self.record_backward_with(ctx, rec, g, None, timestamps)
     }
 
     fn after_frame(&mut self) -> Result<bool> {

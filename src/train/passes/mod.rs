@@ -50,6 +50,10 @@ pub struct GradArgs<'a> {
     pub grads: &'a GpuSplats,
     pub view_grad_norm: &'a GpuBuffer<f32>,
     pub count: usize,
+    /// This view's place in the step's batch (`0..views`): a model's own parameters sum the
+    /// views' gradients / `views` (the trainer does so for the per-Gaussian ones).
+    pub view_in_step: usize,
+    pub views_in_step: usize,
 }
 
 pub trait ModelPasses: Send {
@@ -123,6 +127,36 @@ pub trait ModelPasses: Send {
         _iteration: u32,
     ) -> Result<()> {
         Ok(())
+    }
+    /// The DC coefficients are the raw base colour (no SH encoding): new Gaussians store their
+    /// colour as it is (SpacetimeGaussians' full model).
+    fn raw_colour(&self) -> bool {
+        false
+    }
+    /// The optimizer step of the model's own parameters, shared by all Gaussians (the full
+    /// SpacetimeGaussians' decoder), at Adam step `step`; recorded into the begun `rec` after
+    /// the Gaussians' step.
+    fn record_model_step(
+        &mut self,
+        _ctx: &GpuContext,
+        _rec: &mut Recorder,
+        _step: u32,
+        _iteration: u32,
+    ) -> Result<()> {
+        Ok(())
+    }
+    /// The model's own parameters and their optimizer state, for checkpoints (waits).
+    fn model_state(&self) -> Result<Option<serde_json::Value>> {
+        Ok(None)
+    }
+    /// Restores [`ModelPasses::model_state`] (between submissions).
+    fn restore_model_state(&mut self, _state: &serde_json::Value) -> Result<()> {
+        anyhow::bail!("this model keeps no parameters of its own; the checkpoint's are not for it")
+    }
+    /// Files written beside the exported PLY (extension, contents): what viewers need besides
+    /// it, as `NAME.<extension>` for `NAME.ply`.
+    fn export_files(&self) -> Result<Vec<(String, String)>> {
+        Ok(Vec::new())
     }
     /// The centres at the current frame's time, for a model whose Gaussians move.
     fn frame_positions(&self) -> Option<&dyn FramePositions> {

@@ -12,6 +12,13 @@
 //! Colour: the official lite model uses its three features as RGB directly; here they are the
 //! SH DC coefficients at degree 0 (colour `0.5 + C₀·f`, clamped at 0 like every 3DGS colour), the
 //! same model up to an affine change of variable except that a colour cannot go negative.
+//!
+//! The full model ([`FullModel`], BASE_MODELS.md §4.3): two more groups, the specular feature
+//! `f_spec` and the time feature `f_t`; each frame the Gaussians' 6 feature channels
+//! `[f_spec, Δ·f_t]` are blended beside the raw DC coefficients (the base colour, no SH
+//! encoding, no clamp) over a black background, and the per-pixel decoder
+//! (`render::decoder`) turns the 9 channels and the pixel's ray into RGB; the decoder's 90
+//! weights are the model's own parameters with their own Adam state.
 
 use std::sync::Arc;
 
@@ -19,20 +26,142 @@ use anyhow::{ensure, Result};
 
 use super::gaussians::GaussianPasses;
 use super::{FrameArgs, GradArgs, ModelPasses};
-use crate::gpu::{ComputePipeline, GpuBuffer, GpuContext, Recorder, TimestampPool};
+use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder, TimestampPool};
+use crate::reference::decoder::{self, FEATURE_CHANNELS};
 use crate::reference::spacetime::PRESENT_MIN_WEIGHT;
+use crate::render::backward::FeatureGrads;
+use crate::render::decoder::{Decoder, DecoderFrame, FeatureGroups, TimeFeatures};
 use crate::render::forward::Capacity;
+use crate::render::forward::FeatureChannels;
 use crate::render::layout::{CameraGpu, ProjectedGpu};
 use crate::render::spacetime::{At, InstantBuffers, TemporalBuffers, TemporalStep};
 use crate::splats::gpu::{grown_capacity, GpuSplats};
 use crate::splats::GaussianParams;
+use crate::train::adam::Adam;
 use crate::train::adam::SplatState;
+use crate::train::config::FullModelRates;
 use crate::train::config::{ChildTime, TrainConfig};
 use crate::train::density::rng::{fold_seed, rng_uniform};
 use crate::train::density::DensityControl;
 use crate::train::strategy::{FramePositions, Primitive};
 
 pub use crate::render::spacetime::{extra_groups, GROUPS};
+
+/// The full model's feature groups, after the temporal ones (PLY names `f_spec_0..2`,
+/// `f_t_0..2`; the official PLY stores `f_spec` as `f_dc_3..5`).
+pub const FULL_GROUPS: [(&str, usize); 2] = [("f_spec", 3), ("f_t", 3)];
+
+/// The extra groups of the lite (`full` false) or the full model, in their order.
+pub fn extra_groups_of(full: bool) -> Vec<crate::splats::ExtraGroup> {
+    let mut groups = extra_groups();
+    if full {
+        groups.extend(
+            FULL_GROUPS
+                .iter()
+                .map(|&(n, s)| crate::splats::ExtraGroup::new(n, s)),
+        );
+    }
+    groups
+}
+
+/// The full model's own state: the decoder and its weights with their Adam moments, and the
+/// per-Gaussian feature channels of the current frame with their gradients.
+pub struct FullModel {
+    features: TimeFeatures,
+    decoder: Decoder,
+    weights: GpuBuffer<f32>,
+    weight_grads: GpuBuffer<f32>,
+    m: GpuBuffer<f32>,
+    v: GpuBuffer<f32>,
+    adam: Adam,
+    rates: FullModelRates,
+    /// `[f_spec, Δ·f_t]` per Gaussian at the current frame's time, and their gradients.
+    instant_features: GpuBuffer<f32>,
+    feature_grads: GpuBuffer<f32>,
+}
+
+/// The official decoder's initial weights: PyTorch's default 1×1-convolution initialisation,
+/// uniform in ±1/√fan_in (fan_in 12 for `W₁`, 6 for `W₂`), seeded.
+pub fn initial_decoder_weights(seed: u64) -> Vec<f32> {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(seed ^ 0xDEC0);
+    let w1 = 1.0 / (decoder::INPUTS as f32).sqrt();
+    let w2 = 1.0 / (decoder::HIDDEN as f32).sqrt();
+    (0..decoder::WEIGHTS)
+        .map(|k| {
+            let b = if k < decoder::HIDDEN * decoder::INPUTS {
+                w1
+            } else {
+                w2
+            };
+            rng.gen_range(-b..b)
+        })
+        .collect()
+}
+
+impl FullModel {
+    fn new(
+        ctx: &Arc<GpuContext>,
+        rates: FullModelRates,
+        seed: u64,
+        capacity: usize,
+    ) -> Result<Self> {
+        let dl = BufferKind::DeviceLocal;
+        let zeros = vec![0.0f32; decoder::WEIGHTS];
+        Ok(Self {
+            features: TimeFeatures::new(ctx)?,
+            decoder: Decoder::new(ctx)?,
+            weights: GpuBuffer::from_slice(ctx, "decoder weights", &initial_decoder_weights(seed))?,
+            weight_grads: GpuBuffer::from_slice(ctx, "decoder weight grads", &zeros)?,
+            m: GpuBuffer::from_slice(ctx, "decoder m", &zeros)?,
+            v: GpuBuffer::from_slice(ctx, "decoder v", &zeros)?,
+            adam: Adam::new(ctx)?,
+            rates,
+            instant_features: GpuBuffer::new(
+                ctx,
+                "instant features",
+                FEATURE_CHANNELS * capacity.max(1),
+                dl,
+            )?,
+            feature_grads: GpuBuffer::new(
+                ctx,
+                "feature grads",
+                FEATURE_CHANNELS * capacity.max(1),
+                dl,
+            )?,
+        })
+    }
+
+    fn reserve(&mut self, ctx: &Arc<GpuContext>, capacity: usize) -> Result<()> {
+        if self.instant_features.len() < FEATURE_CHANNELS * capacity {
+            let cap = FEATURE_CHANNELS * grown_capacity(capacity);
+            let dl = BufferKind::DeviceLocal;
+            self.instant_features = GpuBuffer::new(ctx, "instant features", cap, dl)?;
+            self.feature_grads = GpuBuffer::new(ctx, "feature grads", cap, dl)?;
+        }
+        Ok(())
+    }
+
+    fn channels(&self) -> FeatureChannels<'_> {
+        FeatureChannels {
+            values: &self.instant_features,
+            channels: FEATURE_CHANNELS as u32,
+        }
+    }
+}
+
+fn feature_groups(s: &GpuSplats) -> Result<FeatureGroups<'_>> {
+    let group = |name: &str| {
+        s.extra_group(name).ok_or_else(|| {
+            anyhow::anyhow!("SpacetimeGaussians (full): the model has no '{name}' group")
+        })
+    };
+    Ok(FeatureGroups {
+        f_spec: group("f_spec")?,
+        f_t: group("f_t")?,
+        t_center: group("trbf_center")?,
+    })
+}
 pub use crate::train::config::SpacetimeTraining;
 
 pub struct SpacetimePasses {
@@ -47,6 +176,8 @@ pub struct SpacetimePasses {
     instant_grads: GpuSplats,
     /// The time of the last recorded frame (new Gaussians are centred there).
     time: f32,
+    /// The full model's decoder and features (`None`: lite).
+    full: Option<FullModel>,
     /// Draws clones' and split children's temporal centres ([`ChildTime::Random`]).
     random_centres: Option<ComputePipeline>,
     seed: u32,
@@ -103,12 +234,23 @@ impl SpacetimePasses {
         };
         ensure!(
             config.sh_degree == 0,
-            "SpacetimeGaussians (lite) has no view-dependent colour: SH degree 0, not {}",
+            "SpacetimeGaussians has no SH: degree 0, not {}",
             config.sh_degree
         );
+        let mut inner = GaussianPasses::new(ctx, config, cameras, train_views, capacity, frame)?;
+        let full = match rates.full {
+            Some(r) => {
+                inner = inner.with_features(FEATURE_CHANNELS as u32)?;
+                let mut full = FullModel::new(ctx, r, config.seed, capacity)?;
+                full.decoder.reserve(frame.pixels)?;
+                Some(full)
+            }
+            None => None,
+        };
         Ok(Self {
             ctx: ctx.clone(),
-            inner: GaussianPasses::new(ctx, config, cameras, train_views, capacity, frame)?,
+            inner,
+            full,
             step: TemporalStep::new(ctx)?,
             rates,
             view_times: view_times.iter().map(|&t| t as f32).collect(),
@@ -164,9 +306,48 @@ impl SpacetimePasses {
         // Scales and colour do not change with time.
         rec.copy(&f.params.log_scales, &self.instant.log_scales, 3 * count);
         rec.copy(&f.params.sh_dc, &self.instant.sh_dc, 3 * count);
+        if let Some(full) = &self.full {
+            full.features.record_forward(
+                rec,
+                &feature_groups(f.params)?,
+                &full.instant_features,
+                count,
+                self.time,
+            )?;
+        }
         rec.barrier();
         Ok(())
     }
+
+    /// The frame the full model's decoder reads: the base and feature images of the last
+    /// render of `f`'s view.
+    fn decoder_frame<'a>(
+        &'a self,
+        full: &'a FullModel,
+        f: &FrameArgs<'a>,
+    ) -> Result<DecoderFrame<'a>> {
+        Ok(DecoderFrame {
+            cameras: f.cameras,
+            camera_index: f.view,
+            camera: f.camera,
+            base: self.inner.image(),
+            features: self
+                .inner
+                .feature_image()
+                .ok_or_else(|| anyhow::anyhow!("SpacetimeGaussians (full): no feature image"))?,
+            weights: &full.weights,
+        })
+    }
+}
+
+/// The full model blends its features over black (the official zero background in all nine
+/// channels): the decoder gives empty pixels their colour.
+fn full_frame<'a>(instant: &'a GpuSplats, f: &FrameArgs<'a>, full: bool) -> FrameArgs<'a> {
+    let mut g = at_instant(instant, f);
+    if full {
+        g.background = [0.0; 3];
+    }
+    g
 }
 
 /// `f` with the still Gaussians `instant` as its model.
@@ -188,6 +369,9 @@ impl ModelPasses for SpacetimePasses {
     }
 
     fn reserve(&mut self, capacity: usize) -> Result<()> {
+        if let Some(full) = self.full.as_mut() {
+            full.reserve(&self.ctx, capacity)?;
+        }
         if self.instant.capacity < capacity {
             let cap = grown_capacity(capacity);
             self.instant = GpuSplats::zeroed(&self.ctx, "instant ", 0, 0, cap)?;
@@ -212,12 +396,24 @@ impl ModelPasses for SpacetimePasses {
         timestamps: Option<&mut TimestampPool>,
     ) -> Result<()> {
         self.record_instant(rec, f)?;
-        let g = at_instant(&self.instant, f);
-        self.inner.record_forward(rec, &g, timestamps)
+        let g = full_frame(&self.instant, f, self.full.is_some());
+        let Some(full) = &self.full else {
+            return self.inner.record_forward(rec, &g, timestamps);
+        };
+        self.inner
+            .record_forward_with(rec, &g, Some(full.channels()), timestamps)?;
+        rec.barrier();
+        full.decoder
+            .record_forward(rec, &self.decoder_frame(full, f)?)?;
+        rec.barrier();
+        Ok(())
     }
 
     fn image(&self) -> &GpuBuffer<f32> {
-        self.inner.image()
+        match &self.full {
+            Some(full) => full.decoder.image(),
+            None => self.inner.image(),
+        }
     }
 
     fn projected(&self) -> &GpuBuffer<ProjectedGpu> {
@@ -238,13 +434,61 @@ impl ModelPasses for SpacetimePasses {
     ) -> Result<()> {
         let count = g.count;
         self.instant_grads.count = count;
-        {
+        if let Some(full) = self.full.take() {
+            // RGB → base and feature images (and the weights' gradient, summed over the batch),
+            // then the rasterizer backward with the feature channels.
+            let recorded = (|| -> Result<()> {
+                full.decoder.record_backward(
+                    rec,
+                    &self.decoder_frame(&full, &g.frame)?,
+                    g.dl_dimage,
+                    &full.weight_grads,
+                    g.view_in_step > 0,
+                    1.0 / g.views_in_step.max(1) as f32,
+                )?;
+                rec.barrier();
+                let args = GradArgs {
+                    frame: full_frame(&self.instant, &g.frame, true),
+                    dl_dimage: full.decoder.dl_dbase(),
+                    grads: &self.instant_grads,
+                    view_grad_norm: g.view_grad_norm,
+                    count,
+                    view_in_step: g.view_in_step,
+                    views_in_step: g.views_in_step,
+                };
+                self.inner.record_backward_with(
+                    ctx,
+                    rec,
+                    &args,
+                    Some(FeatureGrads {
+                        values: &full.instant_features,
+                        dl_dimage: full.decoder.dl_dfeatures(),
+                        grads: &full.feature_grads,
+                        channels: FEATURE_CHANNELS as u32,
+                    }),
+                    timestamps,
+                )?;
+                rec.barrier();
+                full.features.record_backward(
+                    rec,
+                    &feature_groups(g.frame.params)?,
+                    &full.feature_grads,
+                    &feature_groups(g.grads)?,
+                    count,
+                    self.time,
+                )
+            })();
+            self.full = Some(full);
+            recorded?;
+        } else {
             let args = GradArgs {
                 frame: at_instant(&self.instant, &g.frame),
                 dl_dimage: g.dl_dimage,
                 grads: &self.instant_grads,
                 view_grad_norm: g.view_grad_norm,
                 count,
+                view_in_step: g.view_in_step,
+                views_in_step: g.views_in_step,
             };
             self.inner
                 .record_backward(ctx, rec, &args, config, timestamps)?;
@@ -309,17 +553,122 @@ impl ModelPasses for SpacetimePasses {
         }
         self.rec = rec;
         recorded?;
-        let g = at_instant(&self.instant, f);
-        self.inner.render_view(&g)
+        let g = full_frame(&self.instant, f, self.full.is_some());
+        let Some(full) = self.full.as_mut() else {
+            return self.inner.render_view(&g);
+        };
+        full.decoder
+            .reserve((f.camera.width() * f.camera.height()) as usize)?;
+        let full = self.full.as_ref().expect("checked above");
+        self.inner.render_frame_with(&g, full.channels())?;
+        let mut rec = std::mem::replace(&mut self.rec, Recorder::new(&self.ctx)?);
+        rec.begin()?;
+        let decoded = self
+            .decoder_frame(full, f)
+            .and_then(|frame| full.decoder.record_forward(&mut rec, &frame));
+        if decoded.is_ok() {
+            rec.barrier();
+            rec.submit_and_wait()?;
+        }
+        self.rec = rec;
+        decoded?;
+        let pixels = (f.camera.width() * f.camera.height()) as usize;
+        full.decoder.image().read_range(0, 3 * pixels)
     }
 
     fn extra_lrs(&self, _iteration: u32, extent: f64) -> Vec<f64> {
         let r = &self.rates;
-        vec![r.motion * extent, r.omega, r.t_center, r.t_log_scale]
+        let mut lrs = vec![r.motion * extent, r.omega, r.t_center, r.t_log_scale];
+        if let Some(f) = &r.full {
+            lrs.extend([f.features, f.time_features]);
+        }
+        lrs
     }
 
+    /// The temporal groups of a point added at this frame; the full model's new points carry
+    /// their colour as the base colour only (the official guided sampling's `[rgb, 0, 0, 0]`).
     fn new_gaussian_extras(&self) -> Vec<Vec<f32>> {
-        vec![vec![0.0; 9], vec![0.0; 4], vec![self.time], vec![0.0]]
+        let mut rows = vec![vec![0.0; 9], vec![0.0; 4], vec![self.time], vec![0.0]];
+        if self.full.is_some() {
+            rows.extend([vec![0.0; 3], vec![0.0; 3]]);
+        }
+        rows
+    }
+
+    fn raw_colour(&self) -> bool {
+        self.full.is_some()
+    }
+
+    fn record_model_step(
+        &mut self,
+        ctx: &GpuContext,
+        rec: &mut Recorder,
+        step: u32,
+        _iteration: u32,
+    ) -> Result<()> {
+        let Some(f) = &self.full else {
+            return Ok(());
+        };
+        f.adam.record_flat(
+            ctx,
+            rec,
+            &f.weights,
+            &f.weight_grads,
+            &f.m,
+            &f.v,
+            decoder::WEIGHTS,
+            step,
+            f.rates.decoder,
+        )
+    }
+
+    fn model_state(&self) -> Result<Option<serde_json::Value>> {
+        let Some(f) = &self.full else {
+            return Ok(None);
+        };
+        Ok(Some(serde_json::json!({
+            "decoder_weights": f.weights.read()?,
+            "decoder_m": f.m.read()?,
+            "decoder_v": f.v.read()?,
+        })))
+    }
+
+    fn restore_model_state(&mut self, state: &serde_json::Value) -> Result<()> {
+        let Some(f) = &self.full else {
+            anyhow::bail!(
+                "the checkpoint holds decoder weights but this run is SpacetimeGaussians lite; \
+                 resume it with --model spacetime-full"
+            );
+        };
+        for (key, buf) in [
+            ("decoder_weights", &f.weights),
+            ("decoder_m", &f.m),
+            ("decoder_v", &f.v),
+        ] {
+            let values: Vec<f32> = state
+                .get(key)
+                .and_then(|v| serde_json::from_value(v.clone()).ok())
+                .ok_or_else(|| anyhow::anyhow!("checkpoint model state: '{key}' missing"))?;
+            ensure!(
+                values.len() == decoder::WEIGHTS && values.iter().all(|v| v.is_finite()),
+                "checkpoint model state: '{key}' holds {} values (finite {}), the decoder {}",
+                values.len(),
+                values.iter().all(|v| v.is_finite()),
+                decoder::WEIGHTS
+            );
+            buf.upload(&values)?;
+        }
+        Ok(())
+    }
+
+    /// The decoder's weights (`crate::splats::decoder_json`), written as
+    /// `NAME.decoder.json` beside `NAME.ply`.
+    fn export_files(&self) -> Result<Vec<(String, String)>> {
+        let Some(f) = &self.full else {
+            return Ok(Vec::new());
+        };
+        let json = crate::splats::decoder_json::to_json(&f.weights.read()?)?;
+        Ok(vec![("decoder.json".into(), json)])
     }
 
     fn frame_positions(&self) -> Option<&dyn FramePositions> {
