@@ -223,6 +223,14 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
         g.from = scale(g.from);
         g.gap = scale(g.gap);
     }
+    if let Some(f) = base
+        .spacetime
+        .as_mut()
+        .and_then(|s| s.omega_freeze.as_mut())
+    {
+        // The angular-velocity split on the same calendar (official 8001 of 30k).
+        f.from = scale(f.from);
+    }
     if let Some(t) = base.surfels.as_mut() {
         // 2DGS's regularisers start on the same calendar (official 7000 and 3000 of 30k).
         t.normal_from = scale(t.normal_from);

@@ -49,7 +49,7 @@ pub enum Command {
     // A repeated flag takes its last value, so `scripts/demo.sh --iterations 500` overrides
     // the script's own `--iterations 2000`.
     #[command(args_override_self = true)]
-    Train(train::TrainArgs),
+    Train(Box<train::TrainArgs>),
     /// PSNR and SSIM of a trained PLY on a scene's test views (table, JSON, side-by-side PNGs).
     Eval(eval::EvalArgs),
     /// Benchmarks: `bench fps` (rendering speed and per-stage GPU time), `bench trade`.

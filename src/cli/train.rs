@@ -146,6 +146,11 @@ pub struct TrainArgs {
     /// (official 1600).
     #[arg(long)]
     pub guided_from: Option<u32>,
+    /// spacetime-*: the iteration of the official angular-velocity / rotation split (8001:
+    /// Gaussians that move, are mid-sized and opaque keep an angular velocity and stop learning
+    /// rotation; the others lose it and keep learning rotation), or `off`.
+    #[arg(long)]
+    pub omega_freeze: Option<String>,
     /// Views per optimizer step, their gradients averaged: the scheduled view and others of its
     /// time (another camera of the same frame in a video). Default 2 for spacetime-lite (the
     /// official batch), 1 otherwise.
@@ -439,6 +444,29 @@ impl TrainArgs {
             } else if let (Some(g), Some(from)) = (st.guided.as_mut(), self.guided_from) {
                 g.from = from;
             }
+        }
+        if let Some(v) = &self.omega_freeze {
+            let Some(st) = c.spacetime.as_mut() else {
+                anyhow::bail!(
+                    "--omega-freeze applies to the spacetime models only (this run trains {}). \
+                     Fix: drop the flag",
+                    self.model.name()
+                );
+            };
+            st.omega_freeze = match v.as_str() {
+                "off" => None,
+                n => {
+                    let from: u32 = n.parse().map_err(|_| {
+                        anyhow::anyhow!(
+                            "--omega-freeze {n:?}: give an iteration (official 8001) or off"
+                        )
+                    })?;
+                    Some(lpmsplat::train::config::OmegaFreeze {
+                        from,
+                        ..st.omega_freeze.unwrap_or_default()
+                    })
+                }
+            };
         }
         if let Some(b) = self.batch_views {
             anyhow::ensure!(

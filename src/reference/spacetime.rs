@@ -191,3 +191,24 @@ pub fn still_at(
     }
     Some(s)
 }
+
+/// SpacetimeGaussians' angular-velocity split ([`crate::train::config::OmegaFreeze`]): whether
+/// a Gaussian keeps its angular velocity at the selection — it moves (Σ|m₁| > `motion_above`),
+/// its largest scale lies strictly inside `scale_between`, and σ(o) > `opacity_above`
+/// (`glsl/spacetime/omega_select.comp`).
+pub fn omega_marked(
+    p: &Temporal,
+    log_scales: [f64; 3],
+    f: &crate::train::config::OmegaFreeze,
+) -> bool {
+    let m1: f64 = p.motion[..3].iter().map(|v| v.abs()).sum();
+    let s = log_scales
+        .iter()
+        .fold(f64::NEG_INFINITY, |a, &b| a.max(b))
+        .exp();
+    let opacity = 1.0 / (1.0 + (-p.opacity_logit).exp());
+    m1 > f.motion_above
+        && s > f.scale_between[0]
+        && s < f.scale_between[1]
+        && opacity > f.opacity_above
+}

@@ -140,6 +140,15 @@ impl TrainConfig {
                 }),
                 None => serde_json::Value::Null,
             };
+            // Always written, as guided sampling: a checkpoint from before the split existed was
+            // trained without it.
+            j["spacetime"]["omega_freeze"] = match &r.omega_freeze {
+                Some(f) => serde_json::json!({
+                    "from": f.from, "motion_above": f.motion_above,
+                    "scale_between": f.scale_between, "opacity_above": f.opacity_above,
+                }),
+                None => serde_json::Value::Null,
+            };
             // Only for the full model, so lite checkpoints from before the key still resume.
             if let Some(f) = &r.full {
                 j["spacetime"]["full"] = serde_json::json!({
@@ -247,6 +256,34 @@ pub struct SpacetimeTraining {
     pub guided: Option<GuidedSamplingSettings>,
     /// The full model (9 feature channels and the per-pixel decoder); `None`: the lite model.
     pub full: Option<FullModelRates>,
+    /// The official angular-velocity / rotation split from iteration 8001 (`None`: off).
+    pub omega_freeze: Option<OmegaFreeze>,
+}
+
+/// SpacetimeGaussians' split of rotation and angular velocity (helper_train.py
+/// `controlgaussians`, oursfull.py `zero_omegabymotion`, BASE_MODELS.md §4.4): at `from` the
+/// Gaussians that move (Σ|m₁| > `motion_above`), are mid-sized (`scale_between`, the largest
+/// scale) and opaque (σ(o) > `opacity_above`) are marked; every other Gaussian's angular
+/// velocity is set to 0 and the whole group's Adam moments are cleared; from then on only the
+/// marked ones learn an angular velocity and only the others a rotation. The thresholds are
+/// the official ones, in Neural 3D Video's world units (`train::passes::omega_freeze`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OmegaFreeze {
+    pub from: u32,
+    pub motion_above: f64,
+    pub scale_between: [f64; 2],
+    pub opacity_above: f64,
+}
+
+impl Default for OmegaFreeze {
+    fn default() -> Self {
+        Self {
+            from: 8001,
+            motion_above: 0.3,
+            scale_between: [0.2, 0.6],
+            opacity_above: 0.7,
+        }
+    }
 }
 
 /// SpacetimeGaussians' full model: the learning rates of its specular and time features and of
@@ -326,6 +363,7 @@ impl Default for SpacetimeTraining {
             child_time: ChildTime::Random,
             guided: Some(GuidedSamplingSettings::default()),
             full: None,
+            omega_freeze: Some(OmegaFreeze::default()),
         }
     }
 }

@@ -793,6 +793,8 @@ impl Trainer {
         self.adam_step += 1;
         let mut lrs = self.config.lr.at(it, self.extent);
         lrs.0.extend(self.passes.extra_lrs(it, self.extent));
+        self.passes
+            .record_before_step(&mut self.rec, &self.state, &self.grads, it)?;
         self.adam.record_state(
             &self.ctx,
             &mut self.rec,

@@ -12,6 +12,7 @@
 
 pub mod gaussians;
 pub mod guided_sampling;
+pub mod omega_freeze;
 pub mod spacetime;
 pub mod surfels;
 
@@ -132,6 +133,17 @@ pub trait ModelPasses: Send {
     /// colour as it is (SpacetimeGaussians' full model).
     fn raw_colour(&self) -> bool {
         false
+    }
+    /// Work on the step's gradients before the Gaussians' optimizer step at `iteration`
+    /// (SpacetimeGaussians' angular-velocity split), recorded into the begun `rec`.
+    fn record_before_step(
+        &mut self,
+        _rec: &mut Recorder,
+        _state: &SplatState,
+        _grads: &GpuSplats,
+        _iteration: u32,
+    ) -> Result<()> {
+        Ok(())
     }
     /// The optimizer step of the model's own parameters, shared by all Gaussians (the full
     /// SpacetimeGaussians' decoder), at Adam step `step`; recorded into the begun `rec` after

@@ -178,6 +178,8 @@ pub struct SpacetimePasses {
     time: f32,
     /// The full model's decoder and features (`None`: lite).
     full: Option<FullModel>,
+    /// The angular-velocity / rotation split (`None`: off).
+    omega_freeze: Option<super::omega_freeze::OmegaFreezer>,
     /// Draws clones' and split children's temporal centres ([`ChildTime::Random`]).
     random_centres: Option<ComputePipeline>,
     seed: u32,
@@ -251,6 +253,10 @@ impl SpacetimePasses {
             ctx: ctx.clone(),
             inner,
             full,
+            omega_freeze: rates
+                .omega_freeze
+                .map(|f| super::omega_freeze::OmegaFreezer::new(ctx, f))
+                .transpose()?,
             step: TemporalStep::new(ctx)?,
             rates,
             view_times: view_times.iter().map(|&t| t as f32).collect(),
@@ -599,6 +605,19 @@ impl ModelPasses for SpacetimePasses {
         self.full.is_some()
     }
 
+    fn record_before_step(
+        &mut self,
+        rec: &mut Recorder,
+        state: &SplatState,
+        grads: &GpuSplats,
+        iteration: u32,
+    ) -> Result<()> {
+        match self.omega_freeze.as_mut() {
+            Some(f) => f.record(rec, state, grads, iteration),
+            None => Ok(()),
+        }
+    }
+
     fn record_model_step(
         &mut self,
         ctx: &GpuContext,
@@ -623,17 +642,34 @@ impl ModelPasses for SpacetimePasses {
     }
 
     fn model_state(&self) -> Result<Option<serde_json::Value>> {
-        let Some(f) = &self.full else {
-            return Ok(None);
-        };
-        Ok(Some(serde_json::json!({
-            "decoder_weights": f.weights.read()?,
-            "decoder_m": f.m.read()?,
-            "decoder_v": f.v.read()?,
-        })))
+        let mut state = serde_json::Map::new();
+        if let Some(f) = &self.full {
+            state.insert(
+                "decoder_weights".into(),
+                serde_json::json!(f.weights.read()?),
+            );
+            state.insert("decoder_m".into(), serde_json::json!(f.m.read()?));
+            state.insert("decoder_v".into(), serde_json::json!(f.v.read()?));
+        }
+        if let Some(f) = self.omega_freeze.as_ref().filter(|f| f.selected) {
+            state.insert("omega_selected".into(), serde_json::json!(f.selected));
+        }
+        Ok((!state.is_empty()).then(|| state.into()))
     }
 
     fn restore_model_state(&mut self, state: &serde_json::Value) -> Result<()> {
+        if state.get("omega_selected") == Some(&serde_json::json!(true)) {
+            let Some(f) = self.omega_freeze.as_mut() else {
+                anyhow::bail!(
+                    "checkpoint model state: the angular-velocity split was made, but \
+                               this run has it off"
+                );
+            };
+            f.selected = true;
+        }
+        if state.get("decoder_weights").is_none() {
+            return Ok(());
+        }
         let Some(f) = &self.full else {
             anyhow::bail!(
                 "the checkpoint holds decoder weights but this run is SpacetimeGaussians lite; \
