@@ -286,7 +286,12 @@ void main() {
             float g_opacity = 0.0;
             float n_pixels = 0.0;
             float g_feat[EXTRA_N];
-            for (uint c = 0u; c < EXTRA; c++) g_feat[c] = 0.0;
+            // The splat's extra channels, loaded once for all the invocation's pixels.
+            float f[EXTRA_N];
+            for (uint c = 0u; c < EXTRA; c++) {
+                g_feat[c] = 0.0;
+                f[c] = s_feat[j * EXTRA + c];
+            }
             [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
                 if (e >= last[k]) continue;
                 vec2 d = mo.xy - centre[k];
@@ -312,12 +317,11 @@ void main() {
                 float dl_dalpha = dot((rgb - behind[k]) * t[k], dl_dc[k])
                                   - t_final[k] * inv_one_minus * bg_dot[k];
                 for (uint c = 0u; c < EXTRA; c++) {
-                    float f = s_feat[j * EXTRA + c];
                     behind_f[k][c] = next_alpha[k] * next_f[k][c]
                                      + (1.0 - next_alpha[k]) * behind_f[k][c];
                     g_feat[c] += alpha * t[k] * dl_df[k][c];
-                    dl_dalpha += (f - behind_f[k][c]) * t[k] * dl_df[k][c];
-                    next_f[k][c] = f;
+                    dl_dalpha += (f[c] - behind_f[k][c]) * t[k] * dl_df[k][c];
+                    next_f[k][c] = f[c];
                 }
                 next_alpha[k] = alpha;
                 next_rgb[k] = rgb;

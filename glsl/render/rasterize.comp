@@ -147,6 +147,9 @@ void main() {
             vec4 mo = s_mean_opacity[j];
             vec4 cn = s_conic[j];
             vec3 rgb = s_rgb[j].rgb;
+            // The splat's extra channels, loaded once for all the invocation's pixels.
+            float f[EXTRA_N];
+            for (uint c = 0u; c < EXTRA; c++) f[c] = s_feat[j * EXTRA + c];
             all_done = true;
             [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
                 if (!done[k]) {
@@ -168,9 +171,7 @@ void main() {
                             } else {
                                 float w = alpha * T[k];
                                 color[k] += rgb * w;
-                                for (uint c = 0u; c < EXTRA; c++) {
-                                    feat[k][c] += s_feat[j * EXTRA + c] * w;
-                                }
+                                for (uint c = 0u; c < EXTRA; c++) feat[k][c] += f[c] * w;
                                 T[k] = next_t;
                                 last[k] = base - range.x + j + 1u;
                             }
