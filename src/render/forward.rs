@@ -332,6 +332,17 @@ impl Renderer {
         Ok(true)
     }
 
+    /// Grows the pixel and tile buffers to fit `camera`'s frame (see
+    /// [`Renderer::ensure_capacity`]).
+    pub fn fit_camera(&mut self, camera: &CameraGpu) -> anyhow::Result<bool> {
+        let c = self.capacity;
+        self.ensure_capacity(Capacity {
+            pixels: c.pixels.max((camera.width() * camera.height()) as usize),
+            tiles: c.tiles.max(camera.tile_count() as usize),
+            ..c
+        })
+    }
+
     /// Records one frame of `splats` seen from `cameras[camera_index]` (whose host copy is
     /// `camera`). With a timestamp pool, writes one timestamp per stage (the caller starts the
     /// pool). The frame's outputs stay in [`Renderer::frame`] until the next record.

@@ -92,12 +92,7 @@ impl ViewRenderer for GaussianView {
         camera: &CameraGpu,
         background: [f32; 3],
     ) -> Result<Vec<f32>> {
-        let c = self.renderer.capacity();
-        self.renderer.ensure_capacity(Capacity {
-            pixels: c.pixels.max((camera.width() * camera.height()) as usize),
-            tiles: c.tiles.max(camera.tile_count() as usize),
-            ..c
-        })?;
+        self.renderer.fit_camera(camera)?;
         let settings = FrameSettings {
             sh_degree: splats.sh_degree,
             background,
@@ -211,12 +206,7 @@ impl ViewRenderer for SpacetimeView {
         }
         let (_, timed) = self.timed.as_mut().expect("made above");
         timed.reserve_pixels((camera.width() * camera.height()) as usize)?;
-        let c = self.renderer.capacity();
-        self.renderer.ensure_capacity(Capacity {
-            pixels: c.pixels.max((camera.width() * camera.height()) as usize),
-            tiles: c.tiles.max(camera.tile_count() as usize),
-            ..c
-        })?;
+        self.renderer.fit_camera(camera)?;
         let mut rec = crate::gpu::Recorder::new(&self.ctx)?;
         rec.begin()?;
         timed.record(&mut rec, splats, t)?;

@@ -294,17 +294,7 @@ impl Adam {
                 n <= u32::MAX as u64,
                 "Adam: group {k} has {n} floats, over 2^32"
             );
-            let s = self.hyper.scalars(lrs.0[k], step);
-            let push = AdamPush {
-                n: n as u32,
-                one_minus_beta1: s.one_minus_beta1,
-                beta2: s.beta2,
-                one_minus_beta2: s.one_minus_beta2,
-                neg_step_size: s.neg_step_size,
-                bias2_sqrt: s.bias2_sqrt,
-                eps: s.eps,
-                pad: 0,
-            };
+            let push = self.push(n as u32, lrs.0[k], step);
             rec.dispatch(
                 &self.pipe,
                 &[p[k].0, g[k].0, mm[k].0, vv[k].0],
@@ -314,6 +304,21 @@ impl Adam {
         }
         rec.barrier();
         Ok(())
+    }
+
+    /// The kernel's constants for `n` floats at learning rate `lr`, step `step`.
+    fn push(&self, n: u32, lr: f64, step: u32) -> AdamPush {
+        let s = self.hyper.scalars(lr, step);
+        AdamPush {
+            n,
+            one_minus_beta1: s.one_minus_beta1,
+            beta2: s.beta2,
+            one_minus_beta2: s.one_minus_beta2,
+            neg_step_size: s.neg_step_size,
+            bias2_sqrt: s.bias2_sqrt,
+            eps: s.eps,
+            pad: 0,
+        }
     }
 
     /// Records step `step` on one flat parameter buffer (`n` floats: a model's own
@@ -348,17 +353,7 @@ impl Adam {
         if n == 0 {
             return Ok(());
         }
-        let s = self.hyper.scalars(lr, step);
-        let push = AdamPush {
-            n: n as u32,
-            one_minus_beta1: s.one_minus_beta1,
-            beta2: s.beta2,
-            one_minus_beta2: s.one_minus_beta2,
-            neg_step_size: s.neg_step_size,
-            bias2_sqrt: s.bias2_sqrt,
-            eps: s.eps,
-            pad: 0,
-        };
+        let push = self.push(n as u32, lr, step);
         let n = n as u64;
         rec.barrier();
         rec.dispatch(

@@ -153,13 +153,8 @@ impl GaussianPasses {
     /// Renders one view with feature channels and waits, leaving the base image
     /// ([`ModelPasses::image`]) and the feature image on the GPU.
     pub fn render_frame_with(&mut self, f: &FrameArgs, features: FeatureChannels) -> Result<()> {
-        let c = self.renderer.capacity();
         let cam = f.camera;
-        self.renderer.ensure_capacity(Capacity {
-            pixels: c.pixels.max((cam.width() * cam.height()) as usize),
-            tiles: c.tiles.max(cam.tile_count() as usize),
-            ..c
-        })?;
+        self.renderer.fit_camera(cam)?;
         let settings = FrameSettings {
             sh_degree: f.sh_degree,
             background: f.background,
@@ -324,13 +319,8 @@ impl ModelPasses for GaussianPasses {
     }
 
     fn render_view(&mut self, f: &FrameArgs) -> Result<Vec<f32>> {
-        let c = self.renderer.capacity();
         let cam = f.camera;
-        self.renderer.ensure_capacity(Capacity {
-            pixels: c.pixels.max((cam.width() * cam.height()) as usize),
-            tiles: c.tiles.max(cam.tile_count() as usize),
-            ..c
-        })?;
+        self.renderer.fit_camera(cam)?;
         self.filter_for_eval(f.params, f.cameras, f.iteration)?;
         let settings = FrameSettings {
             sh_degree: f.sh_degree,
