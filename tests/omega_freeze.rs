@@ -68,7 +68,13 @@ fn selection_and_masks_match_the_reference() {
     let want: Vec<bool> = (0..n)
         .map(|i| {
             let l = p.log_scales[i].map(|v| v as f64);
-            omega_marked(&temporal_of(&p, i).unwrap(), l, &f)
+            omega_marked(
+                &temporal_of(&p, i).unwrap(),
+                l,
+                f.motion_above,
+                f.scale_between,
+                f.opacity_above,
+            )
         })
         .collect();
     let marked = want.iter().filter(|&&m| m).count();

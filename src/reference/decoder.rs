@@ -26,14 +26,7 @@ use super::raster::{rasterize, RasterOutput, TileBins};
 use super::RenderSettings;
 use crate::scene::{PinholeCamera, Pose};
 
-/// Decoder inputs: specular feature 3, time feature 3, ray origin 3, ray direction 3.
-pub const INPUTS: usize = 12;
-pub const HIDDEN: usize = 6;
-pub const OUTPUTS: usize = 3;
-/// `W₁` (HIDDEN × INPUTS) then `W₂` (OUTPUTS × HIDDEN).
-pub const WEIGHTS: usize = HIDDEN * INPUTS + OUTPUTS * HIDDEN;
-/// Feature channels per Gaussian besides the base colour (`S`, `Δ·f_t`).
-pub const FEATURE_CHANNELS: usize = 6;
+pub use crate::splats::decoder_json::{FEATURE_CHANNELS, HIDDEN, INPUTS, OUTPUTS, WEIGHTS};
 
 /// The unit world-space direction through the centre of pixel `(i, j)`.
 pub fn ray_direction(camera: &PinholeCamera, pose: &Pose, i: u32, j: u32) -> [f64; 3] {

@@ -192,14 +192,16 @@ pub fn still_at(
     Some(s)
 }
 
-/// SpacetimeGaussians' angular-velocity split ([`crate::train::config::OmegaFreeze`]): whether
-/// a Gaussian keeps its angular velocity at the selection — it moves (Σ|m₁| > `motion_above`),
-/// its largest scale lies strictly inside `scale_between`, and σ(o) > `opacity_above`
-/// (`glsl/spacetime/omega_select.comp`).
+/// SpacetimeGaussians' angular-velocity split (`train::config::OmegaFreeze`'s thresholds):
+/// whether a Gaussian keeps its angular velocity at the selection — it moves
+/// (Σ|m₁| > `motion_above`), its largest scale lies strictly inside `scale_between`, and
+/// σ(o) > `opacity_above` (`glsl/spacetime/omega_select.comp`).
 pub fn omega_marked(
     p: &Temporal,
     log_scales: [f64; 3],
-    f: &crate::train::config::OmegaFreeze,
+    motion_above: f64,
+    scale_between: [f64; 2],
+    opacity_above: f64,
 ) -> bool {
     let m1: f64 = p.motion[..3].iter().map(|v| v.abs()).sum();
     let s = log_scales
@@ -207,8 +209,5 @@ pub fn omega_marked(
         .fold(f64::NEG_INFINITY, |a, &b| a.max(b))
         .exp();
     let opacity = 1.0 / (1.0 + (-p.opacity_logit).exp());
-    m1 > f.motion_above
-        && s > f.scale_between[0]
-        && s < f.scale_between[1]
-        && opacity > f.opacity_above
+    m1 > motion_above && s > scale_between[0] && s < scale_between[1] && opacity > opacity_above
 }

@@ -6,7 +6,15 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 
-use crate::reference::decoder::{HIDDEN, INPUTS, OUTPUTS, WEIGHTS};
+/// The decoder's shape. Inputs: specular feature 3, time feature 3, ray origin 3, ray
+/// direction 3.
+pub const INPUTS: usize = 12;
+pub const HIDDEN: usize = 6;
+pub const OUTPUTS: usize = 3;
+/// `W₁` (HIDDEN × INPUTS) then `W₂` (OUTPUTS × HIDDEN).
+pub const WEIGHTS: usize = HIDDEN * INPUTS + OUTPUTS * HIDDEN;
+/// Feature channels per Gaussian besides the base colour (`f_spec`, `Δ·f_t`).
+pub const FEATURE_CHANNELS: usize = 6;
 
 /// The decoder file that goes with `ply`.
 pub fn path_for(ply: &Path) -> PathBuf {
