@@ -499,3 +499,50 @@ fn spacetime_full_trains_its_decoder_saves_it_and_renders_it_back() {
         );
     }
 }
+
+#[test]
+fn bench_trade_runs_the_full_model_with_lpm_and_keeps_each_decoder() {
+    let dir = tempfile::tempdir().unwrap();
+    let trade = dir.path().join("trade");
+    let o = lpmsplat()
+        .args([
+            "bench",
+            "trade",
+            fixture().to_str().unwrap(),
+            "--model",
+            "spacetime-full",
+            "--runs",
+            "adc,lpm",
+            "--iterations",
+            "200",
+            "--init-points",
+            "2000",
+            "--fps-frames",
+            "1",
+            "-o",
+            trade.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let t: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(trade.join("trade.json")).unwrap()).unwrap();
+    assert_eq!(t["model"], "spacetime-full", "{t}");
+    let runs = t["runs"].as_array().unwrap();
+    assert_eq!(runs.len(), 2, "{t}");
+    for r in runs {
+        assert!(r["psnr"].as_f64().unwrap().is_finite(), "{r}");
+        assert!(r["fps_1352x1014"].as_f64().unwrap() > 0.0, "{r}");
+    }
+    // Each final model with its own decoder, readable as the tools read it.
+    for name in ["adc", "adc+lpm"] {
+        let ply = trade.join(format!("{name}.ply"));
+        let w = lpmsplat::splats::decoder_json::read_for(&ply).unwrap();
+        assert_eq!(w.len(), lpmsplat::splats::decoder_json::WEIGHTS);
+    }
+    assert_ne!(
+        std::fs::read(trade.join("adc.decoder.json")).unwrap(),
+        std::fs::read(trade.join("adc+lpm.decoder.json")).unwrap(),
+        "two runs, two decoders"
+    );
+}
