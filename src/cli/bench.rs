@@ -8,7 +8,7 @@ use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder, StageTimes, TimestampPool};
 use lpmsplat::models::BaseModel;
 use lpmsplat::render::forward::{FrameSettings, Renderer};
-use lpmsplat::render::layout::{CameraGpu, RenderConstants};
+use lpmsplat::render::layout::CameraGpu;
 use lpmsplat::render::spacetime::TimedModel;
 use lpmsplat::render::synthetic;
 use lpmsplat::splats::gpu::GpuSplats;
@@ -62,8 +62,10 @@ pub struct FpsArgs {
     /// a 128 MiB storage binding).
     #[arg(long, default_value_t = 3)]
     pub sh_degree: u32,
-    /// The model the PLY was trained as: `spacetime-lite` reads its temporal groups and times
-    /// every frame with the temporal step (the model at --time) before the render.
+    /// The model the PLY was trained as: `spacetime-lite` and `spacetime-full` read their
+    /// temporal groups and time every frame with the temporal step (the model at --time)
+    /// before the render; the full model also its features and its decoder (NAME.decoder.json
+    /// beside the PLY) after it.
     #[arg(long, default_value = "3dgs", value_parser = BaseModel::parse)]
     pub model: BaseModel,
     /// Video models: the time rendered, in the segment's [0, 1).
@@ -185,17 +187,11 @@ fn fps_one(
     if let Some(t) = temporal.as_mut() {
         t.reserve_pixels((cam.width() * cam.height()) as usize)?;
     }
-    let still = temporal.take();
+    let still = temporal;
     let splats = still.as_ref().map_or(&model, |t| &t.instant);
     let settings = match &still {
         Some(t) => t.settings([0.0; 3]),
-        None => FrameSettings {
-            sh_degree: splats.sh_degree,
-            background: [0.0; 3],
-            constants: RenderConstants::default(),
-            filter3d: None,
-            features: None,
-        },
+        None => FrameSettings::plain(splats.sh_degree, [0.0; 3]),
     };
     let mut renderer = Renderer::for_camera(ctx, params.len(), &cam)?;
     // First frame sizes the intersection buffers.

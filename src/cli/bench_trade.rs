@@ -17,7 +17,7 @@ use lpmsplat::lpips::Lpips;
 use lpmsplat::lpm::strategy::{LpmConfig, LpmStrategy, PruneMode};
 use lpmsplat::lpm::ZoneGeometry;
 use lpmsplat::render::forward::{FrameSettings, Renderer};
-use lpmsplat::render::layout::{CameraGpu, RenderConstants};
+use lpmsplat::render::layout::CameraGpu;
 use lpmsplat::render::spacetime::TimedModel;
 use lpmsplat::scene::image_source::{ImageSource, ViewImages};
 use lpmsplat::scene::Scene;
@@ -607,13 +607,7 @@ fn fps_of(
     let cameras = GpuBuffer::from_slice(ctx, "cameras", &[cam])?;
     let settings = match &timed {
         Some((t, _)) => t.settings([0.0; 3]),
-        None => FrameSettings {
-            sh_degree: splats.sh_degree,
-            background: [0.0; 3],
-            constants: RenderConstants::default(),
-            filter3d: None,
-            features: None,
-        },
+        None => FrameSettings::plain(splats.sh_degree, [0.0; 3]),
     };
     let mut r = Renderer::for_camera(ctx, model.len().max(1), &cam)?;
     let frame = |r: &mut Renderer| -> anyhow::Result<()> {

@@ -33,7 +33,8 @@ pub struct EvalArgs {
     pub ply: PathBuf,
     /// The model the PLY was trained as: `mip-splatting` renders with its 2D Mip filter (the
     /// exported PLY already holds the 3D filter); 3dgs and pixel-gs render alike; 2dgs renders
-    /// surfels.
+    /// surfels; spacetime-lite and spacetime-full render each view at its time (the full model
+    /// with the NAME.decoder.json beside its PLY).
     #[arg(long, default_value = "3dgs", value_parser = BaseModel::parse)]
     pub model: BaseModel,
     /// Background: black, white, or r,g,b in [0, 1]. Default: the scene's (white for

@@ -21,7 +21,8 @@ pub struct RenderArgs {
     pub ply: PathBuf,
     /// The model the PLY was trained as: `mip-splatting` renders with its 2D Mip filter (the
     /// exported PLY already holds the 3D filter); 3dgs and pixel-gs render alike; 2dgs renders
-    /// surfels.
+    /// surfels; spacetime-lite and spacetime-full render each view at its time (the full model
+    /// with the NAME.decoder.json beside its PLY).
     #[arg(long, default_value = "3dgs", value_parser = BaseModel::parse)]
     pub model: BaseModel,
     /// Output folder for the PNGs (created if missing).
@@ -79,7 +80,7 @@ pub fn run(gpu: &GpuOptions, args: &RenderArgs) -> anyhow::Result<()> {
         anyhow::ensure!(
             args.model.is_spacetime() && scene.view_times.is_some(),
             "--time renders a video model at one time; this is --model {} on a {} scene. Fix: \
-             pass --model spacetime-lite with the video scene it was trained on, or drop --time",
+             pass --model spacetime-lite (or spacetime-full) with the video scene it was trained on, or drop --time",
             args.model.name(),
             if scene.view_times.is_some() {
                 "video"

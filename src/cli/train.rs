@@ -131,7 +131,7 @@ pub struct TrainArgs {
     /// reference's test never fires).
     #[arg(long)]
     pub screen_size_limit: Option<f32>,
-    /// spacetime-lite: the temporal centre of clones and split children: random (uniform over
+    /// spacetime-lite, spacetime-full: the temporal centre of clones and split children: random (uniform over
     /// the segment, the official rule) or parent.
     #[arg(long, value_parser = ChildTime::parse)]
     pub child_time: Option<ChildTime>,
@@ -139,10 +139,10 @@ pub struct TrainArgs {
     /// prune (SpacetimeGaussians' official rule: 6).
     #[arg(long)]
     pub growth_rounds: Option<u32>,
-    /// spacetime-lite: the official guided error sampling (on) or off.
+    /// spacetime-lite, spacetime-full: the official guided error sampling (on) or off.
     #[arg(long, value_parser = ["on", "off"])]
     pub guided_sampling: Option<String>,
-    /// spacetime-lite: the iteration guided sampling starts recording the cameras' SSIM
+    /// spacetime-lite, spacetime-full: the iteration guided sampling starts recording the cameras' SSIM
     /// (official 1600).
     #[arg(long)]
     pub guided_from: Option<u32>,
@@ -152,7 +152,7 @@ pub struct TrainArgs {
     #[arg(long)]
     pub omega_freeze: Option<String>,
     /// Views per optimizer step, their gradients averaged: the scheduled view and others of its
-    /// time (another camera of the same frame in a video). Default 2 for spacetime-lite (the
+    /// time (another camera of the same frame in a video). Default 2 for the spacetime models (the
     /// official batch), 1 otherwise.
     #[arg(long)]
     pub batch_views: Option<u32>,
@@ -420,7 +420,7 @@ impl TrainArgs {
         match (c.spacetime.as_mut(), self.child_time) {
             (Some(st), Some(ct)) => st.child_time = ct,
             (None, Some(_)) => anyhow::bail!(
-                "--child-time applies to --model spacetime-lite only (this run trains {}). Fix: \
+                "--child-time applies to the spacetime models only (this run trains {}). Fix: \
                  drop the flag",
                 self.model.name()
             ),
@@ -429,7 +429,7 @@ impl TrainArgs {
         if self.guided_sampling.is_some() || self.guided_from.is_some() {
             let Some(st) = c.spacetime.as_mut() else {
                 anyhow::bail!(
-                    "--guided-sampling and --guided-from apply to --model spacetime-lite only \
+                    "--guided-sampling and --guided-from apply to the spacetime models only \
                      (this run trains {}). Fix: drop the flag",
                     self.model.name()
                 );
@@ -458,7 +458,7 @@ impl TrainArgs {
                 n => {
                     let from: u32 = n.parse().map_err(|_| {
                         anyhow::anyhow!(
-                            "--omega-freeze {n:?}: give an iteration (official 8001) or off"
+                            "--omega-freeze {n:?} is not an iteration. Fix: give one (official 8001) or off"
                         )
                     })?;
                     Some(lpmsplat::train::config::OmegaFreeze {

@@ -71,6 +71,19 @@ pub struct FrameSettings<'a> {
     pub features: Option<FeatureChannels<'a>>,
 }
 
+impl FrameSettings<'_> {
+    /// 3DGS's frame: the default constants, no filter, no feature channels.
+    pub fn plain(sh_degree: u32, background: [f32; 3]) -> Self {
+        FrameSettings {
+            sh_degree,
+            background,
+            constants: RenderConstants::default(),
+            filter3d: None,
+            features: None,
+        }
+    }
+}
+
 /// Per-Gaussian feature channels: `values[g·channels + c]`.
 #[derive(Clone, Copy)]
 pub struct FeatureChannels<'a> {
