@@ -420,7 +420,7 @@ impl TrainArgs {
         match (c.spacetime.as_mut(), self.child_time) {
             (Some(st), Some(ct)) => st.child_time = ct,
             (None, Some(_)) => anyhow::bail!(
-                "--child-time applies to the spacetime models only (this run trains {}). Fix: \
+                "--child-time applies to --model spacetime-lite or spacetime-full only (this run trains {}). Fix: \
                  drop the flag",
                 self.model.name()
             ),
@@ -429,7 +429,7 @@ impl TrainArgs {
         if self.guided_sampling.is_some() || self.guided_from.is_some() {
             let Some(st) = c.spacetime.as_mut() else {
                 anyhow::bail!(
-                    "--guided-sampling and --guided-from apply to the spacetime models only \
+                    "--guided-sampling and --guided-from apply to --model spacetime-full or spacetime-lite only \
                      (this run trains {}). Fix: drop the flag",
                     self.model.name()
                 );
