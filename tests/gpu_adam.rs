@@ -2,7 +2,8 @@
 //! Inria learning-rate schedule, validation on.
 
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder};
-use lpmsplat::splats::gpu::GpuSplats;
+use lpmsplat::splats::gpu::{logical_group, GpuSplats};
+use lpmsplat::splats::sh_planes;
 use lpmsplat::splats::GaussianParams;
 use lpmsplat::train::adam::{adam_host_step, Adam, SplatState};
 use lpmsplat::train::schedule::LearningRates;
@@ -35,15 +36,21 @@ fn random_params(rng: &mut impl Rng, n: usize, degree: u32, scale: f32) -> Gauss
     p
 }
 
-/// Flat f32 arrays per group, in `GpuSplats::groups()` order.
-fn flat(p: &GaussianParams) -> [Vec<f32>; 6] {
+/// Stored buffers per Gaussian group.
+const GROUPS: usize = 5 + sh_planes::PLANES;
+
+/// Flat f32 arrays per stored buffer, in `GpuSplats::groups()` order (SH rest as its planes).
+fn flat(p: &GaussianParams) -> [Vec<f32>; GROUPS] {
+    let [r0, r1, r2] = sh_planes::split(&p.sh_rest, p.len(), p.rest_coeffs());
     [
         bytemuck::cast_slice(&p.positions).to_vec(),
         bytemuck::cast_slice(&p.log_scales).to_vec(),
         bytemuck::cast_slice(&p.rotations).to_vec(),
         p.opacity_logits.clone(),
         bytemuck::cast_slice(&p.sh_dc).to_vec(),
-        p.sh_rest.clone(),
+        r0,
+        r1,
+        r2,
     ]
 }
 
@@ -87,7 +94,7 @@ fn hundred_steps_match_the_host_reference() {
     // All gradients in one buffer per group, copied into the gradient set step by step, so the
     // 100 steps are one submission. A third of the rows are zero each step (unseen Gaussians).
     let grads = GpuSplats::zeroed(&ctx, "grad ", degree, n, capacity).unwrap();
-    let mut all: [Vec<f32>; 6] = Default::default();
+    let mut all: [Vec<f32>; GROUPS] = Default::default();
     for _ in 0..steps {
         let mut g = random_params(&mut rng, n, degree, 0.3);
         for i in 0..n {
@@ -125,7 +132,7 @@ fn hundred_steps_match_the_host_reference() {
 
     // Host: the same steps.
     let mut hp = flat(&params);
-    let mut hm: [Vec<f32>; 6] = std::array::from_fn(|k| vec![0.0; hp[k].len()]);
+    let mut hm: [Vec<f32>; GROUPS] = std::array::from_fn(|k| vec![0.0; hp[k].len()]);
     let mut hv = hm.clone();
     // The magnitude each value was computed from, for devices that may fuse multiply-adds
     // (SPIR-V allows contraction) and round / and sqrt within a few ulp: a moment that cancels
@@ -133,24 +140,25 @@ fn hundred_steps_match_the_host_reference() {
     // its operands, not of itself. m and v: the largest |g| (resp. g²) seen, which bounds every
     // intermediate; parameters: the larger end value plus the learning rates summed (Adam's
     // step |m̂ / (√v̂ + ε)| is of order 1).
-    let mut scale_p: [Vec<f32>; 6] =
+    let mut scale_p: [Vec<f32>; GROUPS] =
         std::array::from_fn(|k| hp[k].iter().map(|x| x.abs()).collect());
-    let mut scale_m: [Vec<f32>; 6] = std::array::from_fn(|k| vec![0.0; hp[k].len()]);
+    let mut scale_m: [Vec<f32>; GROUPS] = std::array::from_fn(|k| vec![0.0; hp[k].len()]);
     let mut scale_v = scale_m.clone();
     for t in 1..=steps {
         let lr = lrs.at(t, extent).0;
-        for k in 0..6 {
+        for k in 0..GROUPS {
             let len = hp[k].len();
+            let lr_k = lr[logical_group(k)];
             let g = &all[k][(t as usize - 1) * len..t as usize * len];
-            adam_host_step(&adam.hyper, &mut hp[k], g, &mut hm[k], &mut hv[k], lr[k], t);
+            adam_host_step(&adam.hyper, &mut hp[k], g, &mut hm[k], &mut hv[k], lr_k, t);
             for i in 0..len {
-                scale_p[k][i] += lr[k] as f32;
+                scale_p[k][i] += lr_k as f32;
                 scale_m[k][i] = scale_m[k][i].max(g[i].abs());
                 scale_v[k][i] = scale_v[k][i].max(g[i] * g[i]);
             }
         }
     }
-    for k in 0..6 {
+    for k in 0..GROUPS {
         for (s, p) in scale_p[k].iter_mut().zip(&hp[k]) {
             *s = s.max(p.abs());
         }

@@ -16,6 +16,7 @@ use lpmsplat::render::layout::{CameraGpu, RenderConstants};
 use lpmsplat::scene::{PinholeCamera, Pose};
 use lpmsplat::splats::gpu::GpuSplats;
 use lpmsplat::splats::model::sh_rest_coeffs;
+use lpmsplat::splats::sh_planes;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use std::sync::Arc;
@@ -219,7 +220,12 @@ fn run_gpu_pixels(
         rotations: all(&grads.rotations),
         opacity_logits: all(&grads.opacity_logits),
         sh_dc: all(&grads.sh_dc),
-        sh_rest: all(&grads.sh_rest),
+        sh_rest: {
+            // The planes in the logical layout, rows past `count` included (poison checked below).
+            let planes: Vec<Vec<f32>> = grads.sh_rest.iter().map(all).collect();
+            let refs: Vec<&[f32]> = planes.iter().map(Vec::as_slice).collect();
+            sh_planes::merge(&refs, n + SPARE, sh_rest_coeffs(s.stored_degree))
+        },
         view_grad_norm: all(&view_grad_norm),
         pixel_count: count_pixels.then(|| {
             let got = pixel_count.read().unwrap();

@@ -80,7 +80,11 @@ fn extra_groups_round_trip_and_are_checked_for_nan() {
     });
     let g = GpuSplats::upload(&ctx, &p, 64).unwrap();
     assert_eq!(g.download().unwrap(), p);
-    assert_eq!(g.groups().len(), 7);
+    assert_eq!(
+        g.groups().len(),
+        9,
+        "five groups, three SH rest planes, one extra"
+    );
     assert_eq!(g.extra_group("motion").unwrap().len(), 64 * 9);
     let shape = g.shape();
     assert_eq!(shape.extra, vec![ExtraGroup::new("motion", 9)]);

@@ -46,7 +46,11 @@ fn blend_is_the_sum_then_the_scale_exactly() {
         blend.record(&mut rec, &ga, &gb, n, scale).unwrap();
         rec.submit_and_wait().unwrap();
         let after = groups(&ga);
-        assert_eq!(after.len(), 10, "six 3DGS groups and four temporal ones");
+        assert_eq!(
+            after.len(),
+            12,
+            "five 3DGS groups, three SH rest planes, four temporal"
+        );
         for (g, ((got, stride), ((x, _), (y, _)))) in
             after.iter().zip(before_a.iter().zip(&before_b)).enumerate()
         {

@@ -14,7 +14,7 @@ layout(std430, set = 0, binding = 1) readonly buffer LogScales { float log_scale
 layout(std430, set = 0, binding = 2) readonly buffer Rotations { vec4 rotations[]; };
 layout(std430, set = 0, binding = 3) readonly buffer Opacities { float opacity_logits[]; };
 layout(std430, set = 0, binding = 4) readonly buffer ShDc { float sh_dc[]; };
-layout(std430, set = 0, binding = 5) readonly buffer ShRest { float sh_rest[]; };
+layout(std430, set = 0, binding = 5) readonly buffer ShRest0 { float sh_rest0[]; };
 layout(std430, set = 0, binding = 6) readonly buffer Cameras { Camera cameras[]; };
 layout(std430, set = 0, binding = 7) writeonly buffer Out { Projected projected[]; };
 // Depth sort input: key = camera-z float bits (positive floats order as uints), culled last;
@@ -24,6 +24,9 @@ layout(std430, set = 0, binding = 9) writeonly buffer DepthVals { uint depth_val
 layout(std430, set = 0, binding = 10) buffer Counts { uint counts[]; };
 // Mip-Splatting's 3D filter (flag 4): one standard deviation per Gaussian.
 layout(std430, set = 0, binding = 11) readonly buffer Filter3d { float filter3d[]; };
+layout(std430, set = 0, binding = 12) readonly buffer ShRest1 { float sh_rest1[]; };
+layout(std430, set = 0, binding = 13) readonly buffer ShRest2 { float sh_rest2[]; };
+#include "sh_rest_planes.glsl"
 
 layout(push_constant) uniform Push {
     uint count;
@@ -118,8 +121,7 @@ void main() {
     vec3 raw = basis[0] * vec3(sh_dc[3u * i], sh_dc[3u * i + 1u], sh_dc[3u * i + 2u]);
     uint ncoef = min((sh_degree + 1u) * (sh_degree + 1u), rest_coeffs + 1u);
     for (uint k = 1u; k < ncoef; k++) {
-        uint base = (i * rest_coeffs + (k - 1u)) * 3u;
-        raw += basis[k] * vec3(sh_rest[base], sh_rest[base + 1u], sh_rest[base + 2u]);
+        raw += basis[k] * sh_rest_read(i, k - 1u, rest_coeffs);
     }
     vec3 shifted = raw + 0.5;
     uint flags = (shifted.r < 0.0 ? 1u : 0u) | (shifted.g < 0.0 ? 2u : 0u) | (shifted.b < 0.0 ? 4u : 0u);

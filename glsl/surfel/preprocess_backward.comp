@@ -32,21 +32,27 @@ layout(std430, set = 0, binding = 4) readonly buffer LogScales { float log_scale
 layout(std430, set = 0, binding = 5) readonly buffer Rotations { float rotations[]; };
 layout(std430, set = 0, binding = 6) readonly buffer OpacityLogits { float opacity_logits[]; };
 layout(std430, set = 0, binding = 7) readonly buffer ShDc { float sh_dc[]; };
-layout(std430, set = 0, binding = 8) readonly buffer ShRest { float sh_rest[]; };
+layout(std430, set = 0, binding = 8) readonly buffer ShRest0 { float sh_rest0[]; };
 layout(std430, set = 0, binding = 9) writeonly buffer GPositions { float g_positions[]; };
 layout(std430, set = 0, binding = 10) writeonly buffer GLogScales { float g_log_scales[]; };
 layout(std430, set = 0, binding = 11) writeonly buffer GRotations { float g_rotations[]; };
 layout(std430, set = 0, binding = 12) writeonly buffer GOpacity { float g_opacity_logits[]; };
 layout(std430, set = 0, binding = 13) writeonly buffer GShDc { float g_sh_dc[]; };
-layout(std430, set = 0, binding = 14) writeonly buffer GShRest { float g_sh_rest[]; };
+layout(std430, set = 0, binding = 14) writeonly buffer GShRest0 { float g_sh_rest0[]; };
 layout(std430, set = 0, binding = 15) writeonly buffer ViewGradNorm { float view_grad_norm[]; };
+layout(std430, set = 0, binding = 16) readonly buffer ShRest1 { float sh_rest1[]; };
+layout(std430, set = 0, binding = 17) readonly buffer ShRest2 { float sh_rest2[]; };
+layout(std430, set = 0, binding = 18) writeonly buffer GShRest1 { float g_sh_rest1[]; };
+layout(std430, set = 0, binding = 19) writeonly buffer GShRest2 { float g_sh_rest2[]; };
+#define SH_REST_GRADS
+#include "sh_rest_planes.glsl"
 
 layout(push_constant) uniform Push {
     SurfelConstants sc;
     uint camera_index;
     uint count;
     uint sh_degree;      // active degree (0..=stored degree)
-    uint rest_coeffs;    // stored (d+1)² − 1: the sh_rest stride is 3× this
+    uint rest_coeffs;    // stored (d+1)² − 1: fixes the SH rest planes' strides
     uint scale_stride;   // floats per surfel in log_scales (2, or 3 with the third unused)
 } pc;
 
@@ -58,8 +64,7 @@ void write_zeros(uint i) {
     for (uint k = 0u; k < pc.scale_stride; k++) g_log_scales[pc.scale_stride * i + k] = 0.0;
     for (uint k = 0u; k < 4u; k++) g_rotations[4u * i + k] = 0.0;
     g_opacity_logits[i] = 0.0;
-    uint rest = 3u * pc.rest_coeffs;
-    for (uint k = 0u; k < rest; k++) g_sh_rest[rest * i + k] = 0.0;
+    for (uint k = 0u; k < pc.rest_coeffs; k++) sh_rest_write_grad(i, k, pc.rest_coeffs, vec3(0.0));
     view_grad_norm[i] = 0.0;
 }
 
@@ -124,7 +129,6 @@ void main() {
     float view_len = length(view);
     vec3 dir = view / view_len;
     uint n_active = (pc.sh_degree + 1u) * (pc.sh_degree + 1u);
-    uint rest = 3u * pc.rest_coeffs;
     vec3 dl_ddir = vec3(0.0);
     for (uint k = 0u; k < min(n_active, pc.rest_coeffs + 1u); k++) {
         vec3 bgrad;
@@ -136,19 +140,13 @@ void main() {
             g_sh_dc[3u * i + 1u] = b * dl_draw.y;
             g_sh_dc[3u * i + 2u] = b * dl_draw.z;
         } else {
-            uint o = rest * i + 3u * (k - 1u);
-            coeff = vec3(sh_rest[o], sh_rest[o + 1u], sh_rest[o + 2u]);
-            g_sh_rest[o] = b * dl_draw.x;
-            g_sh_rest[o + 1u] = b * dl_draw.y;
-            g_sh_rest[o + 2u] = b * dl_draw.z;
+            coeff = sh_rest_read(i, k - 1u, pc.rest_coeffs);
+            sh_rest_write_grad(i, k - 1u, pc.rest_coeffs, b * dl_draw);
         }
         dl_ddir += bgrad * dot(coeff, dl_draw);
     }
     for (uint k = max(n_active, 1u) - 1u; k < pc.rest_coeffs; k++) {
-        uint o = rest * i + 3u * k;
-        g_sh_rest[o] = 0.0;
-        g_sh_rest[o + 1u] = 0.0;
-        g_sh_rest[o + 2u] = 0.0;
+        sh_rest_write_grad(i, k, pc.rest_coeffs, vec3(0.0));
     }
     vec3 dl_dpos = (dl_ddir - dir * dot(dir, dl_ddir)) / view_len;
 

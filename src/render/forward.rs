@@ -232,7 +232,7 @@ impl Renderer {
             preprocess: pipe(
                 "render/preprocess",
                 shaders::RENDER_PREPROCESS,
-                12,
+                14,
                 std::mem::size_of::<PreprocessPush>(),
             )?,
             gather: pipe(
@@ -395,13 +395,15 @@ impl Renderer {
                 &splats.rotations,
                 &splats.opacity_logits,
                 &splats.sh_dc,
-                &splats.sh_rest,
+                &splats.sh_rest[0],
                 cameras,
                 &f.projected,
                 &f.depth_keys,
                 &f.depth_vals,
                 &f.counts,
                 settings.filter3d.unwrap_or(&self.no_filter),
+                &splats.sh_rest[1],
+                &splats.sh_rest[2],
             ],
             &PreprocessPush {
                 count: splats.count as u32,

@@ -3,10 +3,12 @@
 //! Gaussians without reallocating every step.
 //!
 //! Layout (flat f32 arrays, Gaussian `i` at `i * stride`): positions stride 3, log-scales 3,
-//! rotations 4 (w, x, y, z), opacity logits 1, SH DC 3, SH rest `3 * ((d+1)² − 1)` stored
-//! coefficient-major (`[coef][channel]`, as in [`GaussianParams`]), then the model's extra
-//! groups ([`ExtraGroup`]) in their order.
+//! rotations 4 (w, x, y, z), opacity logits 1, SH DC 3, SH rest `3 * ((d+1)² − 1)` in three
+//! column planes of at most 15 floats ([`sh_planes`]: no buffer is wider than 64 bytes a
+//! Gaussian, so the storage binding limit does not cap the model before device memory does),
+//! then the model's extra groups ([`ExtraGroup`]) in their order.
 
+use super::sh_planes::{self, PLANES};
 use super::{ExtraGroup, ExtraValues, GaussianParams};
 use crate::gpu::{BufferKind, GpuBuffer, GpuContext};
 use anyhow::bail;
@@ -21,7 +23,8 @@ pub struct GpuSplats {
     pub rotations: GpuBuffer<f32>,
     pub opacity_logits: GpuBuffer<f32>,
     pub sh_dc: GpuBuffer<f32>,
-    pub sh_rest: GpuBuffer<f32>,
+    /// The SH rest coefficients in column planes ([`sh_planes`]).
+    pub sh_rest: [GpuBuffer<f32>; PLANES],
     /// The model's extra groups, one buffer each, described by `extra_groups`.
     pub extra: Vec<GpuBuffer<f32>>,
     pub extra_groups: Vec<ExtraGroup>,
@@ -44,7 +47,8 @@ impl SplatShape {
         }
     }
 
-    /// `(name, floats per Gaussian)` of every group, in [`GpuSplats::groups`] order.
+    /// `(name, floats per Gaussian)` of every logical group (SH rest as one group of
+    /// `3 * ((d+1)² − 1)`; the checkpoint layout and the learning-rate order).
     pub fn strides(&self) -> Vec<(String, usize)> {
         let rest = GaussianParams::empty(self.sh_degree).rest_stride();
         let base = [
@@ -59,6 +63,38 @@ impl SplatShape {
             .map(|&(n, s)| (n.to_string(), s))
             .chain(self.extra.iter().map(|g| (g.name.clone(), g.stride)))
             .collect()
+    }
+
+    /// `(name, floats per Gaussian)` of every stored buffer, in [`GpuSplats::groups`] order:
+    /// the logical groups with SH rest as its planes `sh_rest[0..3]`.
+    pub fn storage_strides(&self) -> Vec<(String, usize)> {
+        let r = GaussianParams::empty(self.sh_degree).rest_coeffs();
+        let mut out = self.strides();
+        out.splice(
+            REST..REST + 1,
+            (0..PLANES).map(|p| (format!("sh_rest[{p}]"), sh_planes::plane_stride(r, p))),
+        );
+        out
+    }
+}
+
+/// Stored buffers of every model before its extra groups: the five 3DGS groups before SH rest
+/// and the SH rest planes.
+pub const FIXED_GROUPS: usize = REST + PLANES;
+
+/// Index of the SH rest group among the logical groups (positions, log-scales, rotations,
+/// opacity logits, SH DC, SH rest, extras).
+const REST: usize = 5;
+
+/// The logical group (learning rate, checkpoint group) of stored buffer `k` of
+/// [`GpuSplats::groups`].
+pub fn logical_group(k: usize) -> usize {
+    if k < REST {
+        k
+    } else if k < REST + PLANES {
+        REST
+    } else {
+        k - (PLANES - 1)
     }
 }
 
@@ -81,12 +117,13 @@ impl GpuSplats {
         if capacity < n {
             bail!("GPU capacity {capacity} is smaller than the {n} Gaussians to upload");
         }
-        let rest = params.rest_stride();
+        let r = params.rest_coeffs();
         let make = |name: &str, stride: usize, data: &[f32]| -> anyhow::Result<GpuBuffer<f32>> {
             let b = GpuBuffer::new(ctx, name, capacity * stride, BufferKind::DeviceLocal)?;
             b.upload(data)?;
             Ok(b)
         };
+        let planes = sh_planes::split(&params.sh_rest, n, r);
         Ok(Self {
             count: n,
             capacity,
@@ -96,7 +133,13 @@ impl GpuSplats {
             rotations: make("rotations", 4, bytemuck::cast_slice(&params.rotations))?,
             opacity_logits: make("opacity_logits", 1, &params.opacity_logits)?,
             sh_dc: make("sh_dc", 3, bytemuck::cast_slice(&params.sh_dc))?,
-            sh_rest: make("sh_rest", rest, &params.sh_rest)?,
+            sh_rest: each_plane(|p| {
+                make(
+                    &format!("sh_rest[{p}]"),
+                    sh_planes::plane_stride(r, p),
+                    &planes[p],
+                )
+            })?,
             extra: params
                 .extra
                 .iter()
@@ -158,7 +201,7 @@ impl GpuSplats {
                 BufferKind::DeviceLocal,
             )
         };
-        let rest = GaussianParams::empty(shape.sh_degree).rest_stride();
+        let r = GaussianParams::empty(shape.sh_degree).rest_coeffs();
         Ok(Self {
             count: 0,
             capacity,
@@ -168,7 +211,7 @@ impl GpuSplats {
             rotations: buf("rotations", 4)?,
             opacity_logits: buf("opacity_logits", 1)?,
             sh_dc: buf("sh_dc", 3)?,
-            sh_rest: buf("sh_rest", rest)?,
+            sh_rest: each_plane(|p| buf(&format!("sh_rest[{p}]"), sh_planes::plane_stride(r, p)))?,
             extra: shape
                 .extra
                 .iter()
@@ -178,19 +221,25 @@ impl GpuSplats {
         })
     }
 
-    /// Every parameter group with its per-Gaussian stride (floats), in Adam's order:
-    /// positions, log-scales, rotations, opacity logits, SH DC, SH rest (indices 0–5, the same
-    /// for every model), then the model's extra groups.
+    /// Every stored parameter buffer with its per-Gaussian stride (floats): positions,
+    /// log-scales, rotations, opacity logits, SH DC, the three SH rest planes (indices 0–7, the
+    /// same for every model), then the model's extra groups. [`logical_group`] maps an index to
+    /// its learning-rate group.
     pub fn groups(&self) -> Vec<(&GpuBuffer<f32>, usize)> {
-        let rest = GaussianParams::empty(self.sh_degree).rest_stride();
+        let r = GaussianParams::empty(self.sh_degree).rest_coeffs();
         let mut g = vec![
             (&self.positions, 3),
             (&self.log_scales, 3),
             (&self.rotations, 4),
             (&self.opacity_logits, 1),
             (&self.sh_dc, 3),
-            (&self.sh_rest, rest),
         ];
+        g.extend(
+            self.sh_rest
+                .iter()
+                .enumerate()
+                .map(|(p, b)| (b, sh_planes::plane_stride(r, p))),
+        );
         g.extend(
             self.extra
                 .iter()
@@ -212,13 +261,12 @@ impl GpuSplats {
     pub fn download(&self) -> anyhow::Result<GaussianParams> {
         let n = self.count;
         let mut p = GaussianParams::empty(self.sh_degree);
-        let rest = p.rest_stride();
         p.positions = bytemuck::cast_slice(&self.positions.read_range(0, n * 3)?).to_vec();
         p.log_scales = bytemuck::cast_slice(&self.log_scales.read_range(0, n * 3)?).to_vec();
         p.rotations = bytemuck::cast_slice(&self.rotations.read_range(0, n * 4)?).to_vec();
         p.opacity_logits = self.opacity_logits.read_range(0, n)?;
         p.sh_dc = bytemuck::cast_slice(&self.sh_dc.read_range(0, n * 3)?).to_vec();
-        p.sh_rest = self.sh_rest.read_range(0, n * rest)?;
+        p.sh_rest = self.read_sh_rest()?;
         p.extra = self
             .extra
             .iter()
@@ -232,4 +280,35 @@ impl GpuSplats {
             .collect::<anyhow::Result<_>>()?;
         Ok(p)
     }
+
+    /// The first `count` Gaussians' SH rest coefficients in the logical layout.
+    pub fn read_sh_rest(&self) -> anyhow::Result<Vec<f32>> {
+        let (n, r) = (
+            self.count,
+            GaussianParams::empty(self.sh_degree).rest_coeffs(),
+        );
+        let planes = self
+            .sh_rest
+            .iter()
+            .enumerate()
+            .map(|(p, b)| b.read_range(0, n * sh_planes::plane_stride(r, p)))
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        let refs: Vec<&[f32]> = planes.iter().map(Vec::as_slice).collect();
+        Ok(sh_planes::merge(&refs, n, r))
+    }
+
+    /// Writes `n` Gaussians' SH rest coefficients given in the logical layout at the start of
+    /// the planes.
+    pub fn write_sh_rest(&self, rest: &[f32], n: usize) -> anyhow::Result<()> {
+        let r = GaussianParams::empty(self.sh_degree).rest_coeffs();
+        for (b, plane) in self.sh_rest.iter().zip(sh_planes::split(rest, n, r)) {
+            b.upload(&plane)?;
+        }
+        Ok(())
+    }
+}
+
+/// The three planes built by `f(p)`, stopping at the first error.
+fn each_plane<T>(mut f: impl FnMut(usize) -> anyhow::Result<T>) -> anyhow::Result<[T; PLANES]> {
+    Ok([f(0)?, f(1)?, f(2)?])
 }

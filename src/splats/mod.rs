@@ -9,6 +9,7 @@ pub mod init;
 pub mod knn;
 pub mod model;
 pub mod ply;
+pub mod sh_planes;
 pub mod splat_file;
 
 pub use init::{from_sfm, from_sfm_points, random_init};

@@ -19,14 +19,15 @@
 
 use crate::gpu::{ComputePipeline, GpuBuffer, GpuContext, Recorder};
 use crate::shaders;
-use crate::splats::gpu::{GpuSplats, SplatShape};
+use crate::splats::gpu::{logical_group, GpuSplats, SplatShape};
 use anyhow::{bail, ensure};
 use std::sync::Arc;
 
 const WG: u32 = 256;
 
-/// Learning rates in `GpuSplats::groups()` order: positions, log-scales, rotations, opacity
-/// logits, SH DC, SH rest, then the model's extra groups.
+/// Learning rates of the logical groups ([`SplatShape::strides`] order): positions,
+/// log-scales, rotations, opacity logits, SH DC, SH rest (all three of its planes), then the
+/// model's extra groups.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GroupLrs(pub Vec<f64>);
 
@@ -278,11 +279,11 @@ impl Adam {
             bail!("Adam: learning rate of group {g} is {lr}");
         }
         let (p, g, mm, vv) = (params.groups(), grads.groups(), m.groups(), v.groups());
+        let logical = params.shape().strides().len();
         ensure!(
-            lrs.0.len() == p.len(),
-            "Adam: {} learning rates for {} parameter groups",
+            lrs.0.len() == logical,
+            "Adam: {} learning rates for {logical} parameter groups",
             lrs.0.len(),
-            p.len()
         );
         rec.barrier();
         for k in 0..p.len() {
@@ -294,7 +295,7 @@ impl Adam {
                 n <= u32::MAX as u64,
                 "Adam: group {k} has {n} floats, over 2^32"
             );
-            let push = self.push(n as u32, lrs.0[k], step);
+            let push = self.push(n as u32, lrs.0[logical_group(k)], step);
             rec.dispatch(
                 &self.pipe,
                 &[p[k].0, g[k].0, mm[k].0, vv[k].0],

@@ -41,7 +41,7 @@ use crate::error::{bad_input, write_atomic};
 use crate::gpu::{GpuBuffer, GpuContext};
 use crate::scene::image_source::TrainImages;
 use crate::scene::Scene;
-use crate::splats::gpu::{GpuSplats, SplatShape};
+use crate::splats::gpu::{logical_group, GpuSplats, SplatShape};
 use crate::splats::{ExtraGroup, ExtraValues, GaussianParams};
 
 pub const MAGIC: &[u8; 8] = b"LPMSCKPT";
@@ -447,21 +447,36 @@ impl Checkpoint {
     }
 }
 
+/// The logical groups ([`SplatShape::strides`]: SH rest as one group) of the first `count`
+/// Gaussians: the checkpoint's layout, whatever the GPU's storage.
 fn read_groups(splats: &GpuSplats) -> anyhow::Result<Vec<Vec<f32>>> {
     let n = splats.count;
-    splats
-        .groups()
-        .iter()
-        .map(|(buf, stride)| buf.read_range(0, n * stride))
-        .collect()
+    let mut out = Vec::new();
+    for (k, (buf, stride)) in splats.groups().iter().enumerate() {
+        match logical_group(k) {
+            REST_GROUP if out.len() > REST_GROUP => {}
+            REST_GROUP => out.push(splats.read_sh_rest()?),
+            _ => out.push(buf.read_range(0, n * stride)?),
+        }
+    }
+    Ok(out)
 }
 
+/// Uploads the logical groups of [`read_groups`] (as many Gaussians as the positions hold).
 fn upload_groups(splats: &GpuSplats, data: &[Vec<f32>]) -> anyhow::Result<()> {
-    for ((buf, _), d) in splats.groups().iter().zip(data) {
-        buf.upload(d)?;
+    let n = data[0].len() / 3;
+    for (k, (buf, _)) in splats.groups().iter().enumerate() {
+        match logical_group(k) {
+            REST_GROUP if k > REST_GROUP => {}
+            REST_GROUP => splats.write_sh_rest(&data[REST_GROUP], n)?,
+            g => buf.upload(&data[g])?,
+        }
     }
     Ok(())
 }
+
+/// The SH rest group's index among the logical groups.
+const REST_GROUP: usize = 5;
 
 /// Keys of two config JSONs that differ (ignoring `iterations`, which a resumed run may raise).
 fn config_differences(saved: &serde_json::Value, now: &serde_json::Value) -> Vec<String> {

@@ -57,7 +57,7 @@ impl NonFiniteCheck {
     /// the group is finite), for the first `splats.count` Gaussians. Submits and waits.
     pub fn scan(&mut self, splats: &GpuSplats) -> anyhow::Result<Vec<Option<usize>>> {
         let n = splats.count;
-        let names = splats.shape().strides();
+        let names = splats.shape().storage_strides();
         if self.first.len() < names.len() {
             self.first = GpuBuffer::new(
                 &self.ctx,
@@ -106,7 +106,7 @@ impl NonFiniteCheck {
     /// The first non-finite parameter (lowest group in `GpuSplats::groups()` order, then lowest
     /// Gaussian), if any.
     pub fn first(&mut self, splats: &GpuSplats) -> anyhow::Result<Option<NonFinite>> {
-        let names = splats.shape().strides();
+        let names = splats.shape().storage_strides();
         Ok(self.scan(splats)?.iter().enumerate().find_map(|(g, i)| {
             i.map(|gaussian| NonFinite {
                 group: names[g].0.clone(),

@@ -2,7 +2,7 @@
 //! point additions (SpacetimeGaussians' guided error sampling) share this.
 
 use crate::gpu::{BufferKind, GpuBuffer};
-use crate::splats::gpu::grown_capacity;
+use crate::splats::gpu::{grown_capacity, FIXED_GROUPS};
 use crate::splats::SH_C0;
 use crate::train::adam::SplatState;
 use crate::train::strategy::{DensityContext, Primitive};
@@ -93,22 +93,23 @@ pub fn append_with_extras(
     }
     let m = rows.len();
     let strides: Vec<usize> = t.state.params.groups().iter().map(|g| g.1).collect();
-    let rest = strides[5];
+    // Stored buffers before the extra groups (SH rest as its planes).
+    let fixed = FIXED_GROUPS;
     anyhow::ensure!(
-        t.new_extras.len() == strides.len() - 6
+        t.new_extras.len() == strides.len() - fixed
             && t.new_extras
                 .iter()
-                .zip(&strides[6..])
+                .zip(&strides[fixed..])
                 .all(|(e, &s)| e.len() == s),
         "adding Gaussians: the model gives new Gaussians {} extra rows for its {} extra groups",
         t.new_extras.len(),
-        strides.len() - 6
+        strides.len() - fixed
     );
     if let Some(x) = extras {
         anyhow::ensure!(
-            x.len() == strides.len() - 6
+            x.len() == strides.len() - fixed
                 && x.iter()
-                    .zip(&strides[6..])
+                    .zip(&strides[fixed..])
                     .all(|(e, &s)| e.len() == s * rows.len()),
             "adding Gaussians: extra values given for {} groups, not one column per extra group \
              and row",
@@ -133,15 +134,17 @@ pub fn append_with_extras(
             true => c,
             false => ((c as f64 - 0.5) / SH_C0) as f32,
         }));
-        data[5].extend(std::iter::repeat_n(0.0, rest));
+        for (d, &s) in data[5..fixed].iter_mut().zip(&strides[5..fixed]) {
+            d.extend(std::iter::repeat_n(0.0, s));
+        }
         if extras.is_none() {
-            for (d, e) in data[6..].iter_mut().zip(&t.new_extras) {
+            for (d, e) in data[fixed..].iter_mut().zip(&t.new_extras) {
                 d.extend(e);
             }
         }
     }
     if let Some(x) = extras {
-        for (d, e) in data[6..].iter_mut().zip(x) {
+        for (d, e) in data[fixed..].iter_mut().zip(x) {
             d.extend(e);
         }
     }
