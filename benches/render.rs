@@ -28,6 +28,7 @@ fn main() -> anyhow::Result<()> {
     let ctx = GpuContext::new(&GpuOptions {
         validation: false,
         device: std::env::var("LPMSPLAT_DEVICE").ok(),
+        memory_limit: None,
     })?;
     println!("{}", ctx.info.summary());
     let sizes: Vec<usize> = env_list("LPMSPLAT_BENCH_SIZES", "3000,12000");

@@ -11,6 +11,7 @@ fn main() -> anyhow::Result<()> {
     let ctx = GpuContext::new(&GpuOptions {
         validation: false,
         device: std::env::var("LPMSPLAT_DEVICE").ok(),
+        memory_limit: None,
     })?;
     println!("{}", ctx.info.summary());
     let max: usize = std::env::var("LPMSPLAT_BENCH_MAX")

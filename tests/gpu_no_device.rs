@@ -10,6 +10,7 @@ fn no_vulkan_device_is_a_clear_error() {
     let err = GpuContext::new(&GpuOptions {
         validation: false,
         device: None,
+        memory_limit: None,
     })
     .err()
     .expect("no device must be an error");

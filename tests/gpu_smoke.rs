@@ -122,6 +122,7 @@ fn oversized_buffers_and_unknown_devices_are_clear_errors() {
     let err = GpuContext::new(&GpuOptions {
         validation: true,
         device: Some("no-such-device-xyz".into()),
+        memory_limit: None,
     })
     .err()
     .expect("must refuse");
@@ -129,6 +130,7 @@ fn oversized_buffers_and_unknown_devices_are_clear_errors() {
     let err = GpuContext::new(&GpuOptions {
         validation: true,
         device: Some("99".into()),
+        memory_limit: None,
     })
     .err()
     .expect("must refuse");

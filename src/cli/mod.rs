@@ -33,6 +33,11 @@ pub struct Cli {
     /// Enable the Khronos validation layer (also LPMSPLAT_VALIDATION=1).
     #[arg(long, global = true)]
     pub validation: bool,
+    /// Use at most this much device memory (MiB of device-local buffers), as if the device had
+    /// no more: to share a GPU between runs, or to rehearse a smaller one. A training run that
+    /// needs more stops with a checkpoint to resume from. Default: the device's own.
+    #[arg(long, global = true, value_name = "MIB")]
+    pub memory_limit: Option<u64>,
     #[command(subcommand)]
     pub command: Command,
 }
@@ -102,9 +107,13 @@ impl SceneArgs {
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
+    if cli.memory_limit == Some(0) {
+        anyhow::bail!("--memory-limit 0: give the device memory to use in MiB (e.g. 4096)");
+    }
     let gpu = GpuOptions {
         validation: cli.validation,
         device: cli.device.clone(),
+        memory_limit: cli.memory_limit.map(|m| m.saturating_mul(1 << 20)),
     };
     match cli.command {
         Command::Info(a) => info::run(&gpu, &a),

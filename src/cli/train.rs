@@ -554,18 +554,59 @@ fn check_flags(args: &TrainArgs) -> anyhow::Result<()> {
 
 /// How to continue this run: its own command line with `--resume CHECKPOINT` (for messages).
 fn resume_hint(checkpoint: &Path) -> String {
+    resume_hint_without(checkpoint, "--resume")
+}
+
+/// [`resume_hint`] without the valued flag `flag` as well.
+fn resume_hint_without(checkpoint: &Path, flag: &str) -> String {
     let mut words = Vec::new();
     let mut args = std::env::args();
     while let Some(a) = args.next() {
-        if a == "--resume" {
+        if a == "--resume" || a == flag {
             args.next();
-        } else if !a.starts_with("--resume=") {
+        } else if !a.starts_with("--resume=") && !a.starts_with(&format!("{flag}=")) {
             words.push(a);
         }
     }
     words.push("--resume".into());
     words.push(checkpoint.display().to_string());
     words.join(" ")
+}
+
+/// The error of a run that ran out of device memory, after saving what can be resumed: the
+/// checkpoint (the trainer's state, untouched by the allocation that failed) and, when it can
+/// still be exported, the PLY.
+fn save_after_oom(
+    trainer: &mut Trainer,
+    scene: &Scene,
+    args: &TrainArgs,
+    oom: &lpmsplat::gpu::OutOfDeviceMemory,
+) -> anyhow::Error {
+    let checkpoint = args.out.join("checkpoint.bin");
+    let (it, n) = (trainer.iteration, trainer.state.count());
+    if let Err(e) = trainer.save_checkpoint(scene, &checkpoint) {
+        return anyhow::anyhow!(
+            "after iteration {it} ({n} Gaussians): {oom}; saving a checkpoint failed as well: \
+             {e:#}. Fix: train with fewer Gaussians (a higher --densify-grad-threshold or an \
+             earlier --densify-until) or on a device with more memory"
+        );
+    }
+    let ply = args.out.join("point_cloud.ply");
+    let ply_note = match trainer
+        .export_model()
+        .and_then(|m| write_ply(&ply, &m).map_err(Into::into))
+    {
+        Ok(()) => format!(" and {}", ply.display()),
+        Err(e) => format!(" (the PLY could not be exported: {e:#})"),
+    };
+    anyhow::anyhow!(
+        "after iteration {it} ({n} Gaussians): {oom}. Wrote {}{ply_note}: the model at \
+         iteration {it}. Fix: continue on a device with more memory (or with a higher \
+         --memory-limit MIB): {}; or train again with fewer Gaussians (a higher \
+         --densify-grad-threshold or an earlier --densify-until)",
+        checkpoint.display(),
+        resume_hint_without(&checkpoint, "--memory-limit")
+    )
 }
 
 pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
@@ -621,14 +662,21 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         config.background.describe(),
         ctx.info.name
     );
-    let mut trainer = match (&resumed, &args.resume) {
+    let trainer = match (&resumed, &args.resume) {
         (Some(ck), Some(p)) => {
-            let t = Trainer::restore(&ctx, &scene, train_images.clone(), config.clone(), ck, p)?;
-            eprintln!("resuming {} at iteration {}", p.display(), t.iteration);
-            t
+            Trainer::restore(&ctx, &scene, train_images.clone(), config.clone(), ck, p)
+                .inspect(|t| eprintln!("resuming {} at iteration {}", p.display(), t.iteration))
         }
-        _ => Trainer::new(&ctx, &scene, train_images.clone(), &init, config.clone())?,
+        _ => Trainer::new(&ctx, &scene, train_images.clone(), &init, config.clone()),
     };
+    let mut trainer = trainer.map_err(|e| match lpmsplat::gpu::out_of_memory(&e) {
+        Some(oom) => anyhow::anyhow!(
+            "setting up the training: {oom}. Fix: a device with more memory or a higher \
+             --memory-limit, or less to hold: a coarser -r, fewer initial Gaussians \
+             (--init-points), --image-cache MIB to stream the training images"
+        ),
+        None => e,
+    })?;
     let resumed_at = resumed.as_ref().map(|ck| (ck.iteration, init.len()));
     drop(resumed);
     let mut nan_check = match args.nan_check {
@@ -681,7 +729,16 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
             // control, as the reference does.
             trainer.snapshot_next_step();
         }
-        let r = trainer.step()?;
+        let r = match trainer.step() {
+            Ok(r) => r,
+            Err(e) => {
+                bar.abandon();
+                return Err(match lpmsplat::gpu::out_of_memory(&e) {
+                    Some(oom) => save_after_oom(&mut trainer, &scene, args, oom),
+                    None => e,
+                });
+            }
+        };
         for e in &r.model_events {
             if plain {
                 eprintln!("{}", e.describe());
@@ -861,6 +918,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         "model_events": model_events,
         "device": ctx.info.name,
         "gpu_memory_mib": ctx.memory_in_use().1 as f64 / (1u64 << 20) as f64,
+        "device_buffers_peak_mib": ctx.memory.peak() as f64 / (1u64 << 20) as f64,
         "stages": if config.timestamps { stage_shares(&stages) } else { serde_json::Value::Null },
         "lpm": trainer.strategy_as::<LpmStrategy>().map(|l| {
             let mut j = lpm_summary(&l.totals, train_s, config.iterations);

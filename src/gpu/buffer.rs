@@ -1,6 +1,6 @@
 //! Typed storage buffers through gpu-allocator.
 
-use super::GpuContext;
+use super::{GpuContext, OutOfDeviceMemory};
 use anyhow::{bail, Context as _};
 use ash::vk;
 use bytemuck::Pod;
@@ -29,6 +29,8 @@ pub struct GpuBuffer<T: Pod> {
     len: usize,
     kind: BufferKind,
     name: String,
+    /// Device-local bytes booked in the context's [`DeviceMemory`](super::DeviceMemory).
+    booked: u64,
     _t: PhantomData<T>,
 }
 
@@ -68,6 +70,17 @@ impl<T: Pod> GpuBuffer<T> {
         }
         .with_context(|| format!("creating buffer '{name}' ({bytes} bytes)"))?;
         let requirements = unsafe { device.get_buffer_memory_requirements(buffer) };
+        // Device-local memory is booked first, so a run under --memory-limit fails here, with
+        // the same typed error as a driver that is out of memory.
+        let booked = if kind == BufferKind::DeviceLocal {
+            if let Err(e) = ctx.memory.reserve(name, requirements.size) {
+                unsafe { device.destroy_buffer(buffer, None) };
+                return Err(e.into());
+            }
+            requirements.size
+        } else {
+            0
+        };
         let location = match kind {
             BufferKind::DeviceLocal => MemoryLocation::GpuOnly,
             BufferKind::Upload => MemoryLocation::CpuToGpu,
@@ -88,7 +101,15 @@ impl<T: Pod> GpuBuffer<T> {
             Ok(a) => a,
             Err(e) => {
                 unsafe { device.destroy_buffer(buffer, None) };
-                bail!("out of GPU memory allocating '{name}' ({} MiB): {e}. Fix: lower the Gaussian count or resolution", bytes >> 20);
+                ctx.memory.release(booked);
+                return Err(OutOfDeviceMemory {
+                    buffer: name.to_string(),
+                    bytes: requirements.size,
+                    in_use: ctx.memory.in_use(),
+                    limit: ctx.memory.limit(),
+                    driver: Some(e.to_string()),
+                }
+                .into());
             }
         };
         unsafe { device.bind_buffer_memory(buffer, allocation.memory(), allocation.offset()) }
@@ -100,6 +121,7 @@ impl<T: Pod> GpuBuffer<T> {
             len,
             kind,
             name: name.to_string(),
+            booked,
             _t: PhantomData,
         })
     }
@@ -222,6 +244,7 @@ impl<T: Pod> Drop for GpuBuffer<T> {
         if let Some(a) = self.allocation.take() {
             let _ = self.ctx.allocator.lock().map(|mut al| al.free(a));
         }
+        self.ctx.memory.release(self.booked);
     }
 }
 

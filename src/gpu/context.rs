@@ -1,5 +1,6 @@
 //! Instance, device selection and the single compute queue.
 
+use super::memory::DeviceMemory;
 use super::validation::{debug_callback, ValidationStats};
 use anyhow::{anyhow, bail, Context as _};
 use ash::vk;
@@ -17,6 +18,8 @@ pub struct GpuOptions {
     pub validation: bool,
     /// Choose a device by index (as listed by `info`) or by a case-insensitive name substring.
     pub device: Option<String>,
+    /// Refuse device-local allocations past this many bytes in all ([`DeviceMemory`]).
+    pub memory_limit: Option<u64>,
 }
 
 impl GpuOptions {
@@ -25,6 +28,7 @@ impl GpuOptions {
         Self {
             validation: true,
             device: std::env::var("LPMSPLAT_DEVICE").ok(),
+            memory_limit: None,
         }
     }
 }
@@ -95,6 +99,8 @@ pub struct GpuContext {
     pub(crate) command_pool: Mutex<vk::CommandPool>,
     pub(crate) queue_lock: Mutex<()>,
     pub(crate) allocator: ManuallyDrop<Mutex<Allocator>>,
+    /// Device-local bytes in use and their limit.
+    pub memory: DeviceMemory,
     pub info: DeviceInfo,
 }
 
@@ -184,13 +190,14 @@ impl GpuContext {
                 .map(|v| v != "0" && !v.is_empty())
                 .unwrap_or(false);
         let entry = load_entry()?;
-        unsafe { Self::create(entry, validation, opts.device.as_deref()) }
+        unsafe { Self::create(entry, validation, opts.device.as_deref(), opts.memory_limit) }
     }
 
     unsafe fn create(
         entry: ash::Entry,
         validation: bool,
         choose: Option<&str>,
+        memory_limit: Option<u64>,
     ) -> anyhow::Result<Arc<GpuContext>> {
         let app_name = CString::new("lpmsplat").unwrap();
         let app = vk::ApplicationInfo::default()
@@ -385,6 +392,7 @@ impl GpuContext {
             command_pool: Mutex::new(pool),
             queue_lock: Mutex::new(()),
             allocator: ManuallyDrop::new(Mutex::new(allocator)),
+            memory: DeviceMemory::new(memory_limit),
             info,
         }))
     }

@@ -12,6 +12,7 @@
 mod buffer;
 mod commands;
 mod context;
+mod memory;
 mod pipeline;
 mod timestamps;
 mod validation;
@@ -19,6 +20,7 @@ mod validation;
 pub use buffer::{BufferKind, GpuBuffer};
 pub use commands::Recorder;
 pub use context::{list_devices, DeviceInfo, GpuContext, GpuOptions};
+pub use memory::{out_of_memory, DeviceMemory, OutOfDeviceMemory};
 pub use pipeline::ComputePipeline;
 pub use timestamps::{StageTimes, TimestampPool};
 pub use validation::ValidationStats;

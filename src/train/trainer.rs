@@ -103,6 +103,8 @@ impl ViewMetrics {
 
 pub struct Trainer {
     pub ctx: Arc<GpuContext>,
+    /// Whether the current step's main command buffer was submitted (see [`Trainer::step`]).
+    step_submitted: bool,
     pub config: TrainConfig,
     pub extent: f64,
     cameras_host: Vec<CameraGpu>,
@@ -277,6 +279,7 @@ impl Trainer {
             strategy: Box::new(Adc),
             model_rules,
             snapshot_requested: false,
+            step_submitted: false,
             snapshot: None,
             snapshot_iteration: None,
             resumed_strategy: None,
@@ -424,8 +427,20 @@ impl Trainer {
         Ok(out)
     }
 
-    /// Runs one training iteration (waits for it).
+    /// Runs one training iteration (waits for it). When it fails before the iteration's work
+    /// was submitted (out of device memory while a buffer grows for it, say), the iteration is
+    /// not counted, so a checkpoint saved then resumes with it.
     pub fn step(&mut self) -> anyhow::Result<StepReport> {
+        let before = self.iteration;
+        self.step_submitted = false;
+        let r = self.step_once();
+        if r.is_err() && !self.step_submitted {
+            self.iteration = before;
+        }
+        r
+    }
+
+    fn step_once(&mut self) -> anyhow::Result<StepReport> {
         self.iteration += 1;
         let it = self.iteration;
         let cfg = self.config.clone();
@@ -587,6 +602,7 @@ impl Trainer {
             LOSS_SLOT_FLOATS * views.len(),
         );
         self.rec.submit_and_wait()?;
+        self.step_submitted = true;
         let stages = if cfg.timestamps {
             Some(self.pool.read()?)
         } else {
