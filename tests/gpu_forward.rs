@@ -558,3 +558,61 @@ fn a_4096_square_image_renders_or_is_refused_with_the_binding_limit() {
     }
     ctx.check_validation().unwrap();
 }
+
+/// `n` Gaussians around the origin, each large and opaque enough (alpha ≥ 1/255 out to the
+/// image's corners) to touch every tile of a `size`² view looking at it.
+fn tile_covering(rng: &mut impl Rng, n: usize, size: u32) -> (RefGaussians, CameraGpu) {
+    let mut g = scenes::random_gaussians(rng, n);
+    for i in 0..n {
+        g.positions[i] = g.positions[i].map(|x| 0.01 * x);
+        g.log_scales[i] = [30f64.ln(); 3];
+        g.opacity_logits[i] = -3.0;
+    }
+    let (camera, pose) = scenes::random_view(rng, size, size);
+    (g, CameraGpu::new(&camera, &pose))
+}
+
+#[test]
+fn intersections_are_counted_in_64_bits_and_refused_past_one_binding() {
+    let ctx = ctx();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(2031);
+    let max = lpmsplat::render::forward::max_intersections(&ctx);
+    // 1,100 Gaussians × 16,384 tiles = 18.0 M pairs: past a 128 MiB binding (16.8 M pairs),
+    // within 4 GiB; 270,000 × 16,384 = 4.42 G pairs: past 2^32, where the 32-bit scan's total
+    // wraps, so only the 64-bit count can tell it from a small frame.
+    for (n, want) in [(1_100usize, 18_022_400u64), (270_000, 4_423_680_000)] {
+        let (g, cam) = tile_covering(&mut rng, n, 2048);
+        assert_eq!(cam.tile_count(), 16_384);
+        let params = g.to_params(0);
+        let splats = GpuSplats::upload(&ctx, &params, n).unwrap();
+        let cameras = GpuBuffer::from_slice(&ctx, "cameras", &[cam]).unwrap();
+        // Room for 16 pairs at first: the first frame only counts (and draws next to nothing).
+        let mut r = Renderer::new(
+            &ctx,
+            Capacity {
+                gaussians: n,
+                intersections: 16,
+                pixels: (cam.width() * cam.height()) as usize,
+                tiles: cam.tile_count() as usize,
+            },
+        )
+        .unwrap();
+        let frame = FrameSettings::plain(0, [0.0; 3]);
+        match r.render_blocking(&splats, &cameras, 0, &cam, &frame) {
+            Ok(()) => {
+                assert!(want <= max, "{want} pairs drawn with a limit of {max}");
+                assert_eq!(r.last_intersections().unwrap(), want);
+            }
+            Err(e) => {
+                let msg = format!("{e:#}");
+                assert!(want > max, "refused within the limit {max}: {msg}");
+                assert!(
+                    msg.contains(&format!("{want} (tile, Gaussian) intersections"))
+                        && msg.contains("Fix:"),
+                    "{msg}"
+                );
+            }
+        }
+    }
+    ctx.check_validation().unwrap();
+}

@@ -95,7 +95,10 @@ fn a_model_past_a_million_gaussians_at_sh_degree_3_renders_trains_and_checkpoint
     let big = render(&ctx, &model, &cam);
     let small = render(&ctx, &tail(&model, n - visible), &cam);
     let covered = small.iter().filter(|&&x| x > 0.01).count();
-    assert!(covered > 300, "the visible Gaussians cover {covered} values");
+    assert!(
+        covered > 300,
+        "the visible Gaussians cover {covered} values"
+    );
     let worst = big
         .iter()
         .zip(&small)
@@ -138,12 +141,21 @@ fn a_model_past_a_million_gaussians_at_sh_degree_3_renders_trains_and_checkpoint
     let saved = ck.params();
     assert_eq!(saved.sh_rest.len(), n * r);
     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-    assert!(bits(&saved.sh_rest) == bits(&trained.sh_rest), "saved SH rest");
+    assert!(
+        bits(&saved.sh_rest) == bits(&trained.sh_rest),
+        "saved SH rest"
+    );
     let back = Trainer::restore(&ctx, &scene, &imgs, cfg, &ck, &path).unwrap();
     let restored = back.state.params.download().unwrap();
-    assert!(bits(&restored.sh_rest) == bits(&trained.sh_rest), "restored SH rest");
+    assert!(
+        bits(&restored.sh_rest) == bits(&trained.sh_rest),
+        "restored SH rest"
+    );
     let m = back.state.m.read_sh_rest().unwrap();
-    assert!(bits(&m) == bits(&ck.sets[1][5]), "restored Adam moment of SH rest");
+    assert!(
+        bits(&m) == bits(&ck.sets[1][5]),
+        "restored Adam moment of SH rest"
+    );
     ctx.check_validation().unwrap();
 }
 
@@ -165,7 +177,10 @@ fn running_out_of_device_memory_mid_run_saves_a_checkpoint_that_resumes() {
             .args(extra)
             .output()
             .unwrap();
-        (o.status.success(), String::from_utf8_lossy(&o.stderr).into_owned())
+        (
+            o.status.success(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
     };
     // 11k Gaussians need about 27 MiB of buffers; densification passes 100 MiB before
     // iteration 60 (about 210 MiB unlimited).

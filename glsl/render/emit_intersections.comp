@@ -2,8 +2,8 @@
 // Forward step 2b: one (tile, Gaussian) pair per touched tile, written in depth order at the
 // Gaussian's scanned offset. The key holds only the tile id: a later stable sort by tile keeps
 // the depth order inside each tile. Writes past `capacity` are dropped and the host regrows the
-// buffers from the total the scan left in counts[1] (no overflow: the total is a uint and a
-// binding this size could not exist past 2^32 pairs anyway).
+// buffers from the frame's 64-bit total (gather_tile_counts.comp), or refuses a frame past what
+// one binding of pairs holds; the scan's 32-bit total in counts[1] only bounds the writes.
 layout(constant_id = 0) const uint WG_SIZE = 256;
 layout(local_size_x_id = 0) in;
 #include "projected.glsl"

@@ -1,6 +1,10 @@
 #version 460
 // Forward step 2a: in depth order, how many tiles each Gaussian touches (the input of the scan
-// whose exclusive prefix gives every Gaussian its first slot in the intersection list).
+// whose exclusive prefix gives every Gaussian its first slot in the intersection list), and
+// the frame's total as 64 bits: the scan's 32-bit total wraps past 2^32 pairs, and the host
+// must tell such a frame from a small one to refuse it clearly rather than draw garbage.
+#extension GL_KHR_shader_subgroup_basic : require
+#extension GL_KHR_shader_subgroup_arithmetic : require
 layout(constant_id = 0) const uint WG_SIZE = 256;
 layout(local_size_x_id = 0) in;
 #include "projected.glsl"
@@ -8,11 +12,22 @@ layout(std430, set = 0, binding = 0) readonly buffer Proj { Projected projected[
 layout(std430, set = 0, binding = 1) readonly buffer Ids { uint depth_sorted_ids[]; };
 layout(std430, set = 0, binding = 2) writeonly buffer Touched { uint touched[]; };
 layout(std430, set = 0, binding = 3) readonly buffer Counts { uint counts[]; };
+// [0]: the total modulo 2^32, [1]: how many times adding to [0] wrapped (zeroed per frame).
+layout(std430, set = 0, binding = 4) buffer PairTotal { uint pair_total[]; };
 
 void main() {
     uint s = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * WG_SIZE;
-    if (s >= counts[0]) return;
-    Projected p = projected[depth_sorted_ids[s]];
-    // A Gaussian covers at most tiles_x × tiles_y tiles, which fits a uint.
-    touched[s] = (p.tile_max_x - p.tile_min_x) * (p.tile_max_y - p.tile_min_y);
+    uint t = 0u;
+    if (s < counts[0]) {
+        Projected p = projected[depth_sorted_ids[s]];
+        // A Gaussian covers at most tiles_x × tiles_y tiles, which fits a uint.
+        t = (p.tile_max_x - p.tile_min_x) * (p.tile_max_y - p.tile_min_y);
+        touched[s] = t;
+    }
+    // A subgroup's sum fits a uint (subgroup size × tiles of one frame); one atomic a subgroup.
+    uint sum = subgroupAdd(t);
+    if (subgroupElect() && sum > 0u) {
+        uint before = atomicAdd(pair_total[0], sum);
+        if (before + sum < before) atomicAdd(pair_total[1], 1u);
+    }
 }

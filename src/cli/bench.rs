@@ -58,8 +58,7 @@ pub struct FpsArgs {
     pub json: Option<PathBuf>,
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// SH degree of the generated scene (degree 3 needs 180 B of SH a Gaussian: about 745k fit
-    /// a 128 MiB storage binding).
+    /// SH degree of the generated scene (0–3).
     #[arg(long, default_value_t = 3)]
     pub sh_degree: u32,
     /// The model the PLY was trained as: `spacetime-lite` and `spacetime-full` read their

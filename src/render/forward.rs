@@ -141,6 +141,9 @@ pub struct FrameBuffers {
     pub last_index: GpuBuffer<u32>,
     /// `COUNT_*` slots.
     pub counts: GpuBuffer<u32>,
+    /// The frame's intersections as 64 bits: low word, carries (gather_tile_counts.comp).
+    pair_total: GpuBuffer<u32>,
+    /// `counts`, then `pair_total`, after the frame.
     counts_host: GpuBuffer<u32>,
 }
 
@@ -173,6 +176,12 @@ fn stamp(rec: &mut Recorder, pool: Option<&mut TimestampPool>, label: &str) {
     }
 }
 
+/// The most (tile, Gaussian) pairs a frame may have on this device: what one binding of the
+/// 8-byte tile keys holds, and what the 32-bit pair offsets address.
+pub fn max_intersections(ctx: &GpuContext) -> u64 {
+    (ctx.info.max_storage_buffer_range / 8).min(u32::MAX as u64)
+}
+
 /// Bits needed to hold every tile id of a grid with `tiles` tiles.
 pub fn tile_bits(tiles: u32) -> u32 {
     32 - tiles.saturating_sub(1).leading_zeros()
@@ -199,10 +208,11 @@ impl FrameBuffers {
             final_t: GpuBuffer::new(ctx, "final T", cap.pixels.max(1), dl)?,
             last_index: GpuBuffer::new(ctx, "last index", cap.pixels.max(1), dl)?,
             counts: GpuBuffer::new(ctx, "render counts", COUNT_SLOTS, dl)?,
+            pair_total: GpuBuffer::new(ctx, "intersections (64-bit)", 2, dl)?,
             counts_host: GpuBuffer::new(
                 ctx,
                 "render counts (host)",
-                COUNT_SLOTS,
+                COUNT_SLOTS + 2,
                 BufferKind::Readback,
             )?,
         })
@@ -238,7 +248,7 @@ impl Renderer {
             gather: pipe(
                 "render/gather_tile_counts",
                 shaders::RENDER_GATHER_TILE_COUNTS,
-                4,
+                5,
                 0,
             )?,
             emit: pipe(
@@ -299,7 +309,9 @@ impl Renderer {
             ctx,
             Capacity {
                 gaussians,
-                intersections: (gaussians * 8).max(1 << 16),
+                intersections: (gaussians * 8)
+                    .max(1 << 16)
+                    .min(max_intersections(ctx) as usize),
                 pixels: (camera.width() * camera.height()) as usize,
                 tiles: camera.tile_count() as usize,
             },
@@ -315,6 +327,17 @@ impl Renderer {
     /// the old buffers must have completed).
     pub fn ensure_capacity(&mut self, need: Capacity) -> anyhow::Result<bool> {
         let cur = self.capacity;
+        let max_pairs = max_intersections(&self.ctx);
+        if need.intersections as u64 > max_pairs {
+            anyhow::bail!(
+                "a frame has {} (tile, Gaussian) intersections, more than the {max_pairs} one \
+                 storage binding holds on this device ({} MiB maxStorageBufferRange, 8 bytes a \
+                 pair; frames are not drawn in tile chunks). Fix: render or train at a lower \
+                 resolution (-r, --width/--height) or with fewer Gaussians",
+                need.intersections,
+                self.ctx.info.max_storage_buffer_range >> 20
+            );
+        }
         let grow = |have: usize, want: usize| {
             if want > have {
                 want + want / 2
@@ -324,7 +347,7 @@ impl Renderer {
         };
         let next = Capacity {
             gaussians: grow(cur.gaussians, need.gaussians),
-            intersections: grow(cur.intersections, need.intersections),
+            intersections: grow(cur.intersections, need.intersections).min(max_pairs as usize),
             pixels: grow(cur.pixels, need.pixels),
             tiles: grow(cur.tiles, need.tiles),
         };
@@ -511,6 +534,7 @@ impl Renderer {
     ) {
         let ctx = self.ctx.clone();
         let f = &self.frame;
+        rec.fill(&f.pair_total, 0);
         // 2. Depth sort of all Gaussians (culled ones carry the largest key).
         let depth_in = self.depth_sort.record(
             &ctx,
@@ -534,7 +558,13 @@ impl Renderer {
         // 3. Tile counts in depth order, scan, emit pairs.
         rec.dispatch(
             &self.gather,
-            &[&f.projected, depth_ids, &f.touched, &f.counts],
+            &[
+                &f.projected,
+                depth_ids,
+                &f.touched,
+                &f.counts,
+                &f.pair_total,
+            ],
             &(),
             ctx.groups_1d(n, WG),
         );
@@ -597,6 +627,13 @@ impl Renderer {
     /// and the camera is remembered for the readbacks.
     pub(super) fn finish_frame(&mut self, rec: &mut Recorder, camera: &CameraGpu) {
         rec.copy(&self.frame.counts, &self.frame.counts_host, COUNT_SLOTS);
+        rec.copy_region(
+            &self.frame.pair_total,
+            0,
+            &self.frame.counts_host,
+            COUNT_SLOTS,
+            2,
+        );
         self.last_camera = Some(*camera);
     }
 
@@ -617,7 +654,8 @@ impl Renderer {
     /// The intersection count of the last completed frame (call after its fence). When it is
     /// above the capacity the frame dropped pairs: grow and render again.
     pub fn last_intersections(&self) -> anyhow::Result<u64> {
-        Ok(self.frame.counts_host.read()?[COUNT_INTERSECTIONS as usize] as u64)
+        let c = self.frame.counts_host.read()?;
+        Ok(((c[COUNT_SLOTS + 1] as u64) << 32) | c[COUNT_SLOTS] as u64)
     }
 
     /// True when the last completed frame had room for every intersection.
