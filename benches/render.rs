@@ -126,6 +126,7 @@ fn main() -> anyhow::Result<()> {
                             grads: &grads,
                             view_grad_norm: &vgn,
                             pixel_count: None,
+                            abs_grad: None,
                             count: n,
                             sh_degree: params.sh_degree,
                             constants: settings.constants,

@@ -11,7 +11,9 @@ use lpmsplat::reference::gpu_layout::{
 };
 use lpmsplat::reference::scenes::{random_gaussians, random_view};
 use lpmsplat::reference::{self, mip, Gradients, RefGaussians, RenderSettings};
-use lpmsplat::render::backward::{AtomicMode, Backward, BackwardArgs, GRAD2D_STRIDE};
+use lpmsplat::render::backward::{
+    AtomicMode, Backward, BackwardArgs, RasterVariant, GRAD2D_STRIDE,
+};
 use lpmsplat::render::layout::{CameraGpu, RenderConstants};
 use lpmsplat::scene::{PinholeCamera, Pose};
 use lpmsplat::splats::gpu::GpuSplats;
@@ -89,11 +91,13 @@ struct GpuResult {
     view_grad_norm: Vec<f32>,
     /// With pixel counting on: the per-splat counts, and the reference's.
     pixel_count: Option<(Vec<u32>, Vec<u32>)>,
+    /// With the absolute gradient on: the GPU's, per Gaussian.
+    abs_grad: Option<Vec<f32>>,
     float_atomics: bool,
 }
 
 fn run_gpu(ctx: &Arc<GpuContext>, mode: AtomicMode, s: &Scene) -> (GpuResult, Gradients) {
-    run_gpu_pixels(ctx, mode, None, false, s)
+    run_gpu_pixels(ctx, mode, None, RasterVariant::default(), s)
 }
 
 /// As `run_gpu`, with `pixels` per invocation of the rasterizer backward instead of the
@@ -102,9 +106,10 @@ fn run_gpu_pixels(
     ctx: &Arc<GpuContext>,
     mode: AtomicMode,
     pixels: Option<u32>,
-    count_pixels: bool,
+    variant: RasterVariant,
     s: &Scene,
 ) -> (GpuResult, Gradients) {
+    let count_pixels = variant.count_pixels;
     let fused = s
         .filter3d
         .as_ref()
@@ -170,12 +175,12 @@ fn run_gpu_pixels(
         None => Backward::with_atomics(ctx, 1, mode).unwrap(),
     };
     bwd.reserve(ctx, n).unwrap();
-    if count_pixels {
-        bwd = bwd.with_pixel_counts(ctx).unwrap();
-    }
+    bwd = bwd.with_variant(ctx, variant).unwrap();
     // Poisoned: the pass must zero the first `count` and leave the rest.
     let pixel_count =
         GpuBuffer::<u32>::from_slice(ctx, "pixel count", &vec![u32::MAX; n + SPARE]).unwrap();
+    let abs_grad =
+        GpuBuffer::<f32>::from_slice(ctx, "abs grad", &vec![f32::NAN; n + SPARE]).unwrap();
     let mut rec = Recorder::new(ctx).unwrap();
     for (buf, _) in grads.groups() {
         rec.fill(buf, NAN_BITS);
@@ -200,6 +205,7 @@ fn run_gpu_pixels(
             grads: &grads,
             view_grad_norm: &view_grad_norm,
             pixel_count: count_pixels.then_some(&pixel_count),
+            abs_grad: variant.abs_grad.then_some(&abs_grad),
             filter3d: filter_buf.as_ref(),
             features: None,
             count: n,
@@ -234,6 +240,14 @@ fn run_gpu_pixels(
                 "pixel_count: written past count"
             );
             (got[..n].to_vec(), forward.raster.pixel_count.clone())
+        }),
+        abs_grad: variant.abs_grad.then(|| {
+            let got = abs_grad.read().unwrap();
+            assert!(
+                got[n..].iter().all(|v| v.is_nan()),
+                "abs_grad: written past count"
+            );
+            got[..n].to_vec()
         }),
         float_atomics: bwd.uses_float_atomics(),
     };
@@ -389,13 +403,56 @@ fn check_scene(ctx: &Arc<GpuContext>, label: &str, s: &Scene) {
         check_against_reference(&format!("{label} ({mode:?})"), s, &got, &want);
     }
     // The other pixels-per-invocation layouts (1 is what GPUs run).
-    // With Pixel-GS's pixel counting on: the same gradients, and the counts.
-    for pixels in [1, 4] {
-        let (got, want) = run_gpu_pixels(ctx, AtomicMode::Auto, Some(pixels), true, s);
-        let label = format!("{label} ({pixels} px/invocation, counting pixels)");
+    // With Pixel-GS's pixel counting and / or the absolute gradient on: the same gradients,
+    // and the counts and absolute gradients.
+    for (pixels, count_pixels, abs_grad) in [(1, true, false), (4, true, true), (1, false, true)] {
+        let variant = RasterVariant {
+            count_pixels,
+            abs_grad,
+            extra: 0,
+        };
+        let (got, want) = run_gpu_pixels(ctx, AtomicMode::Auto, Some(pixels), variant, s);
+        let label = format!("{label} ({pixels} px/invocation, {variant:?})");
         check_against_reference(&label, s, &got, &want);
-        check_pixel_counts(&label, &got);
+        if count_pixels {
+            check_pixel_counts(&label, &got);
+        }
+        if let Some(a) = &got.abs_grad {
+            let (rel, floor) = (1e-2, 1e-4);
+            compare(
+                &format!("{label} abs_grad"),
+                a,
+                &want.ndc_abs_grad,
+                rel,
+                floor,
+            );
+            assert!(
+                want.ndc_abs_grad.iter().any(|&v| v > 0.0),
+                "{label}: no abs gradient"
+            );
+            // The norm of a sum is at most the sum of the terms' absolute values (L2 ≤ L1).
+            for (i, (&abs, &norm)) in a.iter().zip(&got.view_grad_norm).enumerate() {
+                assert!(
+                    abs >= norm * 0.999 - 1e-12,
+                    "{label}: Gaussian {i}: {abs} < {norm}"
+                );
+            }
+        }
     }
+    // The compare-and-swap path of the absolute gradient's atomics.
+    let variant = RasterVariant {
+        abs_grad: true,
+        ..Default::default()
+    };
+    let (got, want) = run_gpu_pixels(ctx, AtomicMode::CompareSwap, None, variant, s);
+    let (rel, floor) = (1e-2, 1e-4);
+    compare(
+        &format!("{label} abs_grad (compare-and-swap)"),
+        got.abs_grad.as_ref().unwrap(),
+        &want.ndc_abs_grad,
+        rel,
+        floor,
+    );
 }
 
 /// The GPU's per-splat pixel counts against the reference's. The GPU tests alpha ≥ 1/255 in
@@ -834,6 +891,7 @@ fn record_refuses_mismatched_arguments() {
         grads: &grads,
         view_grad_norm: &vgn,
         pixel_count: None,
+        abs_grad: None,
         count,
         sh_degree,
         constants: RenderConstants::default(),

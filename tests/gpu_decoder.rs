@@ -231,6 +231,7 @@ fn feature_channels_and_raw_colour_match_the_reference_forward_and_backward() {
                 view_grad_norm: &vgn,
                 filter3d: None,
                 pixel_count: None,
+                abs_grad: None,
                 count: n,
                 sh_degree: 0,
                 constants,

@@ -96,9 +96,13 @@ fn random_stats(rng: &mut impl Rng, n: usize) -> HostStats {
             .iter()
             .map(|&d| d * 10f32.powf(rng.gen_range(-5.0..-2.5)))
             .collect(),
-        denom,
+        denom: denom.clone(),
         max_radii: (0..n)
             .map(|_| rng.gen_range(0.0..40.0f32).floor())
+            .collect(),
+        abs_accum: denom
+            .iter()
+            .map(|&d| d * 10f32.powf(rng.gen_range(-4.0..-1.5)))
             .collect(),
     }
 }
@@ -241,6 +245,7 @@ fn constructed_cases_clone_split_and_prune_exactly_the_expected_gaussians() {
         grad_accum: cases.iter().map(|c| c.2).collect(),
         denom: cases.iter().map(|c| c.3).collect(),
         max_radii: vec![100.0; n],
+        abs_accum: vec![0.0; n],
     };
     let capacity = 16;
     let mut state = upload_state(&ctx, &host, capacity);
@@ -451,6 +456,7 @@ fn split_children_are_samples_of_the_parent_and_deterministic() {
         grad_accum: vec![1e-3; n],
         denom: vec![1.0; n],
         max_radii: vec![0.0; n],
+        abs_accum: vec![0.0; n],
     };
     let args = DensifyArgs {
         extent: extent as f64,
@@ -554,7 +560,7 @@ fn statistics_accumulate_only_visible_gaussians() {
         let mut rec = Recorder::new(&ctx).unwrap();
         // Count smaller than the buffers on one view: the rest must stay untouched.
         let count = if view == 2 { n - 100 } else { n };
-        dc.record_accumulate(&mut rec, &norms, &proj, None, 1.0, count)
+        dc.record_accumulate(&mut rec, &norms, &proj, None, None, 1.0, count)
             .unwrap();
         rec.submit_and_wait().unwrap();
         host.accumulate(&nv[..count], &radii[..count]);
@@ -569,7 +575,7 @@ fn statistics_accumulate_only_visible_gaussians() {
     // Too many Gaussians for the buffers is refused.
     let mut rec = Recorder::new(&ctx).unwrap();
     assert!(dc
-        .record_accumulate(&mut rec, &norms, &proj, None, 1.0, n + 1)
+        .record_accumulate(&mut rec, &norms, &proj, None, None, 1.0, n + 1)
         .is_err());
     ctx.check_validation().unwrap();
 }
@@ -620,7 +626,7 @@ fn pixel_weighted_statistics_match_the_host_reference() {
         counts.upload(&pc).unwrap();
         proj.upload(&projected).unwrap();
         let mut rec = Recorder::new(&ctx).unwrap();
-        dc.record_accumulate(&mut rec, &norms, &proj, Some(&counts), extent, n)
+        dc.record_accumulate(&mut rec, &norms, &proj, Some(&counts), None, extent, n)
             .unwrap();
         rec.submit_and_wait().unwrap();
         host.accumulate_pixel_weighted(&nv, &radii, &pc, &depth, depth_scale);
@@ -634,7 +640,7 @@ fn pixel_weighted_statistics_match_the_host_reference() {
     // The pixel-weighted statistic without counts is refused with the fix.
     let mut rec = Recorder::new(&ctx).unwrap();
     let e = dc
-        .record_accumulate(&mut rec, &norms, &proj, None, extent, n)
+        .record_accumulate(&mut rec, &norms, &proj, None, None, extent, n)
         .unwrap_err()
         .to_string();
     assert!(e.contains("pixel counts"), "{e}");
@@ -708,7 +714,7 @@ fn pixel_weighting_densifies_large_gaussians_adc_averages_away() {
             norms.upload(nv).unwrap();
             counts.upload(pc).unwrap();
             let mut rec = Recorder::new(&ctx).unwrap();
-            dc.record_accumulate(&mut rec, &norms, &proj, Some(&counts), extent, n)
+            dc.record_accumulate(&mut rec, &norms, &proj, Some(&counts), None, extent, n)
                 .unwrap();
             rec.submit_and_wait().unwrap();
             match statistic {

@@ -29,6 +29,13 @@
 // forward's blended set), added to pixel_count[g] (binding 8, zeroed by the caller): Pixel-GS's
 // n_v(i). The count rides in the shared sums as a tenth float (exact: at most 256 per tile).
 //
+// With ABS_GRAD (specialisation constant 6) the pass also sums, per splat, the absolute values
+// of every pixel's mean-gradient terms in NDC units, Σ_pixels |dL/dx_p|·W/2 + |dL/dy_p|·H/2
+// (Gaussian Opacity Fields' densification statistic, which Mip-Splatting's official code
+// uses), added to abs_grad[g] (binding 12, zeroed by the caller). The sum of signed terms can
+// cancel where a Gaussian straddles an edge; the absolute sum cannot. It rides in the shared
+// sums after the pixel count.
+//
 // With EXTRA > 0 (specialisation constant 5; SpacetimeGaussians' full model) every splat also
 // carries EXTRA feature channels (binding 9, features[g·EXTRA + c]) blended over a zero
 // background like the colour (render/rasterize.comp); dL/d(feature image) is binding 10 and the
@@ -52,6 +59,7 @@ layout(constant_id = 2) const uint USE_FLOAT_ATOMICS = 0;
 layout(constant_id = 3) const uint PIXELS = 1;  // pixels per invocation: 1, 2, 4, 8 or 16
 layout(constant_id = 4) const uint COUNT_PIXELS = 0;  // 1: count contributing pixels per splat
 layout(constant_id = 5) const uint EXTRA = 0;  // feature channels beyond the colour
+layout(constant_id = 6) const uint ABS_GRAD = 0;  // 1: sum |mean-gradient terms| per splat
 const uint EXTRA_N = EXTRA > 0u ? EXTRA : 1u;  // array sizes (EXTRA = 0 never reads them)
 layout(local_size_x_id = 0) in;
 
@@ -61,9 +69,10 @@ layout(local_size_x_id = 0) in;
 
 const uint TILE = 16u;
 const uint GRAD2D_STRIDE = 9u;
-// Floats per (splat, subgroup) in the shared sums: the gradients, the pixel count, the extra
-// channels' gradients.
-const uint ACC_EXTRA = GRAD2D_STRIDE + COUNT_PIXELS;
+// Floats per (splat, subgroup) in the shared sums: the gradients, the pixel count, the
+// absolute-gradient sum, the extra channels' gradients.
+const uint ACC_ABS = GRAD2D_STRIDE + COUNT_PIXELS;
+const uint ACC_EXTRA = ACC_ABS + ABS_GRAD;
 const uint ACC_STRIDE = ACC_EXTRA + EXTRA;
 
 layout(std430, set = 0, binding = 0) readonly buffer Cameras { Camera cameras[]; };
@@ -78,10 +87,12 @@ layout(std430, set = 0, binding = 8) buffer PixelCount { uint pixel_count[]; };
 layout(std430, set = 0, binding = 9) readonly buffer Features { float features[]; };
 layout(std430, set = 0, binding = 10) readonly buffer DlDFeatures { float dl_dfeature_image[]; };
 layout(std430, set = 0, binding = 11) buffer GFeaturesBits { uint g_features_bits[]; };
+layout(std430, set = 0, binding = 12) buffer AbsGradBits { uint abs_grad_bits[]; };
 #if HAS_FLOAT_ATOMICS
 // The same bindings seen as floats, for the native float atomicAdd.
 layout(std430, set = 0, binding = 7) buffer Grad2dFloat { float grad2d_f[]; };
 layout(std430, set = 0, binding = 11) buffer GFeaturesFloat { float g_features_f[]; };
+layout(std430, set = 0, binding = 12) buffer AbsGradFloat { float abs_grad_f[]; };
 #endif
 
 layout(push_constant) uniform Push {
@@ -125,6 +136,22 @@ void atomic_add_feature(uint idx, float v) {
     }
 }
 
+// atomic_add_float on abs_grad (binding 12).
+void atomic_add_abs(uint idx, float v) {
+#if HAS_FLOAT_ATOMICS
+    if (USE_FLOAT_ATOMICS != 0u) {
+        atomicAdd(abs_grad_f[idx], v);
+        return;
+    }
+#endif
+    uint old = abs_grad_bits[idx];
+    for (;;) {
+        uint assumed = old;
+        old = atomicCompSwap(abs_grad_bits[idx], assumed,
+                             floatBitsToUint(uintBitsToFloat(assumed) + v));
+        if (old == assumed) break;
+    }
+}
 
 // Splats per batch: every invocation stages one, and the per-subgroup sums of a batch must fit
 // in s_acc (ACC_FLOATS / (subgroups · ACC_STRIDE) splats).
@@ -226,6 +253,8 @@ void main() {
     atomicMax(s_max_last, sg_max_last);
     barrier();
     uint max_last = s_max_last;
+    // NDC units of a pixel-space mean gradient (as preprocess_backward's view_grad_norm).
+    vec2 ndc = 0.5 * vec2(float(width), float(height));
 
     for (uint done = 0u; done < max_last; done += BATCH) {
         uint batch = min(BATCH, max_last - done);
@@ -285,6 +314,7 @@ void main() {
             vec3 g_rgb = vec3(0.0);
             float g_opacity = 0.0;
             float n_pixels = 0.0;
+            float g_abs = 0.0;
             float g_feat[EXTRA_N];
             // The splat's extra channels, loaded once for all the invocation's pixels.
             float f[EXTRA_N];
@@ -328,8 +358,10 @@ void main() {
                 if (!clamped) {
                     g_opacity += gauss * dl_dalpha;
                     float dl_dpower = mo.z * gauss * dl_dalpha;
-                    g_mean += dl_dpower * vec2(-conic.x * d.x - conic.y * d.y,
+                    vec2 gm = dl_dpower * vec2(-conic.x * d.x - conic.y * d.y,
                                                -conic.z * d.y - conic.y * d.x);
+                    g_mean += gm;
+                    if (ABS_GRAD != 0u) g_abs += abs(gm.x) * ndc.x + abs(gm.y) * ndc.y;
                     g_conic += dl_dpower * vec3(-0.5 * d.x * d.x, -d.x * d.y,
                                                 -0.5 * d.y * d.y);
                 }
@@ -339,6 +371,7 @@ void main() {
             g_rgb = subgroupAdd(g_rgb);
             g_opacity = subgroupAdd(g_opacity);
             if (COUNT_PIXELS != 0u) n_pixels = subgroupAdd(n_pixels);
+            if (ABS_GRAD != 0u) g_abs = subgroupAdd(g_abs);
             for (uint c = 0u; c < EXTRA; c++) g_feat[c] = subgroupAdd(g_feat[c]);
             if (subgroupElect()) {
                 uint a = (j * NUM_SG + gl_SubgroupID) * ACC_STRIDE;
@@ -352,6 +385,7 @@ void main() {
                 s_acc[a + 7u] = g_rgb.z;
                 s_acc[a + 8u] = g_opacity;
                 if (COUNT_PIXELS != 0u) s_acc[a + 9u] = n_pixels;
+                if (ABS_GRAD != 0u) s_acc[a + ACC_ABS] = g_abs;
                 for (uint c = 0u; c < EXTRA; c++) s_acc[a + ACC_EXTRA + c] = g_feat[c];
             }
         }
@@ -368,6 +402,13 @@ void main() {
             }
             if (COUNT_PIXELS != 0u && sum[GRAD2D_STRIDE] != 0.0) {
                 atomicAdd(pixel_count[s_id[j]], uint(sum[GRAD2D_STRIDE]));
+            }
+            if (ABS_GRAD != 0u) {
+                float abs_sum = 0.0;
+                for (uint sg = 0u; sg < NUM_SG; sg++) {
+                    abs_sum += s_acc[(j * NUM_SG + sg) * ACC_STRIDE + ACC_ABS];
+                }
+                if (abs_sum != 0.0) atomic_add_abs(s_id[j], abs_sum);
             }
             for (uint c = 0u; c < EXTRA; c++) {
                 float f_sum = 0.0;

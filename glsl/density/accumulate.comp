@@ -8,6 +8,8 @@
 //     grad_accum += n · phi · |dL/d mean2d|, denom += n. So the views where a Gaussian covers
 //     many pixels weigh more, and near-camera Gaussians (floaters) get a smaller statistic;
 //     the optimisation's own gradients are untouched.
+// With `abs_grad`: abs_accum += the backward's absolute-gradient statistic (Gaussian Opacity
+// Fields' test, mode 0 only), over the same views.
 // `precise`: the host reference (src/train/density/reference.rs) repeats these f32 operations
 // in this order, without fused multiply-adds, and must match bit for bit.
 layout(local_size_x_id = 0) in;
@@ -19,10 +21,13 @@ layout(std430, set = 0, binding = 2) buffer Accum { float grad_accum[]; };
 layout(std430, set = 0, binding = 3) buffer Denom { float denom[]; };
 layout(std430, set = 0, binding = 4) buffer MaxRadii { float max_radii[]; };
 layout(std430, set = 0, binding = 5) readonly buffer PixelCount { uint pixel_count[]; };
+layout(std430, set = 0, binding = 6) readonly buffer AbsGrad { float abs_grad[]; };
+layout(std430, set = 0, binding = 7) buffer AbsAccum { float abs_accum[]; };
 layout(push_constant) uniform Push {
     uint count;
     uint mode;
     float depth_scale;
+    uint use_abs;
 };
 
 void main() {
@@ -40,6 +45,7 @@ void main() {
     } else {
         grad_accum[i] += view_grad_norm[i];
         denom[i] += 1.0;
+        if (use_abs != 0u) abs_accum[i] += abs_grad[i];
     }
     max_radii[i] = max(max_radii[i], r);
 }

@@ -1,7 +1,8 @@
 #version 460
 // Density-control decisions, one word per Gaussian (bits in decisions.glsl), Inria's rules:
 //   stat = grad_accum / denom (0 when never seen); densify when stat ≥ threshold (× the
-//   optional per-Gaussian scale); clone when max scale ≤ percent_dense·extent, split otherwise;
+//   optional per-Gaussian scale), or (flag 4) when abs_accum / denom ≥ abs_threshold, the
+//   absolute-gradient test (src/train/density/abs_quantile.rs); clone when max scale ≤ percent_dense·extent, split otherwise;
 //   prune when opacity < min_opacity, and with `prune_large` when max scale > 0.1·extent;
 //   optionally (screen_max ≥ 0) when the largest screen radius exceeds screen_max.
 // New Gaussians face the same prune tests with their own parameters (a clone has its parent's;
@@ -17,15 +18,17 @@ layout(std430, set = 0, binding = 3) readonly buffer LogScales { float log_scale
 layout(std430, set = 0, binding = 4) readonly buffer Opacity { float opacity_logits[]; };
 layout(std430, set = 0, binding = 5) readonly buffer ThresholdScale { float threshold_scale[]; };
 layout(std430, set = 0, binding = 6) writeonly buffer Decisions { uint decisions[]; };
+layout(std430, set = 0, binding = 7) readonly buffer AbsAccum { float abs_accum[]; };
 layout(push_constant) uniform Push {
     uint count;
-    uint flags;  // 1: prune large (world size); 2: use threshold_scale
+    uint flags;  // 1: prune large (world size); 2: use threshold_scale; 4: absolute-gradient test
     float grad_threshold;
     float log_clone_max;      // ln(percent_dense · extent)
     float min_opacity_logit;  // logit(min_opacity)
     float log_world_max;      // ln(0.1 · extent)
     float log_split_shrink;   // ln(1.6)
     float screen_max;         // < 0: off
+    float abs_threshold;      // with flag 4
 };
 
 void main() {
@@ -35,7 +38,9 @@ void main() {
     precise float stat = dn > 0.0 ? grad_accum[i] / dn : 0.0;
     precise float thr = grad_threshold;
     if ((flags & 2u) != 0u) thr = grad_threshold * threshold_scale[i];
-    bool densify = stat >= thr;
+    precise float abs_stat = dn > 0.0 ? abs_accum[i] / dn : 0.0;
+    bool by_abs = (flags & 4u) != 0u && abs_stat >= abs_threshold;
+    bool densify = stat >= thr || by_abs;
     float ls = max(max(log_scales[3u * i], log_scales[3u * i + 1u]), log_scales[3u * i + 2u]);
     bool clone = densify && ls <= log_clone_max;
     bool split = densify && ls > log_clone_max;
@@ -50,6 +55,6 @@ void main() {
     if (faint || big || big_screen) d |= DECIDE_REMOVE;
     if (clone && !faint && !big) d |= DECIDE_CLONE;
     if (split) d |= (faint || child_big) ? DECIDE_REMOVE : DECIDE_SPLIT;
-    if ((clone || split) && !(stat >= grad_threshold)) d |= DECIDE_LOWERED;
+    if ((clone || split) && !(stat >= grad_threshold) && !by_abs) d |= DECIDE_LOWERED;
     decisions[i] = d;
 }

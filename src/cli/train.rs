@@ -592,10 +592,7 @@ fn save_after_oom(
         );
     }
     let ply = args.out.join("point_cloud.ply");
-    let ply_note = match trainer
-        .export_model()
-        .and_then(|m| write_ply(&ply, &m))
-    {
+    let ply_note = match trainer.export_model().and_then(|m| write_ply(&ply, &m)) {
         Ok(()) => format!(" and {}", ply.display()),
         Err(e) => format!(" (the PLY could not be exported: {e:#})"),
     };

@@ -36,6 +36,9 @@ pub struct ProjectedGrads {
     pub rgb: Vec<[f64; 3]>,
     /// With respect to the activated opacity (not the logit).
     pub opacity: Vec<f64>,
+    /// Per axis, the sum over pixels of the absolute value of each pixel's term of `mean2d`
+    /// (Gaussian Opacity Fields' absolute gradient, before the NDC scale).
+    pub mean2d_abs: Vec<[f64; 2]>,
 }
 
 impl ProjectedGrads {
@@ -45,6 +48,7 @@ impl ProjectedGrads {
             conic: vec![[0.0; 3]; n],
             rgb: vec![[0.0; 3]; n],
             opacity: vec![0.0; n],
+            mean2d_abs: vec![[0.0; 2]; n],
         }
     }
 }
@@ -80,6 +84,8 @@ pub struct Gradients {
     /// Density control's statistic for this view: `|(dL/du · W/2, dL/dv · H/2)|`, the 2D-mean
     /// gradient expressed in NDC units. Zero for Gaussians that touched no pixel.
     pub ndc_mean2d_norm: Vec<f64>,
+    /// The absolute-gradient statistic: `Σ|dL/du_p| · W/2 + Σ|dL/dv_p| · H/2` over the pixels.
+    pub ndc_abs_grad: Vec<f64>,
 }
 
 /// The full backward pass for a forward pass `forward` made with the same arguments.
@@ -112,10 +118,17 @@ pub fn backward(
         &projected,
     )?;
     let ndc_mean2d_norm = ndc_mean2d_norm(&projected, camera);
+    let (hw, hh) = (0.5 * camera.width as f64, 0.5 * camera.height as f64);
+    let ndc_abs_grad = projected
+        .mean2d_abs
+        .iter()
+        .map(|a| a[0] * hw + a[1] * hh)
+        .collect();
     Ok(Gradients {
         projected,
         params,
         ndc_mean2d_norm,
+        ndc_abs_grad,
     })
 }
 
@@ -192,8 +205,12 @@ pub fn rasterize_backward(
                 let dl_dpower = p.opacity * s.gauss * dl_dalpha;
                 let [a, b, c] = p.conic;
                 let [dx, dy] = s.d;
-                grads.mean2d[g][0] += dl_dpower * (-a * dx - b * dy);
-                grads.mean2d[g][1] += dl_dpower * (-c * dy - b * dx);
+                let du = dl_dpower * (-a * dx - b * dy);
+                let dv = dl_dpower * (-c * dy - b * dx);
+                grads.mean2d[g][0] += du;
+                grads.mean2d[g][1] += dv;
+                grads.mean2d_abs[g][0] += du.abs();
+                grads.mean2d_abs[g][1] += dv.abs();
                 grads.conic[g][0] += dl_dpower * (-0.5 * dx * dx);
                 grads.conic[g][1] += dl_dpower * (-dx * dy);
                 grads.conic[g][2] += dl_dpower * (-0.5 * dy * dy);

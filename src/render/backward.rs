@@ -139,6 +139,11 @@ pub struct BackwardArgs<'a> {
     /// Output (when given): u32 per Gaussian, the number of pixels it contributed to
     /// (Pixel-GS's n_v(i)); zeroed by the pass. Needs [`Backward::with_pixel_counts`].
     pub pixel_count: Option<&'a GpuBuffer<u32>>,
+    /// Output (when given): f32 per Gaussian, Σ over its pixels of |dL/dx_p|·W/2 + |dL/dy_p|·H/2
+    /// (the absolute-gradient densification statistic of Gaussian Opacity Fields, which
+    /// Mip-Splatting's official code uses); zeroed by the pass. Needs
+    /// [`Backward::with_abs_grad`].
+    pub abs_grad: Option<&'a GpuBuffer<f32>>,
     pub count: usize,
     /// Active SH degree of the forward pass (≤ `splats.sh_degree`).
     pub sh_degree: u32,
@@ -146,6 +151,17 @@ pub struct BackwardArgs<'a> {
     pub background: [f32; 3],
     /// The forward's feature channels ([`super::forward::FrameSettings::features`]), if any.
     pub features: Option<FeatureGrads<'a>>,
+}
+
+/// The rasterizer backward's optional outputs (specialisation constants of one kernel).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct RasterVariant {
+    /// Pixels each splat contributed to ([`BackwardArgs::pixel_count`]).
+    pub count_pixels: bool,
+    /// The absolute mean-gradient sum ([`BackwardArgs::abs_grad`]).
+    pub abs_grad: bool,
+    /// Feature channels ([`BackwardArgs::features`]).
+    pub extra: u32,
 }
 
 /// Feature channels of a forward pass and their gradients.
@@ -162,10 +178,8 @@ pub struct FeatureGrads<'a> {
 /// The backward pass's pipelines and its intermediate per-Gaussian buffer.
 pub struct Backward {
     raster: ComputePipeline,
-    /// The rasterizer backward that also counts pixels per splat (built on request).
-    raster_counting: Option<ComputePipeline>,
-    /// The rasterizer backward with feature channels (built on first use, per channel count).
-    raster_features: Option<(u32, ComputePipeline)>,
+    /// Rasterizer backward variants with more outputs, built on request.
+    variants: Vec<(RasterVariant, ComputePipeline)>,
     /// Bound at binding 8 when no pixel counts are asked for (never written).
     no_counts: GpuBuffer<u32>,
     /// Bound in place of an absent 3D filter (never read).
@@ -209,7 +223,7 @@ impl Backward {
             ctx.info.subgroup_size
         );
         let float_atomics = mode == AtomicMode::Auto && ctx.info.float_atomic_add;
-        let raster = Self::raster_pipeline(ctx, float_atomics, pixels, false, 0)?;
+        let raster = Self::raster_pipeline(ctx, float_atomics, pixels, RasterVariant::default())?;
         let preprocess = ComputePipeline::new(
             ctx,
             "backward/preprocess_backward",
@@ -222,8 +236,7 @@ impl Backward {
         let capacity = capacity.max(1);
         Ok(Self {
             raster,
-            raster_counting: None,
-            raster_features: None,
+            variants: Vec::new(),
             no_counts: GpuBuffer::new(ctx, "no pixel counts", 1, BufferKind::DeviceLocal)?,
             no_filter: GpuBuffer::new(ctx, "no 3D filter", 1, BufferKind::DeviceLocal)?,
             pixels,
@@ -234,17 +247,21 @@ impl Backward {
         })
     }
 
-    /// The rasterizer backward pipeline; `count_pixels` adds the per-splat pixel count,
-    /// `extra` feature channels.
+    /// The rasterizer backward pipeline with `v`'s extra outputs.
     fn raster_pipeline(
         ctx: &Arc<GpuContext>,
         float_atomics: bool,
         pixels: u32,
-        count_pixels: bool,
-        extra: u32,
+        v: RasterVariant,
     ) -> Result<ComputePipeline> {
         let wg = WG / pixels.max(1);
-        let spec = [float_atomics as u32, pixels, count_pixels as u32, extra];
+        let spec = [
+            float_atomics as u32,
+            pixels,
+            v.count_pixels as u32,
+            v.extra,
+            v.abs_grad as u32,
+        ];
         let push = std::mem::size_of::<RasterPush>() as u32;
         // A device without float atomics gets SPIR-V that does not declare the capability.
         let (name, spirv) = if ctx.info.float_atomic_add {
@@ -258,29 +275,54 @@ impl Backward {
                 shaders::BACKWARD_RASTERIZE_BACKWARD_CAS,
             )
         };
-        ComputePipeline::new(ctx, name, spirv, 12, push, wg, &spec)
+        ComputePipeline::new(ctx, name, spirv, 13, push, wg, &spec)
     }
 
-    /// Also builds the pixel-counting variant of the rasterizer backward, so that
-    /// [`BackwardArgs::pixel_count`] may be given (Pixel-GS's statistic needs it).
-    pub fn with_pixel_counts(mut self, ctx: &Arc<GpuContext>) -> Result<Self> {
-        self.raster_counting = Some(Self::raster_pipeline(
+    /// Also builds the rasterizer backward with `v`'s outputs, so that arguments asking for
+    /// exactly those may be given.
+    pub fn with_variant(mut self, ctx: &Arc<GpuContext>, v: RasterVariant) -> Result<Self> {
+        if v != RasterVariant::default() && !self.variants.iter().any(|(k, _)| *k == v) {
+            let pipe = Self::raster_pipeline(ctx, self.float_atomics, self.pixels, v)?;
+            self.variants.push((v, pipe));
+        }
+        Ok(self)
+    }
+
+    /// Also builds the pixel-counting variant, so that [`BackwardArgs::pixel_count`] may be
+    /// given (Pixel-GS's statistic needs it).
+    pub fn with_pixel_counts(self, ctx: &Arc<GpuContext>) -> Result<Self> {
+        self.with_variant(
             ctx,
-            self.float_atomics,
-            self.pixels,
-            true,
-            0,
-        )?);
-        Ok(self)
+            RasterVariant {
+                count_pixels: true,
+                ..Default::default()
+            },
+        )
     }
 
-    /// Also builds the variant of the rasterizer backward with `channels` feature channels,
-    /// so that [`BackwardArgs::features`] may be given (not with pixel counts).
-    pub fn with_feature_channels(mut self, ctx: &Arc<GpuContext>, channels: u32) -> Result<Self> {
+    /// Also builds the absolute-gradient variant, so that [`BackwardArgs::abs_grad`] may be
+    /// given.
+    pub fn with_abs_grad(self, ctx: &Arc<GpuContext>) -> Result<Self> {
+        self.with_variant(
+            ctx,
+            RasterVariant {
+                abs_grad: true,
+                ..Default::default()
+            },
+        )
+    }
+
+    /// Also builds the variant with `channels` feature channels, so that
+    /// [`BackwardArgs::features`] may be given.
+    pub fn with_feature_channels(self, ctx: &Arc<GpuContext>, channels: u32) -> Result<Self> {
         ensure!(channels > 0, "GPU backward: 0 feature channels");
-        let pipe = Self::raster_pipeline(ctx, self.float_atomics, self.pixels, false, channels)?;
-        self.raster_features = Some((channels, pipe));
-        Ok(self)
+        self.with_variant(
+            ctx,
+            RasterVariant {
+                extra: channels,
+                ..Default::default()
+            },
+        )
     }
 
     fn alloc_grad2d(ctx: &Arc<GpuContext>, capacity: usize) -> Result<GpuBuffer<f32>> {
@@ -335,30 +377,31 @@ impl Backward {
         mut pool: Option<&mut crate::gpu::TimestampPool>,
     ) -> Result<()> {
         self.check(a)?;
-        let (raster, counts) = match (a.pixel_count, &self.raster_counting) {
-            (None, _) if a.features.is_some() => match &self.raster_features {
-                Some((c, p)) if Some(*c) == a.features.as_ref().map(|f| f.channels) => {
-                    (p, &self.no_counts)
-                }
-                _ => anyhow::bail!(
-                    "GPU backward: feature channels were given, but this Backward was built \
-                     without that many; build it with Backward::with_feature_channels"
-                ),
-            },
-            (Some(_), _) if a.features.is_some() => anyhow::bail!(
-                "GPU backward: pixel counts and feature channels cannot be asked for together"
-            ),
-            (None, _) => (&self.raster, &self.no_counts),
-            (Some(c), Some(p)) => (p, c),
-            (Some(_), None) => anyhow::bail!(
-                "GPU backward: pixel counts were asked for, but this Backward was built without \
-                 them; build it with Backward::with_pixel_counts"
-            ),
+        let want = RasterVariant {
+            count_pixels: a.pixel_count.is_some(),
+            abs_grad: a.abs_grad.is_some(),
+            extra: a.features.as_ref().map_or(0, |f| f.channels),
         };
+        let raster = if want == RasterVariant::default() {
+            &self.raster
+        } else {
+            match self.variants.iter().find(|(k, _)| *k == want) {
+                Some((_, p)) => p,
+                None => anyhow::bail!(
+                    "GPU backward: {want:?} was asked for, but this Backward was not built for \
+                     it; build it with Backward::with_variant (or with_pixel_counts, \
+                     with_abs_grad, with_feature_channels)"
+                ),
+            }
+        };
+        let counts = a.pixel_count.unwrap_or(&self.no_counts);
         rec.barrier();
         rec.fill(&self.grad2d, 0);
         if a.pixel_count.is_some() {
             rec.fill_range(counts, a.count, 0);
+        }
+        if let Some(b) = a.abs_grad {
+            rec.fill_range(b, a.count, 0);
         }
         if let Some(f) = &a.features {
             rec.fill_range(f.grads, a.count * f.channels as usize, 0);
@@ -385,6 +428,7 @@ impl Backward {
                 a.features.as_ref().map_or(&self.no_filter, |f| f.values),
                 a.features.as_ref().map_or(&self.no_filter, |f| f.dl_dimage),
                 a.features.as_ref().map_or(&self.no_filter, |f| f.grads),
+                a.abs_grad.unwrap_or(&self.no_filter),
             ],
             &raster_push,
             ctx.groups_1d(a.camera.tile_count() as u64, 1),
@@ -481,6 +525,7 @@ impl Backward {
                 a.pixel_count.map_or(usize::MAX, |c| c.len()),
                 n,
             ),
+            ("abs_grad", a.abs_grad.map_or(usize::MAX, |c| c.len()), n),
             (
                 "tile_ranges",
                 a.tile_ranges.len(),

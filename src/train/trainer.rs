@@ -576,6 +576,7 @@ impl Trainer {
                 &self.view_grad_norm,
                 self.passes.projected(),
                 self.passes.pixel_count(),
+                self.passes.abs_grad(),
                 self.extent,
                 count,
             )?;

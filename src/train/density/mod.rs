@@ -41,6 +41,7 @@
 //! `logit < logit(0.005)`): monotone, so these are the reference's tests up to the rounding of
 //! the threshold itself, and they need no transcendental on the GPU.
 
+pub mod abs_quantile;
 pub mod append;
 pub mod reference;
 pub mod rng;
@@ -136,6 +137,12 @@ pub struct DensityConfig {
     /// Seed of the split samples.
     pub seed: u64,
     pub statistic: Statistic,
+    /// Also densify by the absolute-gradient test of Gaussian Opacity Fields, as Mip-Splatting's
+    /// official code does (BASE_MODELS.md §2.5): with `ratio` the fraction of Gaussians whose
+    /// usual statistic reaches `grad_threshold`, a Gaussian whose averaged absolute gradient
+    /// reaches the `(1 − ratio)` quantile of all of them is densified as well. Gradient
+    /// statistic only; needs the backward's absolute gradients.
+    pub abs_grad: bool,
 }
 
 impl Default for DensityConfig {
@@ -150,6 +157,7 @@ impl Default for DensityConfig {
             opacity_reset_value: 0.01,
             seed: 0,
             statistic: Statistic::Gradient,
+            abs_grad: false,
         }
     }
 }
@@ -318,6 +326,9 @@ pub struct DensityStats {
     pub denom: GpuBuffer<f32>,
     /// Largest screen radius (px) since the last step.
     pub max_radii: GpuBuffer<f32>,
+    /// Sum of the absolute-gradient statistic over the same views (with
+    /// [`DensityConfig::abs_grad`]; zeros otherwise).
+    pub abs_accum: GpuBuffer<f32>,
 }
 
 impl DensityStats {
@@ -327,6 +338,7 @@ impl DensityStats {
             grad_accum: GpuBuffer::from_slice(ctx, "density grad_accum", &z)?,
             denom: GpuBuffer::from_slice(ctx, "density denom", &z)?,
             max_radii: GpuBuffer::from_slice(ctx, "density max_radii", &z)?,
+            abs_accum: GpuBuffer::from_slice(ctx, "density abs_accum", &z)?,
         })
     }
 
@@ -347,6 +359,7 @@ struct AccumulatePush {
     count: u32,
     mode: u32,
     depth_scale: f32,
+    abs_grad: u32,
 }
 
 #[repr(C)]
@@ -360,6 +373,8 @@ struct DecidePush {
     log_world_max: f32,
     log_split_shrink: f32,
     screen_max: f32,
+    /// The absolute-gradient quantile (with flag 4).
+    abs_threshold: f32,
 }
 
 #[repr(C)]
@@ -415,6 +430,8 @@ pub struct DensityControl {
     scratch_capacity: usize,
     /// Count `record_decide` ran on, so `apply` can check it is applied to the same state.
     decided: Option<usize>,
+    /// The absolute-gradient quantile of the last decision (with `config.abs_grad`).
+    pub last_abs_threshold: Option<f32>,
     spare: Option<SplatState>,
 }
 
@@ -437,13 +454,13 @@ impl DensityControl {
             accumulate: pipe(
                 "density/accumulate",
                 shaders::DENSITY_ACCUMULATE,
-                6,
+                8,
                 size_of::<AccumulatePush>(),
             )?,
             decide: pipe(
                 "density/decide",
                 shaders::DENSITY_DECIDE,
-                7,
+                8,
                 size_of::<DecidePush>(),
             )?,
             expand: pipe(
@@ -479,6 +496,7 @@ impl DensityControl {
             no_counts: GpuBuffer::from_slice(ctx, "density no pixel counts", &[0u32])?,
             scratch_capacity: capacity,
             decided: None,
+            last_abs_threshold: None,
             spare: None,
         })
     }
@@ -511,6 +529,7 @@ impl DensityControl {
         rec.copy(&self.stats.grad_accum, &grown.grad_accum, n);
         rec.copy(&self.stats.denom, &grown.denom, n);
         rec.copy(&self.stats.max_radii, &grown.max_radii, n);
+        rec.copy(&self.stats.abs_accum, &grown.abs_accum, n);
         rec.submit_and_wait()?;
         self.stats = grown;
         Ok(())
@@ -535,22 +554,41 @@ impl DensityControl {
         rec.fill(&self.stats.grad_accum, 0);
         rec.fill(&self.stats.denom, 0);
         rec.fill(&self.stats.max_radii, 0);
+        rec.fill(&self.stats.abs_accum, 0);
         rec.barrier();
     }
 
     /// Records this view's contribution to the statistics: `view_grad_norm[i]` is |dL/d mean2d|
     /// in NDC for Gaussian `i` (written by the backward pass), `projected[i].radius > 0` marks
     /// the visible ones; `pixel_count` (the backward's, required by the pixel-weighted
-    /// statistic) the pixels each contributed to; `extent` the scene extent.
+    /// statistic) the pixels each contributed to; `abs_grad` (the backward's, required with
+    /// [`DensityConfig::abs_grad`]) the absolute-gradient statistic; `extent` the scene extent.
+    #[allow(clippy::too_many_arguments)]
     pub fn record_accumulate(
         &self,
         rec: &mut Recorder,
         view_grad_norm: &GpuBuffer<f32>,
         projected: &GpuBuffer<ProjectedGpu>,
         pixel_count: Option<&GpuBuffer<u32>>,
+        abs_grad: Option<&GpuBuffer<f32>>,
         extent: f64,
         count: usize,
     ) -> anyhow::Result<()> {
+        let abs = match (self.config.abs_grad, abs_grad) {
+            (false, _) => None,
+            (true, Some(a)) => {
+                ensure!(
+                    a.len() >= count,
+                    "density statistics: {count} Gaussians but {} absolute gradients",
+                    a.len()
+                );
+                Some(a)
+            }
+            (true, None) => bail!(
+                "density statistics: the absolute-gradient test needs the backward's absolute \
+                 gradients; pass them (BackwardArgs::abs_grad)"
+            ),
+        };
         let (mode, depth_scale) = self.config.statistic.kernel_mode(extent)?;
         let counts = match (self.config.statistic.needs_pixel_counts(), pixel_count) {
             (false, _) => &self.no_counts,
@@ -590,11 +628,14 @@ impl DensityControl {
                 &self.stats.denom,
                 &self.stats.max_radii,
                 counts,
+                abs.unwrap_or(&self.dummy),
+                &self.stats.abs_accum,
             ],
             &AccumulatePush {
                 count: count as u32,
                 mode,
                 depth_scale,
+                abs_grad: abs.is_some() as u32,
             },
             self.ctx.groups_1d(count as u64, WG),
         );
@@ -636,9 +677,26 @@ impl DensityControl {
         if count == 0 {
             return Ok(());
         }
+        // The quantile needs every Gaussian's statistics: read back once per densify step
+        // (the statistics are complete: the iteration's command buffer has been waited for).
+        let abs_threshold = if self.config.abs_grad {
+            let read = |b: &GpuBuffer<f32>| b.read_range(0, count);
+            Some(abs_quantile::abs_grad_threshold(
+                &read(&self.stats.grad_accum)?,
+                &read(&self.stats.denom)?,
+                &read(&self.stats.abs_accum)?,
+                t.grad_threshold,
+            ))
+        } else {
+            None
+        };
+        self.last_abs_threshold = abs_threshold;
         let push = DecidePush {
             count: count as u32,
-            flags: t.prune_large as u32 | ((threshold_scale.is_some() as u32) << 1),
+            abs_threshold: abs_threshold.unwrap_or(f32::INFINITY),
+            flags: t.prune_large as u32
+                | ((threshold_scale.is_some() as u32) << 1)
+                | ((abs_threshold.is_some() as u32) << 2),
             grad_threshold: t.grad_threshold,
             log_clone_max: t.log_clone_max,
             min_opacity_logit: t.min_opacity_logit,
@@ -657,6 +715,7 @@ impl DensityControl {
                 &state.params.opacity_logits,
                 threshold_scale.unwrap_or(&self.dummy),
                 &self.decisions,
+                &self.stats.abs_accum,
             ],
             &push,
             self.ctx.groups_1d(count as u64, WG),

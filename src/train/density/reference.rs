@@ -22,6 +22,7 @@ pub struct HostStats {
     pub grad_accum: Vec<f32>,
     pub denom: Vec<f32>,
     pub max_radii: Vec<f32>,
+    pub abs_accum: Vec<f32>,
 }
 
 impl HostStats {
@@ -30,7 +31,18 @@ impl HostStats {
             grad_accum: vec![0.0; n],
             denom: vec![0.0; n],
             max_radii: vec![0.0; n],
+            abs_accum: vec![0.0; n],
         }
+    }
+
+    /// [`HostStats::accumulate`] with the absolute-gradient statistic as well.
+    pub fn accumulate_with_abs(&mut self, view_grad_norm: &[f32], radii: &[f32], abs: &[f32]) {
+        for (i, &r) in radii.iter().enumerate() {
+            if r > 0.0 {
+                self.abs_accum[i] += abs[i];
+            }
+        }
+        self.accumulate(view_grad_norm, radii);
     }
 
     /// One view: visible (radius > 0) Gaussians add their norm, count the view, keep the max
@@ -78,6 +90,17 @@ pub fn decide(
     params: &GaussianParams,
     threshold_scale: Option<&[f32]>,
 ) -> Vec<u32> {
+    decide_with_abs(t, stats, params, threshold_scale, None)
+}
+
+/// [`decide`] with the absolute-gradient test at `abs_threshold` (when given).
+pub fn decide_with_abs(
+    t: &Thresholds,
+    stats: &HostStats,
+    params: &GaussianParams,
+    threshold_scale: Option<&[f32]>,
+    abs_threshold: Option<f32>,
+) -> Vec<u32> {
     (0..params.len())
         .map(|i| {
             let dn = stats.denom[i];
@@ -90,7 +113,9 @@ pub fn decide(
                 Some(s) => t.grad_threshold * s[i],
                 None => t.grad_threshold,
             };
-            let densify = stat >= thr;
+            let by_abs = abs_threshold
+                .is_some_and(|q| super::abs_quantile::average(stats.abs_accum[i], dn) >= q);
+            let densify = stat >= thr || by_abs;
             let s = params.log_scales[i];
             let ls = s[0].max(s[1]).max(s[2]);
             let clone = densify && ls <= t.log_clone_max;
@@ -115,7 +140,7 @@ pub fn decide(
             }
             // Written as the kernel does (a NaN statistic never densifies, so it is never `lowered`).
             let at_global = stat >= t.grad_threshold;
-            if (clone || split) && !at_global {
+            if (clone || split) && !at_global && !by_abs {
                 d |= DECIDE_LOWERED;
             }
             d
@@ -258,6 +283,7 @@ mod tests {
             grad_accum: vec![g * n],
             denom: vec![n],
             max_radii: vec![30.0],
+            abs_accum: vec![0.0],
         };
         let small = (0.005f32 * extent as f32).ln(); // below 0.01·extent
         let mid = (0.05f32 * extent as f32).ln(); // between 0.01 and 0.1·extent

@@ -27,6 +27,8 @@ pub struct GaussianPasses {
     constants: RenderConstants,
     /// Pixels each Gaussian contributed to this iteration (only for statistics that use them).
     pixel_count: Option<GpuBuffer<u32>>,
+    /// Each Gaussian's absolute-gradient statistic this iteration (with `density.abs_grad`).
+    abs_grad: Option<GpuBuffer<f32>>,
     /// Mip-Splatting's 3D filter (with `mip_filters`).
     filter: Option<SmoothingFilter>,
     /// The filter does not hold the current model's values (after density control).
@@ -57,6 +59,10 @@ impl GaussianPasses {
         if counts {
             backward = backward.with_pixel_counts(ctx)?;
         }
+        let abs = config.density.abs_grad;
+        if abs {
+            backward = backward.with_abs_grad(ctx)?;
+        }
         let filter = if config.mip_filters {
             Some(SmoothingFilter::new(ctx, cameras, train_views, capacity)?)
         } else {
@@ -69,6 +75,9 @@ impl GaussianPasses {
             constants: RenderConstants::for_mip(config.mip_filters),
             pixel_count: counts
                 .then(|| GpuBuffer::new(ctx, "pixel count", capacity, BufferKind::DeviceLocal))
+                .transpose()?,
+            abs_grad: abs
+                .then(|| GpuBuffer::new(ctx, "abs grad", capacity, BufferKind::DeviceLocal))
                 .transpose()?,
             filter,
             filter_stale: true,
@@ -139,6 +148,7 @@ impl GaussianPasses {
                 grads: g.grads,
                 view_grad_norm: g.view_grad_norm,
                 pixel_count: self.pixel_count.as_ref(),
+                abs_grad: self.abs_grad.as_ref(),
                 count: g.count,
                 sh_degree: f.sh_degree,
                 constants: self.constants,
@@ -205,6 +215,14 @@ impl ModelPasses for GaussianPasses {
                     BufferKind::DeviceLocal,
                 )?);
             }
+            if self.abs_grad.is_some() {
+                self.abs_grad = Some(GpuBuffer::new(
+                    &self.ctx,
+                    "abs grad",
+                    capacity,
+                    BufferKind::DeviceLocal,
+                )?);
+            }
             self.backward.reserve(&self.ctx, capacity)?;
         }
         let c = self.renderer.capacity();
@@ -260,6 +278,10 @@ impl ModelPasses for GaussianPasses {
 
     fn pixel_count(&self) -> Option<&GpuBuffer<u32>> {
         self.pixel_count.as_ref()
+    }
+
+    fn abs_grad(&self) -> Option<&GpuBuffer<f32>> {
+        self.abs_grad.as_ref()
     }
 
     fn record_backward(

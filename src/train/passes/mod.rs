@@ -82,6 +82,11 @@ pub trait ModelPasses: Send {
     fn projected(&self) -> &GpuBuffer<ProjectedGpu>;
     /// Pixels each Gaussian covered in the last backward, when the statistic needs them.
     fn pixel_count(&self) -> Option<&GpuBuffer<u32>>;
+    /// The absolute-gradient statistic of the last backward, when density control asks for
+    /// it (models that cannot give it refuse the setting when they are built).
+    fn abs_grad(&self) -> Option<&GpuBuffer<f32>> {
+        None
+    }
     fn record_backward(
         &mut self,
         ctx: &GpuContext,

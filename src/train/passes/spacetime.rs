@@ -430,6 +430,10 @@ impl ModelPasses for SpacetimePasses {
         self.inner.pixel_count()
     }
 
+    fn abs_grad(&self) -> Option<&GpuBuffer<f32>> {
+        self.inner.abs_grad()
+    }
+
     fn record_backward(
         &mut self,
         ctx: &GpuContext,
