@@ -7,6 +7,7 @@ use lpmsplat::render::layout::ProjectedGpu;
 use lpmsplat::splats::gpu::{grown_capacity, GpuSplats, SplatShape};
 use lpmsplat::splats::{ExtraGroup, ExtraValues, GaussianParams};
 use lpmsplat::train::adam::SplatState;
+use lpmsplat::train::density::abs_quantile::abs_grad_threshold;
 use lpmsplat::train::density::reference::{self, HostState, HostStats};
 use lpmsplat::train::density::rng::fold_seed;
 use lpmsplat::train::density::{
@@ -111,6 +112,7 @@ fn upload_stats(dc: &DensityControl, s: &HostStats) {
     dc.stats().grad_accum.upload(&s.grad_accum).unwrap();
     dc.stats().denom.upload(&s.denom).unwrap();
     dc.stats().max_radii.upload(&s.max_radii).unwrap();
+    dc.stats().abs_accum.upload(&s.abs_accum).unwrap();
 }
 
 /// Adds two extra groups (as a model with its own parameters has) of random values: every
@@ -361,6 +363,8 @@ fn random_steps_match_the_host_reference_and_grow_past_the_capacity() {
         upload_stats(&dc, &stats);
         let mut cfg_step = cfg;
         cfg_step.screen_size_limit = (step == 5).then_some(20.0);
+        // Every other step adds the absolute-gradient test (once with the LPM scale).
+        cfg_step.abs_grad = step % 2 == 0;
         dc.config = cfg_step;
         let args = DensifyArgs {
             extent: extent as f64,
@@ -383,7 +387,24 @@ fn random_steps_match_the_host_reference_and_grow_past_the_capacity() {
             .unwrap();
 
         let t = Thresholds::new(&cfg_step, &args).unwrap();
-        let d = reference::decide(&t, &stats, &host.params, scale.as_deref());
+        let q = cfg_step.abs_grad.then(|| {
+            abs_grad_threshold(
+                &stats.grad_accum,
+                &stats.denom,
+                &stats.abs_accum,
+                t.grad_threshold,
+            )
+        });
+        assert_eq!(dc.last_abs_threshold, q, "step {step}");
+        let d = reference::decide_with_abs(&t, &stats, &host.params, scale.as_deref(), q);
+        if q.is_some() {
+            let without = reference::decide(&t, &stats, &host.params, scale.as_deref());
+            let more = |d: &[u32]| d.iter().filter(|&&x| x & 6 != 0).count();
+            assert!(
+                more(&d) > more(&without),
+                "step {step}: the absolute-gradient test densified nothing more"
+            );
+        }
         assert_eq!(
             dc.decisions().read_range(0, count).unwrap(),
             d,
@@ -528,13 +549,20 @@ fn statistics_accumulate_only_visible_gaussians() {
     let ctx = ctx();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
     let n = 5_000;
-    let dc = DensityControl::new(&ctx, n + 10, DensityConfig::default()).unwrap();
+    // With the absolute-gradient statistic, which accumulates over the same views.
+    let cfg = DensityConfig {
+        abs_grad: true,
+        ..Default::default()
+    };
+    let dc = DensityControl::new(&ctx, n + 10, cfg).unwrap();
     let mut host = HostStats::zeros(n + 10);
     let norms = GpuBuffer::<f32>::new(&ctx, "norms", n, BufferKind::DeviceLocal).unwrap();
+    let abs = GpuBuffer::<f32>::new(&ctx, "abs", n, BufferKind::DeviceLocal).unwrap();
     let proj =
         GpuBuffer::<ProjectedGpu>::new(&ctx, "projected", n, BufferKind::DeviceLocal).unwrap();
     for view in 0..5 {
         let nv: Vec<f32> = (0..n).map(|_| rng.gen_range(0.0..1e-3)).collect();
+        let av: Vec<f32> = (0..n).map(|_| rng.gen_range(0.0..1e-2)).collect();
         let radii: Vec<f32> = (0..n)
             .map(|_| {
                 if rng.gen_bool(0.4) {
@@ -556,15 +584,26 @@ fn statistics_accumulate_only_visible_gaussians() {
             })
             .collect();
         norms.upload(&nv).unwrap();
+        abs.upload(&av).unwrap();
         proj.upload(&projected).unwrap();
         let mut rec = Recorder::new(&ctx).unwrap();
         // Count smaller than the buffers on one view: the rest must stay untouched.
         let count = if view == 2 { n - 100 } else { n };
-        dc.record_accumulate(&mut rec, &norms, &proj, None, None, 1.0, count)
+        dc.record_accumulate(&mut rec, &norms, &proj, None, Some(&abs), 1.0, count)
             .unwrap();
         rec.submit_and_wait().unwrap();
-        host.accumulate(&nv[..count], &radii[..count]);
+        host.accumulate_with_abs(&nv[..count], &radii[..count], &av[..count]);
     }
+    assert_eq!(
+        bits(&dc.stats().abs_accum.read().unwrap()),
+        bits(&host.abs_accum)
+    );
+    // The absolute gradients are required once the statistic is on.
+    let mut rec = Recorder::new(&ctx).unwrap();
+    let e = dc
+        .record_accumulate(&mut rec, &norms, &proj, None, None, 1.0, n)
+        .unwrap_err();
+    assert!(e.to_string().contains("abs_grad"), "{e}");
     assert_eq!(
         bits(&dc.stats().grad_accum.read().unwrap()),
         bits(&host.grad_accum)
@@ -575,7 +614,7 @@ fn statistics_accumulate_only_visible_gaussians() {
     // Too many Gaussians for the buffers is refused.
     let mut rec = Recorder::new(&ctx).unwrap();
     assert!(dc
-        .record_accumulate(&mut rec, &norms, &proj, None, None, 1.0, n + 1)
+        .record_accumulate(&mut rec, &norms, &proj, None, Some(&abs), 1.0, n + 1)
         .is_err());
     ctx.check_validation().unwrap();
 }

@@ -1096,3 +1096,93 @@ fn a_repeated_train_flag_takes_its_last_value() {
         serde_json::from_slice(&std::fs::read(out.join("config.json")).unwrap()).unwrap();
     assert_eq!(config["iterations"], 2);
 }
+
+/// `--densify-abs-grad` (Mip-Splatting's official densification): the run records it, its
+/// statistic densifies more Gaussians than the paper's rule on the same run, and it resumes
+/// from a checkpoint that carries the absolute-gradient sums; models with another statistic
+/// refuse it.
+#[test]
+fn cli_abs_grad_densification_densifies_more_and_resumes() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = data("lund_door_small");
+    let train = |out: &Path, extra: &[&str]| {
+        let o = lpmsplat()
+            .arg("train")
+            .arg(&scene)
+            .args(["-r", "2", "--model", "mip-splatting", "--sh-degree", "0"])
+            .args(["--iterations", "60", "--densify-from", "20"])
+            .args(["--densify-interval", "20", "-o"])
+            .arg(out)
+            .args(extra)
+            .output()
+            .unwrap();
+        (
+            o.status.success(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
+    };
+    let count = |out: &Path| -> u64 {
+        let m: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
+        m["gaussians"].as_u64().unwrap()
+    };
+    let (plain, abs) = (dir.path().join("plain"), dir.path().join("abs"));
+    let (ok, err) = train(&plain, &[]);
+    assert!(ok, "{err}");
+    let (ok, err) = train(&abs, &["--densify-abs-grad", "--checkpoint-every", "30"]);
+    assert!(ok, "{err}");
+    let config: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(abs.join("config.json")).unwrap()).unwrap();
+    assert_eq!(config["density"]["abs_grad"], true);
+    let plain_config: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(plain.join("config.json")).unwrap()).unwrap();
+    assert!(plain_config["density"].get("abs_grad").is_none());
+    let (a, p) = (count(&abs), count(&plain));
+    assert!(
+        a > p,
+        "absolute-gradient test: {a} Gaussians, paper's rule: {p}"
+    );
+    // The checkpoint holds the absolute-gradient sums of the run; resuming it continues.
+    let ck = Checkpoint::read(&abs.join("checkpoint.bin")).unwrap();
+    assert_eq!(ck.stats.len(), 4);
+    let resumed = dir.path().join("resumed");
+    std::fs::create_dir_all(&resumed).unwrap();
+    let (ok, err) = train(
+        &abs,
+        &[
+            "--densify-abs-grad",
+            "--iterations",
+            "80",
+            "--resume",
+            abs.join("checkpoint.bin").to_str().unwrap(),
+        ],
+    );
+    assert!(ok, "{err}");
+    assert_eq!(
+        Checkpoint::read(&abs.join("checkpoint.bin"))
+            .unwrap()
+            .iteration,
+        80
+    );
+    // Resuming without the flag is a different run: refused by the settings check.
+    let ck_path = abs.join("checkpoint.bin");
+    let (ok, err) = train(
+        &resumed,
+        &["--iterations", "90", "--resume", ck_path.to_str().unwrap()],
+    );
+    assert!(!ok && err.contains("abs_grad"), "{err}");
+    for model in ["pixel-gs", "2dgs"] {
+        let o = lpmsplat()
+            .arg("train")
+            .arg(&scene)
+            .args(["--model", model, "--densify-abs-grad", "-o"])
+            .arg(dir.path().join(model))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            !o.status.success() && err.contains("--densify-abs-grad") && err.contains("Fix:"),
+            "{err}"
+        );
+    }
+}

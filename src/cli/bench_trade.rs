@@ -98,6 +98,10 @@ pub struct TradeArgs {
     /// LPM runs: fraction of error pixels that keeps a block (as `train --lpm-block-fraction`).
     #[arg(long, default_value_t = 0.85)]
     pub lpm_block_fraction: f32,
+    /// Every run also densifies by the absolute-gradient test (as `train --densify-abs-grad`:
+    /// Mip-Splatting's official densification).
+    #[arg(long)]
+    pub densify_abs_grad: bool,
     /// The test view trade.html shows (name, file stem or index into the test views; default
     /// the first): the truth beside each run's final render and error map.
     #[arg(long)]
@@ -218,6 +222,21 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
     base.lr.position_max_steps = calendar;
     base.density.min_opacity = args.model.default_min_opacity();
     args.model.configure(&mut base);
+    if args.densify_abs_grad {
+        anyhow::ensure!(
+            matches!(
+                args.model,
+                BaseModel::Gaussians3d
+                    | BaseModel::MipSplatting
+                    | BaseModel::SpacetimeLite
+                    | BaseModel::SpacetimeFull
+            ),
+            "bench trade --densify-abs-grad with --model {}: the flag applies to 3dgs, \
+             mip-splatting and the spacetime models. Fix: drop it",
+            args.model.name()
+        );
+        base.density.abs_grad = true;
+    }
     if let Some(g) = base.spacetime.as_mut().and_then(|s| s.guided.as_mut()) {
         // SpacetimeGaussians' guided sampling on the same calendar (official 1600 and 100).
         g.from = scale(g.from);

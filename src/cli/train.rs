@@ -131,6 +131,12 @@ pub struct TrainArgs {
     /// reference's test never fires).
     #[arg(long)]
     pub screen_size_limit: Option<f32>,
+    /// Also densify by Gaussian Opacity Fields' absolute-gradient test, as Mip-Splatting's
+    /// official code does: a Gaussian whose averaged Σ|per-pixel mean gradient| reaches the
+    /// quantile that selects as many Gaussians as the usual test is densified too (off: the
+    /// papers' rule). 3dgs, mip-splatting and the spacetime models.
+    #[arg(long)]
+    pub densify_abs_grad: bool,
     /// spacetime-lite, spacetime-full: the temporal centre of clones and split children: random (uniform over
     /// the segment, the official rule) or parent.
     #[arg(long, value_parser = ChildTime::parse)]
@@ -444,6 +450,19 @@ impl TrainArgs {
             } else if let (Some(g), Some(from)) = (st.guided.as_mut(), self.guided_from) {
                 g.from = from;
             }
+        }
+        if self.densify_abs_grad {
+            anyhow::ensure!(
+                matches!(
+                    c.density.statistic,
+                    lpmsplat::train::density::Statistic::Gradient
+                ) && c.surfels.is_none(),
+                "--densify-abs-grad applies to the models densified by the mean gradient: 3dgs, \
+                 mip-splatting, spacetime-lite, spacetime-full (this run trains {}, whose \
+                 statistic it would not combine with). Fix: drop the flag",
+                self.model.name()
+            );
+            c.density.abs_grad = true;
         }
         if let Some(v) = &self.omega_freeze {
             let Some(st) = c.spacetime.as_mut() else {

@@ -1,7 +1,7 @@
 //! Training checkpoints: everything needed to continue a run exactly where it stopped.
 //!
-//! Binary, little-endian, versioned. Layout (format version 2; version 1, without the extra
-//! groups, is still read):
+//! Binary, little-endian, versioned. Layout (format version 3; version 1, without the extra
+//! groups, and 2, without the absolute-gradient statistic, are still read):
 //!
 //! ```text
 //! magic "LPMSCKPT"  u32 version
@@ -14,7 +14,8 @@
 //! parameters, Adam m, Adam v: 6 groups each (positions, log-scales, rotations, opacity
 //!              logits, SH DC, SH rest) then the extra groups, each u64 length then f32 data
 //!              (count × stride)
-//! density statistics grad_accum, denom, max_radii: u64 length then f32 data (count each)
+//! density statistics grad_accum, denom, max_radii, (version 3) abs_accum: u64 length then f32
+//!              data (count each)
 //! config: u64 length then the config's JSON (UTF-8)
 //! u64 FNV-1a hash of every byte before it
 //! ```
@@ -45,7 +46,7 @@ use crate::splats::gpu::{logical_group, GpuSplats, SplatShape};
 use crate::splats::{ExtraGroup, ExtraValues, GaussianParams};
 
 pub const MAGIC: &[u8; 8] = b"LPMSCKPT";
-pub const FORMAT_VERSION: u32 = 2;
+pub const FORMAT_VERSION: u32 = 3;
 
 /// What ties a checkpoint to a scene and a model layout.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -135,8 +136,9 @@ pub struct Checkpoint {
     /// Parameters, Adam m, Adam v: every group each (`GpuSplats::groups` order), `count ×
     /// stride` floats.
     pub sets: [Vec<Vec<f32>>; 3],
-    /// grad_accum, denom, max_radii (`count` floats each).
-    pub stats: [Vec<f32>; 3],
+    /// grad_accum, denom, max_radii, abs_accum (`count` floats each; abs_accum zeros when
+    /// read from a version before 3).
+    pub stats: [Vec<f32>; 4],
     pub config_json: String,
 }
 
@@ -299,12 +301,12 @@ impl Checkpoint {
             );
         }
         let version = u32::from_le_bytes(data[8..12].try_into().unwrap());
-        if version != FORMAT_VERSION && version != 1 {
+        if !(1..=FORMAT_VERSION).contains(&version) {
             return bad_input(
                 path,
                 "format version",
                 format!(
-                    "format version {version}; this build reads versions 1 and {FORMAT_VERSION}"
+                    "format version {version}; this build reads versions 1 to {FORMAT_VERSION}"
                 ),
                 "resume with the lpmsplat version that wrote it, or start a fresh run (its \
                  point_cloud.ply can seed one with --init-ply)",
@@ -374,10 +376,15 @@ impl Checkpoint {
                 sets[s].push(r.floats(&format!("{set_name}.{group}"), expect)?);
             }
         }
-        let mut stats: [Vec<f32>; 3] = Default::default();
+        let mut stats: [Vec<f32>; 4] = Default::default();
         for (k, name) in ["grad_accum", "denom", "max_radii"].iter().enumerate() {
             stats[k] = r.floats(&format!("density.{name}"), count as usize)?;
         }
+        stats[3] = if version >= 3 {
+            r.floats("density.abs_accum", count as usize)?
+        } else {
+            vec![0.0; count as usize]
+        };
         let config_json = r.string("config")?;
         if r.at != body.len() {
             return bad_input(
@@ -538,6 +545,7 @@ impl Trainer {
                 stats.grad_accum.read_range(0, n)?,
                 stats.denom.read_range(0, n)?,
                 stats.max_radii.read_range(0, n)?,
+                stats.abs_accum.read_range(0, n)?,
             ],
             config_json: {
                 let mut c = self.config.to_json();
@@ -723,6 +731,7 @@ impl Trainer {
         upload_stat(&stats.grad_accum, &ck.stats[0])?;
         upload_stat(&stats.denom, &ck.stats[1])?;
         upload_stat(&stats.max_radii, &ck.stats[2])?;
+        upload_stat(&stats.abs_accum, &ck.stats[3])?;
         t.iteration = ck.iteration;
         t.resumed_strategy = saved_strategy;
         t.adam_step = ck.adam_step;

@@ -157,6 +157,10 @@ impl TrainConfig {
                 });
             }
         }
+        // Only when on, so checkpoints from before the key still resume.
+        if d.abs_grad {
+            j["density"]["abs_grad"] = serde_json::json!(true);
+        }
         // Only when not the 3DGS default, so checkpoints from before the key still resume.
         if let Statistic::PixelWeighted { depth_threshold } = d.statistic {
             j["density"]["statistic"] = serde_json::json!({
