@@ -302,3 +302,57 @@ fn bench_fps_reports_each_count_as_json() {
         );
     }
 }
+
+#[test]
+fn bench_trade_compares_the_absolute_gradient_test_side_by_side() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("abs");
+    let (ok, text) = output(
+        lpmsplat()
+            .args(["bench", "trade"])
+            .arg(data("lund_door_small"))
+            .args(["-r", "8", "--iterations", "120", "--fps-frames", "1"])
+            .args(["--calendar", "600", "--runs", "adc-abs-grad,adc", "-o"])
+            .arg(&out),
+    );
+    assert!(ok, "{text}");
+    let json = trade_json(&out);
+    let last: Vec<(&str, u64, f64)> = json["runs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        // Density control runs every 100 iterations whatever the calendar: one step by 120.
+        .filter(|r| r["iteration"] == 120)
+        .map(|r| {
+            (
+                r["run"].as_str().unwrap(),
+                r["gaussians"].as_u64().unwrap(),
+                r["lpm_share"].as_f64().unwrap(),
+            )
+        })
+        .collect();
+    assert_eq!(
+        last.iter().map(|r| r.0).collect::<Vec<_>>(),
+        ["adc", "adc-abs-grad"]
+    );
+    assert!(
+        last[1].1 > last[0].1,
+        "the abs test densified no more: {last:?}"
+    );
+    assert_eq!(last[1].2, 0.0, "adc-abs-grad is not an LPM run");
+    // Models with another statistic refuse it before anything is written.
+    let refused = dir.path().join("pixel");
+    let (ok, text) = output(
+        lpmsplat()
+            .args(["bench", "trade"])
+            .arg(data("lund_door_small"))
+            .args(["-r", "8", "--iterations", "5", "--model", "pixel-gs"])
+            .args(["--runs", "adc-abs-grad", "-o"])
+            .arg(&refused),
+    );
+    assert!(
+        !ok && text.contains("absolute-gradient") && text.contains("Fix:"),
+        "{text}"
+    );
+    assert!(!refused.join("trade.json").exists());
+}

@@ -80,7 +80,8 @@ pub struct TradeArgs {
     pub fps_frames: usize,
     /// The runs to compare, comma separated, in table order: adc, adc-threshold-1e-4, adc+lpm,
     /// lpm-no-add, lpm-no-reset, lpm-authors (the authors' rules), lpm-sphere (the paper's
-    /// cone-intersection zone) (aliases: adc-1e-4, lpm). Default: the first five.
+    /// cone-intersection zone), adc-abs-grad (with the absolute-gradient test) (aliases:
+    /// adc-1e-4, lpm). Default: the first five.
     #[arg(long, value_delimiter = ',')]
     pub runs: Vec<String>,
     /// Run the variants one after another instead of interleaving their iterations. Interleaving
@@ -144,7 +145,7 @@ pub struct TradeRow {
     pub model_events: Vec<serde_json::Value>,
 }
 
-pub const RUNS: [(&str, [u8; 3]); 7] = [
+pub const RUNS: [(&str, [u8; 3]); 8] = [
     ("adc", [40, 40, 40]),
     ("adc-threshold-1e-4", [200, 120, 0]),
     ("adc+lpm", [220, 30, 30]),
@@ -154,6 +155,8 @@ pub const RUNS: [(&str, [u8; 3]); 7] = [
     ("lpm-authors", [150, 60, 200]),
     // Our rules with the paper's cone-intersection sphere instead of the triangulated zone.
     ("lpm-sphere", [120, 90, 40]),
+    // ADC with the absolute-gradient test as well (`train --densify-abs-grad`).
+    ("adc-abs-grad", [90, 90, 90]),
 ];
 
 pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
@@ -223,18 +226,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
     base.density.min_opacity = args.model.default_min_opacity();
     args.model.configure(&mut base);
     if args.densify_abs_grad {
-        anyhow::ensure!(
-            matches!(
-                args.model,
-                BaseModel::Gaussians3d
-                    | BaseModel::MipSplatting
-                    | BaseModel::SpacetimeLite
-                    | BaseModel::SpacetimeFull
-            ),
-            "bench trade --densify-abs-grad with --model {}: the flag applies to 3dgs, \
-             mip-splatting and the spacetime models. Fix: drop it",
-            args.model.name()
-        );
+        abs_grad_applies(args.model)?;
         base.density.abs_grad = true;
     }
     if let Some(g) = base.spacetime.as_mut().and_then(|s| s.guided.as_mut()) {
@@ -276,7 +268,11 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
             if name == "adc-threshold-1e-4" {
                 cfg.density.grad_threshold = 1e-4;
             }
-            let lpm = (k >= 2).then(|| {
+            if name == "adc-abs-grad" {
+                abs_grad_applies(args.model)?;
+                cfg.density.abs_grad = true;
+            }
+            let lpm = name.contains("lpm").then(|| {
                 let mut c = if name == "lpm-authors" {
                     LpmConfig::authors()
                 } else {
@@ -474,6 +470,23 @@ struct Run {
 }
 
 /// Indices into [`RUNS`] for the `--runs` list (all when empty), in table order.
+/// The absolute-gradient test needs the mean-gradient statistic of a Gaussian model.
+fn abs_grad_applies(model: BaseModel) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        matches!(
+            model,
+            BaseModel::Gaussians3d
+                | BaseModel::MipSplatting
+                | BaseModel::SpacetimeLite
+                | BaseModel::SpacetimeFull
+        ),
+        "bench trade: the absolute-gradient test (--densify-abs-grad, run adc-abs-grad) with \
+         --model {}: it applies to 3dgs, mip-splatting and the spacetime models. Fix: drop it",
+        model.name()
+    );
+    Ok(())
+}
+
 pub fn selected_runs(names: &[String]) -> anyhow::Result<Vec<usize>> {
     if names.is_empty() {
         return Ok((0..5).collect());
