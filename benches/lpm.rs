@@ -99,6 +99,7 @@ fn main() -> anyhow::Result<()> {
                     &opacity,
                     n as u32,
                     &OpacityResetSettings::default(),
+                    None,
                 )?;
                 rec.timestamp(&mut pool, "reset");
                 rec.submit_and_wait()?;

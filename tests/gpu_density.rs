@@ -985,6 +985,7 @@ fn added_gaussians_carry_the_models_extra_groups() {
             raw_colour: false,
             new_extras: extras,
             moving: None,
+            opacity_filter: None,
         };
         append_gaussians(&mut t, &rows)
     };

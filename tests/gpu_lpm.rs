@@ -5,7 +5,7 @@
 use lpmsplat::gpu::{BufferKind, GpuBuffer, GpuContext, GpuOptions, Recorder};
 use lpmsplat::lpm::enclosing_sphere::Sphere;
 use lpmsplat::lpm::gpu::{
-    block_grid, error_block_counts, unpack_ground_truth, ErrorImages, LpmGpu,
+    block_grid, error_block_counts, unpack_ground_truth, ErrorImages, FilteredOpacity, LpmGpu,
 };
 use lpmsplat::lpm::membership::{
     apply_opacity_reset, membership, OpacityResetSettings, ZoneTest, FLAG_INSIDE, FLAG_IN_BALL,
@@ -280,7 +280,7 @@ fn run_reset(
     let fb = GpuBuffer::from_slice(ctx, "flags", flags).unwrap();
     let lb = GpuBuffer::from_slice(ctx, "logits", logits).unwrap();
     let mut rec = Recorder::new(ctx).unwrap();
-    lpm.record_opacity_reset(&mut rec, &fb, &lb, count as u32, s)
+    lpm.record_opacity_reset(&mut rec, &fb, &lb, count as u32, s, None)
         .unwrap();
     rec.submit_and_wait().unwrap();
     lb.read().unwrap()
@@ -378,7 +378,7 @@ fn membership_then_reset_in_one_submission() {
     let (nn, nz) = (n as u32, zones.len() as u32);
     lpm.record_membership(&mut rec, &pos, nn, &zbuf, nz, &flags, &counts)
         .unwrap();
-    lpm.record_opacity_reset(&mut rec, &flags, &lb, nn, &s)
+    lpm.record_opacity_reset(&mut rec, &flags, &lb, nn, &s, None)
         .unwrap();
     rec.submit_and_wait().unwrap();
     assert_eq!(counts.read().unwrap(), cpu.inside_counts);
@@ -596,10 +596,10 @@ fn bad_inputs_are_errors() {
         ..Default::default()
     };
     assert!(lpm
-        .record_opacity_reset(&mut rec, &flags, &small, 10, &bad)
+        .record_opacity_reset(&mut rec, &flags, &small, 10, &bad, None)
         .is_err());
     assert!(lpm
-        .record_opacity_reset(&mut rec, &flags, &small, 11, &Default::default())
+        .record_opacity_reset(&mut rec, &flags, &small, 11, &Default::default(), None)
         .is_err());
     rec.submit_and_wait().unwrap();
     ctx.check_validation().unwrap();
@@ -724,5 +724,93 @@ fn absent_gaussians_are_in_no_zone() {
     for bit in [FLAG_INSIDE, FLAG_IN_FRONT, FLAG_IN_BALL] {
         assert!(cpu.flags.iter().any(|f| f & bit != 0), "flag {bit}");
     }
+    ctx.check_validation().unwrap();
+}
+
+/// Mip-Splatting's filter-aware LPM reset: the ranking is the CPU reset's on the drawn
+/// (effective) logits, the reset Gaussians then draw at the reset opacity, and every other
+/// stored logit is untouched.
+#[test]
+fn filtered_opacity_reset_ranks_and_caps_the_drawn_opacity() {
+    let ctx = ctx();
+    let lpm = LpmGpu::new(&ctx, 1).unwrap();
+    let mut rng = Pcg64::seed_from_u64(2024);
+    let s = OpacityResetSettings::default();
+    let n = 20_011;
+    let flags: Vec<u32> = (0..n)
+        .map(|_| {
+            ((rng.gen_bool(0.3) as u32) * FLAG_INSIDE)
+                | ((rng.gen_bool(0.4) as u32) * FLAG_IN_FRONT)
+        })
+        .collect();
+    let logits: Vec<f32> = (0..n).map(|_| rng.gen_range(-6.0..8.0)).collect();
+    let log_scales: Vec<f32> = (0..3 * n).map(|_| rng.gen_range(-6.0f32..-1.0)).collect();
+    // Filters from negligible to dominant (ρ from ~1 down to ~1e-6).
+    let filter: Vec<f32> = (0..n)
+        .map(|_| 10f32.powf(rng.gen_range(-4.0..0.0)))
+        .collect();
+    let rho = |i: usize| -> f64 {
+        let f2 = (filter[i] as f64).powi(2);
+        (0..3)
+            .map(|k| {
+                let s2 = (log_scales[3 * i + k] as f64).exp().powi(2);
+                s2 / (s2 + f2)
+            })
+            .product::<f64>()
+            .sqrt()
+    };
+    let sigmoid = |x: f64| 1.0 / (1.0 + (-x).exp());
+    let fb = GpuBuffer::from_slice(&ctx, "flags", &flags).unwrap();
+    let lb = GpuBuffer::from_slice(&ctx, "logits", &logits).unwrap();
+    let sb = GpuBuffer::from_slice(&ctx, "log scales", &log_scales).unwrap();
+    let filt = GpuBuffer::from_slice(&ctx, "filter3d", &filter).unwrap();
+    let eff = GpuBuffer::from_slice(&ctx, "effective", &vec![f32::NAN; n]).unwrap();
+    let mut rec = Recorder::new(&ctx).unwrap();
+    let filtered = FilteredOpacity {
+        filter3d: &filt,
+        log_scales: &sb,
+        effective: &eff,
+    };
+    lpm.record_opacity_reset(&mut rec, &fb, &lb, n as u32, &s, Some(&filtered))
+        .unwrap();
+    rec.submit_and_wait().unwrap();
+    let got = lb.read().unwrap();
+    let effective = eff.read().unwrap();
+    let gpu_stats = lpm.read_opacity_reset_stats().unwrap();
+    // The GPU's effective logits are the formula's.
+    for i in 0..n {
+        let p = rho(i) * sigmoid(logits[i] as f64);
+        let want = (p / (1.0 - p)).ln();
+        assert!(
+            (effective[i] as f64 - want).abs() <= 1e-4 * want.abs().max(1.0),
+            "effective logit {i}: {} vs {want}",
+            effective[i]
+        );
+    }
+    // The ranking: the CPU reset run on those effective logits.
+    let mut chosen = effective.clone();
+    let stats = apply_opacity_reset(&mut chosen, &flags, &s).unwrap();
+    assert_eq!(gpu_stats, stats);
+    assert!(stats.reset > 100, "{stats:?}");
+    let target = sigmoid(s.reset_logit().unwrap() as f64);
+    let mut capped = 0;
+    for i in 0..n {
+        if chosen[i].to_bits() == effective[i].to_bits() {
+            assert_eq!(got[i].to_bits(), logits[i].to_bits(), "logit {i} moved");
+            continue;
+        }
+        let stored = sigmoid(got[i] as f64);
+        if target / rho(i) >= 1.0 - 1e-6 {
+            capped += 1;
+            assert!(stored > 0.999, "{i}: capped at {stored}");
+        } else {
+            let drawn = stored * rho(i);
+            assert!(
+                (drawn - target).abs() <= 1e-4 * target,
+                "{i}: draws {drawn}, not {target}"
+            );
+        }
+    }
+    eprintln!("{stats:?}, {capped} capped at the sigmoid's ceiling");
     ctx.check_validation().unwrap();
 }

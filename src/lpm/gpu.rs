@@ -74,6 +74,16 @@ struct PickPush {
 struct ResetPush {
     count: u32,
     reset_logit: f32,
+    filtered: u32,
+}
+
+/// Mip-Splatting's 3D filter, for an opacity reset on the drawn opacity σ(x)·ρ: the filter's
+/// values and the Gaussians' log-scales (for ρ), and a scratch of at least `count` floats for
+/// the effective logits.
+pub struct FilteredOpacity<'a> {
+    pub filter3d: &'a GpuBuffer<f32>,
+    pub log_scales: &'a GpuBuffer<f32>,
+    pub effective: &'a GpuBuffer<f32>,
 }
 
 #[repr(C)]
@@ -143,6 +153,7 @@ pub struct LpmGpu {
     select_histogram: ComputePipeline,
     select_pick: ComputePipeline,
     opacity_reset: ComputePipeline,
+    effective_logits: ComputePipeline,
     error_sums: ComputePipeline,
     error_mean: ComputePipeline,
     error_map: ComputePipeline,
@@ -192,8 +203,15 @@ impl LpmGpu {
             opacity_reset: pipe(
                 "lpm/opacity_reset",
                 shaders::LPM_OPACITY_RESET,
-                3,
+                6,
                 size_of::<ResetPush>(),
+                &[],
+            )?,
+            effective_logits: pipe(
+                "lpm/effective_logits",
+                shaders::LPM_EFFECTIVE_LOGITS,
+                4,
+                size_of::<u32>(),
                 &[],
             )?,
             error_sums: pipe(
@@ -339,7 +357,8 @@ impl LpmGpu {
     /// Records the LPM opacity reset over the first `count` Gaussians, given the flags of
     /// [`Self::record_membership`]: the threshold is selected among the logits of the Gaussians
     /// with `s.threshold_set` (`FLAG_INSIDE` or `FLAG_IN_BALL`), and every `FLAG_IN_FRONT` Gaussian at or above it gets
-    /// `logit(s.opacity)` (see [`OpacityResetSettings`]). Read the outcome with
+    /// `logit(s.opacity)` (see [`OpacityResetSettings`]). With `filtered` (Mip-Splatting) both
+    /// the ranking and the reset act on the drawn opacity σ(x)·ρ. Read the outcome with
     /// [`Self::read_opacity_reset_stats`] after the submission has completed.
     pub fn record_opacity_reset(
         &self,
@@ -348,6 +367,7 @@ impl LpmGpu {
         opacity_logits: &GpuBuffer<f32>,
         count: u32,
         s: &OpacityResetSettings,
+        filtered: Option<&FilteredOpacity>,
     ) -> anyhow::Result<()> {
         anyhow::ensure!(
             flags.len() >= count as usize && opacity_logits.len() >= count as usize,
@@ -356,13 +376,33 @@ impl LpmGpu {
             flags.len(),
             opacity_logits.len()
         );
+        if let Some(f) = filtered {
+            let n = count as usize;
+            anyhow::ensure!(
+                f.filter3d.len() >= n && f.log_scales.len() >= 3 * n && f.effective.len() >= n,
+                "LPM opacity reset: {count} Gaussians, but {} filter values, {} log-scale \
+                 floats and {} scratch floats",
+                f.filter3d.len(),
+                f.log_scales.len(),
+                f.effective.len()
+            );
+        }
         let top_num = s.top_basis_points()?;
         let reset_logit = s.reset_logit()?;
         rec.barrier();
+        if let Some(f) = filtered {
+            rec.dispatch(
+                &self.effective_logits,
+                &[opacity_logits, f.log_scales, f.filter3d, f.effective],
+                &count,
+                self.ctx.groups_1d(count as u64, WG),
+            );
+            rec.barrier();
+        }
         self.record_selection(
             rec,
             &self.opacity_select,
-            opacity_logits,
+            filtered.map_or(opacity_logits, |f| f.effective),
             flags,
             count,
             s.threshold_set,
@@ -380,8 +420,19 @@ impl LpmGpu {
         );
         rec.dispatch(
             &self.opacity_reset,
-            &[flags, opacity_logits, &self.opacity_select.state],
-            &ResetPush { count, reset_logit },
+            &[
+                flags,
+                opacity_logits,
+                &self.opacity_select.state,
+                filtered.map_or(opacity_logits, |f| f.effective),
+                filtered.map_or(opacity_logits, |f| f.log_scales),
+                filtered.map_or(opacity_logits, |f| f.filter3d),
+            ],
+            &ResetPush {
+                count,
+                reset_logit,
+                filtered: filtered.is_some() as u32,
+            },
             self.ctx.groups_1d(count as u64, WG),
         );
         rec.barrier();

@@ -32,7 +32,7 @@ use anyhow::Context;
 use rand::SeedableRng;
 
 use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext};
-use crate::lpm::gpu::{block_grid, ErrorImages, LpmGpu};
+use crate::lpm::gpu::{block_grid, ErrorImages, FilteredOpacity, LpmGpu};
 use crate::lpm::membership::{OpacityResetSettings, FLAG_IN_BALL};
 use crate::lpm::{
     regions, zones_for_step, ConeRadius, Correspondences, MatchSettings, RegionSettings,
@@ -663,13 +663,26 @@ impl LpmStrategy {
 
     /// Records the LPM opacity reset of the current Gaussians from the flags of the last
     /// membership pass.
+    /// Under Mip-Splatting's 3D filter the reset ranks and caps the drawn opacities (the filter
+    /// is recomputed first: the density step may have moved every Gaussian).
     fn record_reset(&self, t: &mut DensityContext) -> anyhow::Result<()> {
+        let count = t.state.count();
+        let filter3d = match &t.opacity_filter {
+            Some(f) => Some(f.record_fresh(t.rec, &t.state.params.positions, count)?),
+            None => None,
+        };
+        let filtered = filter3d.map(|filter3d| FilteredOpacity {
+            filter3d,
+            log_scales: &t.state.params.log_scales,
+            effective: &self.scale,
+        });
         self.gpu.record_opacity_reset(
             t.rec,
             &self.flags,
             &t.state.params.opacity_logits,
-            t.state.count() as u32,
+            count as u32,
             &self.config.reset_settings,
+            filtered.as_ref(),
         )
     }
 

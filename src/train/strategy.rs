@@ -21,6 +21,8 @@ use std::sync::Arc;
 use super::adam::SplatState;
 use super::density::{DensifyArgs, DensifyOutcome, DensityControl};
 use crate::gpu::{GpuBuffer, GpuContext, Recorder};
+use crate::render::filter3d::SmoothingFilter;
+use crate::render::layout::CameraGpu;
 use crate::splats::gpu::GpuSplats;
 
 /// What a strategy reports for one iteration (telemetry; typed access through `as_any`).
@@ -90,6 +92,30 @@ pub struct DensityContext<'a> {
     /// The model's centres at the frame's time, when its Gaussians move; `None`: the stored
     /// positions are where they are.
     pub moving: Option<&'a dyn FramePositions>,
+    /// Mip-Splatting's 3D filter, when the renderer multiplies every opacity by its ρ: a
+    /// strategy that sets opacities acts on the drawn ones through it.
+    pub opacity_filter: Option<OpacityFilter<'a>>,
+}
+
+/// The model's 3D smoothing filter and the cameras it is computed from.
+pub struct OpacityFilter<'a> {
+    pub filter: &'a SmoothingFilter,
+    pub cameras: &'a GpuBuffer<CameraGpu>,
+}
+
+impl OpacityFilter<'_> {
+    /// Records the filter of the first `count` Gaussians at `positions` (the state as it is
+    /// now, after any density step) and returns its values, valid once the work has run.
+    pub fn record_fresh(
+        &self,
+        rec: &mut Recorder,
+        positions: &GpuBuffer<f32>,
+        count: usize,
+    ) -> anyhow::Result<&GpuBuffer<f32>> {
+        self.filter
+            .record_update(rec, positions, self.cameras, count)?;
+        Ok(self.filter.values())
+    }
 }
 
 /// The iteration's inputs a strategy may use.

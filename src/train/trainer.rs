@@ -34,7 +34,8 @@ use super::loss::{Loss, LOSS_SLOT_FLOATS};
 use super::passes::{self, FrameArgs, GradArgs, ModelPasses};
 use super::schedule::sh_degree_at;
 use super::strategy::{
-    Adc, DensityContext, DensityStrategy, IterationView, ModelRule, StepSeen, StrategyEvent,
+    Adc, DensityContext, DensityStrategy, IterationView, ModelRule, OpacityFilter, StepSeen,
+    StrategyEvent,
 };
 use crate::gpu::{BufferKind, GpuBuffer, GpuContext, Recorder, StageTimes, TimestampPool};
 use crate::render::forward::Capacity;
@@ -776,6 +777,10 @@ impl Trainer {
             raw_colour: self.passes.raw_colour(),
             new_extras: self.passes.new_gaussian_extras(),
             moving: self.passes.frame_positions(),
+            opacity_filter: self.passes.smoothing_filter().map(|filter| OpacityFilter {
+                filter,
+                cameras: &self.cameras,
+            }),
         })
     }
 

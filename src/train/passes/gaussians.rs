@@ -284,6 +284,10 @@ impl ModelPasses for GaussianPasses {
         self.abs_grad.as_ref()
     }
 
+    fn smoothing_filter(&self) -> Option<&crate::render::filter3d::SmoothingFilter> {
+        self.filter.as_ref()
+    }
+
     fn record_backward(
         &mut self,
         ctx: &GpuContext,

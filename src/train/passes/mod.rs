@@ -87,6 +87,10 @@ pub trait ModelPasses: Send {
     fn abs_grad(&self) -> Option<&GpuBuffer<f32>> {
         None
     }
+    /// Mip-Splatting's 3D filter, when the model's renders multiply opacities by its ρ.
+    fn smoothing_filter(&self) -> Option<&crate::render::filter3d::SmoothingFilter> {
+        None
+    }
     fn record_backward(
         &mut self,
         ctx: &GpuContext,
