@@ -101,57 +101,34 @@ layout(push_constant) uniform Push {
     uint camera_index;
 } pc;
 
-void atomic_add_float(uint idx, float v) {
+// Adds v to FLOATS[idx] (seen as BITS[idx] for the compare-and-swap path): the native float
+// atomicAdd where the device has it and USE_FLOAT_ATOMICS asks for it, else a lock-free loop
+// (every failed exchange means another invocation's add succeeded, so it never waits on a
+// workgroup that might not be scheduled). One definition for the three outputs below.
 #if HAS_FLOAT_ATOMICS
-    if (USE_FLOAT_ATOMICS != 0u) {
-        atomicAdd(grad2d_f[idx], v);
-        return;
-    }
+#define FLOAT_ATOMIC_ADD(FLOATS, BITS, idx, v)                                        \
+    if (USE_FLOAT_ATOMICS != 0u) {                                                    \
+        atomicAdd(FLOATS[idx], v);                                                    \
+        return;                                                                       \
+    }                                                                                 \
+    CAS_ADD(BITS, idx, v)
+#else
+#define FLOAT_ATOMIC_ADD(FLOATS, BITS, idx, v) CAS_ADD(BITS, idx, v)
 #endif
-    // Lock-free: every failed exchange means another invocation's add succeeded, so the loop
-    // never waits on a workgroup that might not be scheduled.
-    uint old = grad2d_bits[idx];
-    for (;;) {
-        uint assumed = old;
-        old = atomicCompSwap(grad2d_bits[idx], assumed,
-                             floatBitsToUint(uintBitsToFloat(assumed) + v));
-        if (old == assumed) break;
+#define CAS_ADD(BITS, idx, v)                                                         \
+    uint old = BITS[idx];                                                             \
+    for (;;) {                                                                        \
+        uint assumed = old;                                                           \
+        old = atomicCompSwap(BITS[idx], assumed,                                      \
+                             floatBitsToUint(uintBitsToFloat(assumed) + v));          \
+        if (old == assumed) break;                                                    \
     }
-}
 
-// atomic_add_float on g_features (binding 11).
+void atomic_add_float(uint idx, float v) { FLOAT_ATOMIC_ADD(grad2d_f, grad2d_bits, idx, v) }
 void atomic_add_feature(uint idx, float v) {
-#if HAS_FLOAT_ATOMICS
-    if (USE_FLOAT_ATOMICS != 0u) {
-        atomicAdd(g_features_f[idx], v);
-        return;
-    }
-#endif
-    uint old = g_features_bits[idx];
-    for (;;) {
-        uint assumed = old;
-        old = atomicCompSwap(g_features_bits[idx], assumed,
-                             floatBitsToUint(uintBitsToFloat(assumed) + v));
-        if (old == assumed) break;
-    }
+    FLOAT_ATOMIC_ADD(g_features_f, g_features_bits, idx, v)
 }
-
-// atomic_add_float on abs_grad (binding 12).
-void atomic_add_abs(uint idx, float v) {
-#if HAS_FLOAT_ATOMICS
-    if (USE_FLOAT_ATOMICS != 0u) {
-        atomicAdd(abs_grad_f[idx], v);
-        return;
-    }
-#endif
-    uint old = abs_grad_bits[idx];
-    for (;;) {
-        uint assumed = old;
-        old = atomicCompSwap(abs_grad_bits[idx], assumed,
-                             floatBitsToUint(uintBitsToFloat(assumed) + v));
-        if (old == assumed) break;
-    }
-}
+void atomic_add_abs(uint idx, float v) { FLOAT_ATOMIC_ADD(abs_grad_f, abs_grad_bits, idx, v) }
 
 // Splats per batch: every invocation stages one, and the per-subgroup sums of a batch must fit
 // in s_acc (ACC_FLOATS / (subgroups · ACC_STRIDE) splats).
