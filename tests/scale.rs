@@ -234,4 +234,14 @@ fn running_out_of_device_memory_mid_run_saves_a_checkpoint_that_resumes() {
         "{err}"
     );
     assert!(!fresh.join("checkpoint.bin").exists());
+    // A limit of nothing is a mistake, said as such.
+    let o = bin()
+        .args(["--memory-limit", "0", "info"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("--memory-limit 0"),
+        "{err}"
+    );
 }

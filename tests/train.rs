@@ -1186,3 +1186,44 @@ fn cli_abs_grad_densification_densifies_more_and_resumes() {
         );
     }
 }
+
+/// Checkpoints of format 2 (before the absolute-gradient statistic) are still read, with that
+/// statistic at zero; format 3 round-trips it.
+#[test]
+fn format_2_checkpoints_still_resume() {
+    let ctx = ctx();
+    let scene = lego();
+    let images = images::load_images(&scene, &scene.train).unwrap();
+    let init = ground_truth_model(43, 120);
+    let mut t = Trainer::new(&ctx, &scene, &images, &init, fixed_config(5)).unwrap();
+    t.step().unwrap();
+    let mut ck = t.checkpoint(&scene).unwrap();
+    let n = ck.count as usize;
+    ck.stats[3] = (0..n).map(|i| i as f32 * 0.25).collect();
+    let v3 = ck.to_bytes();
+    let back = Checkpoint::from_bytes(Path::new("v3"), &v3).unwrap();
+    assert_eq!(back.stats[3], ck.stats[3]);
+    // Format 2: the same bytes without the abs_accum array (u64 length, n floats), version 2,
+    // and the hash (64-bit FNV-1a of everything before it) recomputed.
+    let config_len = ck.config_json.len();
+    let abs_at = v3.len() - 8 - (8 + config_len) - (8 + 4 * n);
+    let mut v2 = v3[..abs_at].to_vec();
+    v2.extend_from_slice(&v3[abs_at + 8 + 4 * n..v3.len() - 8]);
+    v2[8..12].copy_from_slice(&2u32.to_le_bytes());
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    for &b in &v2 {
+        h ^= b as u64;
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    v2.extend_from_slice(&h.to_le_bytes());
+    let old = Checkpoint::from_bytes(Path::new("v2"), &v2).unwrap();
+    assert_eq!(old.stats[..3], ck.stats[..3]);
+    assert!(old.stats[3].iter().all(|&v| v == 0.0) && old.stats[3].len() == n);
+    assert_eq!(old.sets, ck.sets);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("v2.bin");
+    std::fs::write(&path, &v2).unwrap();
+    let r = Trainer::resume(&ctx, &scene, &images, fixed_config(5), &path).unwrap();
+    assert_eq!(r.iteration, 1);
+    ctx.check_validation().unwrap();
+}
