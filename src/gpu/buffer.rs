@@ -112,8 +112,15 @@ impl<T: Pod> GpuBuffer<T> {
                 .into());
             }
         };
-        unsafe { device.bind_buffer_memory(buffer, allocation.memory(), allocation.offset()) }
-            .with_context(|| format!("binding memory of '{name}'"))?;
+        if let Err(e) =
+            unsafe { device.bind_buffer_memory(buffer, allocation.memory(), allocation.offset()) }
+        {
+            // Nothing of the failed buffer stays allocated or booked.
+            unsafe { device.destroy_buffer(buffer, None) };
+            let _ = ctx.allocator.lock().map(|mut al| al.free(allocation));
+            ctx.memory.release(booked);
+            return Err(e).with_context(|| format!("binding memory of '{name}'"));
+        }
         Ok(Self {
             ctx: ctx.clone(),
             buffer,
