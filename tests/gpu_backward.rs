@@ -402,10 +402,16 @@ fn check_scene(ctx: &Arc<GpuContext>, label: &str, s: &Scene) {
         }
         check_against_reference(&format!("{label} ({mode:?})"), s, &got, &want);
     }
-    // The other pixels-per-invocation layouts (1 is what GPUs run).
-    // With Pixel-GS's pixel counting and / or the absolute gradient on: the same gradients,
-    // and the counts and absolute gradients.
-    for (pixels, count_pixels, abs_grad) in [(1, true, false), (4, true, true), (1, false, true)] {
+    // The other pixels-per-invocation layouts (1 is what GPUs run, with the sums through shared
+    // memory; more pixels sum per subgroup straight into global memory, see
+    // rasterize_backward.glsl). With Pixel-GS's pixel counting and / or the absolute gradient
+    // on: the same gradients, and the counts and absolute gradients.
+    for (pixels, count_pixels, abs_grad) in [
+        (1, true, false),
+        (4, true, true),
+        (1, false, true),
+        (16, true, false),
+    ] {
         let variant = RasterVariant {
             count_pixels,
             abs_grad,

@@ -1,16 +1,16 @@
 // Rasterizer backward (shared body of rasterize_backward.comp and rasterize_backward_cas.comp).
 //
-// One workgroup per 16×16 tile; each invocation owns PIXELS pixels of it (tile_pixel). Every pixel walks its tile's
-// sorted list back to front, from its `last_index` (the forward's last contributor + 1) down to
-// entry 0, so all pixels of the workgroup visit the same splat at the same time: the splats are
-// staged in shared memory a batch at a time. Per splat, an invocation sums the gradients of its
-// pixels, the subgroup sums those (subgroupAdd) into shared memory, and after the batch one
-// invocation per splat adds the subgroups' sums to global memory: nine atomics per (tile,
-// splat) pair, whether or not a pixel was touched.
+// One workgroup per 16×16 tile; each invocation owns PIXELS pixels of it (tile_pixel). Every
+// pixel walks its tile's sorted list back to front, from its `last_index` (the forward's last
+// contributor + 1) down to entry 0, so all pixels of the workgroup visit the same splat at the
+// same time: the splats are staged in shared memory a batch at a time, and each subgroup visits
+// those whose reach meets its pixels. Per splat, an invocation sums the gradients of its pixels
+// (visit), and the subgroup's sums reach global memory one of two ways (SUBGROUP_ATOMICS,
+// below).
 //
 // Why several pixels per invocation: on a CPU driver (lavapipe) a subgroup is one SIMD loop
-// iteration and `if` only masks lanes, so the per-splat reduction, shared loads and atomics cost
-// the same whether a pixel was hit or not; PIXELS = 16 divides that fixed cost by 16. GPUs use
+// iteration and `if` only masks lanes, so the per-splat reduction, loads and atomics cost the
+// same whether a pixel was hit or not; PIXELS = 8 divides that fixed cost by 8. GPUs use
 // PIXELS = 1 (one invocation per pixel, the usual occupancy).
 //
 // Per splat the pixel repeats the forward's decisions exactly (see src/reference/raster.rs):
@@ -50,6 +50,9 @@
 #extension GL_KHR_shader_subgroup_arithmetic : require
 #extension GL_KHR_shader_subgroup_vote : require
 #extension GL_KHR_shader_subgroup_ballot : require
+#if HAS_SHUFFLE
+#extension GL_KHR_shader_subgroup_shuffle : require
+#endif
 
 #extension GL_EXT_control_flow_attributes : require
 
@@ -130,12 +133,30 @@ void atomic_add_feature(uint idx, float v) {
 }
 void atomic_add_abs(uint idx, float v) { FLOAT_ATOMIC_ADD(abs_grad_f, abs_grad_bits, idx, v) }
 
-// Splats per batch: every invocation stages one, and the per-subgroup sums of a batch must fit
-// in s_acc (ACC_FLOATS / (subgroups · ACC_STRIDE) splats).
-const uint ACC_FLOATS = 4608u;
+// Two ways to sum a splat's gradients over the tile (specialisation constant 7, SUBGROUP_ATOMICS):
+// - 0 (GPUs): each subgroup reduces its sums with subgroupAdd into shared memory (s_acc), and
+//   after the batch one invocation per splat adds the subgroups' sums to global memory: one set
+//   of atomics per (tile, splat) pair.
+// - 1 (CPU drivers, where a shared-memory access, a reduction or an atomic is a loop over the
+//   subgroup's lanes whatever the number of active lanes): each subgroup reduces its sums with
+//   a transposing butterfly (store_sums_transposed) and adds them to global memory itself, one
+//   slot per lane; the splats of its list are loaded one per lane, SUBGROUP_SIZE at a time, and
+//   handed to every lane by shuffles. Per (subgroup, splat) that is 12 shuffles, 7 + 1
+//   reductions and two atomic instructions instead of 12 per-lane loads, 9 reductions, 9
+//   stores and a share of the zeroing and summing of s_acc (lavapipe, 2 cores, training
+//   lund_door at 162×242: 33.8 → 17 ms an iteration; tnt_truck at 245×137: 118 → 60 ms).
+layout(constant_id = 7) const uint SUBGROUP_ATOMICS = 0;
+
+// Splats per batch. With shared sums, every invocation stages one, and the per-subgroup sums
+// of a batch must fit in s_acc (ACC_FLOATS / (subgroups · ACC_STRIDE) splats); without them,
+// every invocation stages STAGE_ROUNDS (fewer barriers, each a switch between subgroups on
+// CPU drivers).
+const uint ACC_FLOATS = SUBGROUP_ATOMICS != 0u ? 1u : 4608u;
 const uint NUM_SG = WG_SIZE / SUBGROUP_SIZE;
 const uint BATCH_BY_ACC = ACC_FLOATS / (NUM_SG * ACC_STRIDE);
-const uint BATCH = WG_SIZE < BATCH_BY_ACC ? WG_SIZE : BATCH_BY_ACC;
+const uint STAGE_ROUNDS = 4u;
+const uint BATCH = SUBGROUP_ATOMICS != 0u ? WG_SIZE * STAGE_ROUNDS
+                   : (WG_SIZE < BATCH_BY_ACC ? WG_SIZE : BATCH_BY_ACC);
 
 // Pixel k of invocation li, as an index into the 16×16 tile (row-major): invocation li is lane
 // li % SUBGROUP_SIZE of group li / SUBGROUP_SIZE, and each such group owns SUBGROUP_SIZE·PIXELS
@@ -152,10 +173,162 @@ shared vec4 s_mean_opacity[BATCH];  // mean_x, mean_y, opacity, half width of th
 shared vec4 s_conic[BATCH];         // a, b, c, half height of the reach
 shared vec4 s_rgb[BATCH];           // r, g, b, splat_q_cut
 shared float s_feat[BATCH * EXTRA_N];  // [i · EXTRA + c]: the extra channels
-// [(splat in batch · NUM_SG + subgroup) · ACC_STRIDE + k]: the subgroup's sums.
+// [(splat in batch · NUM_SG + subgroup) · ACC_STRIDE + k]: the subgroup's sums (shared sums
+// only).
 shared float s_acc[ACC_FLOATS];
 // [subgroup · BATCH + i]: the batch entries that may touch the subgroup's pixels, in order.
-shared uint s_list[ACC_FLOATS / GRAD2D_STRIDE];
+shared uint s_list[BATCH * NUM_SG];
+
+// Per-pixel state of the invocation's pixels (module scope so that visit() can update it; the
+// loops over k are unrolled, so these stay in registers).
+vec2 centre[PIXELS];
+uint last[PIXELS];
+float t_final[PIXELS];
+float t[PIXELS];
+vec3 dl_dc[PIXELS];
+float bg_dot[PIXELS];
+// Colour of everything behind the current splat per unit of the transmittance in front of it
+// (background excluded: it enters through t_final), updated after each contributing splat.
+vec3 behind[PIXELS];
+// The same two for the extra channels.
+float dl_df[PIXELS][EXTRA_N];
+float behind_f[PIXELS][EXTRA_N];
+
+// Slots of one invocation's partial sums of a splat, in s_acc's order: the gradients, the
+// pixel count, the absolute-gradient sum, the extra channels' gradients. ACC_STRIDE ≤
+// PART_MAX (the host refuses more feature channels).
+const uint PART_MAX = 64u;
+
+// The invocation's partial sums for the splat (mean, opacity, conic, colour; e its entry in
+// the tile's list; j its index in the batch for the extra channels), updating the pixels'
+// transmittance and what lies behind.
+void visit(vec4 mo, vec3 conic, vec3 rgb, uint e, uint j, vec2 ndc, bool smooth_mode,
+           out float part[PART_MAX]) {
+    vec2 g_mean = vec2(0.0);
+    vec3 g_conic = vec3(0.0);
+    vec3 g_rgb = vec3(0.0);
+    float g_opacity = 0.0;
+    float n_pixels = 0.0;
+    float g_abs = 0.0;
+    float g_feat[EXTRA_N];
+    // The splat's extra channels, loaded once for all the invocation's pixels.
+    float f[EXTRA_N];
+    for (uint c = 0u; c < EXTRA; c++) {
+        g_feat[c] = 0.0;
+        f[c] = s_feat[j * EXTRA + c];
+    }
+    [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
+        vec2 d = mo.xy - centre[k];
+        float power = -0.5 * (conic.x * d.x * d.x + conic.z * d.y * d.y) - conic.y * d.x * d.y;
+        float gauss = exp(power);
+        float raw = mo.z * gauss;
+        // Clamp 2: alpha = min(alpha_max, raw); when active it passes no gradient to
+        // opacity, conic or mean (not in smooth mode).
+        bool clamped = !smooth_mode && raw > pc.rc.alpha_max;
+        float alpha = clamped ? pc.rc.alpha_max : raw;
+        // Skip 1: entries at or past the pixel's last_index did not reach it.
+        // Skip 2: power > 0 cannot happen for a positive definite conic; the forward skips it
+        // as a rounding guard, so do we.
+        // Skip 3: alpha < alpha_min contributed nothing (not in smooth mode).
+        if (e >= last[k] || power > 0.0 || (!smooth_mode && alpha < pc.rc.alpha_min)) continue;
+        n_pixels += 1.0;
+        // One division per pixel and splat (divisions are slow on CPUs).
+        float inv_one_minus = 1.0 / (1.0 - alpha);
+        t[k] *= inv_one_minus;
+        g_rgb += alpha * t[k] * dl_dc[k];
+        float dl_dalpha = dot((rgb - behind[k]) * t[k], dl_dc[k])
+                          - t_final[k] * inv_one_minus * bg_dot[k];
+        for (uint c = 0u; c < EXTRA; c++) {
+            g_feat[c] += alpha * t[k] * dl_df[k][c];
+            dl_dalpha += (f[c] - behind_f[k][c]) * t[k] * dl_df[k][c];
+            behind_f[k][c] = alpha * f[c] + (1.0 - alpha) * behind_f[k][c];
+        }
+        // Behind the next splat in front: this one over what was behind it.
+        behind[k] = alpha * rgb + (1.0 - alpha) * behind[k];
+        if (!clamped) {
+            g_opacity += gauss * dl_dalpha;
+            float dl_dpower = mo.z * gauss * dl_dalpha;
+            vec2 gm = dl_dpower * vec2(-conic.x * d.x - conic.y * d.y,
+                                       -conic.z * d.y - conic.y * d.x);
+            g_mean += gm;
+            if (ABS_GRAD != 0u) g_abs += abs(gm.x) * ndc.x + abs(gm.y) * ndc.y;
+            g_conic += dl_dpower * vec3(-0.5 * d.x * d.x, -d.x * d.y, -0.5 * d.y * d.y);
+        }
+    }
+    part[0] = g_mean.x;
+    part[1] = g_mean.y;
+    part[2] = g_conic.x;
+    part[3] = g_conic.y;
+    part[4] = g_conic.z;
+    part[5] = g_rgb.x;
+    part[6] = g_rgb.y;
+    part[7] = g_rgb.z;
+    part[8] = g_opacity;
+    if (COUNT_PIXELS != 0u) part[GRAD2D_STRIDE] = n_pixels;
+    if (ABS_GRAD != 0u) part[ACC_ABS] = g_abs;
+    for (uint c = 0u; c < EXTRA; c++) part[ACC_EXTRA + c] = g_feat[c];
+}
+
+// Adds v, the subgroup's sum of slot `slot` for Gaussian g, to its output (zeros add nothing).
+void add_slot(uint g, uint slot, float v) {
+    if (v == 0.0) return;
+    if (slot < GRAD2D_STRIDE) {
+        atomic_add_float(g * GRAD2D_STRIDE + slot, v);
+    } else if (COUNT_PIXELS != 0u && slot == GRAD2D_STRIDE) {
+        atomicAdd(pixel_count[g], uint(v));  // exact: at most 256 a tile
+    } else if (ABS_GRAD != 0u && slot == ACC_ABS) {
+        atomic_add_abs(g, v);
+    } else if (EXTRA != 0u && slot >= ACC_EXTRA) {
+        atomic_add_feature(g * EXTRA + slot - ACC_EXTRA, v);
+    }
+}
+
+#if HAS_SHUFFLE
+// One level of the transposing butterfly over v[0 .. 2H): the lanes with bit H set keep the
+// upper half of the slots and receive their partner's (lane ^ H) upper half, the others the
+// lower half, so v[0 .. H) then holds sums over lane pairs of H slots chosen by bit H.
+#define TRANSPOSE_LEVEL(H)                                                             \
+    if (SUBGROUP_SIZE > (H)) {                                                         \
+        bool upper = (lane & (H)) != 0u;                                               \
+        [[unroll]] for (uint i = 0u; i < (H); i++) {                                   \
+            float keep = upper ? v[i + (H)] : v[i];                                    \
+            float send = upper ? v[i] : v[i + (H)];                                    \
+            v[i] = keep + subgroupShuffleXor(send, (H));                               \
+        }                                                                              \
+    }
+const uint MAX_SUBGROUP = 64u;
+const uint FULL_CHUNKS = ACC_STRIDE / SUBGROUP_SIZE;
+const uint REM = ACC_STRIDE - FULL_CHUNKS * SUBGROUP_SIZE;
+
+// Σ over the subgroup of part[c] for every slot c, added to Gaussian g's outputs: every full
+// chunk of SUBGROUP_SIZE slots by the butterfly (SUBGROUP_SIZE − 1 shuffles, after which lane l
+// holds the sum of the chunk's slot l) and one atomic instruction of all lanes; the remaining
+// slots by one reduction each and one atomic instruction of the first lanes.
+void add_sums_transposed(float part[PART_MAX], uint g) {
+    uint lane = gl_SubgroupInvocationID;
+    [[unroll]] for (uint chunk = 0u; chunk < FULL_CHUNKS; chunk++) {
+        float v[MAX_SUBGROUP];
+        [[unroll]] for (uint i = 0u; i < SUBGROUP_SIZE; i++) {
+            v[i] = part[chunk * SUBGROUP_SIZE + i];
+        }
+        TRANSPOSE_LEVEL(32u)
+        TRANSPOSE_LEVEL(16u)
+        TRANSPOSE_LEVEL(8u)
+        TRANSPOSE_LEVEL(4u)
+        TRANSPOSE_LEVEL(2u)
+        TRANSPOSE_LEVEL(1u)
+        add_slot(g, chunk * SUBGROUP_SIZE + lane, v[0]);
+    }
+    if (REM > 0u) {
+        float mine = 0.0;
+        [[unroll]] for (uint r = 0u; r < REM; r++) {
+            float sum = subgroupAdd(part[FULL_CHUNKS * SUBGROUP_SIZE + r]);
+            mine = lane == r ? sum : mine;
+        }
+        if (lane < REM) add_slot(g, FULL_CHUNKS * SUBGROUP_SIZE + lane, mine);
+    }
+}
+#endif
 
 void main() {
     Camera cam = cameras[pc.camera_index];
@@ -169,22 +342,6 @@ void main() {
     uint list_len = range.y > range.x ? range.y - range.x : 0u;
     bool smooth_mode = (pc.rc.flags & 1u) != 0u;
 
-    // Per-pixel state (the loops over k are unrolled, so these stay in registers).
-    vec2 centre[PIXELS];
-    uint last[PIXELS];
-    float t_final[PIXELS];
-    float t[PIXELS];
-    vec3 dl_dc[PIXELS];
-    float bg_dot[PIXELS];
-    // Colour of everything behind the current splat per unit of the transmittance in front of
-    // it (background excluded: it enters through t_final).
-    vec3 behind[PIXELS];
-    float next_alpha[PIXELS];
-    vec3 next_rgb[PIXELS];
-    // The same three for the extra channels.
-    float dl_df[PIXELS][EXTRA_N];
-    float behind_f[PIXELS][EXTRA_N];
-    float next_f[PIXELS][EXTRA_N];
     uint my_max_last = 0u;
     [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
         uint q = tile_pixel(li, k);
@@ -202,12 +359,9 @@ void main() {
         bg_dot[k] = dot(pc.background.xyz, dl_dc[k]);
         t[k] = t_final[k];
         behind[k] = vec3(0.0);
-        next_alpha[k] = 0.0;
-        next_rgb[k] = vec3(0.0);
         for (uint c = 0u; c < EXTRA; c++) {
             dl_df[k][c] = inside ? dl_dfeature_image[EXTRA * pix + c] : 0.0;
             behind_f[k][c] = 0.0;
-            next_f[k][c] = 0.0;
         }
         my_max_last = max(my_max_last, last[k]);
     }
@@ -232,36 +386,39 @@ void main() {
     uint max_last = s_max_last;
     // NDC units of a pixel-space mean gradient (as preprocess_backward's view_grad_norm).
     vec2 ndc = 0.5 * vec2(float(width), float(height));
+    uint lane = gl_SubgroupInvocationID;
 
     for (uint done = 0u; done < max_last; done += BATCH) {
         uint batch = min(BATCH, max_last - done);
         barrier();  // the previous batch (splats and sums) has been consumed by every invocation
-        if (li < batch) {
-            uint e = max_last - 1u - (done + li);
+        for (uint i = li; i < batch; i += WG_SIZE) {
+            uint e = max_last - 1u - (done + i);
             uint g = sorted_ids[range.x + e];
             Projected p = projected[g];
-            s_id[li] = g;
+            s_id[i] = g;
             vec2 reach = splat_reach(p.opacity, vec3(p.conic_a, p.conic_b, p.conic_c),
                                       pc.rc.alpha_min, smooth_mode);
-            s_mean_opacity[li] = vec4(p.mean_x, p.mean_y, p.opacity, reach.x);
-            s_conic[li] = vec4(p.conic_a, p.conic_b, p.conic_c, reach.y);
+            s_mean_opacity[i] = vec4(p.mean_x, p.mean_y, p.opacity, reach.x);
+            s_conic[i] = vec4(p.conic_a, p.conic_b, p.conic_c, reach.y);
             float q_cut = splat_q_cut(p.opacity, pc.rc.alpha_min, smooth_mode);
-            s_rgb[li] = vec4(p.r, p.g, p.b, q_cut);
-            for (uint c = 0u; c < EXTRA; c++) s_feat[li * EXTRA + c] = features[g * EXTRA + c];
+            s_rgb[i] = vec4(p.r, p.g, p.b, q_cut);
+            for (uint c = 0u; c < EXTRA; c++) s_feat[i * EXTRA + c] = features[g * EXTRA + c];
         }
         barrier();
-        // Zero sums for the entries this subgroup skips (e >= sg_max_last, i.e. j < j_first).
+        // Entries e >= sg_max_last (j < j_first) are skipped; with shared sums they get zeros.
         uint j_first = min(batch, max_last - done - min(sg_max_last, max_last - done));
-        for (uint j = gl_SubgroupInvocationID; j < j_first; j += gl_SubgroupSize) {
-            uint a = (j * NUM_SG + gl_SubgroupID) * ACC_STRIDE;
-            for (uint c = 0u; c < ACC_STRIDE; c++) s_acc[a + c] = 0.0;
+        if (SUBGROUP_ATOMICS == 0u) {
+            for (uint j = lane; j < j_first; j += gl_SubgroupSize) {
+                uint a = (j * NUM_SG + gl_SubgroupID) * ACC_STRIDE;
+                for (uint c = 0u; c < ACC_STRIDE; c++) s_acc[a + c] = 0.0;
+            }
         }
         // Compact (in order) the entries from j_first on whose reach meets the subgroup's box;
-        // the others get zero sums.
+        // with shared sums the others get zeros.
         uint list_base = gl_SubgroupID * BATCH;
         uint n_list = 0u;
         for (uint j0 = j_first; j0 < batch; j0 += gl_SubgroupSize) {
-            uint j = j0 + gl_SubgroupInvocationID;
+            uint j = j0 + lane;
             bool meets = false;
             if (j < batch) {
                 vec4 mo = s_mean_opacity[j];
@@ -272,7 +429,7 @@ void main() {
             uvec4 ballot = subgroupBallot(meets);
             if (meets) {
                 s_list[list_base + n_list + subgroupBallotExclusiveBitCount(ballot)] = j;
-            } else if (j < batch) {
+            } else if (SUBGROUP_ATOMICS == 0u && j < batch) {
                 uint a = (j * NUM_SG + gl_SubgroupID) * ACC_STRIDE;
                 for (uint c = 0u; c < ACC_STRIDE; c++) s_acc[a + c] = 0.0;
             }
@@ -280,124 +437,51 @@ void main() {
         }
         subgroupMemoryBarrierShared();
         subgroupBarrier();
-        for (uint i = 0u; i < n_list; i++) {
-            uint j = s_list[list_base + i];
-            uint e = max_last - 1u - (done + j);
-            vec4 mo = s_mean_opacity[j];
-            vec3 conic = s_conic[j].xyz;
-            vec3 rgb = s_rgb[j].xyz;
-            vec2 g_mean = vec2(0.0);
-            vec3 g_conic = vec3(0.0);
-            vec3 g_rgb = vec3(0.0);
-            float g_opacity = 0.0;
-            float n_pixels = 0.0;
-            float g_abs = 0.0;
-            float g_feat[EXTRA_N];
-            // The splat's extra channels, loaded once for all the invocation's pixels.
-            float f[EXTRA_N];
-            for (uint c = 0u; c < EXTRA; c++) {
-                g_feat[c] = 0.0;
-                f[c] = s_feat[j * EXTRA + c];
-            }
-            [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
-                if (e >= last[k]) continue;
-                vec2 d = mo.xy - centre[k];
-                float power = -0.5 * (conic.x * d.x * d.x + conic.z * d.y * d.y)
-                              - conic.y * d.x * d.y;
-                // Clamp/skip 1: power > 0 cannot happen for a positive definite conic; the
-                // forward skips it as a rounding guard, so do we.
-                if (power > 0.0) continue;
-                float gauss = exp(power);
-                float raw = mo.z * gauss;
-                // Clamp 2: alpha = min(alpha_max, raw); when active it passes no gradient to
-                // opacity, conic or mean (not in smooth mode).
-                bool clamped = !smooth_mode && raw > pc.rc.alpha_max;
-                float alpha = clamped ? pc.rc.alpha_max : raw;
-                // Skip 3: alpha < alpha_min contributed nothing (not in smooth mode).
-                if (!smooth_mode && alpha < pc.rc.alpha_min) continue;
-                n_pixels += 1.0;
-                // One division per pixel and splat (divisions are slow on CPUs).
-                float inv_one_minus = 1.0 / (1.0 - alpha);
-                t[k] *= inv_one_minus;
-                behind[k] = next_alpha[k] * next_rgb[k] + (1.0 - next_alpha[k]) * behind[k];
-                g_rgb += alpha * t[k] * dl_dc[k];
-                float dl_dalpha = dot((rgb - behind[k]) * t[k], dl_dc[k])
-                                  - t_final[k] * inv_one_minus * bg_dot[k];
-                for (uint c = 0u; c < EXTRA; c++) {
-                    behind_f[k][c] = next_alpha[k] * next_f[k][c]
-                                     + (1.0 - next_alpha[k]) * behind_f[k][c];
-                    g_feat[c] += alpha * t[k] * dl_df[k][c];
-                    dl_dalpha += (f[c] - behind_f[k][c]) * t[k] * dl_df[k][c];
-                    next_f[k][c] = f[c];
-                }
-                next_alpha[k] = alpha;
-                next_rgb[k] = rgb;
-                if (!clamped) {
-                    g_opacity += gauss * dl_dalpha;
-                    float dl_dpower = mo.z * gauss * dl_dalpha;
-                    vec2 gm = dl_dpower * vec2(-conic.x * d.x - conic.y * d.y,
-                                               -conic.z * d.y - conic.y * d.x);
-                    g_mean += gm;
-                    if (ABS_GRAD != 0u) g_abs += abs(gm.x) * ndc.x + abs(gm.y) * ndc.y;
-                    g_conic += dl_dpower * vec3(-0.5 * d.x * d.x, -d.x * d.y,
-                                                -0.5 * d.y * d.y);
+        float part[PART_MAX];
+#if HAS_SHUFFLE
+        if (SUBGROUP_ATOMICS != 0u) {
+            for (uint i0 = 0u; i0 < n_list; i0 += SUBGROUP_SIZE) {
+                // Lane l loads the chunk's entry l (the last entry again past the list's end);
+                // every lane then takes each entry's values from its lane.
+                uint mine = s_list[list_base + min(i0 + lane, n_list - 1u)];
+                vec4 l_mo = vec4(s_mean_opacity[mine].xyz, uintBitsToFloat(mine));
+                vec4 l_conic = vec4(s_conic[mine].xyz, uintBitsToFloat(s_id[mine]));
+                vec3 l_rgb = s_rgb[mine].xyz;
+                uint n_chunk = min(SUBGROUP_SIZE, n_list - i0);
+                for (uint ii = 0u; ii < n_chunk; ii++) {
+                    vec4 mo = subgroupShuffle(l_mo, ii);
+                    vec4 conic = subgroupShuffle(l_conic, ii);
+                    vec3 rgb = subgroupShuffle(l_rgb, ii);
+                    uint j = floatBitsToUint(mo.w);
+                    uint e = max_last - 1u - (done + j);
+                    visit(mo, conic.xyz, rgb, e, j, ndc, smooth_mode, part);
+                    add_sums_transposed(part, floatBitsToUint(conic.w));
                 }
             }
-            g_mean = subgroupAdd(g_mean);
-            g_conic = subgroupAdd(g_conic);
-            g_rgb = subgroupAdd(g_rgb);
-            g_opacity = subgroupAdd(g_opacity);
-            if (COUNT_PIXELS != 0u) n_pixels = subgroupAdd(n_pixels);
-            if (ABS_GRAD != 0u) g_abs = subgroupAdd(g_abs);
-            for (uint c = 0u; c < EXTRA; c++) g_feat[c] = subgroupAdd(g_feat[c]);
-            if (subgroupElect()) {
-                uint a = (j * NUM_SG + gl_SubgroupID) * ACC_STRIDE;
-                s_acc[a + 0u] = g_mean.x;
-                s_acc[a + 1u] = g_mean.y;
-                s_acc[a + 2u] = g_conic.x;
-                s_acc[a + 3u] = g_conic.y;
-                s_acc[a + 4u] = g_conic.z;
-                s_acc[a + 5u] = g_rgb.x;
-                s_acc[a + 6u] = g_rgb.y;
-                s_acc[a + 7u] = g_rgb.z;
-                s_acc[a + 8u] = g_opacity;
-                if (COUNT_PIXELS != 0u) s_acc[a + 9u] = n_pixels;
-                if (ABS_GRAD != 0u) s_acc[a + ACC_ABS] = g_abs;
-                for (uint c = 0u; c < EXTRA; c++) s_acc[a + ACC_EXTRA + c] = g_feat[c];
+        } else
+#endif
+        {
+            for (uint i = 0u; i < n_list; i++) {
+                uint j = s_list[list_base + i];
+                uint e = max_last - 1u - (done + j);
+                visit(s_mean_opacity[j], s_conic[j].xyz, s_rgb[j].xyz, e, j, ndc, smooth_mode,
+                      part);
+                [[unroll]] for (uint c = 0u; c < ACC_STRIDE; c++) part[c] = subgroupAdd(part[c]);
+                if (subgroupElect()) {
+                    uint a = (j * NUM_SG + gl_SubgroupID) * ACC_STRIDE;
+                    [[unroll]] for (uint c = 0u; c < ACC_STRIDE; c++) s_acc[a + c] = part[c];
+                }
             }
-        }
-        barrier();
-        // One invocation per splat of the batch: the subgroups' sums, then nine atomics (and
-        // the pixel count's).
-        for (uint j = li; j < batch; j += WG_SIZE) {
-            float sum[GRAD2D_STRIDE + 1u];
-            [[unroll]] for (uint c = 0u; c <= GRAD2D_STRIDE; c++) sum[c] = 0.0;
-            for (uint sg = 0u; sg < NUM_SG; sg++) {
-                uint a = (j * NUM_SG + sg) * ACC_STRIDE;
-                [[unroll]] for (uint c = 0u; c < GRAD2D_STRIDE; c++) sum[c] += s_acc[a + c];
-                if (COUNT_PIXELS != 0u) sum[GRAD2D_STRIDE] += s_acc[a + GRAD2D_STRIDE];
-            }
-            if (COUNT_PIXELS != 0u && sum[GRAD2D_STRIDE] != 0.0) {
-                atomicAdd(pixel_count[s_id[j]], uint(sum[GRAD2D_STRIDE]));
-            }
-            if (ABS_GRAD != 0u) {
-                float abs_sum = 0.0;
+            barrier();
+            // One invocation per splat of the batch: the subgroups' sums, then the atomics.
+            for (uint j = li; j < batch; j += WG_SIZE) {
+                float sum[PART_MAX];
+                [[unroll]] for (uint c = 0u; c < ACC_STRIDE; c++) sum[c] = 0.0;
                 for (uint sg = 0u; sg < NUM_SG; sg++) {
-                    abs_sum += s_acc[(j * NUM_SG + sg) * ACC_STRIDE + ACC_ABS];
+                    uint a = (j * NUM_SG + sg) * ACC_STRIDE;
+                    [[unroll]] for (uint c = 0u; c < ACC_STRIDE; c++) sum[c] += s_acc[a + c];
                 }
-                if (abs_sum != 0.0) atomic_add_abs(s_id[j], abs_sum);
-            }
-            for (uint c = 0u; c < EXTRA; c++) {
-                float f_sum = 0.0;
-                for (uint sg = 0u; sg < NUM_SG; sg++) {
-                    f_sum += s_acc[(j * NUM_SG + sg) * ACC_STRIDE + ACC_EXTRA + c];
-                }
-                if (f_sum != 0.0) atomic_add_feature(s_id[j] * EXTRA + c, f_sum);
-            }
-            uint base = s_id[j] * GRAD2D_STRIDE;
-            [[unroll]] for (uint c = 0u; c < GRAD2D_STRIDE; c++) {
-                // Splats that touched no pixel of the tile add nothing (a real skip on GPUs).
-                if (sum[c] != 0.0) atomic_add_float(base + c, sum[c]);
+                [[unroll]] for (uint c = 0u; c < ACC_STRIDE; c++) add_slot(s_id[j], c, sum[c]);
             }
         }
     }

@@ -55,13 +55,15 @@ pub struct DeviceInfo {
     pub float_atomic_add: bool,
     pub full_subgroups: bool,
     pub device_local_bytes: u64,
+    /// The subgroup shuffle operations (`subgroupShuffle`, `subgroupShuffleXor`) in compute.
+    pub subgroup_shuffle: bool,
 }
 
 impl DeviceInfo {
     /// A readable multi-line summary.
     pub fn summary(&self) -> String {
         format!(
-            "device [{}] {} ({}), Vulkan {}, driver {}\n  subgroup size {} (range {}..{}), full-subgroup control: {}\n  max storage buffer range {} MiB, max allocation {} MiB, device-local memory {} MiB\n  shared memory {} KiB, workgroup invocations {}, workgroup count {:?}, push constants {} B\n  float32 atomic add: {}, timestamps: {} (period {} ns)",
+            "device [{}] {} ({}), Vulkan {}, driver {}\n  subgroup size {} (range {}..{}), full-subgroup control: {}\n  max storage buffer range {} MiB, max allocation {} MiB, device-local memory {} MiB\n  shared memory {} KiB, workgroup invocations {}, workgroup count {:?}, push constants {} B\n  float32 atomic add: {}, subgroup shuffle: {}, timestamps: {} (period {} ns)",
             self.index,
             self.name,
             self.device_type,
@@ -79,6 +81,7 @@ impl DeviceInfo {
             self.max_workgroup_count,
             self.max_push_constants,
             self.float_atomic_add,
+            self.subgroup_shuffle,
             self.timestamps_supported,
             self.timestamp_period_ns
         )
@@ -541,6 +544,12 @@ impl GpuContext {
             float_atomic_add,
             full_subgroups,
             device_local_bytes,
+            subgroup_shuffle: subgroup
+                .supported_operations
+                .contains(vk::SubgroupFeatureFlags::SHUFFLE)
+                && subgroup
+                    .supported_stages
+                    .contains(vk::ShaderStageFlags::COMPUTE),
         }
     }
 

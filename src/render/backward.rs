@@ -80,6 +80,25 @@ fn cpu_pixels_per_invocation(info: &crate::gpu::DeviceInfo, want: u32) -> u32 {
     p
 }
 
+/// Feature channels the rasterizer backward can carry (its per-splat sums hold at most 64
+/// floats: 9 gradients, the pixel count, the absolute gradient and the channels).
+pub const MAX_FEATURE_CHANNELS: u32 = 48;
+
+/// Whether the rasterizer backward sums each splat's gradients per subgroup straight into
+/// global memory (a transposing butterfly of shuffles, one atomic instruction for all lanes)
+/// instead of through shared memory: with several pixels an invocation, i.e. on CPU drivers,
+/// where every shared-memory access and reduction is a loop over the lanes (see
+/// `glsl/backward/rasterize_backward.glsl`); it needs the subgroup shuffles.
+fn subgroup_atomics(info: &crate::gpu::DeviceInfo, pixels: u32) -> bool {
+    pixels > 1 && full_kernel(info)
+}
+
+/// Whether the device takes `rasterize_backward.comp` (float atomic add and shuffles in its
+/// SPIR-V) rather than `rasterize_backward_cas.comp` (neither).
+fn full_kernel(info: &crate::gpu::DeviceInfo) -> bool {
+    info.float_atomic_add && info.subgroup_shuffle
+}
+
 /// How the rasterizer backward adds gradients into global memory.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum AtomicMode {
@@ -202,7 +221,10 @@ impl Backward {
             ctx,
             capacity,
             mode,
-            default_pixels_per_invocation(&ctx.info),
+            std::env::var("XP_PIX")
+                .ok()
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(default_pixels_per_invocation(&ctx.info)),
         )
     }
 
@@ -255,16 +277,22 @@ impl Backward {
         v: RasterVariant,
     ) -> Result<ComputePipeline> {
         let wg = WG / pixels.max(1);
+        ensure!(
+            v.extra <= MAX_FEATURE_CHANNELS,
+            "GPU backward: {} feature channels; the rasterizer backward carries at most {MAX_FEATURE_CHANNELS}",
+            v.extra
+        );
         let spec = [
             float_atomics as u32,
             pixels,
             v.count_pixels as u32,
             v.extra,
             v.abs_grad as u32,
+            subgroup_atomics(&ctx.info, pixels) as u32,
         ];
         let push = std::mem::size_of::<RasterPush>() as u32;
-        // A device without float atomics gets SPIR-V that does not declare the capability.
-        let (name, spirv) = if ctx.info.float_atomic_add {
+        // A device without float atomics or shuffles gets SPIR-V that declares neither.
+        let (name, spirv) = if full_kernel(&ctx.info) {
             (
                 "backward/rasterize_backward",
                 shaders::BACKWARD_RASTERIZE_BACKWARD,
