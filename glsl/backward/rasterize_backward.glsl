@@ -183,16 +183,16 @@ shared uint s_list[BATCH * NUM_SG];
 // loops over k are unrolled, so these stay in registers).
 vec2 centre[PIXELS];
 uint last[PIXELS];
-float t_final[PIXELS];
-float t[PIXELS];
+float t[PIXELS];  // transmittance in front of the current splat
 vec3 dl_dc[PIXELS];
-float bg_dot[PIXELS];
-// Colour of everything behind the current splat per unit of the transmittance in front of it
-// (background excluded: it enters through t_final), updated after each contributing splat.
-vec3 behind[PIXELS];
-// The same two for the extra channels.
 float dl_df[PIXELS][EXTRA_N];
-float behind_f[PIXELS][EXTRA_N];
+// t_final · (background · dL/dC): the background's share of dL/dalpha per unit of 1/(1 − alpha).
+float tf_bg[PIXELS];
+// (What lies behind the current splat) · dL/d(pixel), over the colour and the extra channels,
+// per unit of the transmittance in front of it (background excluded: it enters through
+// tf_bg). The colour behind enters the gradients only through this product, so one float a
+// pixel carries it, updated after each splat.
+float behind_dot[PIXELS];
 
 // Slots of one invocation's partial sums of a splat, in s_acc's order: the gradients, the
 // pixel count, the absolute-gradient sum, the extra channels' gradients. ACC_STRIDE ≤
@@ -202,14 +202,20 @@ const uint PART_MAX = 64u;
 // The invocation's partial sums for the splat (mean, opacity, conic, colour; e its entry in
 // the tile's list; j its index in the batch for the extra channels), updating the pixels'
 // transmittance and what lies behind.
+//
+// Branch-free per pixel: a skipped pixel (see the skips below) gets alpha = 0 and q = 0, which
+// leave t, behind_dot and every sum exactly as they were (x·1, x + 0), so no lane masks are
+// needed (each masked assignment is a blend on CPU drivers). The mean and conic gradients are
+// linear in q = gauss · dL/dalpha (dL/dpower = opacity · q): the pixels sum q times dx, dy,
+// dx², dx·dy, dy², and the splat's constants multiply the sums once.
 void visit(vec4 mo, vec3 conic, vec3 rgb, uint e, uint j, vec2 ndc, bool smooth_mode,
            out float part[PART_MAX]) {
-    vec2 g_mean = vec2(0.0);
-    vec3 g_conic = vec3(0.0);
     vec3 g_rgb = vec3(0.0);
-    float g_opacity = 0.0;
+    float g_q = 0.0;  // Σ q: dL/d(opacity)
+    vec2 s_d = vec2(0.0);  // Σ q·(dx, dy)
+    vec3 s_dd = vec3(0.0);  // Σ q·(dx², dx·dy, dy²)
     float n_pixels = 0.0;
-    float g_abs = 0.0;
+    vec2 s_abs = vec2(0.0);  // Σ |q·(conic · d)| per axis
     float g_feat[EXTRA_N];
     // The splat's extra channels, loaded once for all the invocation's pixels.
     float f[EXTRA_N];
@@ -219,42 +225,47 @@ void visit(vec4 mo, vec3 conic, vec3 rgb, uint e, uint j, vec2 ndc, bool smooth_
     }
     [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
         vec2 d = mo.xy - centre[k];
-        float power = -0.5 * (conic.x * d.x * d.x + conic.z * d.y * d.y) - conic.y * d.x * d.y;
+        vec3 dd = vec3(d.x * d.x, d.x * d.y, d.y * d.y);
+        float power = -0.5 * (conic.x * dd.x + conic.z * dd.z) - conic.y * dd.y;
         float gauss = exp(power);
         float raw = mo.z * gauss;
         // Clamp 2: alpha = min(alpha_max, raw); when active it passes no gradient to
         // opacity, conic or mean (not in smooth mode).
         bool clamped = !smooth_mode && raw > pc.rc.alpha_max;
-        float alpha = clamped ? pc.rc.alpha_max : raw;
         // Skip 1: entries at or past the pixel's last_index did not reach it.
         // Skip 2: power > 0 cannot happen for a positive definite conic; the forward skips it
         // as a rounding guard, so do we.
         // Skip 3: alpha < alpha_min contributed nothing (not in smooth mode).
-        if (e >= last[k] || power > 0.0 || (!smooth_mode && alpha < pc.rc.alpha_min)) continue;
-        n_pixels += 1.0;
+        bool skip = e >= last[k] || power > 0.0 || (!smooth_mode && raw < pc.rc.alpha_min);
+        float alpha = skip ? 0.0 : (clamped ? pc.rc.alpha_max : raw);
+        n_pixels += skip ? 0.0 : 1.0;
         // One division per pixel and splat (divisions are slow on CPUs).
         float inv_one_minus = 1.0 / (1.0 - alpha);
         t[k] *= inv_one_minus;
-        g_rgb += alpha * t[k] * dl_dc[k];
-        float dl_dalpha = dot((rgb - behind[k]) * t[k], dl_dc[k])
-                          - t_final[k] * inv_one_minus * bg_dot[k];
+        float at = alpha * t[k];
+        g_rgb += at * dl_dc[k];
+        float front = dot(rgb, dl_dc[k]);
         for (uint c = 0u; c < EXTRA; c++) {
-            g_feat[c] += alpha * t[k] * dl_df[k][c];
-            dl_dalpha += (f[c] - behind_f[k][c]) * t[k] * dl_df[k][c];
-            behind_f[k][c] = alpha * f[c] + (1.0 - alpha) * behind_f[k][c];
+            g_feat[c] += at * dl_df[k][c];
+            front += f[c] * dl_df[k][c];
         }
+        float diff = front - behind_dot[k];
+        float dl_dalpha = t[k] * diff - inv_one_minus * tf_bg[k];
         // Behind the next splat in front: this one over what was behind it.
-        behind[k] = alpha * rgb + (1.0 - alpha) * behind[k];
-        if (!clamped) {
-            g_opacity += gauss * dl_dalpha;
-            float dl_dpower = mo.z * gauss * dl_dalpha;
-            vec2 gm = dl_dpower * vec2(-conic.x * d.x - conic.y * d.y,
-                                       -conic.z * d.y - conic.y * d.x);
-            g_mean += gm;
-            if (ABS_GRAD != 0u) g_abs += abs(gm.x) * ndc.x + abs(gm.y) * ndc.y;
-            g_conic += dl_dpower * vec3(-0.5 * d.x * d.x, -d.x * d.y, -0.5 * d.y * d.y);
+        behind_dot[k] += alpha * diff;
+        float q = (skip || clamped) ? 0.0 : gauss * dl_dalpha;
+        g_q += q;
+        s_d += q * d;
+        s_dd += q * dd;
+        if (ABS_GRAD != 0u) {
+            s_abs += abs(q * vec2(conic.x * d.x + conic.y * d.y, conic.z * d.y + conic.y * d.x));
         }
     }
+    // dL/dpower = opacity · q; dpower/dmean = −(a·dx + b·dy, c·dy + b·dx);
+    // dpower/d(a, b, c) = (−½dx², −dx·dy, −½dy²).
+    vec2 g_mean = -mo.z * vec2(conic.x * s_d.x + conic.y * s_d.y,
+                               conic.z * s_d.y + conic.y * s_d.x);
+    vec3 g_conic = -mo.z * vec3(0.5 * s_dd.x, s_dd.y, 0.5 * s_dd.z);
     part[0] = g_mean.x;
     part[1] = g_mean.y;
     part[2] = g_conic.x;
@@ -263,9 +274,9 @@ void visit(vec4 mo, vec3 conic, vec3 rgb, uint e, uint j, vec2 ndc, bool smooth_
     part[5] = g_rgb.x;
     part[6] = g_rgb.y;
     part[7] = g_rgb.z;
-    part[8] = g_opacity;
+    part[8] = g_q;
     if (COUNT_PIXELS != 0u) part[GRAD2D_STRIDE] = n_pixels;
-    if (ABS_GRAD != 0u) part[ACC_ABS] = g_abs;
+    if (ABS_GRAD != 0u) part[ACC_ABS] = mo.z * dot(s_abs, ndc);
     for (uint c = 0u; c < EXTRA; c++) part[ACC_EXTRA + c] = g_feat[c];
 }
 
@@ -352,16 +363,15 @@ void main() {
         centre[k] = vec2(float(px) + 0.5, float(py) + 0.5);
         // A last_index past the tile's list would read other tiles' entries: clamp (bad input).
         last[k] = inside ? min(last_index[pix], list_len) : 0u;
-        t_final[k] = inside ? final_t[pix] : 1.0;
+        float tf = inside ? final_t[pix] : 1.0;
         dl_dc[k] = inside ? vec3(dl_dimage[3u * pix], dl_dimage[3u * pix + 1u],
                                  dl_dimage[3u * pix + 2u])
                           : vec3(0.0);
-        bg_dot[k] = dot(pc.background.xyz, dl_dc[k]);
-        t[k] = t_final[k];
-        behind[k] = vec3(0.0);
+        tf_bg[k] = tf * dot(pc.background.xyz, dl_dc[k]);
+        t[k] = tf;
+        behind_dot[k] = 0.0;
         for (uint c = 0u; c < EXTRA; c++) {
             dl_df[k][c] = inside ? dl_dfeature_image[EXTRA * pix + c] : 0.0;
-            behind_f[k][c] = 0.0;
         }
         my_max_last = max(my_max_last, last[k]);
     }
