@@ -258,6 +258,37 @@ fn random_scenes_match_the_reference() {
     ctx.check_validation().unwrap();
 }
 
+/// Every pixels-per-invocation layout of the rasterizer against the reference: 1 is what GPUs
+/// run (a shared-memory load per splat), more take each splat from its lane by shuffles (CPU
+/// drivers); the default layout is covered above.
+#[test]
+fn every_rasterizer_layout_matches_the_reference() {
+    let ctx = ctx();
+    let settings = RenderSettings::default();
+    for pixels in [1u32, 2, 4, 8] {
+        let wg = 256 / pixels;
+        if wg % ctx.info.subgroup_size != 0 {
+            continue;
+        }
+        let mut renderer = renderer(&ctx).with_raster_pixels(pixels).unwrap();
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(77 + pixels as u64);
+        for seed in 0..25 {
+            let n = rng.gen_range(1..200);
+            let g = scenes::random_gaussians(&mut rng, n);
+            let w = rng.gen_range(1..70);
+            let h = rng.gen_range(1..70);
+            let (camera, pose) = scenes::random_view(&mut rng, w, h);
+            let bg = [rng.gen(), rng.gen(), rng.gen()];
+            let (frame, exact) =
+                render_gpu(&ctx, &mut renderer, &g, 1, &camera, &pose, bg, &settings);
+            let label = format!("{pixels} px/invocation, seed {seed} ({n} Gaussians, {w}×{h})");
+            compare(&frame, &exact, 1, &camera, &pose, bg, &settings, &label);
+        }
+    }
+    assert!(renderer(&ctx).with_raster_pixels(3).is_err());
+    ctx.check_validation().unwrap();
+}
+
 /// Smooth mode, Mip-Splatting's 2D filter (eps2d 0.1 and the opacity compensation) and
 /// larger images.
 #[test]

@@ -156,6 +156,8 @@ pub struct Renderer {
     emit: ComputePipeline,
     ranges: ComputePipeline,
     raster: ComputePipeline,
+    /// Pixels per invocation of `raster` and `raster_features`.
+    raster_pixels: u32,
     /// The rasterizer with feature channels (built on first use, per channel count).
     raster_features: Option<(u32, ComputePipeline)>,
     /// The last frame's feature channels, `[pix·channels + c]` (when it had some).
@@ -258,11 +260,9 @@ impl Renderer {
                 std::mem::size_of::<EmitPush>(),
             )?,
             ranges: pipe("render/tile_ranges", shaders::RENDER_TILE_RANGES, 3, 0)?,
-            raster: {
-                // Same pixels-per-invocation choice as the backward (CPU drivers: 8).
-                let pixels = default_pixels_per_invocation(&ctx.info);
-                Self::raster_pipeline(ctx, pixels, 0)?
-            },
+            // Same pixels-per-invocation choice as the backward (CPU drivers: 8).
+            raster_pixels: default_pixels_per_invocation(&ctx.info),
+            raster: Self::raster_pipeline(ctx, default_pixels_per_invocation(&ctx.info), 0)?,
             raster_features: None,
             feature_image: None,
             depth_sort: RadixSort::new(ctx, capacity.gaussians as u64)?,
@@ -276,16 +276,39 @@ impl Renderer {
         })
     }
 
+    /// The rasterizer with `pixels` (1, 2, 4 or 8) pixels per invocation instead of the device's
+    /// default: tests run the GPU layout (1) on a CPU driver this way.
+    pub fn with_raster_pixels(mut self, pixels: u32) -> anyhow::Result<Self> {
+        let wg = WG / pixels.max(1);
+        anyhow::ensure!(
+            matches!(pixels, 1 | 2 | 4 | 8)
+                && wg.is_multiple_of(self.ctx.info.subgroup_size.max(1)),
+            "renderer: {pixels} pixels per invocation gives {wg} invocations per tile, not a \
+             multiple of the subgroup size {}; use 1, 2, 4 or 8 with whole subgroups",
+            self.ctx.info.subgroup_size
+        );
+        self.raster = Self::raster_pipeline(&self.ctx, pixels, 0)?;
+        self.raster_pixels = pixels;
+        self.raster_features = None;
+        Ok(self)
+    }
+
     /// The rasterizer with `extra` feature channels (0: colour only).
     fn raster_pipeline(
         ctx: &Arc<GpuContext>,
         pixels: u32,
         extra: u32,
     ) -> anyhow::Result<ComputePipeline> {
+        // A device without subgroup shuffles gets SPIR-V that does not declare them.
+        let (name, spirv) = if ctx.info.subgroup_shuffle {
+            ("render/rasterize", shaders::RENDER_RASTERIZE)
+        } else {
+            ("render/rasterize_plain", shaders::RENDER_RASTERIZE_PLAIN)
+        };
         ComputePipeline::new(
             ctx,
-            "render/rasterize",
-            shaders::RENDER_RASTERIZE,
+            name,
+            spirv,
             9,
             std::mem::size_of::<RasterPush>() as u32,
             WG / pixels,
@@ -454,8 +477,7 @@ impl Renderer {
                 fc.channels
             );
             if self.raster_features.as_ref().map(|r| r.0) != Some(fc.channels) {
-                let pixels = default_pixels_per_invocation(&ctx.info);
-                let pipe = Self::raster_pipeline(&ctx, pixels, fc.channels)?;
+                let pipe = Self::raster_pipeline(&ctx, self.raster_pixels, fc.channels)?;
                 self.raster_features = Some((fc.channels, pipe));
             }
             let need = self.capacity.pixels.max(1) * fc.channels as usize;
