@@ -139,7 +139,7 @@ void atomic_add_abs(uint idx, float v) { FLOAT_ATOMIC_ADD(abs_grad_f, abs_grad_b
 //   of atomics per (tile, splat) pair.
 // - 1 (CPU drivers, where a shared-memory access, a reduction or an atomic is a loop over the
 //   subgroup's lanes whatever the number of active lanes): each subgroup reduces its sums with
-//   a transposing butterfly (store_sums_transposed) and adds them to global memory itself, one
+//   a transposing butterfly (subgroup_sums.glsl) and adds them to global memory itself, one
 //   slot per lane; the splats of its list are loaded one per lane, SUBGROUP_SIZE at a time, and
 //   handed to every lane by shuffles. Per (subgroup, splat) that is 12 shuffles, 7 + 1
 //   reductions and two atomic instructions instead of 12 per-lane loads, 9 reductions, 9
@@ -295,50 +295,10 @@ void add_slot(uint g, uint slot, float v) {
 }
 
 #if HAS_SHUFFLE
-// One level of the transposing butterfly over v[0 .. 2H): the lanes with bit H set keep the
-// upper half of the slots and receive their partner's (lane ^ H) upper half, the others the
-// lower half, so v[0 .. H) then holds sums over lane pairs of H slots chosen by bit H.
-#define TRANSPOSE_LEVEL(H)                                                             \
-    if (SUBGROUP_SIZE > (H)) {                                                         \
-        bool upper = (lane & (H)) != 0u;                                               \
-        [[unroll]] for (uint i = 0u; i < (H); i++) {                                   \
-            float keep = upper ? v[i + (H)] : v[i];                                    \
-            float send = upper ? v[i] : v[i + (H)];                                    \
-            v[i] = keep + subgroupShuffleXor(send, (H));                               \
-        }                                                                              \
-    }
-const uint MAX_SUBGROUP = 64u;
-const uint FULL_CHUNKS = ACC_STRIDE / SUBGROUP_SIZE;
-const uint REM = ACC_STRIDE - FULL_CHUNKS * SUBGROUP_SIZE;
-
-// Σ over the subgroup of part[c] for every slot c, added to Gaussian g's outputs: every full
-// chunk of SUBGROUP_SIZE slots by the butterfly (SUBGROUP_SIZE − 1 shuffles, after which lane l
-// holds the sum of the chunk's slot l) and one atomic instruction of all lanes; the remaining
-// slots by one reduction each and one atomic instruction of the first lanes.
-void add_sums_transposed(float part[PART_MAX], uint g) {
-    uint lane = gl_SubgroupInvocationID;
-    [[unroll]] for (uint chunk = 0u; chunk < FULL_CHUNKS; chunk++) {
-        float v[MAX_SUBGROUP];
-        [[unroll]] for (uint i = 0u; i < SUBGROUP_SIZE; i++) {
-            v[i] = part[chunk * SUBGROUP_SIZE + i];
-        }
-        TRANSPOSE_LEVEL(32u)
-        TRANSPOSE_LEVEL(16u)
-        TRANSPOSE_LEVEL(8u)
-        TRANSPOSE_LEVEL(4u)
-        TRANSPOSE_LEVEL(2u)
-        TRANSPOSE_LEVEL(1u)
-        add_slot(g, chunk * SUBGROUP_SIZE + lane, v[0]);
-    }
-    if (REM > 0u) {
-        float mine = 0.0;
-        [[unroll]] for (uint r = 0u; r < REM; r++) {
-            float sum = subgroupAdd(part[FULL_CHUNKS * SUBGROUP_SIZE + r]);
-            mine = lane == r ? sum : mine;
-        }
-        if (lane < REM) add_slot(g, FULL_CHUNKS * SUBGROUP_SIZE + lane, mine);
-    }
-}
+// Σ over the subgroup of each slot of a splat's partial sums, straight into global memory.
+#define SUMS_SLOTS ACC_STRIDE
+#define SUMS_PART_MAX PART_MAX
+#include "subgroup_sums.glsl"
 #endif
 
 void main() {

@@ -1,0 +1,59 @@
+// A subgroup's sums of per-invocation partial values, slot by slot, added to global memory with
+// as few cross-lane operations and memory instructions as possible. CPU drivers (lavapipe) run
+// every reduction, shared-memory access and atomic as a loop over the subgroup's lanes whatever
+// the number of active lanes, so nine reductions and nine elected stores cost eighteen such
+// loops where a transposing butterfly needs SUBGROUP_SIZE − 1 shuffles and one atomic
+// instruction in which every lane adds a different slot.
+//
+// The including file defines, before the #include:
+//   SUMS_SLOTS     number of slots (a constant or specialisation-constant expression);
+//   SUMS_PART_MAX  the size of the partial-value array (a constant ≥ SUMS_SLOTS);
+//   void add_slot(uint g, uint slot, float v)  adds the subgroup's sum v of `slot` for item g
+//                  (called with several lanes at once, each with its own slot);
+// and the subgroup shuffle extension, and SUBGROUP_SIZE as a specialisation constant equal to
+// the device's subgroup size (a power of two ≤ 64).
+
+// One level of the transposing butterfly over v[0 .. 2H): the lanes with bit H set keep the
+// upper half of the slots and receive their partner's (lane ^ H) upper half, the others the
+// lower half, so v[0 .. H) then holds sums over lane pairs of H slots chosen by bit H.
+#define TRANSPOSE_LEVEL(H)                                                             \
+    if (SUBGROUP_SIZE > (H)) {                                                         \
+        bool upper = (lane & (H)) != 0u;                                               \
+        [[unroll]] for (uint i = 0u; i < (H); i++) {                                   \
+            float keep = upper ? v[i + (H)] : v[i];                                    \
+            float send = upper ? v[i] : v[i + (H)];                                    \
+            v[i] = keep + subgroupShuffleXor(send, (H));                               \
+        }                                                                              \
+    }
+const uint SUMS_MAX_SUBGROUP = 64u;
+const uint SUMS_FULL_CHUNKS = (SUMS_SLOTS) / SUBGROUP_SIZE;
+const uint SUMS_REM = (SUMS_SLOTS) - SUMS_FULL_CHUNKS * SUBGROUP_SIZE;
+
+// Σ over the subgroup of part[c] for every slot c < SUMS_SLOTS, handed to add_slot(g, c, ·):
+// every full chunk of SUBGROUP_SIZE slots by the butterfly (after which lane l holds the sum of
+// the chunk's slot l) and one add_slot of all lanes; the remaining slots by one reduction each
+// and one add_slot of the first lanes. Call it with the whole subgroup active.
+void add_sums_transposed(float part[SUMS_PART_MAX], uint g) {
+    uint lane = gl_SubgroupInvocationID;
+    [[unroll]] for (uint chunk = 0u; chunk < SUMS_FULL_CHUNKS; chunk++) {
+        float v[SUMS_MAX_SUBGROUP];
+        [[unroll]] for (uint i = 0u; i < SUBGROUP_SIZE; i++) {
+            v[i] = part[chunk * SUBGROUP_SIZE + i];
+        }
+        TRANSPOSE_LEVEL(32u)
+        TRANSPOSE_LEVEL(16u)
+        TRANSPOSE_LEVEL(8u)
+        TRANSPOSE_LEVEL(4u)
+        TRANSPOSE_LEVEL(2u)
+        TRANSPOSE_LEVEL(1u)
+        add_slot(g, chunk * SUBGROUP_SIZE + lane, v[0]);
+    }
+    if (SUMS_REM > 0u) {
+        float mine = 0.0;
+        [[unroll]] for (uint r = 0u; r < SUMS_REM; r++) {
+            float sum = subgroupAdd(part[SUMS_FULL_CHUNKS * SUBGROUP_SIZE + r]);
+            mine = lane == r ? sum : mine;
+        }
+        if (lane < SUMS_REM) add_slot(g, SUMS_FULL_CHUNKS * SUBGROUP_SIZE + lane, mine);
+    }
+}
