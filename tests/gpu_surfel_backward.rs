@@ -115,7 +115,13 @@ struct GpuResult {
     tile_lists: Vec<Vec<u32>>,
 }
 
-fn run_gpu(ctx: &Arc<GpuContext>, s: &Scene, compare_swap: bool) -> (GpuResult, RefSurfels) {
+/// `pixels`: pixels per invocation of the rasterizer backward (None: the device's default).
+fn run_gpu(
+    ctx: &Arc<GpuContext>,
+    s: &Scene,
+    compare_swap: bool,
+    pixels: Option<u32>,
+) -> (GpuResult, RefSurfels) {
     let params = s.surfels.to_params(3, THIRD);
     let exact = RefSurfels::from_params(&params);
     let n = params.len();
@@ -165,7 +171,10 @@ fn run_gpu(ctx: &Arc<GpuContext>, s: &Scene, compare_swap: bool) -> (GpuResult, 
     }
     let dl_dimage = GpuBuffer::from_slice(ctx, "dl_dimage", &dl_dimage).unwrap();
     let dl_dmaps = GpuBuffer::from_slice(ctx, "dl_dmaps", &dl_dmaps).unwrap();
-    let backward = SurfelBackward::new(ctx, n, compare_swap).unwrap();
+    let backward = match pixels {
+        Some(p) => SurfelBackward::with_pixels(ctx, n, compare_swap, p).unwrap(),
+        None => SurfelBackward::new(ctx, n, compare_swap).unwrap(),
+    };
     let mut rec = Recorder::new(ctx).unwrap();
     backward
         .record(
@@ -243,9 +252,10 @@ fn check_scene(
     label: &str,
     s: &Scene,
     compare_swap: bool,
+    pixels: Option<u32>,
     (rel, floor): (f64, f64),
 ) -> bool {
-    let (got, exact) = run_gpu(ctx, s, compare_swap);
+    let (got, exact) = run_gpu(ctx, s, compare_swap, pixels);
     let bg = s.background.map(|v| v as f64);
     let deg = s.sh_degree as usize;
     let fwd = surfel::render(&exact, &s.camera, &s.pose, deg, bg, &s.settings).unwrap();
@@ -355,13 +365,17 @@ fn run(settings: SurfelSettings, seeds: u64, shrink: f64, tolerance: (f64, f64),
     let mut compared = 0;
     for seed in 0..seeds {
         let s = random_scene(&mut rng, settings, shrink);
-        // Both atomic paths on alternate seeds.
+        // Both atomic paths on alternate seeds, and the pixels-per-invocation layouts in turn:
+        // the device's default, 1 (GPUs: sums through shared memory) and 4 (CPU drivers:
+        // per-subgroup sums straight to global memory).
         let cas = seed % 2 == 1;
+        let pixels = [None, Some(1), Some(4)][(seed % 3) as usize];
         if check_scene(
             &ctx,
-            &format!("{label} seed {seed} (cas {cas})"),
+            &format!("{label} seed {seed} (cas {cas}, pixels {pixels:?})"),
             &s,
             cas,
+            pixels,
             tolerance,
         ) {
             compared += 1;

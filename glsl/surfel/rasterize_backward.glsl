@@ -4,9 +4,14 @@
 // One workgroup per 16×16 tile; each invocation owns PIXELS pixels. Every pixel walks its
 // tile's list back to front from its `last_index`, so all pixels of the workgroup visit the
 // same surfel at the same time: surfels are staged in shared memory a batch at a time. Per
-// surfel an invocation sums its pixels' gradients, the subgroup sums those (subgroupAdd) into
-// shared memory, and after the batch one invocation per surfel adds the subgroups' sums to
-// global memory (18 atomics per (tile, surfel) pair at most; zero sums are not added).
+// surfel an invocation sums its pixels' gradients; with SUBGROUP_ATOMICS = 0 (GPUs) the
+// subgroup sums those (subgroupAdd) into shared memory, and after the batch one invocation per
+// surfel adds the subgroups' sums to global memory (18 atomics per (tile, surfel) pair at most;
+// zero sums are not added). With SUBGROUP_ATOMICS = 1 (CPU drivers, several pixels an
+// invocation) each subgroup adds its own sums through the transposing butterfly of
+// subgroup_sums.glsl, and takes each surfel from the lane that loaded it by shuffles (every
+// shared-memory load, reduction and atomic is a loop over the lanes there; see
+// ../backward/rasterize_backward.glsl).
 //
 // Every output is a function of the blend weights w_i = alpha_i T_i and per-surfel values, so
 // per surfel the pixel forms g = ∂L/∂w at fixed values (colour, alpha map, background, depth,
@@ -31,11 +36,16 @@
 #extension GL_KHR_shader_subgroup_basic : require
 #extension GL_KHR_shader_subgroup_arithmetic : require
 #extension GL_EXT_control_flow_attributes : require
+#if HAS_SHUFFLE
+#extension GL_KHR_shader_subgroup_shuffle : require
+#endif
 
 layout(constant_id = 0) const uint WG_SIZE = 256;  // must be 256 / PIXELS
 layout(constant_id = 1) const uint SUBGROUP_SIZE = 32;
 layout(constant_id = 2) const uint USE_FLOAT_ATOMICS = 0;
 layout(constant_id = 3) const uint PIXELS = 1;  // 1, 2, 4, 8 or 16
+// 1: per-subgroup sums straight into global memory (needs HAS_SHUFFLE); 0: through s_acc.
+layout(constant_id = 4) const uint SUBGROUP_ATOMICS = 0;
 layout(local_size_x_id = 0) in;
 
 #include "camera.glsl"
@@ -88,10 +98,21 @@ void atomic_add_float(uint idx, float v) {
     }
 }
 
-// Surfels per batch: the per-subgroup sums of a batch must fit in s_acc.
-const uint ACC_FLOATS = 4608u;
+// Adds the subgroup's sum v of slot `slot` for surfel g (zeros add nothing).
+void add_slot(uint g, uint slot, float v) {
+    if (v != 0.0) atomic_add_float(g * GRAD_STRIDE + slot, v);
+}
+#if HAS_SHUFFLE
+#define SUMS_SLOTS GRAD_STRIDE
+#define SUMS_PART_MAX GRAD_STRIDE
+#include "subgroup_sums.glsl"
+#endif
+
+// Surfels per batch: the per-subgroup sums of a batch must fit in s_acc (without them, one
+// per invocation as well).
+const uint ACC_FLOATS = SUBGROUP_ATOMICS != 0u ? 1u : 4608u;
 const uint NUM_SG = WG_SIZE / SUBGROUP_SIZE;
-const uint BATCH_BY_ACC = ACC_FLOATS / (NUM_SG * GRAD_STRIDE);
+const uint BATCH_BY_ACC = SUBGROUP_ATOMICS != 0u ? WG_SIZE : ACC_FLOATS / (NUM_SG * GRAD_STRIDE);
 const uint BATCH = WG_SIZE < BATCH_BY_ACC ? WG_SIZE : BATCH_BY_ACC;
 
 // Pixel k of invocation li (row-major in the tile): a subgroup's pixels are consecutive.
@@ -183,12 +204,47 @@ void main() {
             s_rgb[li] = vec3(p.r, p.g, p.b);
         }
         barrier();
+#if HAS_SHUFFLE
+        // With subgroup atomics, lane l loads entry j0 + l of each chunk of the batch (the last
+        // entry again past its end) and every lane takes the entry's values by shuffles.
+        uint lane = gl_SubgroupInvocationID;
+        vec4 l_h1 = vec4(0.0), l_h2 = vec4(0.0), l_h3 = vec4(0.0), l_n = vec4(0.0);
+        vec3 l_rgb = vec3(0.0);
+#endif
         for (uint j = 0u; j < batch; j++) {
             uint e = max_last - 1u - (done + j);
-            vec4 h1 = s_h1[j], h2 = s_h2[j], h3 = s_h3[j];
+            vec4 h1, h2, h3;
+            vec3 rgb, n;
+            uint gid = 0u;
+#if HAS_SHUFFLE
+            if (SUBGROUP_ATOMICS != 0u) {
+                uint jj = j % SUBGROUP_SIZE;
+                if (jj == 0u) {
+                    uint mine = min(j + lane, batch - 1u);
+                    l_h1 = s_h1[mine];
+                    l_h2 = s_h2[mine];
+                    l_h3 = s_h3[mine];
+                    l_n = vec4(s_n[mine], uintBitsToFloat(s_id[mine]));
+                    l_rgb = s_rgb[mine];
+                }
+                h1 = subgroupShuffle(l_h1, jj);
+                h2 = subgroupShuffle(l_h2, jj);
+                h3 = subgroupShuffle(l_h3, jj);
+                vec4 n4 = subgroupShuffle(l_n, jj);
+                n = n4.xyz;
+                gid = floatBitsToUint(n4.w);
+                rgb = subgroupShuffle(l_rgb, jj);
+            } else
+#endif
+            {
+                h1 = s_h1[j];
+                h2 = s_h2[j];
+                h3 = s_h3[j];
+                rgb = s_rgb[j];
+                n = s_n[j];
+            }
             vec2 mc = vec2(h2.w, h3.w);
             float opacity = h1.w;
-            vec3 rgb = s_rgb[j], n = s_n[j];
             vec3 g_h1 = vec3(0.0), g_h2 = vec3(0.0), g_h3 = vec3(0.0), g_rgb = vec3(0.0);
             vec3 g_n = vec3(0.0);
             vec2 g_m = vec2(0.0);
@@ -234,6 +290,15 @@ void main() {
                 g_h2 -= dl_dcc;
                 g_h3 += dl_dh3;
             }
+#if HAS_SHUFFLE
+            if (SUBGROUP_ATOMICS != 0u) {
+                float part[GRAD_STRIDE] = float[GRAD_STRIDE](
+                    g_h1.x, g_h1.y, g_h1.z, g_h2.x, g_h2.y, g_h2.z, g_h3.x, g_h3.y, g_h3.z,
+                    g_m.x, g_m.y, g_rgb.x, g_rgb.y, g_rgb.z, g_op, g_n.x, g_n.y, g_n.z);
+                add_sums_transposed(part, gid);
+                continue;
+            }
+#endif
             g_h1 = subgroupAdd(g_h1);
             g_h2 = subgroupAdd(g_h2);
             g_h3 = subgroupAdd(g_h3);
@@ -252,14 +317,14 @@ void main() {
                 s_acc[a + 15u] = g_n.x; s_acc[a + 16u] = g_n.y; s_acc[a + 17u] = g_n.z;
             }
         }
+        if (SUBGROUP_ATOMICS != 0u) continue;
         barrier();
         // One invocation per surfel of the batch: the subgroups' sums, then the atomics.
         for (uint j = li; j < batch; j += WG_SIZE) {
-            uint base = s_id[j] * GRAD_STRIDE;
             for (uint c = 0u; c < GRAD_STRIDE; c++) {
                 float sum = 0.0;
                 for (uint sg = 0u; sg < NUM_SG; sg++) sum += s_acc[(j * NUM_SG + sg) * GRAD_STRIDE + c];
-                if (sum != 0.0) atomic_add_float(base + c, sum);
+                add_slot(s_id[j], c, sum);
             }
         }
     }

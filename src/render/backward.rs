@@ -89,13 +89,13 @@ pub const MAX_FEATURE_CHANNELS: u32 = 48;
 /// instead of through shared memory: with several pixels an invocation, i.e. on CPU drivers,
 /// where every shared-memory access and reduction is a loop over the lanes (see
 /// `glsl/backward/rasterize_backward.glsl`); it needs the subgroup shuffles.
-fn subgroup_atomics(info: &crate::gpu::DeviceInfo, pixels: u32) -> bool {
+pub(crate) fn subgroup_atomics(info: &crate::gpu::DeviceInfo, pixels: u32) -> bool {
     pixels > 1 && full_kernel(info)
 }
 
 /// Whether the device takes `rasterize_backward.comp` (float atomic add and shuffles in its
 /// SPIR-V) rather than `rasterize_backward_cas.comp` (neither).
-fn full_kernel(info: &crate::gpu::DeviceInfo) -> bool {
+pub(crate) fn full_kernel(info: &crate::gpu::DeviceInfo) -> bool {
     info.float_atomic_add && info.subgroup_shuffle
 }
 

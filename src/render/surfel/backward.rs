@@ -20,7 +20,7 @@ use anyhow::{ensure, Result};
 use super::forward::SurfelRenderer;
 use super::layout::SurfelConstants;
 use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder, TimestampPool};
-use crate::render::backward::backward_pixels_per_invocation;
+use crate::render::backward::{backward_pixels_per_invocation, full_kernel, subgroup_atomics};
 use crate::render::layout::CameraGpu;
 use crate::shaders;
 use crate::splats::gpu::{grown_capacity, GpuSplats};
@@ -91,9 +91,29 @@ impl SurfelBackward {
     /// tests).
     pub fn new(ctx: &Arc<GpuContext>, capacity: usize, compare_swap: bool) -> Result<Self> {
         let pixels = backward_pixels_per_invocation(&ctx.info);
-        let wg = WG / pixels;
+        Self::with_pixels(ctx, capacity, compare_swap, pixels)
+    }
+
+    /// As [`SurfelBackward::new`] with `pixels` (1, 2, 4, 8 or 16) pixels per invocation of the
+    /// rasterizer backward instead of the device's default: tests run the GPU layout (1, sums
+    /// through shared memory) on a CPU driver this way.
+    pub fn with_pixels(
+        ctx: &Arc<GpuContext>,
+        capacity: usize,
+        compare_swap: bool,
+        pixels: u32,
+    ) -> Result<Self> {
+        let wg = WG / pixels.max(1);
+        ensure!(
+            matches!(pixels, 1 | 2 | 4 | 8 | 16)
+                && wg.is_multiple_of(ctx.info.subgroup_size.max(1)),
+            "2DGS backward: {pixels} pixels per invocation gives {wg} invocations per tile, not \
+             a multiple of the subgroup size {}; use 1, 2, 4, 8 or 16 with whole subgroups",
+            ctx.info.subgroup_size
+        );
         let float_atomics = ctx.info.float_atomic_add && !compare_swap;
-        let (name, spirv) = if ctx.info.float_atomic_add {
+        // A device without float atomics or shuffles gets SPIR-V that declares neither.
+        let (name, spirv) = if full_kernel(&ctx.info) {
             (
                 "surfel/rasterize_backward",
                 shaders::SURFEL_RASTERIZE_BACKWARD,
@@ -111,7 +131,11 @@ impl SurfelBackward {
             12,
             std::mem::size_of::<RasterPush>() as u32,
             wg,
-            &[float_atomics as u32, pixels],
+            &[
+                float_atomics as u32,
+                pixels,
+                subgroup_atomics(&ctx.info, pixels) as u32,
+            ],
         )?;
         let preprocess = ComputePipeline::new(
             ctx,
