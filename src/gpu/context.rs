@@ -136,9 +136,20 @@ fn version_string(v: u32) -> String {
     )
 }
 
+/// Serialises creating and destroying Vulkan instances and devices within the process. The
+/// Vulkan spec allows them concurrently, but one run of the test suite (two test threads, each
+/// opening and closing contexts) crashed once with SIGSEGV in a binary that does nothing else,
+/// and lavapipe (Mesa 22.3) sets up process-wide LLVM state when an instance or device is
+/// created. Contexts are opened once per run, so holding a lock costs nothing.
+fn lifecycle_lock() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    LOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
 /// One line per Vulkan device: (index, name, type, api version).
 pub fn list_devices() -> anyhow::Result<Vec<(usize, String, String, String)>> {
     let entry = load_entry()?;
+    let _serial = lifecycle_lock();
     let app = vk::ApplicationInfo::default().api_version(vk::API_VERSION_1_3);
     let instance = unsafe {
         entry.create_instance(
@@ -193,6 +204,7 @@ impl GpuContext {
                 .map(|v| v != "0" && !v.is_empty())
                 .unwrap_or(false);
         let entry = load_entry()?;
+        let _serial = lifecycle_lock();
         unsafe { Self::create(entry, validation, opts.device.as_deref(), opts.memory_limit) }
     }
 
@@ -611,6 +623,7 @@ impl GpuContext {
 
 impl Drop for GpuContext {
     fn drop(&mut self) {
+        let _serial = lifecycle_lock();
         unsafe {
             let _ = self.device.device_wait_idle();
             ManuallyDrop::drop(&mut self.allocator);
