@@ -342,15 +342,8 @@ void main() {
     // subgroup starts each batch after them (a loop bound, which skips work even where `if`
     // only masks lanes).
     uint sg_max_last = subgroupMax(my_max_last);
-    // The box of the subgroup's pixel centres (from the pixels themselves, whatever the
-    // subgroup's layout): splats whose reach misses it are not visited by the subgroup.
-    vec2 c_lo = centre[0], c_hi = centre[0];
-    [[unroll]] for (uint k = 1u; k < PIXELS; k++) {
-        c_lo = min(c_lo, centre[k]);
-        c_hi = max(c_hi, centre[k]);
-    }
-    c_lo = subgroupMin(c_lo);
-    c_hi = subgroupMax(c_hi);
+    vec2 c_lo, c_hi;
+    subgroup_pixel_box(centre, c_lo, c_hi);
     atomicMax(s_max_last, sg_max_last);
     barrier();
     uint max_last = s_max_last;

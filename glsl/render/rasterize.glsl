@@ -131,15 +131,8 @@ void main() {
         all_done = all_done && done[k];
     }
 
-    // The box of the subgroup's pixel centres (from the pixels themselves, whatever the
-    // subgroup's layout).
-    vec2 c_lo = centre[0], c_hi = centre[0];
-    [[unroll]] for (uint k = 1u; k < PIXELS; k++) {
-        c_lo = min(c_lo, centre[k]);
-        c_hi = max(c_hi, centre[k]);
-    }
-    c_lo = subgroupMin(c_lo);
-    c_hi = subgroupMax(c_hi);
+    vec2 c_lo, c_hi;
+    subgroup_pixel_box(centre, c_lo, c_hi);
     bool smooth_mode = (rc.flags & 1u) != 0u;
 
     uvec2 range = ranges[tile];

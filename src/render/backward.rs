@@ -99,6 +99,23 @@ pub(crate) fn full_kernel(info: &crate::gpu::DeviceInfo) -> bool {
     info.float_atomic_add && info.subgroup_shuffle
 }
 
+/// The workgroup size of a rasterizer backward with `pixels` pixels per invocation (1, 2, 4, 8
+/// or 16, giving whole subgroups), or an error naming `what` and the choices.
+pub(crate) fn backward_workgroup(
+    info: &crate::gpu::DeviceInfo,
+    pixels: u32,
+    what: &str,
+) -> Result<u32> {
+    let wg = WG / pixels.max(1);
+    ensure!(
+        matches!(pixels, 1 | 2 | 4 | 8 | 16) && wg.is_multiple_of(info.subgroup_size.max(1)),
+        "{what}: {pixels} pixels per invocation gives {wg} invocations per tile, not a multiple \
+         of the subgroup size {}; use 1, 2, 4, 8 or 16 with whole subgroups",
+        info.subgroup_size
+    );
+    Ok(wg)
+}
+
 /// How the rasterizer backward adds gradients into global memory.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum AtomicMode {
@@ -236,14 +253,7 @@ impl Backward {
         mode: AtomicMode,
         pixels: u32,
     ) -> Result<Self> {
-        let wg = WG / pixels.max(1);
-        ensure!(
-            matches!(pixels, 1 | 2 | 4 | 8 | 16)
-                && wg.is_multiple_of(ctx.info.subgroup_size.max(1)),
-            "GPU backward: {pixels} pixels per invocation gives {wg} invocations per tile, not a \
-             multiple of the subgroup size {}; use 1, 2, 4, 8 or 16 with whole subgroups",
-            ctx.info.subgroup_size
-        );
+        backward_workgroup(&ctx.info, pixels, "GPU backward")?;
         let float_atomics = mode == AtomicMode::Auto && ctx.info.float_atomic_add;
         let raster = Self::raster_pipeline(ctx, float_atomics, pixels, RasterVariant::default())?;
         let preprocess = ComputePipeline::new(

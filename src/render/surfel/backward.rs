@@ -20,7 +20,9 @@ use anyhow::{ensure, Result};
 use super::forward::SurfelRenderer;
 use super::layout::SurfelConstants;
 use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder, TimestampPool};
-use crate::render::backward::{backward_pixels_per_invocation, full_kernel, subgroup_atomics};
+use crate::render::backward::{
+    backward_pixels_per_invocation, backward_workgroup, full_kernel, subgroup_atomics,
+};
 use crate::render::layout::CameraGpu;
 use crate::shaders;
 use crate::splats::gpu::{grown_capacity, GpuSplats};
@@ -103,14 +105,7 @@ impl SurfelBackward {
         compare_swap: bool,
         pixels: u32,
     ) -> Result<Self> {
-        let wg = WG / pixels.max(1);
-        ensure!(
-            matches!(pixels, 1 | 2 | 4 | 8 | 16)
-                && wg.is_multiple_of(ctx.info.subgroup_size.max(1)),
-            "2DGS backward: {pixels} pixels per invocation gives {wg} invocations per tile, not \
-             a multiple of the subgroup size {}; use 1, 2, 4, 8 or 16 with whole subgroups",
-            ctx.info.subgroup_size
-        );
+        let wg = backward_workgroup(&ctx.info, pixels, "2DGS backward")?;
         let float_atomics = ctx.info.float_atomic_add && !compare_swap;
         // A device without float atomics or shuffles gets SPIR-V that declares neither.
         let (name, spirv) = if full_kernel(&ctx.info) {
