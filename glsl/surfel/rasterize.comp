@@ -92,6 +92,9 @@ void main() {
         uint batch = min(WG_SIZE, range.y - base);
         for (uint j = 0u; !all_done && j < batch; j++) {
             vec4 h1 = s_h1[j], h2 = s_h2[j], h3 = s_h3[j];
+            // Loaded once for all the invocation's pixels (inside the pixel loop every load
+            // would run once per pixel: a loop over the lanes each on CPU drivers).
+            vec3 n = s_n[j], rgb = s_rgb[j];
             all_done = true;
             [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
                 SurfelHit s;
@@ -115,8 +118,8 @@ void main() {
                             median[k] = s.z;
                             median_at[k] = base - range.x + j + 1u;
                         }
-                        normal[k] += w * s_n[j];
-                        color[k] += w * s_rgb[j];
+                        normal[k] += w * n;
+                        color[k] += w * rgb;
                         T[k] = next_t;
                         last[k] = base - range.x + j + 1u;
                     }
