@@ -60,9 +60,11 @@ pub fn default_pixels_per_invocation(info: &crate::gpu::DeviceInfo) -> u32 {
     cpu_pixels_per_invocation(info, 8)
 }
 
-/// Pixels per invocation of the rasterizer backward: 16 on CPU drivers (its per-splat
-/// reduction is dearer than the forward's loads; lavapipe, 12k Gaussians at 162×242:
-/// 1 → 200 ms, 4 → 77 ms, 8 → 55–68 ms, 16 → 48 ms), 1 on GPUs.
+/// Pixels per invocation of the 2DGS rasterizer backward: 16 on CPU drivers (its per-surfel
+/// reduction is dearer than the forward's loads; measured on the 3DGS backward before it got
+/// per-subgroup splat lists, lavapipe, 12k Gaussians at 162×242: 1 → 200 ms, 4 → 77 ms,
+/// 8 → 55–68 ms, 16 → 48 ms), 1 on GPUs. The 3DGS backward takes
+/// [`default_pixels_per_invocation`] (8 measured best with its lists and per-subgroup sums).
 pub fn backward_pixels_per_invocation(info: &crate::gpu::DeviceInfo) -> u32 {
     cpu_pixels_per_invocation(info, 16)
 }
