@@ -240,10 +240,7 @@ impl Backward {
             ctx,
             capacity,
             mode,
-            std::env::var("XP_PIX")
-                .ok()
-                .and_then(|v| v.parse().ok())
-                .unwrap_or(default_pixels_per_invocation(&ctx.info)),
+            default_pixels_per_invocation(&ctx.info),
         )
     }
 
