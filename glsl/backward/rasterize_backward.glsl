@@ -141,10 +141,11 @@ void atomic_add_abs(uint idx, float v) { FLOAT_ATOMIC_ADD(abs_grad_f, abs_grad_b
 //   subgroup's lanes whatever the number of active lanes): each subgroup reduces its sums with
 //   a transposing butterfly (subgroup_sums.glsl) and adds them to global memory itself, one
 //   slot per lane; the splats of its list are loaded one per lane, SUBGROUP_SIZE at a time, and
-//   handed to every lane by shuffles. Per (subgroup, splat) that is 12 shuffles, 7 + 1
+//   handed to every lane by shuffles. Per (subgroup, splat) that is 11 shuffles, 7 + 1
 //   reductions and two atomic instructions instead of 12 per-lane loads, 9 reductions, 9
 //   stores and a share of the zeroing and summing of s_acc (lavapipe, 2 cores, training
-//   lund_door at 162×242: 33.8 → 17 ms an iteration; tnt_truck at 245×137: 118 → 60 ms).
+//   lund_door at 162×242: 33.8 → 17 ms an iteration; tnt_truck at 245×137: 118 → 60 ms; with
+//   the branch-free visit() below, 13.1 and 43 ms).
 layout(constant_id = 7) const uint SUBGROUP_ATOMICS = 0;
 
 // Splats per batch. With shared sums, every invocation stages one, and the per-subgroup sums
