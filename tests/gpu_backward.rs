@@ -854,6 +854,29 @@ fn backward_under_subgroup_size_16() {
 #[test]
 fn record_refuses_mismatched_arguments() {
     let ctx = ctx();
+    // More feature channels than the per-splat sums hold, or a layout without whole subgroups:
+    // refused with the numbers, before any pipeline is built.
+    let too_many = lpmsplat::render::backward::MAX_FEATURE_CHANNELS + 1;
+    let err = Backward::new(&ctx, 4)
+        .unwrap()
+        .with_variant(
+            &ctx,
+            RasterVariant {
+                extra: too_many,
+                ..Default::default()
+            },
+        )
+        .err()
+        .expect("must refuse");
+    assert!(
+        err.to_string()
+            .contains(&format!("{too_many} feature channels")),
+        "{err}"
+    );
+    let err = Backward::with_pixels(&ctx, 4, AtomicMode::Auto, 3)
+        .err()
+        .expect("must refuse");
+    assert!(err.to_string().contains("1, 2, 4, 8 or 16"), "{err}");
     let mut rng = Pcg64::seed_from_u64(3);
     let s = Scene::random(&mut rng, 10, 20, 18, 1);
     let forward = reference::render(
