@@ -12,7 +12,7 @@ use lpmsplat::reference::gpu_layout::{
 use lpmsplat::reference::scenes::{random_gaussians, random_view};
 use lpmsplat::reference::{self, mip, Gradients, RefGaussians, RenderSettings};
 use lpmsplat::render::backward::{
-    AtomicMode, Backward, BackwardArgs, RasterVariant, GRAD2D_STRIDE,
+    AtomicMode, Backward, BackwardArgs, FeatureGrads, RasterVariant, GRAD2D_STRIDE,
 };
 use lpmsplat::render::layout::{CameraGpu, RenderConstants};
 use lpmsplat::scene::{PinholeCamera, Pose};
@@ -45,6 +45,15 @@ struct Scene {
     /// Mip-Splatting's 3D filter (f32-exact values): the reference renders the fused
     /// parameters and takes its gradients back through `mip::fuse_backward`.
     filter3d: Option<Vec<f64>>,
+    /// Feature channels (SpacetimeGaussians' full model): values `[g·C + c]` and
+    /// dL/d(feature image) `[pix·C + c]`, f32-exact.
+    features: Option<SceneFeatures>,
+}
+
+struct SceneFeatures {
+    channels: usize,
+    values: Vec<f64>,
+    dl_dimage: Vec<f64>,
 }
 
 impl Scene {
@@ -75,7 +84,21 @@ impl Scene {
                 .map(|_| [0; 3].map(|_| rng.gen_range(-1.0f32..1.0) as f64))
                 .collect(),
             filter3d: None,
+            features: None,
         }
+    }
+
+    /// The same scene with `channels` random feature channels and random dL/d(feature image).
+    fn with_features(mut self, rng: &mut Pcg64, channels: usize) -> Scene {
+        let pixels = (self.camera.width * self.camera.height) as usize;
+        let mut draw =
+            |n: usize| -> Vec<f64> { (0..n).map(|_| rng.gen_range(-1.5f32..1.5) as f64).collect() };
+        self.features = Some(SceneFeatures {
+            channels,
+            values: draw(self.gaussians.len() * channels),
+            dl_dimage: draw(pixels * channels),
+        });
+        self
     }
 }
 
@@ -93,6 +116,8 @@ struct GpuResult {
     pixel_count: Option<(Vec<u32>, Vec<u32>)>,
     /// With the absolute gradient on: the GPU's, per Gaussian.
     abs_grad: Option<Vec<f32>>,
+    /// With feature channels: their gradients `[g·C + c]` and the reference's.
+    feature_grads: Option<(Vec<f32>, Vec<f64>)>,
     float_atomics: bool,
 }
 
@@ -135,6 +160,43 @@ fn run_gpu_pixels(
         &s.dl_dimage,
     )
     .unwrap();
+    // Feature channels blend with the colour's weights: their gradients reach the geometry
+    // too, and from there the parameters.
+    let mut want_features = None;
+    if let Some(f) = &s.features {
+        let (geometry, grads) = reference::decoder::rasterize_features_backward(
+            &forward.projected,
+            &forward.bins,
+            &forward.raster,
+            &f.values,
+            f.channels,
+            &s.settings,
+            &f.dl_dimage,
+        )
+        .unwrap();
+        let pg = &mut want.projected;
+        for i in 0..pg.opacity.len() {
+            for c in 0..2 {
+                pg.mean2d[i][c] += geometry.mean2d[i][c];
+            }
+            for c in 0..3 {
+                pg.conic[i][c] += geometry.conic[i][c];
+            }
+            pg.opacity[i] += geometry.opacity[i];
+        }
+        want.params = reference::backward::preprocess_backward(
+            rendered,
+            &forward.projected,
+            &s.camera,
+            &s.pose,
+            s.degree,
+            &s.settings,
+            &want.projected,
+        )
+        .unwrap();
+        want.ndc_mean2d_norm = reference::backward::ndc_mean2d_norm(&want.projected, &s.camera);
+        want_features = Some(grads);
+    }
     if let Some(f) = &s.filter3d {
         want.params = mip::fuse_backward(&s.gaussians, f, &want.params).unwrap();
     }
@@ -169,6 +231,20 @@ fn run_gpu_pixels(
     let splats = GpuSplats::upload(ctx, &params, n + SPARE).unwrap();
     let grads = GpuSplats::zeroed(ctx, "grad_", s.stored_degree, n, n + SPARE).unwrap();
     let view_grad_norm = GpuBuffer::<f32>::from_slice(ctx, "vgn", &vec![0.0; n + SPARE]).unwrap();
+    let feature_bufs = s.features.as_ref().map(|f| {
+        let f32s = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<_>>();
+        (
+            GpuBuffer::from_slice(ctx, "features", &f32s(&f.values)).unwrap(),
+            GpuBuffer::from_slice(ctx, "dl_dfeatures", &f32s(&f.dl_dimage)).unwrap(),
+            // Poisoned past `count`: the pass zeroes and fills the first count·C only.
+            GpuBuffer::<f32>::from_slice(
+                ctx,
+                "g_features",
+                &vec![f32::NAN; (n + SPARE) * f.channels],
+            )
+            .unwrap(),
+        )
+    });
 
     let mut bwd = match pixels {
         Some(p) => Backward::with_pixels(ctx, 1, mode, p).unwrap(),
@@ -207,7 +283,14 @@ fn run_gpu_pixels(
             pixel_count: count_pixels.then_some(&pixel_count),
             abs_grad: variant.abs_grad.then_some(&abs_grad),
             filter3d: filter_buf.as_ref(),
-            features: None,
+            features: feature_bufs.as_ref().zip(s.features.as_ref()).map(
+                |((values, dl_dimage, grads), f)| FeatureGrads {
+                    values,
+                    dl_dimage,
+                    grads,
+                    channels: f.channels as u32,
+                },
+            ),
             count: n,
             sh_degree: s.degree as u32,
             constants,
@@ -249,6 +332,20 @@ fn run_gpu_pixels(
             );
             got[..n].to_vec()
         }),
+        feature_grads: feature_bufs
+            .as_ref()
+            .zip(s.features.as_ref())
+            .map(|((_, _, g), f)| {
+                let got = g.read().unwrap();
+                assert!(
+                    got[n * f.channels..].iter().all(|v| v.is_nan()),
+                    "feature gradients: written past count"
+                );
+                (
+                    got[..n * f.channels].to_vec(),
+                    want_features.clone().expect("computed with the features"),
+                )
+            }),
         float_atomics: bwd.uses_float_atomics(),
     };
     // Past `count`: untouched (still NaN).
@@ -549,6 +646,67 @@ fn mip_filters_match_reference() {
         );
         check_scene(&ctx, &format!("mip case {case} {w}×{h} n {n}"), &s);
     }
+    ctx.check_validation().unwrap();
+}
+
+/// Feature channels (SpacetimeGaussians' full model: 6; 48, the most the backward carries)
+/// blended beside the colour, in every pixels-per-invocation layout and both atomic paths: their
+/// own gradients, and what they add to the geometry's and the parameters'. On CPU drivers more
+/// than one pixel an invocation sums the slots per subgroup by the transposing butterfly,
+/// whose last chunk is padded with zeros for these slot counts (subgroup_sums.glsl).
+#[test]
+fn feature_channels_match_reference_in_every_layout() {
+    let ctx = ctx();
+    let mut rng = Pcg64::seed_from_u64(0xFEA7);
+    for (case, (channels, pixels, mode)) in [
+        (6, None, AtomicMode::Auto),
+        (6, Some(1), AtomicMode::Auto),
+        (6, Some(1), AtomicMode::CompareSwap),
+        (6, Some(4), AtomicMode::Auto),
+        (6, Some(16), AtomicMode::Auto),
+        (48, None, AtomicMode::Auto),
+        (48, Some(1), AtomicMode::Auto),
+        (48, Some(8), AtomicMode::Auto),
+        (24, Some(16), AtomicMode::Auto),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let (w, h) = [(37, 23), (29, 41)][case % 2];
+        let n = rng.gen_range(60..140);
+        let s = Scene::random(&mut rng, n, w, h, case % 4).with_features(&mut rng, channels);
+        let variant = RasterVariant {
+            extra: channels as u32,
+            ..Default::default()
+        };
+        let (got, want) = run_gpu_pixels(&ctx, mode, pixels, variant, &s);
+        let label = format!("{channels} channels, {pixels:?} px/invocation, {mode:?}");
+        check_against_reference(&label, &s, &got, &want);
+        let (g, r) = got.feature_grads.as_ref().unwrap();
+        compare(&format!("{label} feature gradients"), g, r, 1e-2, 1e-4);
+        assert!(
+            r.iter().any(|&v| v.abs() > 1e-3),
+            "{label}: the features got no gradient"
+        );
+    }
+    // More per-pixel feature gradients an invocation than MAX_PIXEL_FEATURES are refused
+    // (lavapipe got 16 × 48 wrong on some scenes), with the numbers.
+    let err = Backward::with_pixels(&ctx, 4, AtomicMode::Auto, 16)
+        .unwrap()
+        .with_variant(
+            &ctx,
+            RasterVariant {
+                extra: 48,
+                ..Default::default()
+            },
+        )
+        .err()
+        .expect("16 pixels × 48 channels is refused")
+        .to_string();
+    assert!(
+        err.contains("48 feature channels at 16 pixels") && err.contains("384"),
+        "{err}"
+    );
     ctx.check_validation().unwrap();
 }
 

@@ -647,3 +647,84 @@ fn intersections_are_counted_in_64_bits_and_refused_past_one_binding() {
     }
     ctx.check_validation().unwrap();
 }
+
+/// Feature channels (SpacetimeGaussians' full model: 6; 48, the most the backward carries)
+/// blended beside the colour in every pixels-per-invocation layout, against the reference's
+/// feature image; the image is poisoned first, so every pixel must be written.
+#[test]
+fn feature_channels_match_the_reference_in_every_layout() {
+    use lpmsplat::reference::decoder::rasterize_features;
+    use lpmsplat::render::forward::FeatureChannels;
+    let ctx = ctx();
+    let settings = RenderSettings::default();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(0xFEA7);
+    let mut compared = 0;
+    for channels in [6usize, 48] {
+        for pixels in [1u32, 2, 4, 8] {
+            if (256 / pixels) % ctx.info.subgroup_size != 0 {
+                continue;
+            }
+            let mut renderer = renderer(&ctx).with_raster_pixels(pixels).unwrap();
+            for seed in 0..3 {
+                let n = rng.gen_range(20..160);
+                let g = scenes::random_gaussians(&mut rng, n);
+                let (w, h) = (rng.gen_range(8..60), rng.gen_range(8..60));
+                let (camera, pose) = scenes::random_view(&mut rng, w, h);
+                let values: Vec<f32> = (0..n * channels)
+                    .map(|_| rng.gen_range(-1.5f32..1.5))
+                    .collect();
+                let label = format!("{channels} channels, {pixels} px/invocation, seed {seed}");
+                let params = g.to_params(3);
+                let exact = RefGaussians::from_params(&params);
+                let splats = GpuSplats::upload(&ctx, &params, n).unwrap();
+                let cam = CameraGpu::new(&camera, &pose);
+                let cameras = GpuBuffer::from_slice(&ctx, "cameras", &[cam]).unwrap();
+                let feature_buf = GpuBuffer::from_slice(&ctx, "features", &values).unwrap();
+                let frame = FrameSettings {
+                    features: Some(FeatureChannels {
+                        values: &feature_buf,
+                        channels: channels as u32,
+                    }),
+                    ..FrameSettings::plain(1, [0.3, 0.6, 0.9])
+                };
+                // The first render sizes the feature image; the second must overwrite poison.
+                for pass in 0..2 {
+                    if pass == 1 {
+                        let img = renderer.feature_image().unwrap();
+                        img.upload(&vec![f32::NAN; img.len()]).unwrap();
+                    }
+                    renderer
+                        .render_blocking(&splats, &cameras, 0, &cam, &frame)
+                        .unwrap();
+                }
+                let px = (w * h) as usize;
+                let got = renderer
+                    .feature_image()
+                    .unwrap()
+                    .read_range(0, px * channels)
+                    .unwrap();
+                let r = reference::render(&exact, &camera, &pose, 1, [0.0; 3], &settings).unwrap();
+                let f64s: Vec<f64> = values.iter().map(|&v| v as f64).collect();
+                let want =
+                    rasterize_features(&r.projected, &r.bins, &camera, &f64s, channels, &settings)
+                        .unwrap();
+                let mut max_diff = 0.0f64;
+                for (i, (&a, &b)) in got.iter().zip(&want).enumerate() {
+                    assert!(
+                        a.is_finite(),
+                        "{label}: value {i} not written or not finite"
+                    );
+                    max_diff = max_diff.max((a as f64 - b).abs());
+                }
+                assert!(max_diff < 2e-3, "{label}: max abs difference {max_diff}");
+                assert!(
+                    want.iter().any(|v| v.abs() > 1e-2),
+                    "{label}: nothing drawn"
+                );
+                compared += 1;
+            }
+        }
+    }
+    assert!(compared >= 12, "only {compared} frames compared");
+    ctx.check_validation().unwrap();
+}

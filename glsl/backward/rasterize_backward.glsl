@@ -150,13 +150,19 @@ layout(constant_id = 7) const uint SUBGROUP_ATOMICS = 0;
 
 // Splats per batch. With shared sums, every invocation stages one, and the per-subgroup sums
 // of a batch must fit in s_acc (ACC_FLOATS / (subgroups · ACC_STRIDE) splats); without them,
-// every invocation stages STAGE_ROUNDS (fewer barriers, each a switch between subgroups on
-// CPU drivers).
+// every invocation stages up to STAGE_ROUNDS (fewer barriers, each a switch between subgroups
+// on CPU drivers), as many as fit in STAGE_FLOATS floats of shared memory: a staged splat
+// takes 13 + EXTRA floats and a list slot per subgroup (at 48 feature channels and 8 pixels
+// an invocation four rounds would need 33 KB, past the 32 KB many devices allow).
 const uint ACC_FLOATS = SUBGROUP_ATOMICS != 0u ? 1u : 4608u;
 const uint NUM_SG = WG_SIZE / SUBGROUP_SIZE;
 const uint BATCH_BY_ACC = ACC_FLOATS / (NUM_SG * ACC_STRIDE);
 const uint STAGE_ROUNDS = 4u;
-const uint BATCH = SUBGROUP_ATOMICS != 0u ? WG_SIZE * STAGE_ROUNDS
+const uint STAGE_FLOATS = 6144u;
+const uint BATCH_BY_STAGE = STAGE_FLOATS / (13u + EXTRA + NUM_SG);
+const uint BATCH = SUBGROUP_ATOMICS != 0u
+                   ? (WG_SIZE * STAGE_ROUNDS < BATCH_BY_STAGE ? WG_SIZE * STAGE_ROUNDS
+                                                              : BATCH_BY_STAGE)
                    : (WG_SIZE < BATCH_BY_ACC ? WG_SIZE : BATCH_BY_ACC);
 
 // Pixel k of invocation li, as an index into the 16×16 tile (row-major): invocation li is lane
@@ -200,16 +206,15 @@ float behind_dot[PIXELS];
 // PART_MAX (the host refuses more feature channels).
 const uint PART_MAX = 64u;
 
-// The invocation's partial sums for the splat (mean, opacity, conic, colour; e its entry in
-// the tile's list; j its index in the batch for the extra channels), updating the pixels'
-// transmittance and what lies behind.
+// The invocation's partial sums for the splat (mean, opacity, conic, colour, extra channels f;
+// e its entry in the tile's list), updating the pixels' transmittance and what lies behind.
 //
 // Branch-free per pixel: a skipped pixel (see the skips below) gets alpha = 0 and q = 0, which
 // leave t, behind_dot and every sum exactly as they were (x·1, x + 0), so no lane masks are
 // needed (each masked assignment is a blend on CPU drivers). The mean and conic gradients are
 // linear in q = gauss · dL/dalpha (dL/dpower = opacity · q): the pixels sum q times dx, dy,
 // dx², dx·dy, dy², and the splat's constants multiply the sums once.
-void visit(vec4 mo, vec3 conic, vec3 rgb, uint e, uint j, vec2 ndc, bool smooth_mode,
+void visit(vec4 mo, vec3 conic, vec3 rgb, float f[EXTRA_N], uint e, vec2 ndc, bool smooth_mode,
            out float part[PART_MAX]) {
     vec3 g_rgb = vec3(0.0);
     float g_q = 0.0;  // Σ q: dL/d(opacity)
@@ -218,12 +223,7 @@ void visit(vec4 mo, vec3 conic, vec3 rgb, uint e, uint j, vec2 ndc, bool smooth_
     float n_pixels = 0.0;
     vec2 s_abs = vec2(0.0);  // Σ |q·(conic · d)| per axis
     float g_feat[EXTRA_N];
-    // The splat's extra channels, loaded once for all the invocation's pixels.
-    float f[EXTRA_N];
-    for (uint c = 0u; c < EXTRA; c++) {
-        g_feat[c] = 0.0;
-        f[c] = s_feat[j * EXTRA + c];
-    }
+    for (uint c = 0u; c < EXTRA; c++) g_feat[c] = 0.0;
     [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
         vec2 d = mo.xy - centre[k];
         vec3 dd = vec3(d.x * d.x, d.x * d.y, d.y * d.y);
@@ -411,14 +411,18 @@ void main() {
                 vec4 l_mo = vec4(s_mean_opacity[mine].xyz, uintBitsToFloat(mine));
                 vec4 l_conic = vec4(s_conic[mine].xyz, uintBitsToFloat(s_id[mine]));
                 vec3 l_rgb = s_rgb[mine].xyz;
+                float l_f[EXTRA_N];
+                for (uint c = 0u; c < EXTRA; c++) l_f[c] = s_feat[mine * EXTRA + c];
                 uint n_chunk = min(SUBGROUP_SIZE, n_list - i0);
                 for (uint ii = 0u; ii < n_chunk; ii++) {
                     vec4 mo = subgroupShuffle(l_mo, ii);
                     vec4 conic = subgroupShuffle(l_conic, ii);
                     vec3 rgb = subgroupShuffle(l_rgb, ii);
+                    float f[EXTRA_N];
+                    for (uint c = 0u; c < EXTRA; c++) f[c] = subgroupShuffle(l_f[c], ii);
                     uint j = floatBitsToUint(mo.w);
                     uint e = max_last - 1u - (done + j);
-                    visit(mo, conic.xyz, rgb, e, j, ndc, smooth_mode, part);
+                    visit(mo, conic.xyz, rgb, f, e, ndc, smooth_mode, part);
                     add_sums_transposed(part, floatBitsToUint(conic.w));
                 }
             }
@@ -428,7 +432,9 @@ void main() {
             for (uint i = 0u; i < n_list; i++) {
                 uint j = s_list[list_base + i];
                 uint e = max_last - 1u - (done + j);
-                visit(s_mean_opacity[j], s_conic[j].xyz, s_rgb[j].xyz, e, j, ndc, smooth_mode,
+                float f[EXTRA_N];
+                for (uint c = 0u; c < EXTRA; c++) f[c] = s_feat[j * EXTRA + c];
+                visit(s_mean_opacity[j], s_conic[j].xyz, s_rgb[j].xyz, f, e, ndc, smooth_mode,
                       part);
                 [[unroll]] for (uint c = 0u; c < ACC_STRIDE; c++) part[c] = subgroupAdd(part[c]);
                 if (subgroupElect()) {

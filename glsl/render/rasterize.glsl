@@ -60,11 +60,15 @@ shared vec4 s_mean_opacity[WG_SIZE];  // mean x, mean y, opacity, unused
 shared vec4 s_conic[WG_SIZE];         // a, b, c, power below which alpha < alpha_min
 shared vec4 s_rgb[WG_SIZE];           // r, g, b, splat_q_cut
 shared vec2 s_reach[WG_SIZE];         // splat_reach
-shared float s_feat[WG_SIZE * EXTRA_N];  // [i · EXTRA + c]: the extra channels
-// Splats per batch: at most one per invocation, and every subgroup's list must fit in s_list.
+// Splats per batch: at most one per invocation, every subgroup's list must fit in s_list, and
+// the batch's extra channels in FEAT_FLOATS (at one pixel an invocation, 48 channels for 256
+// splats would take 48 KB, past the 32 KB many devices allow).
 const uint LIST_SLOTS = 2048u;
+const uint FEAT_FLOATS = 2048u;
 const uint NUM_SG = WG_SIZE / SUBGROUP_SIZE;
-const uint BATCH = WG_SIZE < LIST_SLOTS / NUM_SG ? WG_SIZE : LIST_SLOTS / NUM_SG;
+const uint BATCH_BY_LIST = WG_SIZE < LIST_SLOTS / NUM_SG ? WG_SIZE : LIST_SLOTS / NUM_SG;
+const uint BATCH = BATCH_BY_LIST < FEAT_FLOATS / EXTRA_N ? BATCH_BY_LIST : FEAT_FLOATS / EXTRA_N;
+shared float s_feat[BATCH * EXTRA_N];  // [i · EXTRA + c]: the extra channels
 // [subgroup · BATCH + i]: the batch entries that may touch the subgroup's pixels, in order.
 shared uint s_list[LIST_SLOTS];
 shared uint s_done;
@@ -78,15 +82,12 @@ float feat[PIXELS][EXTRA_N];
 uint last[PIXELS];
 bool done[PIXELS];
 
-// Blends splat j of the batch (mean, opacity; conic, power cutoff; colour) into the
+// Blends a splat of the batch (mean, opacity; conic, power cutoff; colour; extra channels) into the
 // invocation's pixels that are not done; `index` is its entry in the tile's list + 1. Returns
 // whether all the invocation's pixels are done. Branch-free per pixel: a pixel the splat does
 // not reach gets weight 0 and keeps T and last (CPU drivers mask every `if`, and each masked
 // assignment costs a blend).
-bool blend(vec4 mo, vec4 cn, vec3 rgb, uint j, uint index, bool smooth_mode) {
-    // The splat's extra channels, loaded once for all the invocation's pixels.
-    float f[EXTRA_N];
-    for (uint c = 0u; c < EXTRA; c++) f[c] = s_feat[j * EXTRA + c];
+bool blend(vec4 mo, vec4 cn, vec3 rgb, float f[EXTRA_N], uint index, bool smooth_mode) {
     bool all = true;
     [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
         vec2 d = mo.xy - centre[k];
@@ -188,18 +189,24 @@ void main() {
                 vec4 l_mo = vec4(s_mean_opacity[mine].xyz, uintBitsToFloat(mine));
                 vec4 l_cn = s_conic[mine];
                 vec3 l_rgb = s_rgb[mine].rgb;
+                float l_f[EXTRA_N];
+                for (uint c = 0u; c < EXTRA; c++) l_f[c] = s_feat[mine * EXTRA + c];
                 uint n_chunk = min(SUBGROUP_SIZE, n_list - i0);
                 for (uint ii = 0u; !subgroupAll(all_done) && ii < n_chunk; ii++) {
                     vec4 mo = SHUFFLE(l_mo, ii);
                     uint j = floatBitsToUint(mo.w);
-                    all_done = blend(mo, SHUFFLE(l_cn, ii), SHUFFLE(l_rgb, ii), j,
+                    float f[EXTRA_N];
+                    for (uint c = 0u; c < EXTRA; c++) f[c] = SHUFFLE(l_f[c], ii);
+                    all_done = blend(mo, SHUFFLE(l_cn, ii), SHUFFLE(l_rgb, ii), f,
                                      base - range.x + j + 1u, smooth_mode);
                 }
             }
         } else {
             for (uint i = 0u; !all_done && i < n_list; i++) {
                 uint j = s_list[list_base + i];
-                all_done = blend(s_mean_opacity[j], s_conic[j], s_rgb[j].rgb, j,
+                float f[EXTRA_N];
+                for (uint c = 0u; c < EXTRA; c++) f[c] = s_feat[j * EXTRA + c];
+                all_done = blend(s_mean_opacity[j], s_conic[j], s_rgb[j].rgb, f,
                                  base - range.x + j + 1u, smooth_mode);
             }
         }

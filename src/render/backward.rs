@@ -86,6 +86,13 @@ fn cpu_pixels_per_invocation(info: &crate::gpu::DeviceInfo, want: u32) -> u32 {
 /// floats: 9 gradients, the pixel count, the absolute gradient and the channels).
 pub const MAX_FEATURE_CHANNELS: u32 = 48;
 
+/// The most per-pixel feature gradients one invocation of the rasterizer backward holds
+/// (pixels an invocation × feature channels). Lavapipe computed wrong gradients at 16 pixels and
+/// 48 channels (768) on some random scenes, where 8 × 48 and 16 × 24 matched the reference on
+/// every scene tried (tests/gpu_backward.rs); the cause inside the driver is not known, so
+/// larger products are refused on every device.
+pub const MAX_PIXEL_FEATURES: u32 = 384;
+
 /// Whether the rasterizer backward sums each splat's gradients per subgroup straight into
 /// global memory (a transposing butterfly of shuffles, one atomic instruction for all lanes)
 /// instead of through shared memory: with several pixels an invocation, i.e. on CPU drivers,
@@ -290,6 +297,14 @@ impl Backward {
             v.extra <= MAX_FEATURE_CHANNELS,
             "GPU backward: {} feature channels; the rasterizer backward carries at most {MAX_FEATURE_CHANNELS}",
             v.extra
+        );
+        ensure!(
+            pixels * v.extra <= MAX_PIXEL_FEATURES,
+            "GPU backward: {} feature channels at {pixels} pixels an invocation ({} per-pixel \
+             feature gradients an invocation, at most {MAX_PIXEL_FEATURES}); use fewer pixels an \
+             invocation or fewer channels",
+            v.extra,
+            pixels * v.extra
         );
         let spec = [
             float_atomics as u32,
