@@ -2,7 +2,7 @@
 //! implements Localized Point Management (LPM, CVPR 2025).
 //!
 //! Dependencies flow one way: `gpu`, `scene` → `splats` → render → train → `lpm`, `models`
-//! → CLI. The trainer is generic over a density strategy (`train::strategy`: ADC, or LPM
+//! → `triangulated_init` → CLI. The trainer is generic over a density strategy (`train::strategy`: ADC, or LPM
 //! wrapping it); a base model (`models`) sets what it changes in the training config.
 
 pub mod error;
@@ -18,6 +18,7 @@ pub mod render;
 pub mod scene;
 pub mod splats;
 pub mod train;
+pub mod triangulated_init;
 
 /// Embedded SPIR-V, one constant per `glsl/**/*.comp` (see `build.rs`).
 pub mod shaders {

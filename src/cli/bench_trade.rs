@@ -58,10 +58,13 @@ pub struct TradeArgs {
     /// interrupted benchmark keeps the rows it reached.
     #[arg(long, value_delimiter = ',')]
     pub eval_at: Vec<u32>,
-    /// Random initial points when the scene has no point cloud (video scenes, transforms.json
-    /// without points).
+    /// Initial points when the scene has no point cloud (video scenes, transforms.json without
+    /// points).
     #[arg(long, default_value_t = 100_000)]
     pub init_points: usize,
+    /// Where they come from: auto, random or triangulate (as `train --init`).
+    #[arg(long, value_enum, default_value_t = crate::cli::train::InitSource::Auto)]
+    pub init: crate::cli::train::InitSource,
     /// Output folder for trade.json, trade.md and trade.png.
     #[arg(long, short = 'o', default_value = "bench_trade")]
     pub out: PathBuf,
@@ -193,8 +196,15 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
     let inits = seeds
         .iter()
         .map(|&seed| {
-            initial_model(&scene, None, args.init_points, seed, sh_degree)
-                .map(|m| args.model.initialise(m, seed))
+            initial_model(
+                args.model,
+                &scene,
+                None,
+                args.init,
+                args.init_points,
+                seed,
+                sh_degree,
+            )
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
     let ctx = GpuContext::new(gpu)?;

@@ -55,9 +55,17 @@ pub struct TrainArgs {
     /// Start from this PLY instead of the SfM points / random points.
     #[arg(long)]
     pub init_ply: Option<PathBuf>,
-    /// Random initial points for scenes without SfM points (the reference uses 100k).
+    /// Initial points for scenes without SfM points (the reference uses 100k random ones).
     #[arg(long, default_value_t = 100_000)]
     pub init_points: usize,
+    /// Where the initial points of a scene without SfM points come from: `triangulate` (feature
+    /// matches between neighbour views triangulated with the known poses, a video scene's at 10
+    /// frames over the segment with each point centred at its frame's time, topped up with
+    /// random points to --init-points), `random` (a box in front of the cameras) or `auto`
+    /// (triangulate video scenes, random points for the others, as the NeRF-synthetic
+    /// reference does).
+    #[arg(long, value_enum, default_value_t = InitSource::Auto)]
+    pub init: InitSource,
     /// Evaluate on the test views every N iterations (0 = only at the end).
     #[arg(long, default_value_t = 0)]
     pub eval_every: u32,
@@ -498,24 +506,80 @@ impl TrainArgs {
     }
 }
 
-/// Initial Gaussians: a PLY, the SfM points, or random points in the cameras' bounds.
+/// Where a scene without SfM points gets its initial points (`--init`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum InitSource {
+    Auto,
+    Random,
+    Triangulate,
+}
+
+/// Fewer triangulated points than this fall back to random points (with a message).
+const MIN_TRIANGULATED: usize = 100;
+
+/// Initial Gaussians of `model`: a PLY, the SfM points, points triangulated from the views
+/// (`--init`), or random points in the cameras' bounds; then the model's own groups. A video
+/// model's triangulated points are centred in time at their frame's time.
 pub fn initial_model(
+    model: BaseModel,
     scene: &Scene,
     init_ply: Option<&Path>,
+    source: InitSource,
     init_points: usize,
     seed: u64,
     sh_degree: u32,
 ) -> anyhow::Result<GaussianParams> {
     if let Some(p) = init_ply {
-        return read_ply(p);
+        return Ok(model.initialise(read_ply(p)?, seed));
     }
-    match &scene.points {
-        Some(points) if !points.is_empty() => splats::init::from_sfm(points, sh_degree),
-        _ => {
-            let (center, half) = scene.random_init_box();
-            splats::init::random_init(init_points, center, [half; 3], seed, sh_degree)
+    if let Some(points) = scene.points.as_ref().filter(|p| !p.is_empty()) {
+        return Ok(model.initialise(splats::init::from_sfm(points, sh_degree)?, seed));
+    }
+    let triangulate = match source {
+        InitSource::Triangulate => true,
+        InitSource::Random => false,
+        InitSource::Auto => scene.view_times.is_some(),
+    };
+    if triangulate {
+        let t0 = std::time::Instant::now();
+        let tri = lpmsplat::triangulated_init::triangulate_scene(scene, init_points, seed)?;
+        eprintln!(
+            "initial points: {} triangulated from {} matches in {} view pairs ({:.1} s)",
+            tri.positions.len(),
+            tri.matches,
+            tri.pairs,
+            t0.elapsed().as_secs_f64()
+        );
+        if tri.positions.len() >= MIN_TRIANGULATED {
+            let params = lpmsplat::triangulated_init::topped_up_model(
+                &tri,
+                scene,
+                init_points,
+                seed,
+                sh_degree,
+            )?;
+            let mut params = model.initialise(params, seed);
+            // A video model's triangulated points are centred at their frame's time (the
+            // random ones keep a random centre).
+            if let Some(centres) = params
+                .extra
+                .iter_mut()
+                .find(|e| e.group.name == "trbf_center")
+            {
+                for (c, &t) in centres.values.iter_mut().zip(&tri.times) {
+                    *c = t as f32;
+                }
+            }
+            return Ok(params);
         }
+        eprintln!(
+            "initial points: fewer than {MIN_TRIANGULATED} triangulated; {init_points} random \
+             points instead"
+        );
     }
+    let (center, half) = scene.random_init_box();
+    let params = splats::init::random_init(init_points, center, [half; 3], seed, sh_degree)?;
+    Ok(model.initialise(params, seed))
 }
 
 /// Creates `out` and proves it writable before any work is done.
@@ -653,16 +717,15 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     }
     let init = match &resumed {
         Some(ck) => ck.params(),
-        None => args.model.initialise(
-            initial_model(
-                &scene,
-                args.init_ply.as_deref(),
-                args.init_points,
-                args.seed,
-                config.sh_degree,
-            )?,
+        None => initial_model(
+            args.model,
+            &scene,
+            args.init_ply.as_deref(),
+            args.init,
+            args.init_points,
             args.seed,
-        ),
+            config.sh_degree,
+        )?,
     };
     let ctx = GpuContext::new(gpu)?;
     // From here on Ctrl-C is polled after each iteration (and saves a checkpoint).
@@ -959,7 +1022,10 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
                 "gaussians": gaussians,
             });
         }
-        _ => cfg["init_points"] = serde_json::json!(init.len()),
+        _ => {
+            cfg["init_points"] = serde_json::json!(init.len());
+            cfg["init"] = serde_json::json!(format!("{:?}", args.init).to_lowercase());
+        }
     }
     cfg["lpm"] = lpm_config
         .as_ref()
