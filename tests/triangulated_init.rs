@@ -3,39 +3,16 @@
 //! cameras. Every kept point must lie on the plane, inside its extent; as a video scene (two
 //! times), every point carries the time of the frame it came from.
 
+use glam::DVec3;
 use lpmsplat::reference::{render, RefGaussians, RenderSettings};
 use lpmsplat::scene::images::save_png;
+use lpmsplat::scene::orbit::look_at;
 use lpmsplat::scene::{CameraModel, Image, PinholeCamera, Pose, Scene, SceneFormat, View};
 use lpmsplat::triangulated_init::{source_views, topped_up_model, triangulate_scene};
 use rand::{Rng, SeedableRng};
 
 const PLANE_Z: f64 = 0.0;
 const HALF: f64 = 1.5;
-
-/// World-to-camera pose of a camera at `eye` looking at `target` (y down in the image).
-fn look_at(eye: [f64; 3], target: [f64; 3]) -> Pose {
-    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-    let norm = |v: [f64; 3]| {
-        let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-        v.map(|x| x / l)
-    };
-    let cross = |a: [f64; 3], b: [f64; 3]| {
-        [
-            a[1] * b[2] - a[2] * b[1],
-            a[2] * b[0] - a[0] * b[2],
-            a[0] * b[1] - a[1] * b[0],
-        ]
-    };
-    let z = norm(sub(target, eye));
-    let x = norm(cross([0.0, 1.0, 0.0], z));
-    let y = cross(z, x);
-    let rotation = [x, y, z];
-    let translation = [0, 1, 2].map(|r| -(0..3).map(|c| rotation[r][c] * eye[c]).sum::<f64>());
-    Pose {
-        rotation,
-        translation,
-    }
-}
 
 /// A plane z = PLANE_Z textured with separate round Gaussians of random colours and sizes on
 /// a jittered grid (texture to match; blobs that overlapped would occlude each other in an
@@ -87,7 +64,11 @@ fn plane_scene(dir: &std::path::Path, times: &[f64]) -> Scene {
     let mut views = Vec::new();
     let mut view_times = Vec::new();
     for (c, eye) in eyes.iter().enumerate() {
-        let pose = look_at(*eye, [0.0, 0.0, PLANE_Z]);
+        let pose = look_at(
+            DVec3::from(*eye),
+            DVec3::new(0.0, 0.0, PLANE_Z),
+            DVec3::NEG_Y,
+        );
         let out = render(&g, &camera, &pose, 0, [0.0; 3], &RenderSettings::default()).unwrap();
         let mut img = Image::new(w, h);
         for (i, p) in out.raster.image.iter().enumerate() {
