@@ -223,7 +223,7 @@ void visit(vec4 mo, vec3 conic, vec3 rgb, float f[EXTRA_N], uint e, vec2 ndc, bo
     float n_pixels = 0.0;
     vec2 s_abs = vec2(0.0);  // Σ |q·(conic · d)| per axis
     float g_feat[EXTRA_N];
-    for (uint c = 0u; c < EXTRA; c++) g_feat[c] = 0.0;
+    [[unroll]] for (uint c = 0u; c < EXTRA; c++) g_feat[c] = 0.0;
     [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
         vec2 d = mo.xy - centre[k];
         vec3 dd = vec3(d.x * d.x, d.x * d.y, d.y * d.y);
@@ -246,7 +246,7 @@ void visit(vec4 mo, vec3 conic, vec3 rgb, float f[EXTRA_N], uint e, vec2 ndc, bo
         float at = alpha * t[k];
         g_rgb += at * dl_dc[k];
         float front = dot(rgb, dl_dc[k]);
-        for (uint c = 0u; c < EXTRA; c++) {
+        [[unroll]] for (uint c = 0u; c < EXTRA; c++) {
             g_feat[c] += at * dl_df[k][c];
             front += f[c] * dl_df[k][c];
         }
@@ -278,7 +278,7 @@ void visit(vec4 mo, vec3 conic, vec3 rgb, float f[EXTRA_N], uint e, vec2 ndc, bo
     part[8] = g_q;
     if (COUNT_PIXELS != 0u) part[GRAD2D_STRIDE] = n_pixels;
     if (ABS_GRAD != 0u) part[ACC_ABS] = mo.z * dot(s_abs, ndc);
-    for (uint c = 0u; c < EXTRA; c++) part[ACC_EXTRA + c] = g_feat[c];
+    [[unroll]] for (uint c = 0u; c < EXTRA; c++) part[ACC_EXTRA + c] = g_feat[c];
 }
 
 // Adds v, the subgroup's sum of slot `slot` for Gaussian g, to its output (zeros add nothing).
@@ -331,7 +331,7 @@ void main() {
         tf_bg[k] = tf * dot(pc.background.xyz, dl_dc[k]);
         t[k] = tf;
         behind_dot[k] = 0.0;
-        for (uint c = 0u; c < EXTRA; c++) {
+        [[unroll]] for (uint c = 0u; c < EXTRA; c++) {
             dl_df[k][c] = inside ? dl_dfeature_image[EXTRA * pix + c] : 0.0;
         }
         my_max_last = max(my_max_last, last[k]);
@@ -366,7 +366,7 @@ void main() {
             s_conic[i] = vec4(p.conic_a, p.conic_b, p.conic_c, reach.y);
             float q_cut = splat_q_cut(p.opacity, pc.rc.alpha_min, smooth_mode);
             s_rgb[i] = vec4(p.r, p.g, p.b, q_cut);
-            for (uint c = 0u; c < EXTRA; c++) s_feat[i * EXTRA + c] = features[g * EXTRA + c];
+            [[unroll]] for (uint c = 0u; c < EXTRA; c++) s_feat[i * EXTRA + c] = features[g * EXTRA + c];
         }
         barrier();
         // Entries e >= sg_max_last (j < j_first) are skipped; with shared sums they get zeros.
@@ -412,14 +412,14 @@ void main() {
                 vec4 l_conic = vec4(s_conic[mine].xyz, uintBitsToFloat(s_id[mine]));
                 vec3 l_rgb = s_rgb[mine].xyz;
                 float l_f[EXTRA_N];
-                for (uint c = 0u; c < EXTRA; c++) l_f[c] = s_feat[mine * EXTRA + c];
+                [[unroll]] for (uint c = 0u; c < EXTRA; c++) l_f[c] = s_feat[mine * EXTRA + c];
                 uint n_chunk = min(SUBGROUP_SIZE, n_list - i0);
                 for (uint ii = 0u; ii < n_chunk; ii++) {
                     vec4 mo = subgroupShuffle(l_mo, ii);
                     vec4 conic = subgroupShuffle(l_conic, ii);
                     vec3 rgb = subgroupShuffle(l_rgb, ii);
                     float f[EXTRA_N];
-                    for (uint c = 0u; c < EXTRA; c++) f[c] = subgroupShuffle(l_f[c], ii);
+                    [[unroll]] for (uint c = 0u; c < EXTRA; c++) f[c] = subgroupShuffle(l_f[c], ii);
                     uint j = floatBitsToUint(mo.w);
                     uint e = max_last - 1u - (done + j);
                     visit(mo, conic.xyz, rgb, f, e, ndc, smooth_mode, part);
@@ -433,7 +433,7 @@ void main() {
                 uint j = s_list[list_base + i];
                 uint e = max_last - 1u - (done + j);
                 float f[EXTRA_N];
-                for (uint c = 0u; c < EXTRA; c++) f[c] = s_feat[j * EXTRA + c];
+                [[unroll]] for (uint c = 0u; c < EXTRA; c++) f[c] = s_feat[j * EXTRA + c];
                 visit(s_mean_opacity[j], s_conic[j].xyz, s_rgb[j].xyz, f, e, ndc, smooth_mode,
                       part);
                 [[unroll]] for (uint c = 0u; c < ACC_STRIDE; c++) part[c] = subgroupAdd(part[c]);

@@ -103,7 +103,7 @@ bool blend(vec4 mo, vec4 cn, vec3 rgb, float f[EXTRA_N], uint index, bool smooth
         bool take = hit && !stop;
         float w = take ? alpha * T[k] : 0.0;
         color[k] += rgb * w;
-        for (uint c = 0u; c < EXTRA; c++) feat[k][c] += f[c] * w;
+        [[unroll]] for (uint c = 0u; c < EXTRA; c++) feat[k][c] += f[c] * w;
         T[k] = take ? next_t : T[k];
         last[k] = take ? index : last[k];
         done[k] = done[k] || stop;
@@ -126,7 +126,7 @@ void main() {
         centre[k] = vec2(float(px) + 0.5, float(py) + 0.5);
         T[k] = 1.0;
         color[k] = vec3(0.0);
-        for (uint c = 0u; c < EXTRA; c++) feat[k][c] = 0.0;
+        [[unroll]] for (uint c = 0u; c < EXTRA; c++) feat[k][c] = 0.0;
         last[k] = 0u;
         done[k] = !(px < cam.size.x && py < cam.size.y);
         all_done = all_done && done[k];
@@ -146,7 +146,7 @@ void main() {
         if (li < BATCH && k < range.y) {
             uint g = sorted_ids[k];
             Projected p = projected[g];
-            for (uint c = 0u; c < EXTRA; c++) s_feat[li * EXTRA + c] = features[g * EXTRA + c];
+            [[unroll]] for (uint c = 0u; c < EXTRA; c++) s_feat[li * EXTRA + c] = features[g * EXTRA + c];
             s_mean_opacity[li] = vec4(p.mean_x, p.mean_y, p.opacity, 0.0);
             // A power this far below ln(alpha_min / opacity) gives alpha < alpha_min with room
             // for rounding, so the pixel can skip exp(); the exact test still follows.
@@ -190,13 +190,13 @@ void main() {
                 vec4 l_cn = s_conic[mine];
                 vec3 l_rgb = s_rgb[mine].rgb;
                 float l_f[EXTRA_N];
-                for (uint c = 0u; c < EXTRA; c++) l_f[c] = s_feat[mine * EXTRA + c];
+                [[unroll]] for (uint c = 0u; c < EXTRA; c++) l_f[c] = s_feat[mine * EXTRA + c];
                 uint n_chunk = min(SUBGROUP_SIZE, n_list - i0);
                 for (uint ii = 0u; !subgroupAll(all_done) && ii < n_chunk; ii++) {
                     vec4 mo = SHUFFLE(l_mo, ii);
                     uint j = floatBitsToUint(mo.w);
                     float f[EXTRA_N];
-                    for (uint c = 0u; c < EXTRA; c++) f[c] = SHUFFLE(l_f[c], ii);
+                    [[unroll]] for (uint c = 0u; c < EXTRA; c++) f[c] = SHUFFLE(l_f[c], ii);
                     all_done = blend(mo, SHUFFLE(l_cn, ii), SHUFFLE(l_rgb, ii), f,
                                      base - range.x + j + 1u, smooth_mode);
                 }
@@ -205,7 +205,7 @@ void main() {
             for (uint i = 0u; !all_done && i < n_list; i++) {
                 uint j = s_list[list_base + i];
                 float f[EXTRA_N];
-                for (uint c = 0u; c < EXTRA; c++) f[c] = s_feat[j * EXTRA + c];
+                [[unroll]] for (uint c = 0u; c < EXTRA; c++) f[c] = s_feat[j * EXTRA + c];
                 all_done = blend(s_mean_opacity[j], s_conic[j], s_rgb[j].rgb, f,
                                  base - range.x + j + 1u, smooth_mode);
             }
@@ -220,7 +220,7 @@ void main() {
             image[3u * pix] = color[k].r + T[k] * bg_r;
             image[3u * pix + 1u] = color[k].g + T[k] * bg_g;
             image[3u * pix + 2u] = color[k].b + T[k] * bg_b;
-            for (uint c = 0u; c < EXTRA; c++) feature_image[EXTRA * pix + c] = feat[k][c];
+            [[unroll]] for (uint c = 0u; c < EXTRA; c++) feature_image[EXTRA * pix + c] = feat[k][c];
             final_t[pix] = T[k];
             last_index[pix] = last[k];
         }
