@@ -7,7 +7,7 @@ use glam::DVec3;
 use lpmsplat::reference::{render, RefGaussians, RenderSettings};
 use lpmsplat::scene::images::save_png;
 use lpmsplat::scene::orbit::look_at;
-use lpmsplat::scene::{CameraModel, Image, PinholeCamera, Pose, Scene, SceneFormat, View};
+use lpmsplat::scene::{CameraModel, Image, PinholeCamera, Scene, SceneFormat, View};
 use lpmsplat::triangulated_init::{source_views, topped_up_model, triangulate_scene};
 use rand::{Rng, SeedableRng};
 
