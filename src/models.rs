@@ -140,6 +140,28 @@ impl BaseModel {
         params
     }
 
+    /// [`BaseModel::initialise`] for points of which the first `times.len()` were observed at
+    /// known times (triangulated from a video's frames): a video model centres those in time
+    /// there (the others keep their random centre); other models ignore the times.
+    pub fn initialise_at_times(
+        &self,
+        params: GaussianParams,
+        seed: u64,
+        times: &[f64],
+    ) -> GaussianParams {
+        let mut params = self.initialise(params, seed);
+        if let Some(centres) = params
+            .extra
+            .iter_mut()
+            .find(|e| e.group.name == "trbf_center")
+        {
+            for (c, &t) in centres.values.iter_mut().zip(times) {
+                *c = t as f32;
+            }
+        }
+        params
+    }
+
     /// A renderer for this model's trained PLYs (eval, render, orbit).
     ///
     /// `times`: the time of every camera the renders index (video scenes); a video model needs
@@ -261,6 +283,25 @@ impl BaseModel {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn known_times_centre_the_first_points_of_a_video_model() {
+        let params = crate::splats::init::random_init(5, [0.0; 3], [1.0; 3], 3, 0).unwrap();
+        let times = [0.25, 0.5];
+        let video = BaseModel::SpacetimeLite.initialise_at_times(params.clone(), 7, &times);
+        let random = BaseModel::SpacetimeLite.initialise(params.clone(), 7);
+        let centres = video.extra_values("trbf_center").unwrap();
+        assert_eq!(&centres[..2], &[0.25, 0.5]);
+        // The others keep the random centres of the same seed.
+        assert_eq!(
+            &centres[2..],
+            &random.extra_values("trbf_center").unwrap()[2..]
+        );
+        // A still model has no temporal centre: the times change nothing.
+        let still = BaseModel::Gaussians3d.initialise_at_times(params.clone(), 7, &times);
+        assert_eq!(still.positions, params.positions);
+        assert!(still.extra.is_empty());
+    }
 
     #[test]
     fn names_round_trip_and_configure_is_inverted_by_of() {

@@ -558,18 +558,7 @@ pub fn initial_model(
                 seed,
                 sh_degree,
             )?;
-            let mut params = model.initialise(params, seed);
-            // A video model's triangulated points are centred at their frame's time (the
-            // random ones keep a random centre).
-            if let Some(centres) = params
-                .extra
-                .iter_mut()
-                .find(|e| e.group.name == "trbf_center")
-            {
-                for (c, &t) in centres.values.iter_mut().zip(&tri.times) {
-                    *c = t as f32;
-                }
-            }
+            let params = model.initialise_at_times(params, seed, &tri.times);
             return Ok(params);
         }
         eprintln!(
