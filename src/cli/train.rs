@@ -58,13 +58,12 @@ pub struct TrainArgs {
     /// Initial points for scenes without SfM points (the reference uses 100k random ones).
     #[arg(long, default_value_t = 100_000)]
     pub init_points: usize,
-    /// Where the initial points of a scene without SfM points come from: `triangulate` (feature
-    /// matches between neighbour views triangulated with the known poses, a video scene's at 10
-    /// frames over the segment with each point centred at its frame's time, topped up with
-    /// random points to --init-points), `random` (a box in front of the cameras) or `auto`
-    /// (triangulate video scenes, random points for the others, as the NeRF-synthetic
-    /// reference does).
-    #[arg(long, value_enum, default_value_t = InitSource::Auto)]
+    /// Where the initial points of a scene without SfM points come from: `random` (a box in
+    /// front of the cameras, as the NeRF-synthetic reference does) or `triangulate` (feature
+    /// matches between neighbour views triangulated with the known poses, a video scene's at
+    /// 10 frames over the segment with each point centred at its frame's time, topped up with
+    /// random points to --init-points; see the README for where it helps and where it hurts).
+    #[arg(long, value_enum, default_value_t = InitSource::Random)]
     pub init: InitSource,
     /// Evaluate on the test views every N iterations (0 = only at the end).
     #[arg(long, default_value_t = 0)]
@@ -509,7 +508,6 @@ impl TrainArgs {
 /// Where a scene without SfM points gets its initial points (`--init`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum InitSource {
-    Auto,
     Random,
     Triangulate,
 }
@@ -535,12 +533,7 @@ pub fn initial_model(
     if let Some(points) = scene.points.as_ref().filter(|p| !p.is_empty()) {
         return Ok(model.initialise(splats::init::from_sfm(points, sh_degree)?, seed));
     }
-    let triangulate = match source {
-        InitSource::Triangulate => true,
-        InitSource::Random => false,
-        InitSource::Auto => scene.view_times.is_some(),
-    };
-    if triangulate {
+    if source == InitSource::Triangulate {
         let t0 = std::time::Instant::now();
         let tri = lpmsplat::triangulated_init::triangulate_scene(scene, init_points, seed)?;
         eprintln!(
