@@ -1227,3 +1227,41 @@ fn format_2_checkpoints_still_resume() {
     assert_eq!(r.iteration, 1);
     ctx.check_validation().unwrap();
 }
+
+/// `--init triangulate` on a scene with SfM points uses the points and says so; an unknown
+/// `--init` value is refused with the choices.
+#[test]
+fn init_triangulate_on_a_scene_with_points_says_the_points_win() {
+    let out = tempfile::tempdir().unwrap();
+    let scene = data("lund_door_small");
+    let text = run_ok(lpmsplat().args([
+        "train",
+        scene.to_str().unwrap(),
+        "-r",
+        "4",
+        "--iterations",
+        "1",
+        "--init",
+        "triangulate",
+        "-o",
+        out.path().to_str().unwrap(),
+    ]));
+    assert!(
+        text.contains(
+            "--init triangulate: not used, the initial points come from the scene's SfM points"
+        ),
+        "{text}"
+    );
+    let err = run_err(lpmsplat().args([
+        "train",
+        scene.to_str().unwrap(),
+        "--init",
+        "bogus",
+        "-o",
+        out.path().to_str().unwrap(),
+    ]));
+    assert!(
+        err.contains("random") && err.contains("triangulate"),
+        "{err}"
+    );
+}

@@ -527,10 +527,17 @@ pub fn initial_model(
     seed: u64,
     sh_degree: u32,
 ) -> anyhow::Result<GaussianParams> {
+    let ignored = |by: &str| {
+        if source == InitSource::Triangulate {
+            eprintln!("--init triangulate: not used, the initial points come from {by}");
+        }
+    };
     if let Some(p) = init_ply {
+        ignored(&format!("--init-ply {}", p.display()));
         return Ok(model.initialise(read_ply(p)?, seed));
     }
     if let Some(points) = scene.points.as_ref().filter(|p| !p.is_empty()) {
+        ignored("the scene's SfM points");
         return Ok(model.initialise(splats::init::from_sfm(points, sh_degree)?, seed));
     }
     if source == InitSource::Triangulate {
