@@ -608,10 +608,10 @@ fn intersections_are_counted_in_64_bits_and_refused_past_one_binding() {
     let ctx = ctx();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(2031);
     let max = lpmsplat::render::forward::max_intersections(&ctx);
-    // 1,100 Gaussians × 16,384 tiles = 18.0 M pairs: past a 128 MiB binding (16.8 M pairs),
-    // within 4 GiB; 270,000 × 16,384 = 4.42 G pairs: past 2^32, where the 32-bit scan's total
-    // wraps, so only the 64-bit count can tell it from a small frame.
-    for (n, want) in [(1_100usize, 18_022_400u64), (270_000, 4_423_680_000)] {
+    // 2,100 Gaussians × 16,384 tiles = 34.4 M pairs: past a 128 MiB binding of 4-byte keys
+    // (33.5 M pairs), within 4 GiB; 270,000 × 16,384 = 4.42 G pairs: past 2^32, where the
+    // 32-bit scan's total wraps, so only the 64-bit count can tell it from a small frame.
+    for (n, want) in [(2_100usize, 34_406_400u64), (270_000, 4_423_680_000)] {
         let (g, cam) = tile_covering(&mut rng, n, 2048);
         assert_eq!(cam.tile_count(), 16_384);
         let params = g.to_params(0);

@@ -44,17 +44,28 @@ fn exclusive_scan_matches_host() {
     ctx.check_validation().unwrap();
 }
 
-fn check_sort(ctx: &Arc<GpuContext>, sorter: &RadixSort, keys: &[u64], bits: u32) {
+/// Sorts `keys` (values: their input positions) on the GPU by their low `bits` bits and checks
+/// the result against a stable host sort; returns the sorted values.
+fn check_sort(ctx: &Arc<GpuContext>, sorter: &RadixSort, keys: &[u32], bits: u32) -> Vec<u32> {
+    let values: Vec<u32> = (0..keys.len() as u32).collect();
+    check_sort_with(ctx, sorter, keys, &values, bits)
+}
+
+fn check_sort_with(
+    ctx: &Arc<GpuContext>,
+    sorter: &RadixSort,
+    keys: &[u32],
+    values: &[u32],
+    bits: u32,
+) -> Vec<u32> {
     let n = keys.len();
-    let packed: Vec<[u32; 2]> = keys.iter().map(|&k| [k as u32, (k >> 32) as u32]).collect();
-    let values: Vec<u32> = (0..n as u32).collect();
     let cap = sorter.capacity() as usize;
-    let kbuf = GpuBuffer::<[u32; 2]>::new(ctx, "keys", cap, BufferKind::DeviceLocal).unwrap();
+    let kbuf = GpuBuffer::<u32>::new(ctx, "keys", cap, BufferKind::DeviceLocal).unwrap();
     let vbuf = GpuBuffer::<u32>::new(ctx, "values", cap, BufferKind::DeviceLocal).unwrap();
-    let sk = GpuBuffer::<[u32; 2]>::new(ctx, "scratch keys", cap, BufferKind::DeviceLocal).unwrap();
+    let sk = GpuBuffer::<u32>::new(ctx, "scratch keys", cap, BufferKind::DeviceLocal).unwrap();
     let sv = GpuBuffer::<u32>::new(ctx, "scratch values", cap, BufferKind::DeviceLocal).unwrap();
-    kbuf.upload(&packed).unwrap();
-    vbuf.upload(&values).unwrap();
+    kbuf.upload(keys).unwrap();
+    vbuf.upload(values).unwrap();
     let counts = GpuBuffer::from_slice(ctx, "counts", &[n as u32, 0]).unwrap();
     let mut rec = Recorder::new(ctx).unwrap();
     rec.fill(&sk, POISON);
@@ -70,17 +81,17 @@ fn check_sort(ctx: &Arc<GpuContext>, sorter: &RadixSort, keys: &[u64], bits: u32
         SortedIn::Scratch => (sk.read_range(0, n).unwrap(), sv.read_range(0, n).unwrap()),
     };
     // Host oracle: a stable sort on the same bits.
-    let mask = if bits >= 64 {
-        u64::MAX
+    let mask = if bits >= 32 {
+        u32::MAX
     } else {
-        (1u64 << bits) - 1
+        (1u32 << bits) - 1
     };
-    let mut expect: Vec<(u64, u32)> = keys.iter().copied().zip(values.iter().copied()).collect();
+    let mut expect: Vec<(u32, u32)> = keys.iter().copied().zip(values.iter().copied()).collect();
     expect.sort_by_key(|&(k, _)| k & mask);
     for i in 0..n {
-        let got = ko[i][0] as u64 | ((ko[i][1] as u64) << 32);
-        assert_eq!((got, vo[i]), expect[i], "n={n} bits={bits} position {i}");
+        assert_eq!((ko[i], vo[i]), expect[i], "n={n} bits={bits} position {i}");
     }
+    vo
 }
 
 #[test]
@@ -101,11 +112,11 @@ fn radix_sort_is_stable_and_matches_host_sort() {
         (0usize, 32u32),
         (1, 8),
         (5, 13),
-        (2048, 45),
-        (2049, 64),
+        (2048, 31),
+        (2049, 32),
         (16_384, 20),
-        (16_385, 45),
-        (70_001, 45),
+        (16_385, 32),
+        (70_001, 29),
         (300_000, 32),
         (50_000, 6),
     ]
@@ -113,19 +124,15 @@ fn radix_sort_is_stable_and_matches_host_sort() {
     .flat_map(|c| [(c, 0usize), (c, 1)])
     {
         let sorter = &sorters[k];
-        let mask = if bits >= 64 {
-            u64::MAX
-        } else {
-            (1u64 << bits) - 1
-        };
-        // Few distinct values in some runs so that stability is exercised.
+        // Keys carry random bits above `bits` too: the sort must ignore them. Few distinct
+        // values in some runs so that stability is exercised.
         let distinct = rng.gen_bool(0.5);
-        let keys: Vec<u64> = (0..n)
+        let keys: Vec<u32> = (0..n)
             .map(|_| {
                 if distinct {
-                    rng.gen::<u64>() & mask
+                    rng.gen::<u32>()
                 } else {
-                    rng.gen_range(0..64u64) & mask
+                    rng.gen_range(0..64u32) | (rng.gen::<u32>() << 6)
                 }
             })
             .collect();
@@ -135,18 +142,52 @@ fn radix_sort_is_stable_and_matches_host_sort() {
 }
 
 #[test]
-fn splat_like_keys_tile_high_depth_low() {
-    // The renderer's key: tile id above 32 bits of depth (float bits of positive depths).
+fn splat_like_depth_then_tile_sort_orders_pairs_by_tile_then_depth() {
+    // The renderer's two sorts: Gaussians by depth (the float bits of positive depths, 32 bits),
+    // then their (tile, Gaussian) pairs, emitted in depth order, stably by tile id alone (13 bits
+    // at 1352×1014 in 16×16 tiles). Together they must equal one sort by (tile, depth, index).
     let ctx = ctx();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
-    let n = 120_000;
-    let tiles = 5_440u64; // 1352x1014 in 16x16 tiles
-    let tile_bits = 64 - tiles.leading_zeros();
-    let keys: Vec<u64> = (0..n)
-        .map(|_| (rng.gen_range(0..tiles) << 32) | (rng.gen_range(0.2f32..100.0).to_bits() as u64))
+    let gaussians = 40_000usize;
+    let tiles = 5_440u32;
+    let tile_bits = lpmsplat::render::forward::tile_bits(tiles);
+    assert_eq!(tile_bits, 13);
+    // Few distinct depths, so ties are broken by index as in the CPU reference.
+    let depths: Vec<f32> = (0..gaussians)
+        .map(|_| rng.gen_range(1..2_000) as f32 * 0.05)
         .collect();
-    let sorter = RadixSort::new(&ctx, n as u64).unwrap();
-    check_sort(&ctx, &sorter, &keys, 32 + tile_bits);
+    let depth_keys: Vec<u32> = depths.iter().map(|d| d.to_bits()).collect();
+    let by_depth = check_sort(
+        &ctx,
+        &RadixSort::new(&ctx, gaussians as u64).unwrap(),
+        &depth_keys,
+        32,
+    );
+    let touched: Vec<Vec<u32>> = (0..gaussians)
+        .map(|_| {
+            let first = rng.gen_range(0..tiles);
+            let len = rng.gen_range(1..6u32);
+            (first..(first + len).min(tiles)).collect()
+        })
+        .collect();
+    let (mut tile_keys, mut ids) = (Vec::new(), Vec::new());
+    for &g in &by_depth {
+        for &t in &touched[g as usize] {
+            tile_keys.push(t);
+            ids.push(g);
+        }
+    }
+    let sorter = RadixSort::new(&ctx, tile_keys.len() as u64).unwrap();
+    let sorted = check_sort_with(&ctx, &sorter, &tile_keys, &ids, tile_bits);
+    let mut expect: Vec<(u32, u32, u32)> = (0..gaussians as u32)
+        .flat_map(|g| {
+            let d = depth_keys[g as usize];
+            touched[g as usize].iter().map(move |&t| (t, d, g))
+        })
+        .collect();
+    expect.sort_unstable();
+    let expect_ids: Vec<u32> = expect.iter().map(|e| e.2).collect();
+    assert_eq!(sorted, expect_ids);
     ctx.check_validation().unwrap();
 }
 
@@ -179,13 +220,13 @@ fn sort_and_scan_under_subgroup_size_16() {
 }
 
 #[test]
-fn sixteen_million_pairs_sorted_reversed_and_equal() {
-    // 2^24 pairs of 64-bit keys fill exactly a 128 MiB binding (lavapipe's limit). Patterns the
+fn a_full_binding_of_pairs_sorted_reversed_and_equal() {
+    // 2^25 pairs of 32-bit keys fill exactly a 128 MiB binding (lavapipe's limit). Patterns the
     // issue names: already sorted, reverse sorted and all-equal keys (stability: values must stay
     // in input order), on the 16 bits a 4K image's tile ids need.
     let ctx = ctx();
-    let n = 1usize << 24;
-    if (n as u64) * 8 > ctx.info.max_storage_buffer_range {
+    let n = 1usize << 25;
+    if (n as u64) * 4 > ctx.info.max_storage_buffer_range {
         eprintln!("skipped: this device cannot bind 128 MiB");
         return;
     }
@@ -193,17 +234,17 @@ fn sixteen_million_pairs_sorted_reversed_and_equal() {
     let bits = 16;
     let mut rng = rand_pcg::Pcg64::seed_from_u64(16);
     #[allow(clippy::type_complexity)]
-    let patterns: [(&str, Box<dyn Fn(usize) -> u64>); 3] = [
-        ("sorted", Box::new(|i| (i >> 8) as u64)),
-        ("reversed", Box::new(move |i| ((n - 1 - i) >> 8) as u64)),
+    let patterns: [(&str, Box<dyn Fn(usize) -> u32>); 3] = [
+        ("sorted", Box::new(|i| (i >> 9) as u32)),
+        ("reversed", Box::new(move |i| ((n - 1 - i) >> 9) as u32)),
         ("equal", Box::new(|_| 0xBEEF)),
     ];
     for (name, f) in patterns.iter() {
-        let keys: Vec<u64> = (0..n).map(f).collect();
+        let keys: Vec<u32> = (0..n).map(f).collect();
         eprintln!("{name}");
         check_sort(&ctx, &sorter, &keys, bits);
     }
-    let keys: Vec<u64> = (0..n).map(|_| rng.gen::<u64>() & 0xFFFF).collect();
+    let keys: Vec<u32> = (0..n).map(|_| rng.gen::<u32>() & 0xFFFF).collect();
     check_sort(&ctx, &sorter, &keys, bits);
     ctx.check_validation().unwrap();
 }

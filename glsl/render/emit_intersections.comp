@@ -10,7 +10,7 @@ layout(local_size_x_id = 0) in;
 layout(std430, set = 0, binding = 0) readonly buffer Proj { Projected projected[]; };
 layout(std430, set = 0, binding = 1) readonly buffer Ids { uint depth_sorted_ids[]; };
 layout(std430, set = 0, binding = 2) readonly buffer Offsets { uint offsets[]; };
-layout(std430, set = 0, binding = 3) writeonly buffer Keys { uvec2 keys[]; };
+layout(std430, set = 0, binding = 3) writeonly buffer Keys { uint keys[]; };
 layout(std430, set = 0, binding = 4) writeonly buffer Vals { uint vals[]; };
 layout(std430, set = 0, binding = 5) buffer Counts { uint counts[]; };
 layout(push_constant) uniform Push { uint capacity; uint tiles_x; };
@@ -26,7 +26,7 @@ void main() {
     for (uint ty = p.tile_min_y; ty < p.tile_max_y; ty++) {
         for (uint tx = p.tile_min_x; tx < p.tile_max_x; tx++) {
             if (slot >= capacity) return;
-            keys[slot] = uvec2(ty * tiles_x + tx, 0u);
+            keys[slot] = ty * tiles_x + tx;
             vals[slot] = g;
             slot++;
         }

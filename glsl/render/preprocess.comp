@@ -19,7 +19,7 @@ layout(std430, set = 0, binding = 6) readonly buffer Cameras { Camera cameras[];
 layout(std430, set = 0, binding = 7) writeonly buffer Out { Projected projected[]; };
 // Depth sort input: key = camera-z float bits (positive floats order as uints), culled last;
 // value = Gaussian index, so a stable sort breaks depth ties by index like the reference.
-layout(std430, set = 0, binding = 8) writeonly buffer DepthKeys { uvec2 depth_keys[]; };
+layout(std430, set = 0, binding = 8) writeonly buffer DepthKeys { uint depth_keys[]; };
 layout(std430, set = 0, binding = 9) writeonly buffer DepthVals { uint depth_vals[]; };
 layout(std430, set = 0, binding = 10) buffer Counts { uint counts[]; };
 // Mip-Splatting's 3D filter (flag 4): one standard deviation per Gaussian.
@@ -54,7 +54,7 @@ void write_culled(uint i, float depth) {
     p.r = 0.0; p.g = 0.0; p.b = 0.0; p.flags = 0u;
     p.tile_min_x = 0u; p.tile_min_y = 0u; p.tile_max_x = 0u; p.tile_max_y = 0u;
     projected[i] = p;
-    depth_keys[i] = uvec2(0xFFFFFFFFu, 0u);
+    depth_keys[i] = 0xFFFFFFFFu;
     depth_vals[i] = i;
 }
 
@@ -176,6 +176,6 @@ void main() {
     bool touches = p.tile_max_x > p.tile_min_x && p.tile_max_y > p.tile_min_y;
     if (!on_screen) p.radius = 0.0;  // off-screen: treated as culled downstream
     projected[i] = p;
-    depth_keys[i] = uvec2(touches ? floatBitsToUint(t.z) : 0xFFFFFFFFu, 0u);
+    depth_keys[i] = touches ? floatBitsToUint(t.z) : 0xFFFFFFFFu;
     depth_vals[i] = i;
 }

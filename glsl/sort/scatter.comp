@@ -12,13 +12,13 @@
 layout(constant_id = 0) const uint WG_SIZE = 256;
 layout(constant_id = 2) const uint ITEMS = 8;
 layout(local_size_x_id = 0) in;
-layout(std430, set = 0, binding = 0) readonly buffer KeysIn { uvec2 keys_in[]; };
+layout(std430, set = 0, binding = 0) readonly buffer KeysIn { uint keys_in[]; };
 layout(std430, set = 0, binding = 1) readonly buffer ValsIn { uint vals_in[]; };
-layout(std430, set = 0, binding = 2) writeonly buffer KeysOut { uvec2 keys_out[]; };
+layout(std430, set = 0, binding = 2) writeonly buffer KeysOut { uint keys_out[]; };
 layout(std430, set = 0, binding = 3) writeonly buffer ValsOut { uint vals_out[]; };
 layout(std430, set = 0, binding = 4) readonly buffer Hist { uint hist[]; };
 layout(std430, set = 0, binding = 5) readonly buffer Count { uint counts[]; };
-layout(push_constant) uniform Push { uint count_index; uint shift; };
+layout(push_constant) uniform Push { uint count_index; uint shift; uint digit_mask; };
 #include "radix_digit.glsl"
 // [subgroup · RADIX/2 + word]: each subgroup's totals (room for subgroups of size 1).
 shared uint sg_totals[WG_SIZE * (RADIX / 2u)];
@@ -38,7 +38,7 @@ void main() {
     for (uint k = 0u; k < ITEMS; k++) {
         uint i = first + k;
         if (i < n) {
-            uint d = radix_digit(keys_in[i], shift);
+            uint d = radix_digit(keys_in[i], shift, digit_mask);
             uint one = 1u << ((d & 1u) * 16u);
             [[unroll]] for (uint d2 = 0u; d2 < RADIX / 2u; d2++) {
                 packed[d2] += (d >> 1u) == d2 ? one : 0u;
@@ -72,8 +72,8 @@ void main() {
     for (uint k = 0u; k < ITEMS; k++) {
         uint i = first + k;
         if (i < n) {
-            uvec2 key = keys_in[i];
-            uint d = radix_digit(key, shift);
+            uint key = keys_in[i];
+            uint d = radix_digit(key, shift, digit_mask);
             uint dst = 0u;
             [[unroll]] for (uint r = 0u; r < RADIX; r++) {
                 bool mine = d == r;

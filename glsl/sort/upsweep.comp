@@ -6,10 +6,15 @@
 layout(constant_id = 0) const uint WG_SIZE = 256;
 layout(constant_id = 2) const uint ITEMS = 8;
 layout(local_size_x_id = 0) in;
-layout(std430, set = 0, binding = 0) readonly buffer Keys { uvec2 keys[]; };
+layout(std430, set = 0, binding = 0) readonly buffer Keys { uint keys[]; };
 layout(std430, set = 0, binding = 1) writeonly buffer Hist { uint hist[]; };
 layout(std430, set = 0, binding = 2) buffer Count { uint counts[]; };
-layout(push_constant) uniform Push { uint count_index; uint hist_len_index; uint shift; };
+layout(push_constant) uniform Push {
+    uint count_index;
+    uint hist_len_index;
+    uint shift;
+    uint digit_mask;
+};
 #include "radix_digit.glsl"
 shared uint block_hist[RADIX];
 
@@ -24,7 +29,7 @@ void main() {
     uint base = block * WG_SIZE * ITEMS;
     for (uint k = 0u; k < ITEMS; k++) {
         uint i = base + k * WG_SIZE + gl_LocalInvocationIndex;
-        if (i < n) atomicAdd(block_hist[radix_digit(keys[i], shift)], 1u);
+        if (i < n) atomicAdd(block_hist[radix_digit(keys[i], shift, digit_mask)], 1u);
     }
     barrier();
     if (gl_LocalInvocationIndex < RADIX) {

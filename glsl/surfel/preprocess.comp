@@ -21,7 +21,7 @@ layout(std430, set = 0, binding = 4) readonly buffer ShDc { float sh_dc[]; };
 layout(std430, set = 0, binding = 5) readonly buffer ShRest0 { float sh_rest0[]; };
 layout(std430, set = 0, binding = 6) readonly buffer Cameras { Camera cameras[]; };
 layout(std430, set = 0, binding = 7) writeonly buffer Out { Projected projected[]; };
-layout(std430, set = 0, binding = 8) writeonly buffer DepthKeys { uvec2 depth_keys[]; };
+layout(std430, set = 0, binding = 8) writeonly buffer DepthKeys { uint depth_keys[]; };
 layout(std430, set = 0, binding = 9) writeonly buffer DepthVals { uint depth_vals[]; };
 layout(std430, set = 0, binding = 10) buffer Counts { uint counts[]; };
 layout(std430, set = 0, binding = 11) writeonly buffer Geom { float geom[]; };
@@ -59,7 +59,7 @@ void write_culled(uint i, float depth) {
     p.tile_min_x = 0u; p.tile_min_y = 0u; p.tile_max_x = 0u; p.tile_max_y = 0u;
     projected[i] = p;
     for (uint k = 0u; k < GEOM_STRIDE; k++) geom[GEOM_STRIDE * i + k] = 0.0;
-    depth_keys[i] = uvec2(0xFFFFFFFFu, 0u);
+    depth_keys[i] = 0xFFFFFFFFu;
     depth_vals[i] = i;
 }
 
@@ -164,6 +164,6 @@ void main() {
         geom[g + 9u + r] = n[r];
     }
     // Step 9: sort by the centre's camera depth.
-    depth_keys[i] = uvec2(touches ? floatBitsToUint(t.z) : 0xFFFFFFFFu, 0u);
+    depth_keys[i] = touches ? floatBitsToUint(t.z) : 0xFFFFFFFFu;
     depth_vals[i] = i;
 }

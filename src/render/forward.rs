@@ -126,14 +126,14 @@ impl Capacity {
 /// The per-frame buffers (kept after the frame: the backward pass reads them).
 pub struct FrameBuffers {
     pub projected: GpuBuffer<ProjectedGpu>,
-    pub(super) depth_keys: GpuBuffer<[u32; 2]>,
+    pub(super) depth_keys: GpuBuffer<u32>,
     pub(super) depth_vals: GpuBuffer<u32>,
-    depth_keys_tmp: GpuBuffer<[u32; 2]>,
+    depth_keys_tmp: GpuBuffer<u32>,
     depth_vals_tmp: GpuBuffer<u32>,
     touched: GpuBuffer<u32>,
-    tile_keys: GpuBuffer<[u32; 2]>,
+    tile_keys: GpuBuffer<u32>,
     tile_vals: GpuBuffer<u32>,
-    tile_keys_tmp: GpuBuffer<[u32; 2]>,
+    tile_keys_tmp: GpuBuffer<u32>,
     tile_vals_tmp: GpuBuffer<u32>,
     pub tile_ranges: GpuBuffer<[u32; 2]>,
     pub image: GpuBuffer<f32>,
@@ -179,9 +179,9 @@ fn stamp(rec: &mut Recorder, pool: Option<&mut TimestampPool>, label: &str) {
 }
 
 /// The most (tile, Gaussian) pairs a frame may have on this device: what one binding of the
-/// 8-byte tile keys holds, and what the 32-bit pair offsets address.
+/// 4-byte tile keys (or Gaussian ids) holds, and what the 32-bit pair offsets address.
 pub fn max_intersections(ctx: &GpuContext) -> u64 {
-    (ctx.info.max_storage_buffer_range / 8).min(u32::MAX as u64)
+    (ctx.info.max_storage_buffer_range / 4).min(u32::MAX as u64)
 }
 
 /// Bits needed to hold every tile id of a grid with `tiles` tiles.
@@ -354,7 +354,7 @@ impl Renderer {
         if need.intersections as u64 > max_pairs {
             anyhow::bail!(
                 "a frame has {} (tile, Gaussian) intersections, more than the {max_pairs} one \
-                 storage binding holds on this device ({} MiB maxStorageBufferRange, 8 bytes a \
+                 storage binding holds on this device ({} MiB maxStorageBufferRange, 4 bytes a \
                  pair; frames are not drawn in tile chunks). Fix: render or train at a lower \
                  resolution (-r, --width/--height) or with fewer Gaussians",
                 need.intersections,
@@ -659,7 +659,7 @@ impl Renderer {
         self.last_camera = Some(*camera);
     }
 
-    pub(super) fn sorted_pairs(&self) -> (&GpuBuffer<[u32; 2]>, &GpuBuffer<u32>) {
+    pub(super) fn sorted_pairs(&self) -> (&GpuBuffer<u32>, &GpuBuffer<u32>) {
         let f = &self.frame;
         match self.tile_sorted_in {
             SortedIn::Input => (&f.tile_keys, &f.tile_vals),

@@ -1,4 +1,4 @@
-//! Key–value GPU radix sort: 64-bit keys (as low/high u32 words), u32 values, 4 bits a pass,
+//! Key–value GPU radix sort: u32 keys, u32 values, 4 bits a pass,
 //! only the bits in use. Each pass is reduce-then-scan: per-block digit histograms, one
 //! exclusive scan of all histograms, then a stable scatter. No decoupled look-back: Vulkan gives
 //! no forward-progress guarantee between workgroups.
@@ -13,8 +13,8 @@ const WG: u32 = 256;
 const GPU_ITEMS: u32 = 8;
 /// Keys per invocation on CPU drivers. Lavapipe pays a large fixed cost per workgroup and per
 /// invocation (coroutine set-up, the subgroup scans), so bigger blocks sort faster there:
-/// `cargo bench --bench sort`, 262k 45-bit keys, 2 loaded cores: 8 → 290 ms, 16 → 208,
-/// 32 → 157, 64 → 129, 128 → 144.
+/// `cargo bench --bench sort`, 262k 45-bit keys (the 64-bit keys of the time), 2 loaded cores:
+/// 8 → 290 ms, 16 → 208, 32 → 157, 64 → 129, 128 → 144.
 const CPU_ITEMS: u32 = 64;
 const RADIX: u64 = 16;
 const BITS_PER_PASS: u32 = 4;
@@ -25,6 +25,7 @@ struct UpPush {
     count_index: u32,
     hist_len_index: u32,
     shift: u32,
+    digit_mask: u32,
 }
 
 #[repr(C)]
@@ -32,6 +33,7 @@ struct UpPush {
 struct ScatterPush {
     count_index: u32,
     shift: u32,
+    digit_mask: u32,
 }
 
 /// Which buffers hold the sorted result after [`RadixSort::record`].
@@ -79,7 +81,7 @@ impl RadixSort {
             "sort/upsweep",
             shaders::SORT_UPSWEEP,
             3,
-            12,
+            16,
             WG,
             &[items],
         )?;
@@ -88,7 +90,7 @@ impl RadixSort {
             "sort/scatter",
             shaders::SORT_SCATTER,
             6,
-            8,
+            12,
             WG,
             &[items],
         )?;
@@ -125,7 +127,7 @@ impl RadixSort {
 
     /// Number of passes for keys using the low `bits` bits.
     pub fn passes(bits: u32) -> u32 {
-        bits.min(64).div_ceil(BITS_PER_PASS)
+        bits.min(32).div_ceil(BITS_PER_PASS)
     }
 
     /// Records a stable sort of the first `counts[count_index]` pairs of (`keys`, `values`) by
@@ -136,9 +138,9 @@ impl RadixSort {
         &self,
         ctx: &GpuContext,
         rec: &mut Recorder,
-        keys: &GpuBuffer<[u32; 2]>,
+        keys: &GpuBuffer<u32>,
         values: &GpuBuffer<u32>,
-        scratch_keys: &GpuBuffer<[u32; 2]>,
+        scratch_keys: &GpuBuffer<u32>,
         scratch_values: &GpuBuffer<u32>,
         counts: &GpuBuffer<u32>,
         count_index: u32,
@@ -149,6 +151,8 @@ impl RadixSort {
         let mut from_input = true;
         for pass in 0..Self::passes(bits) {
             let shift = pass * BITS_PER_PASS;
+            // The last pass of a width that is not a multiple of 4 takes only the bits left.
+            let digit_mask = (1u32 << BITS_PER_PASS.min(bits.min(32) - shift)) - 1;
             let (ki, vi, ko, vo) = if from_input {
                 (keys, values, scratch_keys, scratch_values)
             } else {
@@ -162,6 +166,7 @@ impl RadixSort {
                     count_index,
                     hist_len_index,
                     shift,
+                    digit_mask,
                 },
                 groups,
             );
@@ -170,7 +175,11 @@ impl RadixSort {
             rec.dispatch(
                 &self.scatter,
                 &[ki, vi, ko, vo, &self.hist, counts],
-                &ScatterPush { count_index, shift },
+                &ScatterPush {
+                    count_index,
+                    shift,
+                    digit_mask,
+                },
                 groups,
             );
             from_input = !from_input;
