@@ -82,9 +82,10 @@ pub struct TradeArgs {
     #[arg(long, default_value_t = 20)]
     pub fps_frames: usize,
     /// The runs to compare, comma separated, in table order: adc, adc-threshold-1e-4, adc+lpm,
-    /// lpm-no-add, lpm-no-reset, lpm-authors (the authors' rules), lpm-sphere (the paper's
-    /// cone-intersection zone), adc-abs-grad (with the absolute-gradient test) (aliases:
-    /// adc-1e-4, lpm). Default: the first five.
+    /// lpm-no-add, lpm-no-reset, lpm-authors (the authors' rules), lpm-authors-adc (the same
+    /// with ADC on steps without a zone), lpm-sphere (the paper's cone-intersection zone),
+    /// adc-abs-grad (with the absolute-gradient test) (aliases: adc-1e-4, lpm). Default: the
+    /// first five.
     #[arg(long, value_delimiter = ',')]
     pub runs: Vec<String>,
     /// Run the variants one after another instead of interleaving their iterations. Interleaving
@@ -148,7 +149,7 @@ pub struct TradeRow {
     pub model_events: Vec<serde_json::Value>,
 }
 
-pub const RUNS: [(&str, [u8; 3]); 8] = [
+pub const RUNS: [(&str, [u8; 3]); 9] = [
     ("adc", [40, 40, 40]),
     ("adc-threshold-1e-4", [200, 120, 0]),
     ("adc+lpm", [220, 30, 30]),
@@ -156,6 +157,8 @@ pub const RUNS: [(&str, [u8; 3]); 8] = [
     ("lpm-no-reset", [30, 170, 60]),
     // `train --lpm-rules authors`: the authors' code's rules exactly.
     ("lpm-authors", [150, 60, 200]),
+    // The authors' rules with ADC kept on steps without a zone (`--lpm-skip-adc false`).
+    ("lpm-authors-adc", [200, 110, 230]),
     // Our rules with the paper's cone-intersection sphere instead of the triangulated zone.
     ("lpm-sphere", [120, 90, 40]),
     // ADC with the absolute-gradient test as well (`train --densify-abs-grad`).
@@ -282,27 +285,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                 abs_grad_applies(args.model)?;
                 cfg.density.abs_grad = true;
             }
-            let lpm = name.contains("lpm").then(|| {
-                let mut c = if name == "lpm-authors" {
-                    LpmConfig::authors()
-                } else {
-                    LpmConfig::default()
-                };
-                c.from = cfg.schedule.densify_from;
-                c.until = cfg.schedule.densify_until;
-                c.add_points &= name != "lpm-no-add";
-                c.reset = name != "lpm-no-reset";
-                c.seed = seed;
-                if name == "lpm-sphere" {
-                    c.zones.geometry = ZoneGeometry::Sphere;
-                }
-                if let Some(p) = args.lpm_prune {
-                    c.prune = p;
-                }
-                c.regions.block = args.lpm_block;
-                c.regions.keep_fraction = args.lpm_block_fraction;
-                c
-            });
+            let lpm = run_lpm_config(name, &cfg, args);
             if let Some(c) = &lpm {
                 c.validate()?;
             }
@@ -479,7 +462,6 @@ struct Run {
     model_events: Vec<serde_json::Value>,
 }
 
-/// Indices into [`RUNS`] for the `--runs` list (all when empty), in table order.
 /// The absolute-gradient test needs the mean-gradient statistic of a Gaussian model.
 fn abs_grad_applies(model: BaseModel) -> anyhow::Result<()> {
     anyhow::ensure!(
@@ -497,6 +479,37 @@ fn abs_grad_applies(model: BaseModel) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// LPM's configuration for run `name` (None for the runs without LPM), on `cfg`'s calendar
+/// and seed, with the benchmark's LPM overrides.
+fn run_lpm_config(name: &str, cfg: &TrainConfig, args: &TradeArgs) -> Option<LpmConfig> {
+    if !name.contains("lpm") {
+        return None;
+    }
+    let mut c = if name.starts_with("lpm-authors") {
+        LpmConfig::authors()
+    } else {
+        LpmConfig::default()
+    };
+    if name == "lpm-authors-adc" {
+        c.skip_adc_without_zone = false;
+    }
+    c.from = cfg.schedule.densify_from;
+    c.until = cfg.schedule.densify_until;
+    c.add_points &= name != "lpm-no-add";
+    c.reset = name != "lpm-no-reset";
+    c.seed = cfg.seed;
+    if name == "lpm-sphere" {
+        c.zones.geometry = ZoneGeometry::Sphere;
+    }
+    if let Some(p) = args.lpm_prune {
+        c.prune = p;
+    }
+    c.regions.block = args.lpm_block;
+    c.regions.keep_fraction = args.lpm_block_fraction;
+    Some(c)
+}
+
+/// Indices into [`RUNS`] for the `--runs` list (all when empty), in table order.
 pub fn selected_runs(names: &[String]) -> anyhow::Result<Vec<usize>> {
     if names.is_empty() {
         return Ok((0..5).collect());
@@ -1080,6 +1093,44 @@ mod tests {
         // No ADC run with its seed: no difference to report.
         assert_eq!((lone.delta_psnr, lone.delta_psnr_se), (None, None));
         assert_eq!(lone.psnr_sd, 0.0);
+    }
+
+    #[test]
+    fn each_lpm_run_gets_its_rules_and_the_benchmark_overrides() {
+        use clap::Parser;
+        #[derive(Parser)]
+        struct Cli {
+            #[command(flatten)]
+            trade: TradeArgs,
+        }
+        let args = Cli::parse_from(["bench", "scene", "--lpm-block", "6", "--lpm-prune", "off"]);
+        let mut cfg = TrainConfig::default();
+        cfg.seed = 7;
+        assert!(run_lpm_config("adc", &cfg, &args.trade).is_none());
+        let ours = run_lpm_config("adc+lpm", &cfg, &args.trade).unwrap();
+        let authors = run_lpm_config("lpm-authors", &cfg, &args.trade).unwrap();
+        let authors_adc = run_lpm_config("lpm-authors-adc", &cfg, &args.trade).unwrap();
+        assert!(!ours.skip_adc_without_zone && ours.add_points);
+        assert!(authors.skip_adc_without_zone && !authors.add_points);
+        // The same rules as lpm-authors but for ADC on steps without a zone.
+        assert!(!authors_adc.skip_adc_without_zone);
+        let mut same = authors_adc.clone();
+        same.skip_adc_without_zone = true;
+        assert_eq!(same, authors);
+        for c in [&ours, &authors, &authors_adc] {
+            assert_eq!((c.seed, c.regions.block, c.prune), (7, 6, PruneMode::Off));
+            assert_eq!(
+                (c.from, c.until),
+                (cfg.schedule.densify_from, cfg.schedule.densify_until)
+            );
+        }
+        let no_add = run_lpm_config("lpm-no-add", &cfg, &args.trade).unwrap();
+        assert!(!no_add.add_points && no_add.reset);
+        let no_reset = run_lpm_config("lpm-no-reset", &cfg, &args.trade).unwrap();
+        assert!(no_reset.add_points && !no_reset.reset);
+        let sphere = run_lpm_config("lpm-sphere", &cfg, &args.trade).unwrap();
+        assert_eq!(sphere.zones.geometry, ZoneGeometry::Sphere);
+        assert_eq!(ours.zones.geometry, ZoneGeometry::Triangulated);
     }
 
     #[test]
