@@ -280,8 +280,22 @@ fn compare(
 }
 
 fn run_random(settings: SurfelSettings, seeds: u64, shrink: f64, label: &str) -> Worst {
+    run_random_with(settings, seeds, shrink, label, None)
+}
+
+/// `run_random` with `pixels` pixels per rasterizer invocation (None: the device's default).
+fn run_random_with(
+    settings: SurfelSettings,
+    seeds: u64,
+    shrink: f64,
+    label: &str,
+    pixels: Option<u32>,
+) -> Worst {
     let ctx = ctx();
     let mut renderer = renderer(&ctx);
+    if let Some(p) = pixels {
+        renderer = renderer.with_raster_pixels(p).unwrap();
+    }
     let mut rng = rand_pcg::Pcg64::seed_from_u64(77 + seeds);
     let mut worst = Worst::default();
     for seed in 0..seeds {
@@ -336,6 +350,30 @@ fn random_scenes_match_the_reference() {
 #[test]
 fn smooth_mode_matches_the_reference() {
     run_random(SurfelSettings::smooth(), 40, 0.0, "smooth");
+}
+
+/// Every pixels-per-invocation layout the device can run (each subgroup visits only the
+/// surfels whose reach meets its pixels, so the layout decides which surfels each pixel is
+/// offered), with normal and sub-pixel surfels: the same images as the reference.
+#[test]
+fn every_pixel_layout_matches_the_reference() {
+    let ctx = ctx();
+    let subgroup = ctx.info.subgroup_size.max(1);
+    let shuffle = ctx.info.subgroup_shuffle;
+    let mut ran = 0;
+    for pixels in [1u32, 2, 4, 8, 16] {
+        if !(256 / pixels).is_multiple_of(subgroup) || (pixels > 1 && !shuffle) {
+            assert!(renderer(&ctx).with_raster_pixels(pixels).is_err());
+            continue;
+        }
+        for (shrink, kind) in [(0.0, "normal"), (-3.0, "low-pass")] {
+            let label = format!("{kind}, {pixels} pixels an invocation");
+            run_random_with(SurfelSettings::default(), 16, shrink, &label, Some(pixels));
+        }
+        ran += 1;
+    }
+    assert!(ran >= 1);
+    assert!(renderer(&ctx).with_raster_pixels(3).is_err());
 }
 
 /// Sub-pixel surfels: the low-pass filter decides most pixels.

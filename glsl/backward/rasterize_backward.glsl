@@ -68,7 +68,7 @@ layout(local_size_x_id = 0) in;
 
 #include "camera.glsl"
 #include "projected.glsl"
-#include "../render/splat_reach.glsl"
+#include "splat_reach.glsl"
 
 const uint TILE = 16u;
 const uint GRAD2D_STRIDE = 9u;

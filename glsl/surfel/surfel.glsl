@@ -59,3 +59,35 @@ bool surfel_sample(SurfelConstants sc, vec3 h1, vec3 h2, vec3 h3, vec2 m, float 
     s.alpha = s.alpha_clamped ? sc.alpha_max : raw;
     return smooth_mode || s.alpha >= sc.alpha_min;
 }
+
+// Half extents (x, y), around the box centre m, of the pixels where the surfel can reach
+// alpha_min (surfel_sample's test), with margins for f32 rounding (2 % on the squared
+// radius, 1 % and a pixel on the extents): a pixel outside the box gets no alpha in the forward
+// and no gradient in the backward, so the rasterizers' subgroups skip surfels whose box misses
+// all their pixels. Such a pixel has min(rho3d, rho2d) > 2p, p = ln(opacity / alpha_min):
+// outside the low-pass disk around m and outside the image of the disk u² + v² <= 2p, which is
+// bounded (an ellipse) when the whole disk lies in front of the camera; its box comes from the
+// dual conic as in preprocess.comp step 5, here in pixels relative to m so that f32 does not
+// lose the small extents against coordinates of hundreds of pixels. Negative: the surfel
+// reaches no pixel; 1e30: no usable bound (smooth mode, a disk crossing the camera plane or
+// nearly so, non-finite values).
+vec2 surfel_reach(SurfelConstants sc, vec3 h1, vec3 h2, vec3 h3, vec2 m, float opacity) {
+    if ((sc.flags & 1u) != 0u) return vec2(1e30);
+    float p = log(opacity / sc.alpha_min) + 1e-3;
+    if (p < 0.0) return vec2(-1.0);
+    float q_cut = 2.0 * p * 1.02 + 1e-3;
+    float lowpass = sqrt(q_cut / sc.filter_inv_square);
+    // Rows of the homography for pixel coordinates relative to m.
+    vec3 g1 = h1 - m.x * h3, g2 = h2 - m.y * h3;
+    vec3 tau = vec3(q_cut, q_cut, -1.0);
+    float d = dot(tau, h3 * h3);
+    // d < 0: the nearest point of the disk is in front of the camera. Within 1e-3 of the
+    // horizon the image is too elongated for f32.
+    if (!(d < -1e-3 * h3.z * h3.z)) return vec2(1e30);
+    vec3 f = tau / d;
+    vec2 c = vec2(dot(f, g1 * h3), dot(f, g2 * h3));
+    vec2 quad = vec2(dot(f, g1 * g1), dot(f, g2 * g2));
+    vec2 ext = sqrt(max(c * c - quad, vec2(0.0)));
+    vec2 reach = max(vec2(lowpass), abs(c) + ext) * 1.01 + 1.0;
+    return all(lessThan(reach, vec2(1e30))) ? reach : vec2(1e30);
+}

@@ -91,16 +91,45 @@ impl SurfelRenderer {
                 WG,
                 &[],
             )?,
-            raster: ComputePipeline::new(
-                ctx,
-                "surfel/rasterize",
-                shaders::SURFEL_RASTERIZE,
-                10,
-                std::mem::size_of::<RasterPush>() as u32,
-                WG / pixels,
-                &[pixels],
-            )?,
+            raster: Self::raster_pipeline(ctx, pixels)?,
         })
+    }
+
+    /// The same renderer with `pixels` pixels per rasterizer invocation (1, 2, 4, 8 or 16, with
+    /// whole subgroups; the default follows the device): tests cover every layout on any device.
+    pub fn with_raster_pixels(mut self, pixels: u32) -> anyhow::Result<Self> {
+        let wg = WG / pixels.max(1);
+        anyhow::ensure!(
+            matches!(pixels, 1 | 2 | 4 | 8 | 16)
+                && wg.is_multiple_of(self.ctx.info.subgroup_size.max(1))
+                && (pixels == 1 || self.ctx.info.subgroup_shuffle),
+            "surfel renderer: {pixels} pixels per invocation gives {wg} invocations per tile, \
+             not a multiple of the subgroup size {} (or needs subgroup shuffles); use 1, 2, 4, \
+             8 or 16 with whole subgroups",
+            self.ctx.info.subgroup_size
+        );
+        self.raster = Self::raster_pipeline(&self.ctx, pixels)?;
+        Ok(self)
+    }
+
+    fn raster_pipeline(ctx: &Arc<GpuContext>, pixels: u32) -> anyhow::Result<ComputePipeline> {
+        // A device without subgroup shuffles gets SPIR-V that does not declare them.
+        let (name, spirv) = if ctx.info.subgroup_shuffle {
+            ("surfel/rasterize", shaders::SURFEL_RASTERIZE)
+        } else {
+            ("surfel/rasterize_plain", shaders::SURFEL_RASTERIZE_PLAIN)
+        };
+        // Specialisation constants: workgroup size, subgroup size (added by the pipeline),
+        // pixels per invocation.
+        ComputePipeline::new(
+            ctx,
+            name,
+            spirv,
+            10,
+            std::mem::size_of::<RasterPush>() as u32,
+            WG / pixels,
+            &[pixels],
+        )
     }
 
     /// Grows the buffers when `need` exceeds the capacity (see [`Renderer::ensure_capacity`]).
