@@ -1104,8 +1104,10 @@ mod tests {
             trade: TradeArgs,
         }
         let args = Cli::parse_from(["bench", "scene", "--lpm-block", "6", "--lpm-prune", "off"]);
-        let mut cfg = TrainConfig::default();
-        cfg.seed = 7;
+        let cfg = TrainConfig {
+            seed: 7,
+            ..TrainConfig::default()
+        };
         assert!(run_lpm_config("adc", &cfg, &args.trade).is_none());
         let ours = run_lpm_config("adc+lpm", &cfg, &args.trade).unwrap();
         let authors = run_lpm_config("lpm-authors", &cfg, &args.trade).unwrap();
