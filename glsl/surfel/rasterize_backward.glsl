@@ -11,7 +11,9 @@
 // invocation) each subgroup adds its own sums through the transposing butterfly of
 // subgroup_sums.glsl, and takes each surfel from the lane that loaded it by shuffles (every
 // shared-memory load, reduction and atomic is a loop over the lanes there; see
-// ../backward/rasterize_backward.glsl).
+// ../backward/rasterize_backward.glsl); there each subgroup also visits only the surfels
+// whose reach (surfel_reach) meets the box of its pixels and that lie before the last
+// contributor of one of them: the others add nothing to any of its pixels.
 //
 // Every output is a function of the blend weights w_i = alpha_i T_i and per-surfel values, so
 // per surfel the pixel forms g = ∂L/∂w at fixed values (colour, alpha map, background, depth,
@@ -38,6 +40,7 @@
 #extension GL_EXT_control_flow_attributes : require
 #if HAS_SHUFFLE
 #extension GL_KHR_shader_subgroup_shuffle : require
+#extension GL_KHR_shader_subgroup_ballot : require
 #endif
 
 layout(constant_id = 0) const uint WG_SIZE = 256;  // must be 256 / PIXELS
@@ -51,6 +54,7 @@ layout(local_size_x_id = 0) in;
 #include "camera.glsl"
 #include "projected.glsl"
 #include "surfel.glsl"
+#include "splat_reach.glsl"
 
 const uint TILE = 16u;
 const uint GRAD_STRIDE = 18u;
@@ -128,8 +132,78 @@ shared vec4 s_h2[BATCH];  // h2, box centre x
 shared vec4 s_h3[BATCH];  // h3, box centre y
 shared vec3 s_n[BATCH];
 shared vec3 s_rgb[BATCH];
+shared vec2 s_reach[BATCH];  // surfel_reach
+// With SUBGROUP_ATOMICS: [subgroup · BATCH + i], the batch entries each subgroup visits.
+shared uint s_list[SUBGROUP_ATOMICS != 0u ? NUM_SG * BATCH : 1u];
 // [(surfel in batch · NUM_SG + subgroup) · GRAD_STRIDE + k]: the subgroup's sums.
 shared float s_acc[ACC_FLOATS];
+
+// Per-pixel state of the invocation's pixels (module scope so that visit() can update it; the
+// loops over k are unrolled, so these stay in registers).
+vec2 centre[PIXELS];
+uint last[PIXELS], median_at[PIXELS];
+float t[PIXELS];
+vec3 dl_dc[PIXELS], dl_dn[PIXELS];
+// dL/d(alpha map) + the background's −bg·dL/dC per unit weight; depth; median; distortion.
+float g_const[PIXELS], dl_dd[PIXELS], dl_dmed[PIXELS], dl_ddist[PIXELS];
+float total_w[PIXELS], m1[PIXELS], m2[PIXELS];
+float behind[PIXELS];  // Σ over surfels behind of g_i·w_i
+
+// One surfel (list entry e) at the invocation's pixels, back to front: updates their walk-back
+// state and returns the invocation's part of the surfel's gradients (GRAD_STRIDE slots).
+void visit(SurfelConstants sc, vec4 h1, vec4 h2, vec4 h3, vec3 n, vec3 rgb, uint e,
+           float dm_dz_num, out float part[GRAD_STRIDE]) {
+    vec2 mc = vec2(h2.w, h3.w);
+    float opacity = h1.w;
+    vec3 g_h1 = vec3(0.0), g_h2 = vec3(0.0), g_h3 = vec3(0.0), g_rgb = vec3(0.0);
+    vec3 g_n = vec3(0.0);
+    vec2 g_m = vec2(0.0);
+    float g_op = 0.0;
+    [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
+        if (e >= last[k]) continue;
+        SurfelHit s;
+        if (!surfel_sample(sc, h1.xyz, h2.xyz, h3.xyz, mc, opacity, centre[k], s)) continue;
+        float inv_one_minus = 1.0 / (1.0 - s.alpha);
+        t[k] *= inv_one_minus;
+        float w = s.alpha * t[k];
+        float mz = mapped_depth(sc, s.z);
+        float g_w = dot(dl_dc[k], rgb) + g_const[k] + dl_dd[k] * s.z
+                    + dot(dl_dn[k], n)
+                    + dl_ddist[k] * (mz * mz * total_w[k] + m2[k] - 2.0 * mz * m1[k]);
+        float dl_dalpha = t[k] * g_w - behind[k] * inv_one_minus;
+        behind[k] += g_w * w;
+        g_rgb += w * dl_dc[k];
+        g_n += w * dl_dn[k];
+        float dl_dz = w * dl_dd[k]
+                      + dl_ddist[k] * 2.0 * w * (mz * total_w[k] - m1[k])
+                          * dm_dz_num / (s.z * s.z);
+        if (e + 1u == median_at[k]) dl_dz += dl_dmed[k];
+        vec2 dl_duv = vec2(0.0);
+        // Clamp: an alpha clamped at alpha_max passes nothing to the kernel or opacity.
+        if (!s.alpha_clamped) {
+            g_op += s.gauss * dl_dalpha;
+            float dl_drho = -0.5 * s.gauss * opacity * dl_dalpha;
+            if (s.lowpass) {
+                g_m += dl_drho * 2.0 * sc.filter_inv_square * (mc - centre[k]);
+            } else {
+                dl_duv = 2.0 * s.uv * dl_drho;
+            }
+        }
+        // z = u h31 + v h32 + h33; (u, v) = p.xy / p.z; p = a × c.
+        dl_duv += dl_dz * h3.xy;
+        vec3 dl_dh3 = dl_dz * vec3(s.uv, 1.0);
+        vec3 dl_dp = vec3(dl_duv, -dot(dl_duv, s.uv)) / s.p.z;
+        vec3 dl_da = cross(s.c, dl_dp);
+        vec3 dl_dcc = cross(dl_dp, s.a);
+        dl_dh3 += centre[k].x * dl_da + centre[k].y * dl_dcc;
+        g_h1 -= dl_da;
+        g_h2 -= dl_dcc;
+        g_h3 += dl_dh3;
+    }
+    part = float[GRAD_STRIDE](
+        g_h1.x, g_h1.y, g_h1.z, g_h2.x, g_h2.y, g_h2.z, g_h3.x, g_h3.y, g_h3.z,
+        g_m.x, g_m.y, g_rgb.x, g_rgb.y, g_rgb.z, g_op, g_n.x, g_n.y, g_n.z);
+}
 
 void main() {
     Camera cam = cameras[pc.camera_index];
@@ -142,14 +216,6 @@ void main() {
     uint list_len = range.y > range.x ? range.y - range.x : 0u;
     SurfelConstants sc = pc.sc;
 
-    vec2 centre[PIXELS];
-    uint last[PIXELS], median_at[PIXELS];
-    float t[PIXELS];
-    vec3 dl_dc[PIXELS], dl_dn[PIXELS];
-    // dL/d(alpha map) + the background's −bg·dL/dC per unit weight; depth; median; distortion.
-    float g_const[PIXELS], dl_dd[PIXELS], dl_dmed[PIXELS], dl_ddist[PIXELS];
-    float total_w[PIXELS], m1[PIXELS], m2[PIXELS];
-    float behind[PIXELS];  // Σ over surfels behind of g_i·w_i
     uint my_max_last = 0u;
     [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
         uint q = tile_pixel(li, k);
@@ -183,10 +249,13 @@ void main() {
 
     if (li == 0u) s_max_last = 0u;
     barrier();
-    atomicMax(s_max_last, subgroupMax(my_max_last));
+    uint sub_max_last = subgroupMax(my_max_last);
+    atomicMax(s_max_last, sub_max_last);
     barrier();
     uint max_last = s_max_last;
     float dm_dz_num = sc.far * sc.near / (sc.far - sc.near);
+    vec2 c_lo, c_hi;
+    subgroup_pixel_box(centre, c_lo, c_hi);
 
     for (uint done = 0u; done < max_last; done += BATCH) {
         uint batch = min(BATCH, max_last - done);
@@ -196,116 +265,67 @@ void main() {
             uint g = sorted_ids[range.x + e];
             Projected p = projected[g];
             uint o = GEOM_STRIDE * g;
+            vec3 h1 = vec3(geom[o], geom[o + 1u], geom[o + 2u]);
+            vec3 h2 = vec3(geom[o + 3u], geom[o + 4u], geom[o + 5u]);
+            vec3 h3 = vec3(geom[o + 6u], geom[o + 7u], geom[o + 8u]);
             s_id[li] = g;
-            s_h1[li] = vec4(geom[o], geom[o + 1u], geom[o + 2u], p.opacity);
-            s_h2[li] = vec4(geom[o + 3u], geom[o + 4u], geom[o + 5u], p.mean_x);
-            s_h3[li] = vec4(geom[o + 6u], geom[o + 7u], geom[o + 8u], p.mean_y);
+            s_h1[li] = vec4(h1, p.opacity);
+            s_h2[li] = vec4(h2, p.mean_x);
+            s_h3[li] = vec4(h3, p.mean_y);
             s_n[li] = vec3(geom[o + 9u], geom[o + 10u], geom[o + 11u]);
             s_rgb[li] = vec3(p.r, p.g, p.b);
+            s_reach[li] = surfel_reach(sc, h1, h2, h3, vec2(p.mean_x, p.mean_y), p.opacity);
         }
         barrier();
 #if HAS_SHUFFLE
-        // With subgroup atomics, lane l loads entry j0 + l of each chunk of the batch (the last
-        // entry again past its end) and every lane takes the entry's values by shuffles.
-        uint lane = gl_SubgroupInvocationID;
-        vec4 l_h1 = vec4(0.0), l_h2 = vec4(0.0), l_h3 = vec4(0.0), l_n = vec4(0.0);
-        vec3 l_rgb = vec3(0.0);
+        if (SUBGROUP_ATOMICS != 0u) {
+            // Compact (in back-to-front order) the entries this subgroup's pixels can see:
+            // before one of their last contributors, with a reach that meets their box.
+            uint list_base = gl_SubgroupID * BATCH;
+            uint n_list = 0u;
+            for (uint j0 = 0u; j0 < batch; j0 += gl_SubgroupSize) {
+                uint j = j0 + gl_SubgroupInvocationID;
+                bool meets = j < batch && max_last - 1u - (done + j) < sub_max_last &&
+                             reach_meets(vec2(s_h2[j].w, s_h3[j].w), s_reach[j], c_lo, c_hi);
+                uvec4 ballot = subgroupBallot(meets);
+                if (meets) s_list[list_base + n_list + subgroupBallotExclusiveBitCount(ballot)] = j;
+                n_list += subgroupBallotBitCount(ballot);
+            }
+            subgroupMemoryBarrierShared();
+            subgroupBarrier();
+            // Lane l loads entry i0 + l of each chunk of the list (the last entry again past its
+            // end) and every lane takes the entry's values by shuffles; the loops are uniform
+            // over the subgroup, as the shuffles and the butterfly need.
+            for (uint i0 = 0u; i0 < n_list; i0 += SUBGROUP_SIZE) {
+                uint mine = s_list[list_base + min(i0 + gl_SubgroupInvocationID, n_list - 1u)];
+                vec4 l_h1 = s_h1[mine], l_h2 = s_h2[mine], l_h3 = s_h3[mine];
+                vec4 l_n = vec4(s_n[mine], uintBitsToFloat(s_id[mine]));
+                vec4 l_rgb = vec4(s_rgb[mine], uintBitsToFloat(mine));
+                uint n_chunk = min(SUBGROUP_SIZE, n_list - i0);
+                for (uint ii = 0u; ii < n_chunk; ii++) {
+                    vec4 n4 = subgroupShuffle(l_n, ii);
+                    vec4 rgbj = subgroupShuffle(l_rgb, ii);
+                    uint e = max_last - 1u - (done + floatBitsToUint(rgbj.w));
+                    float part[GRAD_STRIDE];
+                    visit(sc, subgroupShuffle(l_h1, ii), subgroupShuffle(l_h2, ii),
+                          subgroupShuffle(l_h3, ii), n4.xyz, rgbj.xyz, e, dm_dz_num, part);
+                    add_sums_transposed(part, floatBitsToUint(n4.w));
+                }
+            }
+            continue;
+        }
 #endif
         for (uint j = 0u; j < batch; j++) {
             uint e = max_last - 1u - (done + j);
-            vec4 h1, h2, h3;
-            vec3 rgb, n;
-            uint gid = 0u;
-#if HAS_SHUFFLE
-            if (SUBGROUP_ATOMICS != 0u) {
-                uint jj = j % SUBGROUP_SIZE;
-                if (jj == 0u) {
-                    uint mine = min(j + lane, batch - 1u);
-                    l_h1 = s_h1[mine];
-                    l_h2 = s_h2[mine];
-                    l_h3 = s_h3[mine];
-                    l_n = vec4(s_n[mine], uintBitsToFloat(s_id[mine]));
-                    l_rgb = s_rgb[mine];
-                }
-                h1 = subgroupShuffle(l_h1, jj);
-                h2 = subgroupShuffle(l_h2, jj);
-                h3 = subgroupShuffle(l_h3, jj);
-                vec4 n4 = subgroupShuffle(l_n, jj);
-                n = n4.xyz;
-                gid = floatBitsToUint(n4.w);
-                rgb = subgroupShuffle(l_rgb, jj);
-            } else
-#endif
-            {
-                h1 = s_h1[j];
-                h2 = s_h2[j];
-                h3 = s_h3[j];
-                rgb = s_rgb[j];
-                n = s_n[j];
-            }
-            vec2 mc = vec2(h2.w, h3.w);
-            float opacity = h1.w;
-            vec3 g_h1 = vec3(0.0), g_h2 = vec3(0.0), g_h3 = vec3(0.0), g_rgb = vec3(0.0);
-            vec3 g_n = vec3(0.0);
-            vec2 g_m = vec2(0.0);
-            float g_op = 0.0;
-            [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
-                if (e >= last[k]) continue;
-                SurfelHit s;
-                if (!surfel_sample(sc, h1.xyz, h2.xyz, h3.xyz, mc, opacity, centre[k], s)) continue;
-                float inv_one_minus = 1.0 / (1.0 - s.alpha);
-                t[k] *= inv_one_minus;
-                float w = s.alpha * t[k];
-                float mz = mapped_depth(sc, s.z);
-                float g_w = dot(dl_dc[k], rgb) + g_const[k] + dl_dd[k] * s.z
-                            + dot(dl_dn[k], n)
-                            + dl_ddist[k] * (mz * mz * total_w[k] + m2[k] - 2.0 * mz * m1[k]);
-                float dl_dalpha = t[k] * g_w - behind[k] * inv_one_minus;
-                behind[k] += g_w * w;
-                g_rgb += w * dl_dc[k];
-                g_n += w * dl_dn[k];
-                float dl_dz = w * dl_dd[k]
-                              + dl_ddist[k] * 2.0 * w * (mz * total_w[k] - m1[k])
-                                  * dm_dz_num / (s.z * s.z);
-                if (e + 1u == median_at[k]) dl_dz += dl_dmed[k];
-                vec2 dl_duv = vec2(0.0);
-                // Clamp: an alpha clamped at alpha_max passes nothing to the kernel or opacity.
-                if (!s.alpha_clamped) {
-                    g_op += s.gauss * dl_dalpha;
-                    float dl_drho = -0.5 * s.gauss * opacity * dl_dalpha;
-                    if (s.lowpass) {
-                        g_m += dl_drho * 2.0 * sc.filter_inv_square * (mc - centre[k]);
-                    } else {
-                        dl_duv = 2.0 * s.uv * dl_drho;
-                    }
-                }
-                // z = u h31 + v h32 + h33; (u, v) = p.xy / p.z; p = a × c.
-                dl_duv += dl_dz * h3.xy;
-                vec3 dl_dh3 = dl_dz * vec3(s.uv, 1.0);
-                vec3 dl_dp = vec3(dl_duv, -dot(dl_duv, s.uv)) / s.p.z;
-                vec3 dl_da = cross(s.c, dl_dp);
-                vec3 dl_dcc = cross(dl_dp, s.a);
-                dl_dh3 += centre[k].x * dl_da + centre[k].y * dl_dcc;
-                g_h1 -= dl_da;
-                g_h2 -= dl_dcc;
-                g_h3 += dl_dh3;
-            }
-#if HAS_SHUFFLE
-            if (SUBGROUP_ATOMICS != 0u) {
-                float part[GRAD_STRIDE] = float[GRAD_STRIDE](
-                    g_h1.x, g_h1.y, g_h1.z, g_h2.x, g_h2.y, g_h2.z, g_h3.x, g_h3.y, g_h3.z,
-                    g_m.x, g_m.y, g_rgb.x, g_rgb.y, g_rgb.z, g_op, g_n.x, g_n.y, g_n.z);
-                add_sums_transposed(part, gid);
-                continue;
-            }
-#endif
-            g_h1 = subgroupAdd(g_h1);
-            g_h2 = subgroupAdd(g_h2);
-            g_h3 = subgroupAdd(g_h3);
-            g_m = subgroupAdd(g_m);
-            g_rgb = subgroupAdd(g_rgb);
-            g_op = subgroupAdd(g_op);
-            g_n = subgroupAdd(g_n);
+            float part[GRAD_STRIDE];
+            visit(sc, s_h1[j], s_h2[j], s_h3[j], s_n[j], s_rgb[j], e, dm_dz_num, part);
+            vec3 g_h1 = subgroupAdd(vec3(part[0], part[1], part[2]));
+            vec3 g_h2 = subgroupAdd(vec3(part[3], part[4], part[5]));
+            vec3 g_h3 = subgroupAdd(vec3(part[6], part[7], part[8]));
+            vec2 g_m = subgroupAdd(vec2(part[9], part[10]));
+            vec3 g_rgb = subgroupAdd(vec3(part[11], part[12], part[13]));
+            float g_op = subgroupAdd(part[14]);
+            vec3 g_n = subgroupAdd(vec3(part[15], part[16], part[17]));
             if (subgroupElect()) {
                 uint a = (j * NUM_SG + gl_SubgroupID) * GRAD_STRIDE;
                 s_acc[a + 0u] = g_h1.x; s_acc[a + 1u] = g_h1.y; s_acc[a + 2u] = g_h1.z;
@@ -317,7 +337,6 @@ void main() {
                 s_acc[a + 15u] = g_n.x; s_acc[a + 16u] = g_n.y; s_acc[a + 17u] = g_n.z;
             }
         }
-        if (SUBGROUP_ATOMICS != 0u) continue;
         barrier();
         // One invocation per surfel of the batch: the subgroups' sums, then the atomics.
         for (uint j = li; j < batch; j += WG_SIZE) {

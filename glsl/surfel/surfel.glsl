@@ -81,9 +81,13 @@ vec2 surfel_reach(SurfelConstants sc, vec3 h1, vec3 h2, vec3 h3, vec2 m, float o
     vec3 g1 = h1 - m.x * h3, g2 = h2 - m.y * h3;
     vec3 tau = vec3(q_cut, q_cut, -1.0);
     float d = dot(tau, h3 * h3);
-    // d < 0: the nearest point of the disk is in front of the camera. Within 1e-3 of the
-    // horizon the image is too elongated for f32.
-    if (!(d < -1e-3 * h3.z * h3.z)) return vec2(1e30);
+    // d < 0: the nearest point of the disk is in front of the camera. Close to the horizon
+    // the image is so elongated that c² − quad loses the extents in f32: with the bound at
+    // −1e-3·h3z² the culled lists dropped real hits of oblique surfels (Truck -r 4, 20
+    // iterations on one thread: a different model), from −1e-2 on they matched the full
+    // lists bit for bit; −5e-2 keeps a margin (the disk's depth varies by < 97 % of its
+    // centre's).
+    if (!(d < -5e-2 * h3.z * h3.z)) return vec2(1e30);
     vec3 f = tau / d;
     vec2 c = vec2(dot(f, g1 * h3), dot(f, g2 * h3));
     vec2 quad = vec2(dot(f, g1 * g1), dot(f, g2 * g2));
