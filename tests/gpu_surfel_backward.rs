@@ -122,6 +122,17 @@ fn run_gpu(
     compare_swap: bool,
     pixels: Option<u32>,
 ) -> (GpuResult, RefSurfels) {
+    run_gpu_with(ctx, s, compare_swap, pixels, false)
+}
+
+/// `run_gpu`; `full_lists`: the rasterizers' subgroups visit every surfel of their tile.
+fn run_gpu_with(
+    ctx: &Arc<GpuContext>,
+    s: &Scene,
+    compare_swap: bool,
+    pixels: Option<u32>,
+    full_lists: bool,
+) -> (GpuResult, RefSurfels) {
     let params = s.surfels.to_params(3, THIRD);
     let exact = RefSurfels::from_params(&params);
     let n = params.len();
@@ -135,7 +146,10 @@ fn run_gpu(
     let mut decoy = cam;
     decoy.r0[3] += 1.0;
     let cameras = GpuBuffer::from_slice(ctx, "cameras", &[decoy, cam]).unwrap();
-    let constants = SurfelConstants::from_settings(&s.settings);
+    let mut constants = SurfelConstants::from_settings(&s.settings);
+    if full_lists {
+        constants.flags |= SurfelConstants::FULL_LISTS;
+    }
     let mut renderer = SurfelRenderer::new(ctx, Capacity::single()).unwrap();
     renderer
         .render_blocking(
@@ -385,6 +399,71 @@ fn run(settings: SurfelSettings, seeds: u64, shrink: f64, tolerance: (f64, f64),
         compared * 10 >= seeds * 9,
         "{label}: only {compared} of {seeds} scenes comparable"
     );
+    ctx.check_validation().unwrap();
+}
+
+/// The per-subgroup lists (surfels whose reach meets the subgroup's pixels, before its last
+/// contributor) give the gradients of full lists: the same sums. Lavapipe on several threads
+/// adds the tiles' sums by atomics in an order that depends on timing, which the lists change,
+/// so there the comparison allows 1e-4 of the largest gradient; the test also re-runs itself
+/// on one lavapipe thread (LP_NUM_THREADS=1, a child process), where the order is fixed and
+/// the gradients must be equal bit for bit.
+#[test]
+fn reach_culled_lists_give_the_gradients_of_full_lists() {
+    let one_thread = std::env::var("LP_NUM_THREADS").as_deref() == Ok("1");
+    if std::env::var_os("LPMSPLAT_CHILD").is_none() {
+        let exe = std::env::current_exe().unwrap();
+        let out = std::process::Command::new(exe)
+            .env("LP_NUM_THREADS", "1")
+            .env("LPMSPLAT_CHILD", "1")
+            .args([
+                "--test-threads=1",
+                "--exact",
+                "reach_culled_lists_give_the_gradients_of_full_lists",
+            ])
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&out.stdout).to_string()
+            + &String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "one-thread run failed:\n{text}");
+        assert!(
+            text.contains("1 passed"),
+            "the child ran the wrong tests:\n{text}"
+        );
+    }
+    let ctx = ctx();
+    let exact = one_thread && ctx.info.device_type.starts_with("CPU");
+    let mut rng = Pcg64::seed_from_u64(0x5EED);
+    for seed in 0..12 {
+        let s = random_scene(&mut rng, SurfelSettings::default(), [0.0, -3.0][seed % 2]);
+        let pixels = [None, Some(2), Some(8)][seed % 3];
+        let label = format!("seed {seed}, pixels {pixels:?}");
+        let (a, _) = run_gpu_with(&ctx, &s, false, pixels, false);
+        let (b, _) = run_gpu_with(&ctx, &s, false, pixels, true);
+        assert_eq!(a.last_index, b.last_index, "{label}");
+        let groups = |p: &GaussianParams| -> Vec<(&'static str, Vec<f32>)> {
+            vec![
+                ("positions", p.positions.iter().flatten().copied().collect()),
+                (
+                    "log_scales",
+                    p.log_scales.iter().flatten().copied().collect(),
+                ),
+                ("rotations", p.rotations.iter().flatten().copied().collect()),
+                ("opacity_logits", p.opacity_logits.clone()),
+                ("sh_dc", p.sh_dc.iter().flatten().copied().collect()),
+                ("sh_rest", p.sh_rest.clone()),
+            ]
+        };
+        for ((name, ga), (_, gb)) in groups(&a.params).into_iter().zip(groups(&b.params)) {
+            let scale = gb.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-20);
+            for (i, (x, y)) in ga.iter().zip(&gb).enumerate() {
+                assert!(
+                    if exact { x.to_bits() == y.to_bits() } else { (x - y).abs() <= 1e-4 * scale },
+                    "{label}: {name}[{i}] culled {x} vs full {y} (group max {scale}, exact {exact})"
+                );
+            }
+        }
+    }
     ctx.check_validation().unwrap();
 }
 

@@ -14,7 +14,7 @@ const uint MAPS_STRIDE = 8u;
 struct SurfelConstants {
     float near, far, alpha_min, alpha_max;
     float t_min, filter_inv_square, cutoff;
-    uint flags;  // 1: smooth test mode
+    uint flags;  // 1: smooth test mode; 2: no reach bound (every subgroup visits every surfel)
 };
 
 bool surfel_finite(float v) { return !isnan(v) && !isinf(v); }
@@ -72,7 +72,7 @@ bool surfel_sample(SurfelConstants sc, vec3 h1, vec3 h2, vec3 h3, vec2 m, float 
 // reaches no pixel; 1e30: no usable bound (smooth mode, a disk crossing the camera plane or
 // nearly so, non-finite values).
 vec2 surfel_reach(SurfelConstants sc, vec3 h1, vec3 h2, vec3 h3, vec2 m, float opacity) {
-    if ((sc.flags & 1u) != 0u) return vec2(1e30);
+    if ((sc.flags & 3u) != 0u) return vec2(1e30);
     float p = log(opacity / sc.alpha_min) + 1e-3;
     if (p < 0.0) return vec2(-1.0);
     float q_cut = 2.0 * p * 1.02 + 1e-3;

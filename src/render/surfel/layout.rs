@@ -55,13 +55,16 @@ pub struct SurfelConstants {
     pub t_min: f32,
     pub filter_inv_square: f32,
     pub cutoff: f32,
-    /// Bit [`SurfelConstants::SMOOTH`].
+    /// Bits [`SurfelConstants::SMOOTH`], [`SurfelConstants::FULL_LISTS`].
     pub flags: u32,
 }
 
 impl SurfelConstants {
     /// Smooth test mode (no alpha_min skip, no t_min stop, no alpha_max clamp).
     pub const SMOOTH: u32 = 1;
+    /// Test aid: the rasterizers' subgroups visit every surfel of the tile (no reach bound),
+    /// which must give the same results as the culled lists.
+    pub const FULL_LISTS: u32 = 2;
 
     pub fn from_settings(s: &SurfelSettings) -> Self {
         assert_eq!(
