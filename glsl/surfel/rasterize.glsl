@@ -77,38 +77,39 @@ bool done[PIXELS];
 
 // Blends one surfel (h1 + opacity, h2 + box centre x, h3 + box centre y, normal + red,
 // green/blue) into the invocation's pixels that are not done; `index` is its entry in the
-// tile's list + 1. Returns whether all the invocation's pixels are done.
+// tile's list + 1. Returns whether all the invocation's pixels are done. Branch-free per pixel,
+// as in glsl/render/rasterize.glsl: a pixel the surfel does not reach gets weight 0 (and a
+// finite stand-in depth, so that 0 · m(z) stays 0) and keeps its state.
 bool blend(vec4 h1, vec4 h2, vec4 h3, vec4 nr, vec2 gb, uint index, bool smooth_mode) {
     bool all = true;
     vec3 rgb = vec3(nr.w, gb);
     [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
         SurfelHit s;
-        if (!done[k] && surfel_sample(sc, h1.xyz, h2.xyz, h3.xyz, vec2(h2.w, h3.w), h1.w,
-                                      centre[k], s)) {
-            float next_t = T[k] * (1.0 - s.alpha);
-            // Stop before the surfel that would make the pixel (almost) opaque (the backward
-            // divides by 1 − alpha to walk back).
-            if (!smooth_mode && next_t < sc.t_min) {
-                done[k] = true;
-            } else {
-                float w = s.alpha * T[k];
-                float mz = mapped_depth(sc, s.z);
-                // Distortion: Σ_i w_i Σ_{j<i} w_j (m_i − m_j)², in one pass, with the weight in
-                // front A = 1 − T.
-                dist[k] += (mz * mz * (1.0 - T[k]) + m2[k] - 2.0 * mz * m1[k]) * w;
-                depth[k] += w * s.z;
-                m1[k] += w * mz;
-                m2[k] += w * mz * mz;
-                if (T[k] > 0.5) {
-                    median[k] = s.z;
-                    median_at[k] = index;
-                }
-                normal[k] += w * nr.xyz;
-                color[k] += w * rgb;
-                T[k] = next_t;
-                last[k] = index;
-            }
-        }
+        bool hit = surfel_sample(sc, h1.xyz, h2.xyz, h3.xyz, vec2(h2.w, h3.w), h1.w, centre[k], s)
+                   && !done[k];
+        float alpha = hit ? s.alpha : 0.0;
+        float next_t = T[k] * (1.0 - alpha);
+        // Stop before the surfel that would make the pixel (almost) opaque (the backward
+        // divides by 1 − alpha to walk back).
+        bool stop = hit && !smooth_mode && next_t < sc.t_min;
+        bool take = hit && !stop;
+        float w = take ? alpha * T[k] : 0.0;
+        float z = take ? s.z : 1.0;
+        float mz = mapped_depth(sc, z);
+        // Distortion: Σ_i w_i Σ_{j<i} w_j (m_i − m_j)², in one pass, with the weight in front
+        // A = 1 − T.
+        dist[k] += (mz * mz * (1.0 - T[k]) + m2[k] - 2.0 * mz * m1[k]) * w;
+        depth[k] += w * z;
+        m1[k] += w * mz;
+        m2[k] += w * mz * mz;
+        bool median_here = take && T[k] > 0.5;
+        median[k] = median_here ? z : median[k];
+        median_at[k] = median_here ? index : median_at[k];
+        normal[k] += w * nr.xyz;
+        color[k] += w * rgb;
+        T[k] = take ? next_t : T[k];
+        last[k] = take ? index : last[k];
+        done[k] = done[k] || stop;
         all = all && done[k];
     }
     return all;
