@@ -151,6 +151,9 @@ float behind[PIXELS];  // Σ over surfels behind of g_i·w_i
 
 // One surfel (list entry e) at the invocation's pixels, back to front: updates their walk-back
 // state and returns the invocation's part of the surfel's gradients (GRAD_STRIDE slots).
+// Branch-free per pixel (CPU drivers run both sides of every `if`): a pixel the surfel does not
+// reach gets alpha 0 and finite stand-ins for the hit (depth 1, uv 0, p₃ 1), so every term it
+// adds is an exact 0 and its transmittance is multiplied by exactly 1.
 void visit(SurfelConstants sc, vec4 h1, vec4 h2, vec4 h3, vec3 n, vec3 rgb, uint e,
            float dm_dz_num, out float part[GRAD_STRIDE]) {
     vec2 mc = vec2(h2.w, h3.w);
@@ -160,14 +163,20 @@ void visit(SurfelConstants sc, vec4 h1, vec4 h2, vec4 h3, vec3 n, vec3 rgb, uint
     vec2 g_m = vec2(0.0);
     float g_op = 0.0;
     [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
-        if (e >= last[k]) continue;
         SurfelHit s;
-        if (!surfel_sample(sc, h1.xyz, h2.xyz, h3.xyz, mc, opacity, centre[k], s)) continue;
-        float inv_one_minus = 1.0 / (1.0 - s.alpha);
+        bool hit = surfel_sample(sc, h1.xyz, h2.xyz, h3.xyz, mc, opacity, centre[k], s)
+                   && e < last[k];
+        float alpha = hit ? s.alpha : 0.0;
+        float z = hit ? s.z : 1.0;
+        vec2 uv = hit ? s.uv : vec2(0.0);
+        vec3 sa = hit ? s.a : vec3(0.0), sc3 = hit ? s.c : vec3(0.0);
+        float pz = hit ? s.p.z : 1.0;
+        float gauss = hit ? s.gauss : 0.0;
+        float inv_one_minus = 1.0 / (1.0 - alpha);
         t[k] *= inv_one_minus;
-        float w = s.alpha * t[k];
-        float mz = mapped_depth(sc, s.z);
-        float g_w = dot(dl_dc[k], rgb) + g_const[k] + dl_dd[k] * s.z
+        float w = alpha * t[k];
+        float mz = mapped_depth(sc, z);
+        float g_w = dot(dl_dc[k], rgb) + g_const[k] + dl_dd[k] * z
                     + dot(dl_dn[k], n)
                     + dl_ddist[k] * (mz * mz * total_w[k] + m2[k] - 2.0 * mz * m1[k]);
         float dl_dalpha = t[k] * g_w - behind[k] * inv_one_minus;
@@ -176,25 +185,21 @@ void visit(SurfelConstants sc, vec4 h1, vec4 h2, vec4 h3, vec3 n, vec3 rgb, uint
         g_n += w * dl_dn[k];
         float dl_dz = w * dl_dd[k]
                       + dl_ddist[k] * 2.0 * w * (mz * total_w[k] - m1[k])
-                          * dm_dz_num / (s.z * s.z);
-        if (e + 1u == median_at[k]) dl_dz += dl_dmed[k];
-        vec2 dl_duv = vec2(0.0);
+                          * dm_dz_num / (z * z);
+        dl_dz += hit && e + 1u == median_at[k] ? dl_dmed[k] : 0.0;
         // Clamp: an alpha clamped at alpha_max passes nothing to the kernel or opacity.
-        if (!s.alpha_clamped) {
-            g_op += s.gauss * dl_dalpha;
-            float dl_drho = -0.5 * s.gauss * opacity * dl_dalpha;
-            if (s.lowpass) {
-                g_m += dl_drho * 2.0 * sc.filter_inv_square * (mc - centre[k]);
-            } else {
-                dl_duv = 2.0 * s.uv * dl_drho;
-            }
-        }
+        bool kernel = hit && !s.alpha_clamped;
+        bool lowpass = hit && s.lowpass;
+        g_op += kernel ? gauss * dl_dalpha : 0.0;
+        float dl_drho = kernel ? -0.5 * gauss * opacity * dl_dalpha : 0.0;
+        g_m += lowpass ? dl_drho * 2.0 * sc.filter_inv_square * (mc - centre[k]) : vec2(0.0);
+        vec2 dl_duv = lowpass ? vec2(0.0) : 2.0 * uv * dl_drho;
         // z = u h31 + v h32 + h33; (u, v) = p.xy / p.z; p = a × c.
         dl_duv += dl_dz * h3.xy;
-        vec3 dl_dh3 = dl_dz * vec3(s.uv, 1.0);
-        vec3 dl_dp = vec3(dl_duv, -dot(dl_duv, s.uv)) / s.p.z;
-        vec3 dl_da = cross(s.c, dl_dp);
-        vec3 dl_dcc = cross(dl_dp, s.a);
+        vec3 dl_dh3 = dl_dz * vec3(uv, 1.0);
+        vec3 dl_dp = vec3(dl_duv, -dot(dl_duv, uv)) / pz;
+        vec3 dl_da = cross(sc3, dl_dp);
+        vec3 dl_dcc = cross(dl_dp, sa);
         dl_dh3 += centre[k].x * dl_da + centre[k].y * dl_dcc;
         g_h1 -= dl_da;
         g_h2 -= dl_dcc;
