@@ -69,6 +69,7 @@ layout(local_size_x_id = 0) in;
 #include "camera.glsl"
 #include "projected.glsl"
 #include "splat_reach.glsl"
+#include "subgroup_pixels.glsl"
 
 const uint TILE = 16u;
 const uint GRAD2D_STRIDE = 9u;
@@ -165,14 +166,6 @@ const uint BATCH = SUBGROUP_ATOMICS != 0u
                                                               : BATCH_BY_STAGE)
                    : (WG_SIZE < BATCH_BY_ACC ? WG_SIZE : BATCH_BY_ACC);
 
-// Pixel k of invocation li, as an index into the 16×16 tile (row-major): invocation li is lane
-// li % SUBGROUP_SIZE of group li / SUBGROUP_SIZE, and each such group owns SUBGROUP_SIZE·PIXELS
-// consecutive pixels (whole rows), so a subgroup's pixels are close together and tend to stop
-// at similar depths. A bijection onto 0..255 for any WG_SIZE = 256 / PIXELS.
-uint tile_pixel(uint li, uint k) {
-    uint lane = li % SUBGROUP_SIZE;
-    return (li - lane) * PIXELS + k * SUBGROUP_SIZE + lane;
-}
 
 shared uint s_max_last;
 shared uint s_id[BATCH];

@@ -50,17 +50,3 @@ bool ellipse_meets(vec2 mean, vec3 conic, float q_cut, vec2 lo, vec2 hi) {
     vec2 q2 = a * dx_y * dx_y + 2.0 * b * dx_y * dy + c * dy * dy;
     return min(min(q1.x, q1.y), min(q2.x, q2.y)) <= q_cut;
 }
-
-// The box [lo, hi] of the pixel centres of the whole subgroup (from the pixels themselves,
-// whatever the subgroup's layout): the rasterizers visit only splats whose reach meets it.
-// Needs the subgroup arithmetic extension and PIXELS.
-void subgroup_pixel_box(vec2 centres[PIXELS], out vec2 lo, out vec2 hi) {
-    lo = centres[0];
-    hi = centres[0];
-    [[unroll]] for (uint k = 1u; k < PIXELS; k++) {
-        lo = min(lo, centres[k]);
-        hi = max(hi, centres[k]);
-    }
-    lo = subgroupMin(lo);
-    hi = subgroupMax(hi);
-}

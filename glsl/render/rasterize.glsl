@@ -32,6 +32,7 @@ layout(local_size_x_id = 0) in;
 #include "camera.glsl"
 #include "projected.glsl"
 #include "splat_reach.glsl"
+#include "subgroup_pixels.glsl"
 layout(std430, set = 0, binding = 0) readonly buffer Proj { Projected projected[]; };
 layout(std430, set = 0, binding = 1) readonly buffer Ids { uint sorted_ids[]; };
 layout(std430, set = 0, binding = 2) readonly buffer Ranges { uvec2 ranges[]; };
@@ -47,14 +48,6 @@ layout(push_constant) uniform Push {
     float bg_r, bg_g, bg_b;
 };
 
-// Pixel k of invocation li, as an index into the 16×16 tile (row-major): invocation li is lane
-// li % SUBGROUP_SIZE of group li / SUBGROUP_SIZE, and each such group owns SUBGROUP_SIZE·PIXELS
-// consecutive pixels (whole rows), so a subgroup's pixels are close together and tend to stop
-// at similar depths. A bijection onto 0..255 for any WG_SIZE = 256 / PIXELS.
-uint tile_pixel(uint li, uint k) {
-    uint lane = li % SUBGROUP_SIZE;
-    return (li - lane) * PIXELS + k * SUBGROUP_SIZE + lane;
-}
 
 shared vec4 s_mean_opacity[WG_SIZE];  // mean x, mean y, opacity, unused
 shared vec4 s_conic[WG_SIZE];         // a, b, c, power below which alpha < alpha_min

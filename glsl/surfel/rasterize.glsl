@@ -28,6 +28,7 @@ layout(local_size_x_id = 0) in;
 #include "projected.glsl"
 #include "surfel.glsl"
 #include "splat_reach.glsl"
+#include "subgroup_pixels.glsl"
 layout(std430, set = 0, binding = 0) readonly buffer Proj { Projected projected[]; };
 layout(std430, set = 0, binding = 1) readonly buffer Geom { float geom[]; };
 layout(std430, set = 0, binding = 2) readonly buffer Ids { uint sorted_ids[]; };
@@ -44,13 +45,6 @@ layout(push_constant) uniform Push {
     float bg_r, bg_g, bg_b;
 };
 
-// Pixel k of invocation li as an index into the tile (row-major): each subgroup owns
-// SUBGROUP_SIZE·PIXELS consecutive pixels (whole rows), so its pixel box is small and its
-// pixels tend to stop at similar depths. A bijection onto 0..255 for any WG_SIZE = 256 / PIXELS.
-uint tile_pixel(uint li, uint k) {
-    uint lane = li % SUBGROUP_SIZE;
-    return (li - lane) * PIXELS + k * SUBGROUP_SIZE + lane;
-}
 
 shared vec4 s_h1[WG_SIZE];   // h1, opacity
 shared vec4 s_h2[WG_SIZE];   // h2, box centre x

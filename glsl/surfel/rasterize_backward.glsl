@@ -55,6 +55,7 @@ layout(local_size_x_id = 0) in;
 #include "projected.glsl"
 #include "surfel.glsl"
 #include "splat_reach.glsl"
+#include "subgroup_pixels.glsl"
 
 const uint TILE = 16u;
 const uint GRAD_STRIDE = 18u;
@@ -119,11 +120,6 @@ const uint NUM_SG = WG_SIZE / SUBGROUP_SIZE;
 const uint BATCH_BY_ACC = SUBGROUP_ATOMICS != 0u ? WG_SIZE : ACC_FLOATS / (NUM_SG * GRAD_STRIDE);
 const uint BATCH = WG_SIZE < BATCH_BY_ACC ? WG_SIZE : BATCH_BY_ACC;
 
-// Pixel k of invocation li (row-major in the tile): a subgroup's pixels are consecutive.
-uint tile_pixel(uint li, uint k) {
-    uint lane = li % SUBGROUP_SIZE;
-    return (li - lane) * PIXELS + k * SUBGROUP_SIZE + lane;
-}
 
 shared uint s_max_last;
 shared uint s_id[BATCH];
