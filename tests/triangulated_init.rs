@@ -21,13 +21,7 @@ fn textured_plane() -> RefGaussians {
     let mut rng = rand_pcg::Pcg64::seed_from_u64(0x7E47);
     let cells = 36;
     let step = 2.0 * HALF / cells as f64;
-    let mut g = RefGaussians {
-        positions: Vec::new(),
-        log_scales: Vec::new(),
-        rotations: Vec::new(),
-        opacity_logits: Vec::new(),
-        sh: Vec::new(),
-    };
+    let mut g = RefGaussians::default();
     for gx in 0..cells {
         for gy in 0..cells {
             let at = |k: usize, rng: &mut rand_pcg::Pcg64| {
