@@ -1,0 +1,104 @@
+#!/usr/bin/env bash
+# Runs on the GPU machine, from the repository root, after scripts/device/pack.sh packed what it
+# needs here (scripts/device/README.md): `bash scripts/device/run.sh STEP...`, each step inside
+# what is left of BUDGET seconds (default 540, under one call's 600), so a slow step cannot
+# take the others' results with it. Everything lands in $OUT/results.tar.gz (logs, JSON, the
+# per-stage tables) and a summary is printed last.
+#   info     the device as the engine sees it
+#   tests    the gpu_* test executables (kernels against the f64 references), validation on
+#   demo     the README's main job, 3DGS then 2DGS (lund_door_small -r 2, 2000 iterations)
+#   fps      bench fps at 1352x1014: 100k, 1M and 3M generated Gaussians
+#   trade7k  bench trade on the packed scene at full size: ADC vs ADC+LPM, 7k of the 30k
+#            calendar, then bench fps of the LPM model at 1352x1014
+#   train30k train the packed scene at full size with LPM, 30k iterations, --timestamps
+set -uo pipefail
+cd "$(dirname "$0")/../.."
+OUT=${OUT:-/tmp/device-out}
+budget=${BUDGET:-540}
+deadline=$((SECONDS + budget))
+work=/tmp/lpmsplat-device
+res=$work/results
+mkdir -p "$res" "$OUT"
+for f in .gl/*.deb .device/validation.deb; do [ -f "$f" ] && dpkg -x "$f" /; done
+ldconfig
+if [ ! -e /usr/share/vulkan/icd.d/nvidia_icd.json ] && [ -e /usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json ]; then
+    export VK_DRIVER_FILES=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
+fi
+for k in bin tests; do [ -f ".device/$k.tar.xz" ] && tar -xJf ".device/$k.tar.xz" -C "$work"; done
+scene=
+if [ -f .device/scene.tar.xz ]; then
+    tar -xJf .device/scene.tar.xz -C "$work"
+    scene=$(tar -tJf .device/scene.tar.xz | head -1 | cut -d/ -f1)
+    scene=$work/$scene
+fi
+bin=$work/bin/lpmsplat
+summary=$res/summary.txt
+: >"$summary"
+
+# step NAME LIMIT CMD...: runs CMD with its output in NAME.log, for at most LIMIT seconds or
+# what is left of the budget, and notes its exit status and wall time in the summary.
+step() {
+    local name=$1 limit=$2 left t0 rc
+    shift 2
+    left=$((deadline - SECONDS - 15))
+    [ "$left" -lt "$limit" ] && limit=$left
+    if [ "$limit" -le 5 ]; then
+        echo "$name: skipped (budget spent)" >>"$summary"
+        return
+    fi
+    t0=$SECONDS
+    timeout "$limit" "$@" >"$res/$name.log" 2>&1
+    rc=$?
+    echo "$name: rc $rc, $((SECONDS - t0)) s (limit $limit s)" >>"$summary"
+}
+
+need_scene() {
+    [ -n "$scene" ] && return 0
+    echo "$1: skipped (no .device/scene.tar.xz carried)" >>"$summary"
+    return 1
+}
+
+for s in "$@"; do
+    case $s in
+    info)
+        step info 30 "$bin" info
+        nvidia-smi >"$res/nvidia-smi.txt" 2>&1
+        ;;
+    tests)
+        for t in "$work"/tests/*; do
+            step "test-$(basename "$t")" 240 "$t" --test-threads=4
+        done
+        ;;
+    demo)
+        step demo-3dgs 120 "$bin" train tests/data/lund_door_small -r 2 --iterations 2000 \
+            --timestamps -o "$work/demo-3dgs"
+        step demo-2dgs 180 "$bin" train tests/data/lund_door_small -r 2 --iterations 2000 \
+            --model 2dgs --timestamps -o "$work/demo-2dgs"
+        ;;
+    fps)
+        step fps 120 "$bin" bench fps --gaussians 100000,1000000,3000000 --json "$res/fps.json"
+        ;;
+    trade7k)
+        need_scene trade7k &&
+            step trade7k 900 "$bin" bench trade "$scene" -r 1 --iterations 7000 --calendar 30000 \
+                --runs adc,lpm --eval-at 3500 --fps-frames 20 -o "$work/trade7k" &&
+            step fps-trained 90 "$bin" bench fps --ply "$work/trade7k/adc+lpm.ply" \
+                --json "$res/fps-trained.json"
+        ;;
+    train30k)
+        need_scene train30k &&
+            step train30k 900 "$bin" train "$scene" -r 1 --iterations 30000 --lpm --eval-every 5000 \
+                --timestamps -o "$work/train30k"
+        ;;
+    *) echo "$s: unknown step (info tests demo fps trade7k train30k)" >>"$summary" ;;
+    esac
+done
+
+# The small outputs come back (no PLY, no renders): JSON, metrics, the per-stage logs.
+(cd "$work" && find . -name '*.json' -size -4M ! -path './results/*' -exec cp --parents {} "$res" \;)
+tar -czf "$OUT/results.tar.gz" -C "$work" results
+cat "$summary"
+for f in "$res"/*.log; do
+    echo "== $(basename "$f")"
+    grep -E "test result|FAILED|panicked|it/s|PSNR|FPS|Gaussians|error|Error|subgroup|device" "$f" | tail -n 12
+done
