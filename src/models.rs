@@ -220,9 +220,12 @@ impl BaseModel {
         }
     }
 
-    /// The rasterizer constants its renders use (eval, render, viewers of an exported PLY).
+    /// The rasterizer constants its renders use (eval, render, viewers of an exported PLY):
+    /// those its training used ([`TrainConfig::render_constants`]).
     pub fn render_constants(&self) -> crate::render::layout::RenderConstants {
-        crate::render::layout::RenderConstants::for_mip(*self == BaseModel::MipSplatting)
+        let mut config = TrainConfig::default();
+        self.configure(&mut config);
+        config.render_constants()
     }
 
     /// Sets what this model changes in `config` (leaves the rest, the 3DGS defaults or the

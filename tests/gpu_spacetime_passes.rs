@@ -540,3 +540,67 @@ fn spacetime_full_passes_match_the_reference_chain() {
         floor,
     );
 }
+
+/// One visible Gaussian on `pose`'s optical axis at camera z = `z`, as a video model.
+fn one_on_axis(pose: &lpmsplat::scene::Pose, z: f64) -> GaussianParams {
+    let mut p = random_init(1, [0.0; 3], [0.0; 3], 1, 0).unwrap();
+    p.positions[0] = pose.inverse_transform([0.0, 0.0, z]).map(|v| v as f32);
+    p.log_scales[0] = [(0.2 * z).ln() as f32; 3];
+    p.opacity_logits[0] = 3.0;
+    p.sh_dc[0] = [1.5; 3];
+    p
+}
+
+#[test]
+fn video_models_cull_at_the_official_near_plane() {
+    // SpacetimeGaussians' official code culls camera z ≤ 0.2 (the Inria rasterizer); the
+    // still models keep gsplat's 0.01. A Gaussian at z = 0.1 must vanish from a video
+    // model's training frame and its eval render, and stay in a 3DGS render; at z = 0.5 the
+    // video model draws it too.
+    let ctx = ctx();
+    let mut rng = Pcg64::seed_from_u64(0x2EA2);
+    let (w, h) = (32u32, 24u32);
+    let (c, pose) = random_view(&mut rng, w, h);
+    let cam = CameraGpu::new(&c, &pose);
+    let cams = GpuBuffer::from_slice(&ctx, "cameras", &[cam]).unwrap();
+    let bg = [0.1f32, 0.2, 0.3];
+    let lit = |img: &[f32]| {
+        img.chunks_exact(3)
+            .filter(|p| p.iter().zip(&bg).any(|(a, b)| (a - b).abs() > 1e-3))
+            .count()
+    };
+    let mut config = TrainConfig::default();
+    BaseModel::SpacetimeLite.configure(&mut config);
+    assert_eq!(config.render_constants().near, 0.2);
+    let capacity = Capacity {
+        gaussians: 1,
+        intersections: 0,
+        pixels: (w * h) as usize,
+        tiles: cam.tile_count() as usize,
+    };
+    let dl = GpuBuffer::from_slice(&ctx, "dl", &vec![0.0f32; (3 * w * h) as usize]).unwrap();
+    for (z, drawn) in [(0.1, false), (0.5, true)] {
+        let still = one_on_axis(&pose, z);
+        let video = BaseModel::SpacetimeLite.initialise(still.clone(), 3);
+        // Training: the model's passes.
+        let mut passes =
+            SpacetimePasses::new(&ctx, &config, &[cam], &[0], &[0.5], 1, capacity).unwrap();
+        let frame = run(&ctx, &mut passes, &video, &cams, &cam, 0, &dl);
+        assert_eq!(lit(&frame.image) > 0, drawn, "training frame at z = {z}");
+        // Evaluation: the renderer `eval` and `render` use for the model.
+        let gpu = GpuSplats::upload(&ctx, &video, 1).unwrap();
+        let mut view = BaseModel::SpacetimeLite
+            .view_renderer(&ctx, 1, &cam, Some(vec![0.5]), None)
+            .unwrap();
+        let image = view.render(&gpu, &cams, 0, &cam, bg).unwrap();
+        assert_eq!(lit(&image) > 0, drawn, "eval render at z = {z}");
+        // 3DGS draws it at both depths.
+        let gpu = GpuSplats::upload(&ctx, &still, 1).unwrap();
+        let mut view = BaseModel::Gaussians3d
+            .view_renderer(&ctx, 1, &cam, None, None)
+            .unwrap();
+        let image = view.render(&gpu, &cams, 0, &cam, bg).unwrap();
+        assert!(lit(&image) > 0, "3DGS render at z = {z}");
+    }
+    ctx.check_validation().unwrap();
+}

@@ -145,6 +145,12 @@ impl RenderConstants {
     /// them colours.
     pub const RAW_COLOUR: u32 = 8;
 
+    /// These constants with Gaussians culled at camera z ≤ `near` (world units).
+    pub fn with_near(mut self, near: f32) -> Self {
+        self.near = near;
+        self
+    }
+
     /// The constants of Mip-Splatting's renders (eps2d 0.1 with the 2D filter's compensation)
     /// when `mip`, else the 3DGS defaults.
     pub fn for_mip(mip: bool) -> Self {

@@ -34,6 +34,13 @@ pub fn extra_groups() -> Vec<crate::splats::ExtraGroup> {
 }
 
 /// Floats per Gaussian of each temporal group.
+/// The near plane of SpacetimeGaussians' renders, in world units. The official code draws with
+/// the Inria rasterizer, which culls every Gaussian whose camera z is at most 0.2
+/// (`in_frustum`); the engine's still models use gsplat's 0.01. On multi-camera video the
+/// difference is not cosmetic: Panoptic's cameras sit in the dome's wall, which the scene's
+/// other cameras see and the model reconstructs, so with 0.01 the wall's Gaussians a centimetre
+/// from a held-out camera covered its whole view (test camera 15 at 6 dB).
+pub const SPACETIME_NEAR: f32 = 0.2;
 pub const MOTION_STRIDE: usize = 9;
 pub const OMEGA_STRIDE: usize = 4;
 
@@ -436,7 +443,7 @@ impl TimedModel {
     /// The frame settings that draw `self.instant`: the full model's raw base colour and
     /// feature channels over black, else 3DGS's with `background`.
     pub fn settings(&self, background: [f32; 3]) -> super::forward::FrameSettings<'_> {
-        let mut constants = RenderConstants::default();
+        let mut constants = RenderConstants::default().with_near(SPACETIME_NEAR);
         let (background, features) = match &self.full {
             Some(f) => {
                 constants.flags |= RenderConstants::RAW_COLOUR;

@@ -3,6 +3,7 @@
 
 use super::density::{DensityConfig, Statistic};
 use super::schedule::{DensitySchedule, LearningRates};
+use crate::render::layout::RenderConstants;
 use crate::render::surfel::regularise::RegulariserWeights;
 
 /// The background the model is trained against.
@@ -78,6 +79,17 @@ impl Default for TrainConfig {
 }
 
 impl TrainConfig {
+    /// The rasterizer constants of this run: Mip-Splatting's 2D filter with `mip_filters`,
+    /// SpacetimeGaussians' near plane for video models
+    /// ([`crate::render::spacetime::SPACETIME_NEAR`]), else the 3DGS defaults.
+    pub fn render_constants(&self) -> RenderConstants {
+        let constants = RenderConstants::for_mip(self.mip_filters);
+        match self.spacetime {
+            Some(_) => constants.with_near(crate::render::spacetime::SPACETIME_NEAR),
+            None => constants,
+        }
+    }
+
     pub fn to_json(&self) -> serde_json::Value {
         let lr = &self.lr;
         let d = &self.density;

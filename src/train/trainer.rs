@@ -805,9 +805,9 @@ impl Trainer {
             .record_opacity_reset(&mut self.rec, &self.density, &self.state, &self.cameras)
     }
 
-    /// The rasterizer constants of this run (Mip-Splatting's 2D filter with `mip_filters`).
+    /// The rasterizer constants of this run ([`TrainConfig::render_constants`]).
     pub fn render_constants(&self) -> RenderConstants {
-        RenderConstants::for_mip(self.config.mip_filters)
+        self.config.render_constants()
     }
 
     /// Records iteration `it`'s Adam step into `self.rec` (begun).

@@ -72,7 +72,7 @@ impl GaussianPasses {
             ctx: ctx.clone(),
             renderer,
             backward,
-            constants: RenderConstants::for_mip(config.mip_filters),
+            constants: config.render_constants(),
             pixel_count: counts
                 .then(|| GpuBuffer::new(ctx, "pixel count", capacity, BufferKind::DeviceLocal))
                 .transpose()?,
