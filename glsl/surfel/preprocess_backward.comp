@@ -1,6 +1,6 @@
 #version 460
 // 2DGS preprocess backward: one invocation per surfel carries the rasterizer backward's
-// gradients (grad_geom: M's rows, the box centre, clamped colour, opacity, normal) to the
+// gradients (grad_rows: M's rows; grad_rest: the box centre, clamped colour, opacity, normal) to the
 // stored parameters, following src/reference/surfel/backward.rs `preprocess_backward`: the
 // box-centre formula (the low-pass centre is a function of M), M's columns K W s_u r1,
 // K W s_v r2, K t, the normal's camera-facing flip, the quaternion normalisation, the sigmoid
@@ -21,12 +21,13 @@ layout(local_size_x_id = 0) in;
 #include "sh_basis_grad.glsl"
 #include "quat_backward.glsl"
 
-const uint GRAD_STRIDE = 18u;
+const uint GRAD_STRIDE = 18u;  // slots a surfel, 9 in each buffer
+const uint GRAD_HALF = 9u;
 const float QUAT_NORM2_MIN = 1e-24;
 
 layout(std430, set = 0, binding = 0) readonly buffer Cameras { Camera cameras[]; };
 layout(std430, set = 0, binding = 1) readonly buffer ProjectedBuf { Projected projected[]; };
-layout(std430, set = 0, binding = 2) readonly buffer GradGeom { float grad_geom[]; };
+layout(std430, set = 0, binding = 2) readonly buffer GradRows { float grad_rows[]; };
 layout(std430, set = 0, binding = 3) readonly buffer Positions { float positions[]; };
 layout(std430, set = 0, binding = 4) readonly buffer LogScales { float log_scales[]; };
 layout(std430, set = 0, binding = 5) readonly buffer Rotations { float rotations[]; };
@@ -44,6 +45,7 @@ layout(std430, set = 0, binding = 16) readonly buffer ShRest1 { float sh_rest1[]
 layout(std430, set = 0, binding = 17) readonly buffer ShRest2 { float sh_rest2[]; };
 layout(std430, set = 0, binding = 18) writeonly buffer GShRest1 { float g_sh_rest1[]; };
 layout(std430, set = 0, binding = 19) writeonly buffer GShRest2 { float g_sh_rest2[]; };
+layout(std430, set = 0, binding = 20) readonly buffer GradRest { float grad_rest[]; };
 #define SH_REST_GRADS
 #include "sh_rest_planes.glsl"
 
@@ -80,10 +82,11 @@ void main() {
     Projected pr = projected[i];
     float gr[GRAD_STRIDE];
     bool any_grad = false;
-    for (uint k = 0u; k < GRAD_STRIDE; k++) {
-        gr[k] = grad_geom[GRAD_STRIDE * i + k];
-        any_grad = any_grad || gr[k] != 0.0;
+    for (uint k = 0u; k < GRAD_HALF; k++) {
+        gr[k] = grad_rows[GRAD_HALF * i + k];
+        gr[GRAD_HALF + k] = grad_rest[GRAD_HALF * i + k];
     }
+    for (uint k = 0u; k < GRAD_STRIDE; k++) any_grad = any_grad || gr[k] != 0.0;
     if (!(pr.radius > 0.0) || !any_grad) {
         write_zeros(i);
         return;

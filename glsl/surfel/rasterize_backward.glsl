@@ -28,8 +28,11 @@
 // hit depth still depends on (u, v): its gradient goes through them (exact; the official code
 // drops that part).
 //
-// Output: grad_geom[g·18 + k]: dL/d(h1 (3), h2 (3), h3 (3), box centre (2), rgb (3),
-// opacity, normal (3)), accumulated atomically (the caller zeroes it first).
+// Output: the 18 gradients of surfel g, dL/d(h1 (3), h2 (3), h3 (3), box centre (2), rgb (3),
+// opacity, normal (3)), as slots 0..17, accumulated atomically (the caller zeroes them first)
+// into two buffers of 9 floats a surfel (36 bytes): slots 0..8 into grad_rows[g·9 + k], slots
+// 9..17 into grad_rest[g·9 + k − 9]. One buffer of 72 bytes a surfel would be the widest
+// per-surfel buffer of the engine and pass a 128 MiB storage binding at 1.86 M surfels.
 //
 // HAS_FLOAT_ATOMICS (a #define of the including file) says whether the SPIR-V may declare the
 // float atomic-add capability; USE_FLOAT_ATOMICS (specialisation constant 2) picks the float
@@ -58,7 +61,8 @@ layout(local_size_x_id = 0) in;
 #include "subgroup_pixels.glsl"
 
 const uint TILE = 16u;
-const uint GRAD_STRIDE = 18u;
+const uint GRAD_STRIDE = 18u;  // slots a surfel
+const uint GRAD_HALF = 9u;     // floats a surfel in each of grad_rows and grad_rest
 
 layout(std430, set = 0, binding = 0) readonly buffer Cameras { Camera cameras[]; };
 layout(std430, set = 0, binding = 1) readonly buffer ProjectedBuf { Projected projected[]; };
@@ -73,9 +77,11 @@ layout(std430, set = 0, binding = 9) readonly buffer DlDImage { float dl_dimage[
 // Per pixel, MAP_GRADS_STRIDE floats: dL/d(alpha, depth numerator, median depth, normal (3),
 // distortion), the last unused.
 layout(std430, set = 0, binding = 10) readonly buffer DlDMaps { float dl_dmaps[]; };
-layout(std430, set = 0, binding = 11) buffer GradBits { uint grad_bits[]; };
+layout(std430, set = 0, binding = 11) buffer GradRowsBits { uint grad_rows_bits[]; };
+layout(std430, set = 0, binding = 12) buffer GradRestBits { uint grad_rest_bits[]; };
 #if HAS_FLOAT_ATOMICS
-layout(std430, set = 0, binding = 11) buffer GradFloat { float grad_f[]; };
+layout(std430, set = 0, binding = 11) buffer GradRowsFloat { float grad_rows_f[]; };
+layout(std430, set = 0, binding = 12) buffer GradRestFloat { float grad_rest_f[]; };
 #endif
 
 layout(push_constant) uniform Push {
@@ -86,26 +92,33 @@ layout(push_constant) uniform Push {
 
 const uint MAP_GRADS_STRIDE = 8u;
 
-void atomic_add_float(uint idx, float v) {
+// Adds v to grad_rest[idx] (`rest`) or grad_rows[idx].
+void atomic_add_float(bool rest, uint idx, float v) {
 #if HAS_FLOAT_ATOMICS
     if (USE_FLOAT_ATOMICS != 0u) {
-        atomicAdd(grad_f[idx], v);
+        if (rest) {
+            atomicAdd(grad_rest_f[idx], v);
+        } else {
+            atomicAdd(grad_rows_f[idx], v);
+        }
         return;
     }
 #endif
     // Lock-free: every failed exchange means another invocation's add succeeded.
-    uint old = grad_bits[idx];
+    uint old = rest ? grad_rest_bits[idx] : grad_rows_bits[idx];
     for (;;) {
         uint assumed = old;
-        old = atomicCompSwap(grad_bits[idx], assumed,
-                             floatBitsToUint(uintBitsToFloat(assumed) + v));
+        uint sum = floatBitsToUint(uintBitsToFloat(assumed) + v);
+        old = rest ? atomicCompSwap(grad_rest_bits[idx], assumed, sum)
+                   : atomicCompSwap(grad_rows_bits[idx], assumed, sum);
         if (old == assumed) break;
     }
 }
 
 // Adds the subgroup's sum v of slot `slot` for surfel g (zeros add nothing).
 void add_slot(uint g, uint slot, float v) {
-    if (v != 0.0) atomic_add_float(g * GRAD_STRIDE + slot, v);
+    bool rest = slot >= GRAD_HALF;
+    if (v != 0.0) atomic_add_float(rest, g * GRAD_HALF + (rest ? slot - GRAD_HALF : slot), v);
 }
 #if HAS_SHUFFLE
 #define SUMS_SLOTS GRAD_STRIDE

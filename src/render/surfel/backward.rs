@@ -4,7 +4,7 @@
 //! 1. `glsl/surfel/rasterize_backward.comp` (or its `_cas` twin on devices without float
 //!    atomics): per tile, every pixel walks its list back to front and accumulates, per
 //!    surfel, the gradients of `M`'s rows, the box centre, the clamped colour, the opacity and
-//!    the normal into [`SurfelBackward::grad_geom`] (18 floats per surfel).
+//!    the normal into [`SurfelBackward::grad_geom`] (18 floats per surfel, in two buffers of 9).
 //! 2. `glsl/surfel/preprocess_backward.comp`: per surfel, through the box-centre formula,
 //!    `M`'s columns, the normal flip, the quaternion, the sigmoid and the SH colour to the
 //!    parameters, plus the official densification statistic `view_grad_norm`.
@@ -31,6 +31,10 @@ use crate::splats::model::sh_rest_coeffs;
 /// Floats per surfel of [`SurfelBackward::grad_geom`]: `dL/d(h₁ (3), h₂ (3), h₃ (3), box
 /// centre (2), rgb (3), opacity, normal (3))`.
 pub const GRAD_GEOM_STRIDE: usize = 18;
+/// Floats per surfel of each of the two buffers [`SurfelBackward::grad_geom`] holds them in
+/// (the rows of `M`; the rest): one buffer of 72 bytes a surfel would pass a 128 MiB storage
+/// binding at 1.86 M surfels, the two of 36 bytes at 3.7 M.
+pub const GRAD_GEOM_HALF: usize = 9;
 /// Floats per pixel of `dL/d(maps)`.
 pub const MAP_GRADS_STRIDE: usize = 8;
 const WG: u32 = 256;
@@ -84,7 +88,8 @@ pub struct SurfelBackwardArgs<'a> {
 pub struct SurfelBackward {
     raster: ComputePipeline,
     preprocess: ComputePipeline,
-    grad_geom: GpuBuffer<f32>,
+    /// `dL/d(h₁, h₂, h₃)` and `dL/d(box centre, rgb, opacity, normal)`, 9 floats a surfel each.
+    grad_geom: [GpuBuffer<f32>; 2],
     capacity: usize,
 }
 
@@ -123,7 +128,7 @@ impl SurfelBackward {
             ctx,
             name,
             spirv,
-            12,
+            13,
             std::mem::size_of::<RasterPush>() as u32,
             wg,
             &[
@@ -136,7 +141,7 @@ impl SurfelBackward {
             ctx,
             "surfel/preprocess_backward",
             shaders::SURFEL_PREPROCESS_BACKWARD,
-            20,
+            21,
             std::mem::size_of::<PreprocessPush>() as u32,
             WG,
             &[],
@@ -150,17 +155,21 @@ impl SurfelBackward {
         })
     }
 
-    fn alloc(ctx: &Arc<GpuContext>, capacity: usize) -> Result<GpuBuffer<f32>> {
-        GpuBuffer::new(
-            ctx,
-            "surfel grad geom",
-            capacity * GRAD_GEOM_STRIDE,
-            BufferKind::DeviceLocal,
-        )
+    fn alloc(ctx: &Arc<GpuContext>, capacity: usize) -> Result<[GpuBuffer<f32>; 2]> {
+        let half = |name| {
+            GpuBuffer::new(
+                ctx,
+                name,
+                capacity * GRAD_GEOM_HALF,
+                BufferKind::DeviceLocal,
+            )
+        };
+        Ok([half("surfel grad rows")?, half("surfel grad rest")?])
     }
 
-    /// The per-surfel gradients of the last recorded rasterize backward.
-    pub fn grad_geom(&self) -> &GpuBuffer<f32> {
+    /// The per-surfel gradients of the last recorded rasterize backward: slots 0..9 and 9..18
+    /// of [`GRAD_GEOM_STRIDE`], [`GRAD_GEOM_HALF`] floats a surfel each.
+    pub fn grad_geom(&self) -> &[GpuBuffer<f32>; 2] {
         &self.grad_geom
     }
 
@@ -190,7 +199,9 @@ impl SurfelBackward {
         let f = &renderer.base.frame;
         let sf = &renderer.surfel;
         rec.barrier();
-        rec.fill(&self.grad_geom, 0);
+        for b in &self.grad_geom {
+            rec.fill(b, 0);
+        }
         rec.barrier();
         rec.dispatch(
             &self.raster,
@@ -206,7 +217,8 @@ impl SurfelBackward {
                 &sf.maps,
                 a.dl_dimage,
                 a.dl_dmaps,
-                &self.grad_geom,
+                &self.grad_geom[0],
+                &self.grad_geom[1],
             ],
             &RasterPush {
                 sc: a.constants,
@@ -228,7 +240,7 @@ impl SurfelBackward {
                 &[
                     a.cameras,
                     &f.projected,
-                    &self.grad_geom,
+                    &self.grad_geom[0],
                     &s.positions,
                     &s.log_scales,
                     &s.rotations,
@@ -246,6 +258,7 @@ impl SurfelBackward {
                     &s.sh_rest[2],
                     &g.sh_rest[1],
                     &g.sh_rest[2],
+                    &self.grad_geom[1],
                 ],
                 &PreprocessPush {
                     sc: a.constants,
