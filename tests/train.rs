@@ -1228,6 +1228,35 @@ fn format_2_checkpoints_still_resume() {
     ctx.check_validation().unwrap();
 }
 
+/// The default `--init auto` triangulates a video scene's points (the fixture's 64×48 frames
+/// give too few, so it says so and falls back to random points) and leaves still scenes
+/// without points (NeRF-synthetic) to random points; `--init random` never triangulates.
+#[test]
+fn auto_init_triangulates_video_scenes_only() {
+    let out = tempfile::tempdir().unwrap();
+    let train = |scene: &str, extra: &[&str]| {
+        let scene = data(scene);
+        let mut cmd = lpmsplat();
+        cmd.args(["train", scene.to_str().unwrap(), "--iterations", "1"])
+            .args(["--init-points", "300", "-o", out.path().to_str().unwrap()])
+            .args(extra);
+        run_ok(&mut cmd)
+    };
+    let video = train("n3v_tiny", &["--model", "spacetime-lite"]);
+    assert!(video.contains("triangulated from"), "{video}");
+    assert!(
+        video.contains("fewer than 100 triangulated; 300 random points instead"),
+        "{video}"
+    );
+    let random = train(
+        "n3v_tiny",
+        &["--model", "spacetime-lite", "--init", "random"],
+    );
+    assert!(!random.contains("triangulated"), "{random}");
+    let still = train("lego_small", &[]);
+    assert!(!still.contains("triangulated"), "{still}");
+}
+
 /// `--init triangulate` on a scene with SfM points uses the points and says so; an unknown
 /// `--init` value is refused with the choices.
 #[test]

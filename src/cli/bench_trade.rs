@@ -62,8 +62,9 @@ pub struct TradeArgs {
     /// points).
     #[arg(long, default_value_t = 100_000)]
     pub init_points: usize,
-    /// Where they come from: random or triangulate (as `train --init`).
-    #[arg(long, value_enum, default_value_t = crate::cli::train::InitSource::Random)]
+    /// Where they come from: auto (triangulate video scenes), random or triangulate (as
+    /// `train --init`).
+    #[arg(long, value_enum, default_value_t = crate::cli::train::InitSource::Auto)]
     pub init: crate::cli::train::InitSource,
     /// Output folder for trade.json, trade.md and trade.png.
     #[arg(long, short = 'o', default_value = "bench_trade")]

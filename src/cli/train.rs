@@ -58,12 +58,13 @@ pub struct TrainArgs {
     /// Initial points for scenes without SfM points (the reference uses 100k random ones).
     #[arg(long, default_value_t = 100_000)]
     pub init_points: usize,
-    /// Where the initial points of a scene without SfM points come from: `random` (a box in
-    /// front of the cameras, as the NeRF-synthetic reference does) or `triangulate` (feature
+    /// Where the initial points of a scene without SfM points come from: `triangulate` (feature
     /// matches between neighbour views triangulated with the known poses, a video scene's at
     /// 10 frames over the segment with each point centred at its frame's time, topped up with
-    /// random points to --init-points; see the README for where it helps and where it hurts).
-    #[arg(long, value_enum, default_value_t = InitSource::Random)]
+    /// random points to --init-points, as SpacetimeGaussians starts from triangulated points),
+    /// `random` (a box in front of the cameras, as the NeRF-synthetic reference does) or `auto`
+    /// (triangulate video scenes, random points for still ones).
+    #[arg(long, value_enum, default_value_t = InitSource::Auto)]
     pub init: InitSource,
     /// Evaluate on the test views every N iterations (0 = only at the end).
     #[arg(long, default_value_t = 0)]
@@ -508,8 +509,21 @@ impl TrainArgs {
 /// Where a scene without SfM points gets its initial points (`--init`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum InitSource {
+    /// Triangulate video scenes, random points for still ones.
+    Auto,
     Random,
     Triangulate,
+}
+
+impl InitSource {
+    /// Whether `scene`'s initial points are triangulated (when it has no SfM points).
+    pub fn triangulates(self, scene: &Scene) -> bool {
+        match self {
+            InitSource::Triangulate => true,
+            InitSource::Random => false,
+            InitSource::Auto => scene.view_times.is_some(),
+        }
+    }
 }
 
 /// Fewer triangulated points than this fall back to random points (with a message).
@@ -528,6 +542,7 @@ pub fn initial_model(
     sh_degree: u32,
 ) -> anyhow::Result<GaussianParams> {
     let ignored = |by: &str| {
+        // Only when asked for by name: `auto` falls back silently.
         if source == InitSource::Triangulate {
             eprintln!("--init triangulate: not used, the initial points come from {by}");
         }
@@ -540,7 +555,7 @@ pub fn initial_model(
         ignored("the scene's SfM points");
         return Ok(model.initialise(splats::init::from_sfm(points, sh_degree)?, seed));
     }
-    if source == InitSource::Triangulate {
+    if source.triangulates(scene) {
         let t0 = std::time::Instant::now();
         let tri = lpmsplat::triangulated_init::triangulate_scene(scene, init_points, seed)?;
         eprintln!(
