@@ -33,7 +33,6 @@ pub fn extra_groups() -> Vec<crate::splats::ExtraGroup> {
         .collect()
 }
 
-/// Floats per Gaussian of each temporal group.
 /// The near plane of SpacetimeGaussians' renders, in world units. The official code draws with
 /// the Inria rasterizer, which culls every Gaussian whose camera z is at most 0.2
 /// (`in_frustum`); the engine's still models use gsplat's 0.01. On multi-camera video the
@@ -41,6 +40,8 @@ pub fn extra_groups() -> Vec<crate::splats::ExtraGroup> {
 /// other cameras see and the model reconstructs, so with 0.01 the wall's Gaussians a centimetre
 /// from a held-out camera covered its whole view (test camera 15 at 6 dB).
 pub const SPACETIME_NEAR: f32 = 0.2;
+
+/// Floats per Gaussian of each temporal group.
 pub const MOTION_STRIDE: usize = 9;
 pub const OMEGA_STRIDE: usize = 4;
 
