@@ -107,6 +107,15 @@ fn spacetime_lite_learns_the_motion_a_still_model_cannot() {
         serde_json::from_slice(&std::fs::read(out.join("eval.json")).unwrap()).unwrap();
     let again = e["psnr"].as_f64().unwrap_or_else(|| panic!("{e}"));
     assert!((again - st).abs() < 1e-3, "eval {again} vs training {st}");
+    // The one held-out camera's mean over its 8 frames is the overall mean.
+    let cams = e["per_camera"].as_array().unwrap_or_else(|| panic!("{e}"));
+    assert_eq!(cams.len(), 1, "{e}");
+    assert_eq!(cams[0]["camera"], "cam00");
+    assert_eq!(cams[0]["frames"], 8);
+    assert!(
+        (cams[0]["psnr"].as_f64().unwrap() - again).abs() < 1e-9,
+        "{e}"
+    );
     let o = lpmsplat()
         .args([
             "render",
