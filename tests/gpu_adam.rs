@@ -41,17 +41,18 @@ const GROUPS: usize = 5 + sh_planes::PLANES;
 
 /// Flat f32 arrays per stored buffer, in `GpuSplats::groups()` order (SH rest as its planes).
 fn flat(p: &GaussianParams) -> [Vec<f32>; GROUPS] {
-    let [r0, r1, r2] = sh_planes::split(&p.sh_rest, p.len(), p.rest_coeffs());
-    [
+    let planes = sh_planes::split(&p.sh_rest, p.len(), p.rest_coeffs());
+    let groups: Vec<Vec<f32>> = [
         bytemuck::cast_slice(&p.positions).to_vec(),
         bytemuck::cast_slice(&p.log_scales).to_vec(),
         bytemuck::cast_slice(&p.rotations).to_vec(),
         p.opacity_logits.clone(),
         bytemuck::cast_slice(&p.sh_dc).to_vec(),
-        r0,
-        r1,
-        r2,
     ]
+    .into_iter()
+    .chain(planes)
+    .collect();
+    groups.try_into().expect("GROUPS buffers")
 }
 
 fn ulps(a: f32, b: f32) -> u32 {

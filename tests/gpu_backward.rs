@@ -15,6 +15,7 @@ use lpmsplat::render::backward::{
     AtomicMode, Backward, BackwardArgs, FeatureGrads, RasterVariant, GRAD2D_STRIDE,
 };
 use lpmsplat::render::layout::{CameraGpu, RenderConstants};
+use lpmsplat::render::projected::ProjectedBuffers;
 use lpmsplat::scene::{PinholeCamera, Pose};
 use lpmsplat::splats::gpu::GpuSplats;
 use lpmsplat::splats::model::sh_rest_coeffs;
@@ -220,7 +221,7 @@ fn run_gpu_pixels(
         &Pose::IDENTITY,
     );
     let cameras = GpuBuffer::from_slice(ctx, "cameras", &[decoy, fx.camera]).unwrap();
-    let projected = GpuBuffer::from_slice(ctx, "projected", &fx.projected).unwrap();
+    let projected = ProjectedBuffers::from_records(ctx, "projected", &fx.projected).unwrap();
     let tile_ranges = GpuBuffer::from_slice(ctx, "tile_ranges", &fx.tile_ranges).unwrap();
     let sorted_ids = GpuBuffer::from_slice(ctx, "sorted_ids", &fx.sorted_ids).unwrap();
     let final_t = GpuBuffer::from_slice(ctx, "final_t", &fx.final_t).unwrap();
@@ -1048,7 +1049,7 @@ fn record_refuses_mismatched_arguments() {
     .unwrap();
     let fx = gpu_forward_fixture(&forward, &s.camera, &s.pose);
     let cameras = GpuBuffer::from_slice(&ctx, "cameras", &[fx.camera]).unwrap();
-    let projected = GpuBuffer::from_slice(&ctx, "projected", &fx.projected).unwrap();
+    let projected = ProjectedBuffers::from_records(&ctx, "projected", &fx.projected).unwrap();
     let tile_ranges = GpuBuffer::from_slice(&ctx, "tile_ranges", &fx.tile_ranges).unwrap();
     let sorted_ids = GpuBuffer::from_slice(&ctx, "sorted_ids", &fx.sorted_ids).unwrap();
     let final_t = GpuBuffer::from_slice(&ctx, "final_t", &fx.final_t).unwrap();

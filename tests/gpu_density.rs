@@ -3,7 +3,7 @@
 //! the capacity, the decision hook. Validation on; destinations poisoned before every step.
 
 use lpmsplat::gpu::{BufferKind, GpuBuffer, GpuContext, GpuOptions, Recorder};
-use lpmsplat::render::layout::ProjectedGpu;
+use lpmsplat::render::layout::ProjectedBoundsGpu;
 use lpmsplat::splats::gpu::{grown_capacity, GpuSplats, SplatShape};
 use lpmsplat::splats::{ExtraGroup, ExtraValues, GaussianParams};
 use lpmsplat::train::adam::SplatState;
@@ -559,7 +559,8 @@ fn statistics_accumulate_only_visible_gaussians() {
     let norms = GpuBuffer::<f32>::new(&ctx, "norms", n, BufferKind::DeviceLocal).unwrap();
     let abs = GpuBuffer::<f32>::new(&ctx, "abs", n, BufferKind::DeviceLocal).unwrap();
     let proj =
-        GpuBuffer::<ProjectedGpu>::new(&ctx, "projected", n, BufferKind::DeviceLocal).unwrap();
+        GpuBuffer::<ProjectedBoundsGpu>::new(&ctx, "projected bounds", n, BufferKind::DeviceLocal)
+            .unwrap();
     for view in 0..5 {
         let nv: Vec<f32> = (0..n).map(|_| rng.gen_range(0.0..1e-3)).collect();
         let av: Vec<f32> = (0..n).map(|_| rng.gen_range(0.0..1e-2)).collect();
@@ -572,12 +573,12 @@ fn statistics_accumulate_only_visible_gaussians() {
                 }
             })
             .collect();
-        let projected: Vec<ProjectedGpu> = radii
+        let projected: Vec<ProjectedBoundsGpu> = radii
             .iter()
-            .map(|&radius| ProjectedGpu {
+            .map(|&radius| ProjectedBoundsGpu {
                 // Other fields are garbage on purpose: only the radius may matter.
-                mean_x: f32::NAN,
                 depth: -1.0,
+                tile_min: [u32::MAX; 2],
                 radius,
                 flags: 0xFFFF_FFFF,
                 ..bytemuck::Zeroable::zeroed()
@@ -638,7 +639,8 @@ fn pixel_weighted_statistics_match_the_host_reference() {
     let norms = GpuBuffer::<f32>::new(&ctx, "norms", n, BufferKind::DeviceLocal).unwrap();
     let counts = GpuBuffer::<u32>::new(&ctx, "pixel counts", n, BufferKind::DeviceLocal).unwrap();
     let proj =
-        GpuBuffer::<ProjectedGpu>::new(&ctx, "projected", n, BufferKind::DeviceLocal).unwrap();
+        GpuBuffer::<ProjectedBoundsGpu>::new(&ctx, "projected bounds", n, BufferKind::DeviceLocal)
+            .unwrap();
     for _view in 0..4 {
         let nv: Vec<f32> = (0..n).map(|_| rng.gen_range(0.0..1e-3)).collect();
         let radii: Vec<f32> = (0..n)
@@ -654,8 +656,8 @@ fn pixel_weighted_statistics_match_the_host_reference() {
         // sides of 0.37·extent, so the factor is clamped at 1 for some.
         let pc: Vec<u32> = (0..n).map(|_| rng.gen_range(0..3000)).collect();
         let depth: Vec<f32> = (0..n).map(|_| rng.gen_range(0.01..4.0)).collect();
-        let projected: Vec<ProjectedGpu> = (0..n)
-            .map(|i| ProjectedGpu {
+        let projected: Vec<ProjectedBoundsGpu> = (0..n)
+            .map(|i| ProjectedBoundsGpu {
                 radius: radii[i],
                 depth: depth[i],
                 ..bytemuck::Zeroable::zeroed()
@@ -736,12 +738,17 @@ fn pixel_weighting_densifies_large_gaussians_adc_averages_away() {
         let (_, depth_scale) = statistic.kernel_mode(extent).unwrap();
         let norms = GpuBuffer::<f32>::new(&ctx, "norms", n, BufferKind::DeviceLocal).unwrap();
         let counts = GpuBuffer::<u32>::new(&ctx, "counts", n, BufferKind::DeviceLocal).unwrap();
-        let proj =
-            GpuBuffer::<ProjectedGpu>::new(&ctx, "projected", n, BufferKind::DeviceLocal).unwrap();
+        let proj = GpuBuffer::<ProjectedBoundsGpu>::new(
+            &ctx,
+            "projected bounds",
+            n,
+            BufferKind::DeviceLocal,
+        )
+        .unwrap();
         let radii = [30.0f32; 3];
         proj.upload(
             &(0..n)
-                .map(|i| ProjectedGpu {
+                .map(|i| ProjectedBoundsGpu {
                     radius: radii[i],
                     depth: depth[i],
                     ..bytemuck::Zeroable::zeroed()

@@ -33,6 +33,7 @@ struct Frame {
     maps: Vec<SurfelMapsGpu>,
     projected: Vec<ProjectedGpu>,
     geom: Vec<f32>,
+    normals: Vec<f32>,
     tile_lists: Vec<Vec<u32>>,
 }
 
@@ -86,6 +87,9 @@ fn render_gpu_with(
     let sf = &renderer.surfel;
     sf.maps.upload(&vec![f32::NAN; sf.maps.len()]).unwrap();
     sf.geom.upload(&vec![f32::NAN; sf.geom.len()]).unwrap();
+    sf.normals
+        .upload(&vec![f32::NAN; sf.normals.len()])
+        .unwrap();
     sf.median_index
         .upload(&vec![u32::MAX; sf.median_index.len()])
         .unwrap();
@@ -129,7 +133,12 @@ fn render_gpu_with(
         geom: renderer
             .surfel
             .geom
-            .read_range(0, params.len() * 12)
+            .read_range(0, params.len() * 9)
+            .unwrap(),
+        normals: renderer
+            .surfel
+            .normals
+            .read_range(0, params.len() * 3)
             .unwrap(),
         tile_lists,
     };
@@ -188,7 +197,7 @@ fn compare(
             continue;
         }
         let m = &q.transform;
-        let geom = &frame.geom[12 * i..12 * i + 12];
+        let geom = &frame.geom[9 * i..9 * i + 9];
         let scale = m.iter().flatten().fold(0.0f64, |a, v| a.max(v.abs()));
         for row in 0..3 {
             for col in 0..3 {
@@ -201,7 +210,7 @@ fn compare(
         }
         for k in 0..3 {
             assert!(
-                (geom[9 + k] as f64 - q.normal[k]).abs() <= 1e-5,
+                (frame.normals[3 * i + k] as f64 - q.normal[k]).abs() <= 1e-5,
                 "{label}: surfel {i} normal"
             );
         }

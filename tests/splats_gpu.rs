@@ -82,8 +82,8 @@ fn extra_groups_round_trip_and_are_checked_for_nan() {
     assert_eq!(g.download().unwrap(), p);
     assert_eq!(
         g.groups().len(),
-        9,
-        "five groups, three SH rest planes, one extra"
+        5 + lpmsplat::splats::sh_planes::PLANES + 1,
+        "five groups, the SH rest planes, one extra"
     );
     assert_eq!(g.extra_group("motion").unwrap().len(), 64 * 9);
     let shape = g.shape();

@@ -27,7 +27,7 @@ const uint GRAD2D_STRIDE = 9u;
 const float QUAT_NORM2_MIN = 1e-24;
 
 layout(std430, set = 0, binding = 0) readonly buffer Cameras { Camera cameras[]; };
-layout(std430, set = 0, binding = 1) readonly buffer ProjectedBuf { Projected projected[]; };
+layout(std430, set = 0, binding = 1) readonly buffer Bounds { ProjectedBounds bounds[]; };
 layout(std430, set = 0, binding = 2) readonly buffer Grad2d { float grad2d[]; };
 layout(std430, set = 0, binding = 3) readonly buffer Positions { float positions[]; };
 layout(std430, set = 0, binding = 4) readonly buffer LogScales { float log_scales[]; };
@@ -48,6 +48,10 @@ layout(std430, set = 0, binding = 17) readonly buffer ShRest1 { float sh_rest1[]
 layout(std430, set = 0, binding = 18) readonly buffer ShRest2 { float sh_rest2[]; };
 layout(std430, set = 0, binding = 19) writeonly buffer GShRest1 { float g_sh_rest1[]; };
 layout(std430, set = 0, binding = 20) writeonly buffer GShRest2 { float g_sh_rest2[]; };
+layout(std430, set = 0, binding = 21) readonly buffer ShRest3 { float sh_rest3[]; };
+layout(std430, set = 0, binding = 22) readonly buffer ShRest4 { float sh_rest4[]; };
+layout(std430, set = 0, binding = 23) writeonly buffer GShRest3 { float g_sh_rest3[]; };
+layout(std430, set = 0, binding = 24) writeonly buffer GShRest4 { float g_sh_rest4[]; };
 #define SH_REST_GRADS
 #include "sh_rest_planes.glsl"
 
@@ -78,7 +82,7 @@ void main() {
     uint i = (gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x) * WG_SIZE
              + gl_LocalInvocationIndex;
     if (i >= pc.count) return;
-    Projected pr = projected[i];
+    ProjectedBounds pr = bounds[i];
     uint gb = i * GRAD2D_STRIDE;
     vec2 dl_dmean = vec2(grad2d[gb], grad2d[gb + 1u]);
     vec3 dl_dconic = vec3(grad2d[gb + 2u], grad2d[gb + 3u], grad2d[gb + 4u]);

@@ -80,7 +80,7 @@ const uint ACC_EXTRA = ACC_ABS + ABS_GRAD;
 const uint ACC_STRIDE = ACC_EXTRA + EXTRA;
 
 layout(std430, set = 0, binding = 0) readonly buffer Cameras { Camera cameras[]; };
-layout(std430, set = 0, binding = 1) readonly buffer ProjectedBuf { Projected projected[]; };
+layout(std430, set = 0, binding = 1) readonly buffer Splats { ProjectedSplat splats[]; };
 layout(std430, set = 0, binding = 2) readonly buffer TileRanges { uvec2 tile_ranges[]; };
 layout(std430, set = 0, binding = 3) readonly buffer SortedIds { uint sorted_ids[]; };
 layout(std430, set = 0, binding = 4) readonly buffer FinalT { float final_t[]; };
@@ -351,7 +351,7 @@ void main() {
         for (uint i = li; i < batch; i += WG_SIZE) {
             uint e = max_last - 1u - (done + i);
             uint g = sorted_ids[range.x + e];
-            Projected p = projected[g];
+            ProjectedSplat p = splats[g];
             s_id[i] = g;
             vec2 reach = splat_reach(p.opacity, vec3(p.conic_a, p.conic_b, p.conic_c),
                                       pc.rc.alpha_min, smooth_mode);

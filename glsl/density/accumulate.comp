@@ -16,7 +16,7 @@ layout(local_size_x_id = 0) in;
 #include "projected.glsl"
 #include "decisions.glsl"
 layout(std430, set = 0, binding = 0) readonly buffer Norms { float view_grad_norm[]; };
-layout(std430, set = 0, binding = 1) readonly buffer Proj { Projected projected[]; };
+layout(std430, set = 0, binding = 1) readonly buffer Bounds { ProjectedBounds bounds[]; };
 layout(std430, set = 0, binding = 2) buffer Accum { float grad_accum[]; };
 layout(std430, set = 0, binding = 3) buffer Denom { float denom[]; };
 layout(std430, set = 0, binding = 4) buffer MaxRadii { float max_radii[]; };
@@ -33,11 +33,11 @@ layout(push_constant) uniform Push {
 void main() {
     uint i = linear_index();
     if (i >= count) return;
-    float r = projected[i].radius;
+    float r = bounds[i].radius;
     if (!(r > 0.0)) return;
     if (mode == 1u) {
         precise float n = float(pixel_count[i]);
-        precise float z = projected[i].depth * depth_scale;
+        precise float z = bounds[i].depth * depth_scale;
         precise float phi = min(1.0, z * z);
         precise float add = n * phi * view_grad_norm[i];
         grad_accum[i] = grad_accum[i] + add;

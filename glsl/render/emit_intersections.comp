@@ -7,7 +7,7 @@
 layout(constant_id = 0) const uint WG_SIZE = 256;
 layout(local_size_x_id = 0) in;
 #include "projected.glsl"
-layout(std430, set = 0, binding = 0) readonly buffer Proj { Projected projected[]; };
+layout(std430, set = 0, binding = 0) readonly buffer Bounds { ProjectedBounds bounds[]; };
 layout(std430, set = 0, binding = 1) readonly buffer Ids { uint depth_sorted_ids[]; };
 layout(std430, set = 0, binding = 2) readonly buffer Offsets { uint offsets[]; };
 layout(std430, set = 0, binding = 3) writeonly buffer Keys { uint keys[]; };
@@ -21,7 +21,7 @@ void main() {
     if (s == 0u) counts[2] = min(counts[1], capacity);
     if (s >= counts[0]) return;
     uint g = depth_sorted_ids[s];
-    Projected p = projected[g];
+    ProjectedBounds p = bounds[g];
     uint slot = offsets[s];
     for (uint ty = p.tile_min_y; ty < p.tile_max_y; ty++) {
         for (uint tx = p.tile_min_x; tx < p.tile_max_x; tx++) {

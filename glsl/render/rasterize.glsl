@@ -33,7 +33,7 @@ layout(local_size_x_id = 0) in;
 #include "projected.glsl"
 #include "splat_reach.glsl"
 #include "subgroup_pixels.glsl"
-layout(std430, set = 0, binding = 0) readonly buffer Proj { Projected projected[]; };
+layout(std430, set = 0, binding = 0) readonly buffer Splats { ProjectedSplat splats[]; };
 layout(std430, set = 0, binding = 1) readonly buffer Ids { uint sorted_ids[]; };
 layout(std430, set = 0, binding = 2) readonly buffer Ranges { uvec2 ranges[]; };
 layout(std430, set = 0, binding = 3) readonly buffer Cameras { Camera cameras[]; };
@@ -138,7 +138,7 @@ void main() {
         uint k = base + li;
         if (li < BATCH && k < range.y) {
             uint g = sorted_ids[k];
-            Projected p = projected[g];
+            ProjectedSplat p = splats[g];
             [[unroll]] for (uint c = 0u; c < EXTRA; c++) s_feat[li * EXTRA + c] = features[g * EXTRA + c];
             s_mean_opacity[li] = vec4(p.mean_x, p.mean_y, p.opacity, 0.0);
             // A power this far below ln(alpha_min / opacity) gives alpha < alpha_min with room

@@ -20,13 +20,17 @@ layout(std430, set = 0, binding = 3) readonly buffer Opacities { float opacity_l
 layout(std430, set = 0, binding = 4) readonly buffer ShDc { float sh_dc[]; };
 layout(std430, set = 0, binding = 5) readonly buffer ShRest0 { float sh_rest0[]; };
 layout(std430, set = 0, binding = 6) readonly buffer Cameras { Camera cameras[]; };
-layout(std430, set = 0, binding = 7) writeonly buffer Out { Projected projected[]; };
+layout(std430, set = 0, binding = 7) writeonly buffer OutSplats { ProjectedSplat projected_splats[]; };
 layout(std430, set = 0, binding = 8) writeonly buffer DepthKeys { uint depth_keys[]; };
 layout(std430, set = 0, binding = 9) writeonly buffer DepthVals { uint depth_vals[]; };
 layout(std430, set = 0, binding = 10) buffer Counts { uint counts[]; };
 layout(std430, set = 0, binding = 11) writeonly buffer Geom { float geom[]; };
 layout(std430, set = 0, binding = 12) readonly buffer ShRest1 { float sh_rest1[]; };
 layout(std430, set = 0, binding = 13) readonly buffer ShRest2 { float sh_rest2[]; };
+layout(std430, set = 0, binding = 14) writeonly buffer OutBounds { ProjectedBounds projected_bounds_out[]; };
+layout(std430, set = 0, binding = 15) writeonly buffer Normals { float normals[]; };
+layout(std430, set = 0, binding = 16) readonly buffer ShRest3 { float sh_rest3[]; };
+layout(std430, set = 0, binding = 17) readonly buffer ShRest4 { float sh_rest4[]; };
 #include "sh_rest_planes.glsl"
 
 layout(push_constant) uniform Push {
@@ -57,8 +61,10 @@ void write_culled(uint i, float depth) {
     p.conic_a = 0.0; p.conic_b = 0.0; p.conic_c = 0.0; p.radius = 0.0;
     p.r = 0.0; p.g = 0.0; p.b = 0.0; p.flags = 0u;
     p.tile_min_x = 0u; p.tile_min_y = 0u; p.tile_max_x = 0u; p.tile_max_y = 0u;
-    projected[i] = p;
+    projected_splats[i] = projected_splat(p);
+    projected_bounds_out[i] = projected_bounds(p);
     for (uint k = 0u; k < GEOM_STRIDE; k++) geom[GEOM_STRIDE * i + k] = 0.0;
+    for (uint k = 0u; k < 3u; k++) normals[3u * i + k] = 0.0;
     depth_keys[i] = 0xFFFFFFFFu;
     depth_vals[i] = i;
 }
@@ -155,13 +161,14 @@ void main() {
     p.tile_max_x = uint(hi.x); p.tile_max_y = uint(hi.y);
     bool touches = p.tile_max_x > p.tile_min_x && p.tile_max_y > p.tile_min_y;
     if (!touches) p.radius = 0.0;  // off-screen: culled downstream
-    projected[i] = p;
+    projected_splats[i] = projected_splat(p);
+    projected_bounds_out[i] = projected_bounds(p);
     uint g = GEOM_STRIDE * i;
     for (uint r = 0u; r < 3u; r++) {
         geom[g + r] = h1[r];
         geom[g + 3u + r] = h2[r];
         geom[g + 6u + r] = h3[r];
-        geom[g + 9u + r] = n[r];
+        normals[3u * i + r] = n[r];
     }
     // Step 9: sort by the centre's camera depth.
     depth_keys[i] = touches ? floatBitsToUint(t.z) : 0xFFFFFFFFu;

@@ -29,7 +29,7 @@ layout(local_size_x_id = 0) in;
 #include "surfel.glsl"
 #include "splat_reach.glsl"
 #include "subgroup_pixels.glsl"
-layout(std430, set = 0, binding = 0) readonly buffer Proj { Projected projected[]; };
+layout(std430, set = 0, binding = 0) readonly buffer Splats { ProjectedSplat splats[]; };
 layout(std430, set = 0, binding = 1) readonly buffer Geom { float geom[]; };
 layout(std430, set = 0, binding = 2) readonly buffer Ids { uint sorted_ids[]; };
 layout(std430, set = 0, binding = 3) readonly buffer Ranges { uvec2 ranges[]; };
@@ -39,6 +39,7 @@ layout(std430, set = 0, binding = 6) writeonly buffer FinalT { float final_t[]; 
 layout(std430, set = 0, binding = 7) writeonly buffer LastIndex { uint last_index[]; };
 layout(std430, set = 0, binding = 8) writeonly buffer Maps { float maps[]; };
 layout(std430, set = 0, binding = 9) writeonly buffer MedianIndex { uint median_index[]; };
+layout(std430, set = 0, binding = 10) readonly buffer Normals { float normals[]; };
 layout(push_constant) uniform Push {
     SurfelConstants sc;
     uint camera_index;
@@ -142,7 +143,7 @@ void main() {
         uint e = base + li;
         if (li < BATCH && e < range.y) {
             uint g = sorted_ids[e];
-            Projected p = projected[g];
+            ProjectedSplat p = splats[g];
             uint o = GEOM_STRIDE * g;
             vec3 h1 = vec3(geom[o], geom[o + 1u], geom[o + 2u]);
             vec3 h2 = vec3(geom[o + 3u], geom[o + 4u], geom[o + 5u]);
@@ -150,7 +151,7 @@ void main() {
             s_h1[li] = vec4(h1, p.opacity);
             s_h2[li] = vec4(h2, p.mean_x);
             s_h3[li] = vec4(h3, p.mean_y);
-            s_nr[li] = vec4(geom[o + 9u], geom[o + 10u], geom[o + 11u], p.r);
+            s_nr[li] = vec4(normals[3u * g], normals[3u * g + 1u], normals[3u * g + 2u], p.r);
             vec2 reach = surfel_reach(sc, h1, h2, h3, vec2(p.mean_x, p.mean_y), p.opacity);
             s_gb[li] = vec4(p.g, p.b, reach);
         }

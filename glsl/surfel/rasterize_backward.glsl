@@ -65,7 +65,7 @@ const uint GRAD_STRIDE = 18u;  // slots a surfel
 const uint GRAD_HALF = 9u;     // floats a surfel in each of grad_rows and grad_rest
 
 layout(std430, set = 0, binding = 0) readonly buffer Cameras { Camera cameras[]; };
-layout(std430, set = 0, binding = 1) readonly buffer ProjectedBuf { Projected projected[]; };
+layout(std430, set = 0, binding = 1) readonly buffer Splats { ProjectedSplat splats[]; };
 layout(std430, set = 0, binding = 2) readonly buffer Geom { float geom[]; };
 layout(std430, set = 0, binding = 3) readonly buffer TileRanges { uvec2 tile_ranges[]; };
 layout(std430, set = 0, binding = 4) readonly buffer SortedIds { uint sorted_ids[]; };
@@ -77,6 +77,7 @@ layout(std430, set = 0, binding = 9) readonly buffer DlDImage { float dl_dimage[
 // Per pixel, MAP_GRADS_STRIDE floats: dL/d(alpha, depth numerator, median depth, normal (3),
 // distortion), the last unused.
 layout(std430, set = 0, binding = 10) readonly buffer DlDMaps { float dl_dmaps[]; };
+layout(std430, set = 0, binding = 13) readonly buffer Normals { float normals[]; };
 layout(std430, set = 0, binding = 11) buffer GradRowsBits { uint grad_rows_bits[]; };
 layout(std430, set = 0, binding = 12) buffer GradRestBits { uint grad_rest_bits[]; };
 #if HAS_FLOAT_ATOMICS
@@ -277,7 +278,7 @@ void main() {
         if (li < batch) {
             uint e = max_last - 1u - (done + li);
             uint g = sorted_ids[range.x + e];
-            Projected p = projected[g];
+            ProjectedSplat p = splats[g];
             uint o = GEOM_STRIDE * g;
             vec3 h1 = vec3(geom[o], geom[o + 1u], geom[o + 2u]);
             vec3 h2 = vec3(geom[o + 3u], geom[o + 4u], geom[o + 5u]);
@@ -286,7 +287,7 @@ void main() {
             s_h1[li] = vec4(h1, p.opacity);
             s_h2[li] = vec4(h2, p.mean_x);
             s_h3[li] = vec4(h3, p.mean_y);
-            s_n[li] = vec3(geom[o + 9u], geom[o + 10u], geom[o + 11u]);
+            s_n[li] = vec3(normals[3u * g], normals[3u * g + 1u], normals[3u * g + 2u]);
             s_rgb[li] = vec3(p.r, p.g, p.b);
             s_reach[li] = surfel_reach(sc, h1, h2, h3, vec2(p.mean_x, p.mean_y), p.opacity);
         }

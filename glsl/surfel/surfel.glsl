@@ -2,9 +2,11 @@
 // rasterizer's constants, and the ray–splat intersection every surfel kernel shares. Mirrors
 // src/render/surfel/layout.rs and src/reference/surfel (the numbered steps of its module docs).
 
-// Per surfel, 12 floats (`SurfelGeomGpu`): the rows h1, h2, h3 of the transform M from
-// (u, v, 1) to homogeneous pixels, then the camera-facing camera-space normal.
-const uint GEOM_STRIDE = 12u;
+// Per surfel, 9 floats (`SurfelGeomGpu`): the rows h1, h2, h3 of the transform M from
+// (u, v, 1) to homogeneous pixels; the camera-facing camera-space normal is a second buffer of
+// 3 floats (one of 12 floats, 48 bytes, would fill a 128 MiB storage binding at 2.8 M surfels;
+// no per-surfel buffer is wider than 36 bytes).
+const uint GEOM_STRIDE = 9u;
 
 // Per pixel, 8 floats (`SurfelMapsGpu`): expected-depth numerator Σw·z, median depth, Σw·n
 // (3), distortion, M1 = Σw·m(z), M2 = Σw·m(z)².

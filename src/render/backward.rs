@@ -18,7 +18,7 @@
 //!   opacity, conic or mean2d through alpha (colour still gets `alpha·T·dL/dC`).
 //! - `alpha < alpha_min`: skipped (it did not contribute in the forward).
 //! - Smooth mode (`RenderConstants::smooth`): neither the alpha_min skip nor the alpha_max clamp.
-//! - Colour clamped at 0 (`ProjectedGpu::flags`): that channel passes no gradient to the SH
+//! - Colour clamped at 0 (`ProjectedBoundsGpu::flags`): that channel passes no gradient to the SH
 //!   coefficients nor to the position through the view direction.
 //! - Determinant `max(det, det_min)`: no gradient through det while active. The determinant is
 //!   computed as `|A₀ × A₁|² + eps2d·(a + c) + eps2d²` with `A = J W M` (equal to
@@ -39,7 +39,8 @@
 //!   of Gaussians `0..count` written (not accumulated).
 //! - `view_grad_norm`: f32 per Gaussian, `|(dL/du · W/2, dL/dv · H/2)|`, 0 when culled.
 
-use super::layout::{CameraGpu, ProjectedGpu, RenderConstants};
+use super::layout::{CameraGpu, RenderConstants};
+use super::projected::ProjectedBuffers;
 use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder};
 use crate::shaders;
 use crate::splats::gpu::{grown_capacity, GpuSplats};
@@ -164,7 +165,7 @@ pub struct BackwardArgs<'a> {
     /// dispatch and the argument checks (no readback).
     pub camera: &'a CameraGpu,
     /// Per Gaussian (at least `count`).
-    pub projected: &'a GpuBuffer<ProjectedGpu>,
+    pub projected: &'a ProjectedBuffers,
     /// Per tile, `[start, end)` into `sorted_ids`.
     pub tile_ranges: &'a GpuBuffer<[u32; 2]>,
     pub sorted_ids: &'a GpuBuffer<u32>,
@@ -266,7 +267,7 @@ impl Backward {
             ctx,
             "backward/preprocess_backward",
             shaders::BACKWARD_PREPROCESS_BACKWARD,
-            21,
+            25,
             std::mem::size_of::<PreprocessPush>() as u32,
             WG,
             &[],
@@ -469,7 +470,7 @@ impl Backward {
             raster,
             &[
                 a.cameras,
-                a.projected,
+                &a.projected.splats,
                 a.tile_ranges,
                 a.sorted_ids,
                 a.final_t,
@@ -507,7 +508,7 @@ impl Backward {
                 &self.preprocess,
                 &[
                     a.cameras,
-                    a.projected,
+                    &a.projected.bounds,
                     &self.grad2d,
                     &s.positions,
                     &s.log_scales,
@@ -527,6 +528,10 @@ impl Backward {
                     &s.sh_rest[2],
                     &g.sh_rest[1],
                     &g.sh_rest[2],
+                    &s.sh_rest[3],
+                    &s.sh_rest[4],
+                    &g.sh_rest[3],
+                    &g.sh_rest[4],
                 ],
                 &push,
                 ctx.groups_1d(a.count as u64, WG),

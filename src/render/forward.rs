@@ -17,7 +17,8 @@
 use std::sync::Arc;
 
 use super::backward::default_pixels_per_invocation;
-use super::layout::{CameraGpu, ProjectedGpu, RenderConstants};
+use super::layout::{CameraGpu, RenderConstants};
+use super::projected::ProjectedBuffers;
 use super::scan::PrefixScan;
 use super::sort::{RadixSort, SortedIn};
 use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder, TimestampPool};
@@ -125,7 +126,7 @@ impl Capacity {
 
 /// The per-frame buffers (kept after the frame: the backward pass reads them).
 pub struct FrameBuffers {
-    pub projected: GpuBuffer<ProjectedGpu>,
+    pub projected: ProjectedBuffers,
     pub(super) depth_keys: GpuBuffer<u32>,
     pub(super) depth_vals: GpuBuffer<u32>,
     depth_keys_tmp: GpuBuffer<u32>,
@@ -195,7 +196,7 @@ impl FrameBuffers {
         let n = cap.gaussians.max(1);
         let m = cap.intersections.max(1);
         Ok(Self {
-            projected: GpuBuffer::new(ctx, "projected", n, dl)?,
+            projected: ProjectedBuffers::new(ctx, "projected", n, dl)?,
             depth_keys: GpuBuffer::new(ctx, "depth keys", n, dl)?,
             depth_vals: GpuBuffer::new(ctx, "depth ids", n, dl)?,
             depth_keys_tmp: GpuBuffer::new(ctx, "depth keys (scratch)", n, dl)?,
@@ -244,7 +245,7 @@ impl Renderer {
             preprocess: pipe(
                 "render/preprocess",
                 shaders::RENDER_PREPROCESS,
-                14,
+                17,
                 std::mem::size_of::<PreprocessPush>(),
             )?,
             gather: pipe(
@@ -443,13 +444,16 @@ impl Renderer {
                 &splats.sh_dc,
                 &splats.sh_rest[0],
                 cameras,
-                &f.projected,
+                &f.projected.splats,
                 &f.depth_keys,
                 &f.depth_vals,
                 &f.counts,
                 settings.filter3d.unwrap_or(&self.no_filter),
                 &splats.sh_rest[1],
                 &splats.sh_rest[2],
+                &f.projected.bounds,
+                &splats.sh_rest[3],
+                &splats.sh_rest[4],
             ],
             &PreprocessPush {
                 count: splats.count as u32,
@@ -504,7 +508,7 @@ impl Renderer {
         rec.dispatch(
             raster,
             &[
-                &f.projected,
+                &f.projected.splats,
                 ids,
                 &f.tile_ranges,
                 cameras,
@@ -581,7 +585,7 @@ impl Renderer {
         rec.dispatch(
             &self.gather,
             &[
-                &f.projected,
+                &f.projected.bounds,
                 depth_ids,
                 &f.touched,
                 &f.counts,
@@ -601,7 +605,7 @@ impl Renderer {
         rec.dispatch(
             &self.emit,
             &[
-                &f.projected,
+                &f.projected.bounds,
                 depth_ids,
                 &f.touched,
                 &f.tile_keys,

@@ -79,8 +79,11 @@ pub const FLAG_CLAMPED_R: u32 = 1;
 pub const FLAG_CLAMPED_G: u32 = 2;
 pub const FLAG_CLAMPED_B: u32 = 4;
 
-/// What preprocess writes per Gaussian (64 bytes, std430 `Projected`). A culled Gaussian has
-/// `radius == 0` and an empty tile rectangle; its other fields are unspecified.
+/// What preprocess computes per Gaussian (the host's view, 64 bytes; the GLSL `Projected`). A
+/// culled Gaussian has `radius == 0` and an empty tile rectangle; its other fields are
+/// unspecified. On the GPU it is stored as two buffers ([`ProjectedSplatGpu`] and
+/// [`ProjectedBoundsGpu`], [`crate::render::projected::ProjectedBuffers`]): no per-Gaussian
+/// buffer is wider than 36 bytes, so one storage binding does not cap the model first.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
 pub struct ProjectedGpu {
@@ -105,7 +108,72 @@ pub struct ProjectedGpu {
     pub tile_max: [u32; 2],
 }
 
+/// What the rasterizers read of a projected Gaussian (36 bytes, std430 `ProjectedSplat`).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
+pub struct ProjectedSplatGpu {
+    pub mean_x: f32,
+    pub mean_y: f32,
+    pub opacity: f32,
+    pub conic_a: f32,
+    pub conic_b: f32,
+    pub conic_c: f32,
+    pub rgb: [f32; 3],
+}
+
+/// What binning, density statistics and the preprocess backward read of a projected Gaussian
+/// (28 bytes, std430 `ProjectedBounds`).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
+pub struct ProjectedBoundsGpu {
+    pub depth: f32,
+    pub radius: f32,
+    pub flags: u32,
+    pub tile_min: [u32; 2],
+    pub tile_max: [u32; 2],
+}
+
 impl ProjectedGpu {
+    /// The two stored parts.
+    pub fn split(&self) -> (ProjectedSplatGpu, ProjectedBoundsGpu) {
+        (
+            ProjectedSplatGpu {
+                mean_x: self.mean_x,
+                mean_y: self.mean_y,
+                opacity: self.opacity,
+                conic_a: self.conic_a,
+                conic_b: self.conic_b,
+                conic_c: self.conic_c,
+                rgb: self.rgb,
+            },
+            ProjectedBoundsGpu {
+                depth: self.depth,
+                radius: self.radius,
+                flags: self.flags,
+                tile_min: self.tile_min,
+                tile_max: self.tile_max,
+            },
+        )
+    }
+
+    /// The record from its two stored parts.
+    pub fn join(s: &ProjectedSplatGpu, b: &ProjectedBoundsGpu) -> Self {
+        Self {
+            mean_x: s.mean_x,
+            mean_y: s.mean_y,
+            depth: b.depth,
+            opacity: s.opacity,
+            conic_a: s.conic_a,
+            conic_b: s.conic_b,
+            conic_c: s.conic_c,
+            radius: b.radius,
+            rgb: s.rgb,
+            flags: b.flags,
+            tile_min: b.tile_min,
+            tile_max: b.tile_max,
+        }
+    }
+
     pub fn is_visible(&self) -> bool {
         self.radius > 0.0
     }

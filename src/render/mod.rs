@@ -7,6 +7,7 @@ pub mod decoder;
 pub mod filter3d;
 pub mod forward;
 pub mod layout;
+pub mod projected;
 pub mod scan;
 pub mod sort;
 pub mod spacetime;

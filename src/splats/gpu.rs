@@ -3,8 +3,8 @@
 //! Gaussians without reallocating every step.
 //!
 //! Layout (flat f32 arrays, Gaussian `i` at `i * stride`): positions stride 3, log-scales 3,
-//! rotations 4 (w, x, y, z), opacity logits 1, SH DC 3, SH rest `3 * ((d+1)² − 1)` in three
-//! column planes of at most 15 floats ([`sh_planes`]: no buffer is wider than 64 bytes a
+//! rotations 4 (w, x, y, z), opacity logits 1, SH DC 3, SH rest `3 * ((d+1)² − 1)` in five
+//! column planes of at most 9 floats ([`sh_planes`]: no buffer is wider than 36 bytes a
 //! Gaussian, so the storage binding limit does not cap the model before device memory does),
 //! then the model's extra groups ([`ExtraGroup`]) in their order.
 
@@ -66,7 +66,7 @@ impl SplatShape {
     }
 
     /// `(name, floats per Gaussian)` of every stored buffer, in [`GpuSplats::groups`] order:
-    /// the logical groups with SH rest as its planes `sh_rest[0..3]`.
+    /// the logical groups with SH rest as its planes `sh_rest[0..PLANES]`.
     pub fn storage_strides(&self) -> Vec<(String, usize)> {
         let r = GaussianParams::empty(self.sh_degree).rest_coeffs();
         let mut out = self.strides();
@@ -308,7 +308,12 @@ impl GpuSplats {
     }
 }
 
-/// The three planes built by `f(p)`, stopping at the first error.
+/// The planes built by `f(p)`, stopping at the first error.
 fn each_plane<T>(mut f: impl FnMut(usize) -> anyhow::Result<T>) -> anyhow::Result<[T; PLANES]> {
-    Ok([f(0)?, f(1)?, f(2)?])
+    let planes = (0..PLANES)
+        .map(&mut f)
+        .collect::<anyhow::Result<Vec<T>>>()?;
+    Ok(planes
+        .try_into()
+        .unwrap_or_else(|_| unreachable!("PLANES planes were built")))
 }

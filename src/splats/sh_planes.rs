@@ -3,10 +3,11 @@
 //! Degree 3 gives every Gaussian 45 floats of SH rest (180 bytes): one buffer of them would pass
 //! a 128 MiB storage binding (`maxStorageBufferRange` on lavapipe and many mobile GPUs) at about
 //! 745k Gaussians, long before device memory runs out. The coefficients are therefore split by
-//! column: plane `p` holds rest coefficients `[5p, 5p + 5)` of every Gaussian (15 floats, 60
-//! bytes, Gaussian `i` at `i * stride`), so no per-Gaussian buffer is wider than the 64-byte
-//! projected record and the binding limit allows `range / 64` Gaussians (2.1 M on lavapipe,
-//! 67 M at 4 GiB), past what the ~1 KB of training state a Gaussian leaves room for.
+//! column: plane `p` holds rest coefficients `[3p, 3p + 3)` of every Gaussian (9 floats, 36
+//! bytes, Gaussian `i` at `i * stride`), as wide as the widest other per-Gaussian buffer (the
+//! projected splats, 2DGS's transforms, STGS's motion and features), so the binding limit allows
+//! `range / 36` Gaussians (3.7 M on lavapipe, 119 M at 4 GiB), past what the ~1 KB of training
+//! state a Gaussian leaves room for.
 //!
 //! [`GaussianParams::sh_rest`](super::GaussianParams) keeps the logical layout (all coefficients
 //! of a Gaussian back to back, `[coef][channel]`); [`split`] and [`merge`] convert. Planes a
@@ -14,9 +15,9 @@
 //! `glsl/common/sh_rest_planes.glsl`, which mirrors [`offset`].
 
 /// Column planes of the SH rest coefficients (enough for degree 3's 15 coefficients).
-pub const PLANES: usize = 3;
+pub const PLANES: usize = 5;
 /// Rest coefficients per plane.
-pub const COEFS_PER_PLANE: usize = 5;
+pub const COEFS_PER_PLANE: usize = 3;
 
 /// Rest coefficients plane `p` holds for `rest_coeffs` coefficients a Gaussian.
 pub fn plane_coefs(rest_coeffs: usize, p: usize) -> usize {
@@ -94,9 +95,13 @@ mod tests {
             let refs: Vec<&[f32]> = planes.iter().map(Vec::as_slice).collect();
             assert_eq!(merge(&refs, n, r), logical, "degree {degree}");
         }
-        assert_eq!(plane_stride(15, 2), 15);
+        assert_eq!(plane_stride(15, 4), 9);
         assert_eq!(plane_stride(8, 1), 9);
-        assert_eq!(plane_stride(8, 2), 0);
+        assert_eq!(plane_stride(8, 2), 6);
+        assert_eq!(plane_stride(8, 3), 0);
         assert_eq!(plane_stride(0, 0), 0);
+        // No plane is wider than 36 bytes a Gaussian, and degree 3 needs every plane.
+        assert!((0..PLANES).all(|p| plane_stride(15, p) * 4 <= 36));
+        assert_eq!(PLANES * COEFS_PER_PLANE, 15);
     }
 }

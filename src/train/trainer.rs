@@ -575,7 +575,7 @@ impl Trainer {
             self.density.record_accumulate(
                 &mut self.rec,
                 &self.view_grad_norm,
-                self.passes.projected(),
+                self.passes.projected_bounds(),
                 self.passes.pixel_count(),
                 self.passes.abs_grad(),
                 self.extent,

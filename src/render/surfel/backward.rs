@@ -128,7 +128,7 @@ impl SurfelBackward {
             ctx,
             name,
             spirv,
-            13,
+            14,
             std::mem::size_of::<RasterPush>() as u32,
             wg,
             &[
@@ -141,7 +141,7 @@ impl SurfelBackward {
             ctx,
             "surfel/preprocess_backward",
             shaders::SURFEL_PREPROCESS_BACKWARD,
-            21,
+            25,
             std::mem::size_of::<PreprocessPush>() as u32,
             WG,
             &[],
@@ -207,7 +207,7 @@ impl SurfelBackward {
             &self.raster,
             &[
                 a.cameras,
-                &f.projected,
+                &f.projected.splats,
                 &sf.geom,
                 &f.tile_ranges,
                 renderer.base.sorted_ids(),
@@ -219,6 +219,7 @@ impl SurfelBackward {
                 a.dl_dmaps,
                 &self.grad_geom[0],
                 &self.grad_geom[1],
+                &sf.normals,
             ],
             &RasterPush {
                 sc: a.constants,
@@ -239,7 +240,7 @@ impl SurfelBackward {
                 &self.preprocess,
                 &[
                     a.cameras,
-                    &f.projected,
+                    &f.projected.bounds,
                     &self.grad_geom[0],
                     &s.positions,
                     &s.log_scales,
@@ -259,6 +260,10 @@ impl SurfelBackward {
                     &g.sh_rest[1],
                     &g.sh_rest[2],
                     &self.grad_geom[1],
+                    &s.sh_rest[3],
+                    &s.sh_rest[4],
+                    &g.sh_rest[3],
+                    &g.sh_rest[4],
                 ],
                 &PreprocessPush {
                     sc: a.constants,

@@ -5,7 +5,7 @@
 
 use std::sync::Arc;
 
-use super::layout::{SurfelConstants, GEOM_STRIDE, MAPS_STRIDE};
+use super::layout::{SurfelConstants, GEOM_STRIDE, MAPS_STRIDE, NORMAL_STRIDE};
 use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder, TimestampPool};
 use crate::render::backward::default_pixels_per_invocation;
 use crate::render::forward::{Capacity, Renderer};
@@ -47,6 +47,8 @@ pub struct SurfelFrameSettings {
 pub struct SurfelFrame {
     /// [`super::layout::SurfelGeomGpu`] per surfel, as flat floats.
     pub geom: GpuBuffer<f32>,
+    /// The camera-facing camera-space normal per surfel, [`NORMAL_STRIDE`] floats.
+    pub normals: GpuBuffer<f32>,
     /// [`super::layout::SurfelMapsGpu`] per pixel, as flat floats.
     pub maps: GpuBuffer<f32>,
     /// Per pixel: list position plus one of the median contributor (0 = none).
@@ -59,6 +61,7 @@ impl SurfelFrame {
         let (n, px) = (cap.gaussians.max(1), cap.pixels.max(1));
         Ok(Self {
             geom: GpuBuffer::new(ctx, "surfel geometry", n * GEOM_STRIDE, dl)?,
+            normals: GpuBuffer::new(ctx, "surfel normals", n * NORMAL_STRIDE, dl)?,
             maps: GpuBuffer::new(ctx, "surfel maps", px * MAPS_STRIDE, dl)?,
             median_index: GpuBuffer::new(ctx, "surfel median index", px, dl)?,
         })
@@ -86,7 +89,7 @@ impl SurfelRenderer {
                 ctx,
                 "surfel/preprocess",
                 shaders::SURFEL_PREPROCESS,
-                14,
+                18,
                 std::mem::size_of::<PreprocessPush>() as u32,
                 WG,
                 &[],
@@ -125,7 +128,7 @@ impl SurfelRenderer {
             ctx,
             name,
             spirv,
-            10,
+            11,
             std::mem::size_of::<RasterPush>() as u32,
             WG / pixels,
             &[pixels],
@@ -179,13 +182,17 @@ impl SurfelRenderer {
                 &splats.sh_dc,
                 &splats.sh_rest[0],
                 cameras,
-                &f.projected,
+                &f.projected.splats,
                 &f.depth_keys,
                 &f.depth_vals,
                 &f.counts,
                 &self.surfel.geom,
                 &splats.sh_rest[1],
                 &splats.sh_rest[2],
+                &f.projected.bounds,
+                &self.surfel.normals,
+                &splats.sh_rest[3],
+                &splats.sh_rest[4],
             ],
             &PreprocessPush {
                 count: splats.count as u32,
@@ -211,7 +218,7 @@ impl SurfelRenderer {
         rec.dispatch(
             &self.raster,
             &[
-                &f.projected,
+                &f.projected.splats,
                 &self.surfel.geom,
                 self.base.sorted_ids(),
                 &f.tile_ranges,
@@ -221,6 +228,7 @@ impl SurfelRenderer {
                 &f.last_index,
                 &self.surfel.maps,
                 &self.surfel.median_index,
+                &self.surfel.normals,
             ],
             &RasterPush {
                 sc: settings.constants,

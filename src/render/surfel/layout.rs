@@ -2,7 +2,8 @@
 //!
 //! - Per surfel, beside the shared [`crate::render::layout::ProjectedGpu`] (whose `mean` is the
 //!   box centre `m`, the low-pass filter's centre; its conic is unused):
-//!   [`SurfelGeomGpu`], the rows of the transform `M` and the camera-facing normal.
+//!   [`SurfelGeomGpu`], the rows of the transform `M`, and in a second buffer the camera-facing
+//!   normal (3 floats): no per-surfel buffer is wider than 36 bytes.
 //! - Per pixel, beside the image, `final_t` and `last_index` of 3DGS: [`SurfelMapsGpu`] (depth
 //!   numerator, median depth, normal, distortion and the distortion's running sums) and
 //!   `median_index` (list position plus one of the median contributor, 0 = none).
@@ -12,17 +13,20 @@ use bytemuck::{Pod, Zeroable};
 use crate::reference::surfel::SurfelSettings;
 use crate::render::layout::TILE_SIZE;
 
-/// Per surfel (48 bytes, `GEOM_STRIDE` floats): `M`'s rows `h₁, h₂, h₃` (`M (u, v, 1)ᵀ =
-/// (x·z, y·z, z)`) and the camera-space normal facing the camera.
+/// Per surfel (36 bytes, `GEOM_STRIDE` floats): `M`'s rows `h₁, h₂, h₃` (`M (u, v, 1)ᵀ =
+/// (x·z, y·z, z)`). The camera-space normal facing the camera is a buffer of its own
+/// ([`NORMAL_STRIDE`] floats a surfel).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
 pub struct SurfelGeomGpu {
     pub transform: [[f32; 3]; 3],
-    pub normal: [f32; 3],
 }
 
 /// Floats per surfel of [`SurfelGeomGpu`].
-pub const GEOM_STRIDE: usize = 12;
+pub const GEOM_STRIDE: usize = 9;
+
+/// Floats per surfel of the normal buffer.
+pub const NORMAL_STRIDE: usize = 3;
 
 /// Per pixel (32 bytes, `MAPS_STRIDE` floats).
 #[repr(C)]

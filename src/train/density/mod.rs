@@ -48,7 +48,7 @@ pub mod rng;
 
 use super::adam::SplatState;
 use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder};
-use crate::render::layout::ProjectedGpu;
+use crate::render::layout::ProjectedBoundsGpu;
 use crate::render::scan::PrefixScan;
 use crate::shaders;
 use crate::splats::gpu::grown_capacity;
@@ -559,7 +559,7 @@ impl DensityControl {
     }
 
     /// Records this view's contribution to the statistics: `view_grad_norm[i]` is |dL/d mean2d|
-    /// in NDC for Gaussian `i` (written by the backward pass), `projected[i].radius > 0` marks
+    /// in NDC for Gaussian `i` (written by the backward pass), `bounds[i].radius > 0` marks
     /// the visible ones; `pixel_count` (the backward's, required by the pixel-weighted
     /// statistic) the pixels each contributed to; `abs_grad` (the backward's, required with
     /// [`DensityConfig::abs_grad`]) the absolute-gradient statistic; `extent` the scene extent.
@@ -568,7 +568,7 @@ impl DensityControl {
         &self,
         rec: &mut Recorder,
         view_grad_norm: &GpuBuffer<f32>,
-        projected: &GpuBuffer<ProjectedGpu>,
+        bounds: &GpuBuffer<ProjectedBoundsGpu>,
         pixel_count: Option<&GpuBuffer<u32>>,
         abs_grad: Option<&GpuBuffer<f32>>,
         extent: f64,
@@ -609,11 +609,11 @@ impl DensityControl {
         ensure!(
             count <= self.stats.capacity()
                 && count <= view_grad_norm.len()
-                && count <= projected.len(),
+                && count <= bounds.len(),
             "density statistics: {count} Gaussians, but stats hold {}, gradient norms {}, projected {}",
             self.stats.capacity(),
             view_grad_norm.len(),
-            projected.len()
+            bounds.len()
         );
         if count == 0 {
             return Ok(());
@@ -623,7 +623,7 @@ impl DensityControl {
             &self.accumulate,
             &[
                 view_grad_norm,
-                projected,
+                bounds,
                 &self.stats.grad_accum,
                 &self.stats.denom,
                 &self.stats.max_radii,

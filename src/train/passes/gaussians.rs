@@ -12,7 +12,7 @@ use crate::gpu::{BufferKind, GpuBuffer, GpuContext, Recorder, TimestampPool};
 use crate::render::backward::{Backward, BackwardArgs, FeatureGrads};
 use crate::render::filter3d::SmoothingFilter;
 use crate::render::forward::{Capacity, FeatureChannels, FrameSettings, Renderer};
-use crate::render::layout::{CameraGpu, ProjectedGpu, RenderConstants};
+use crate::render::layout::{CameraGpu, ProjectedBoundsGpu, RenderConstants};
 use crate::splats::gpu::GpuSplats;
 use crate::splats::GaussianParams;
 use crate::train::adam::SplatState;
@@ -272,8 +272,8 @@ impl ModelPasses for GaussianPasses {
         &self.renderer.frame.image
     }
 
-    fn projected(&self) -> &GpuBuffer<ProjectedGpu> {
-        &self.renderer.frame.projected
+    fn projected_bounds(&self) -> &GpuBuffer<ProjectedBoundsGpu> {
+        &self.renderer.frame.projected.bounds
     }
 
     fn pixel_count(&self) -> Option<&GpuBuffer<u32>> {

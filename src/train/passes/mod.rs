@@ -26,7 +26,7 @@ use super::density::DensityControl;
 use super::strategy::{FramePositions, ModelRule, Primitive};
 use crate::gpu::{GpuBuffer, GpuContext, Recorder, TimestampPool};
 use crate::render::forward::Capacity;
-use crate::render::layout::{CameraGpu, ProjectedGpu};
+use crate::render::layout::{CameraGpu, ProjectedBoundsGpu};
 use crate::splats::gpu::GpuSplats;
 use crate::splats::GaussianParams;
 
@@ -78,8 +78,8 @@ pub trait ModelPasses: Send {
     ) -> Result<()>;
     /// The last frame's image (RGB interleaved, background composited).
     fn image(&self) -> &GpuBuffer<f32>;
-    /// The last frame's per-Gaussian screen data (radius > 0: visible), for the statistics.
-    fn projected(&self) -> &GpuBuffer<ProjectedGpu>;
+    /// The last frame's per-Gaussian screen bounds (radius > 0: visible), for the statistics.
+    fn projected_bounds(&self) -> &GpuBuffer<ProjectedBoundsGpu>;
     /// Pixels each Gaussian covered in the last backward, when the statistic needs them.
     fn pixel_count(&self) -> Option<&GpuBuffer<u32>>;
     /// The absolute-gradient statistic of the last backward, when density control asks for

@@ -33,7 +33,7 @@ use crate::render::backward::FeatureGrads;
 use crate::render::decoder::{Decoder, DecoderFrame, FeatureGroups, TimeFeatures};
 use crate::render::forward::Capacity;
 use crate::render::forward::FeatureChannels;
-use crate::render::layout::{CameraGpu, ProjectedGpu};
+use crate::render::layout::{CameraGpu, ProjectedBoundsGpu};
 use crate::render::spacetime::{At, InstantBuffers, TemporalBuffers, TemporalStep};
 use crate::splats::gpu::{grown_capacity, GpuSplats};
 use crate::splats::GaussianParams;
@@ -422,8 +422,8 @@ impl ModelPasses for SpacetimePasses {
         }
     }
 
-    fn projected(&self) -> &GpuBuffer<ProjectedGpu> {
-        self.inner.projected()
+    fn projected_bounds(&self) -> &GpuBuffer<ProjectedBoundsGpu> {
+        self.inner.projected_bounds()
     }
 
     fn pixel_count(&self) -> Option<&GpuBuffer<u32>> {

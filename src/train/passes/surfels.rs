@@ -19,7 +19,7 @@ use anyhow::Result;
 use super::{FrameArgs, GradArgs, ModelPasses};
 use crate::gpu::{BufferKind, GpuBuffer, GpuContext, Recorder, TimestampPool};
 use crate::render::forward::Capacity;
-use crate::render::layout::{CameraGpu, ProjectedGpu};
+use crate::render::layout::{CameraGpu, ProjectedBoundsGpu};
 use crate::render::surfel::backward::{SurfelBackward, SurfelBackwardArgs, MAP_GRADS_STRIDE};
 use crate::render::surfel::forward::{SurfelFrameSettings, SurfelRenderer};
 use crate::render::surfel::layout::SurfelConstants;
@@ -114,8 +114,8 @@ impl ModelPasses for SurfelPasses {
         &self.renderer.base.frame.image
     }
 
-    fn projected(&self) -> &GpuBuffer<ProjectedGpu> {
-        &self.renderer.base.frame.projected
+    fn projected_bounds(&self) -> &GpuBuffer<ProjectedBoundsGpu> {
+        &self.renderer.base.frame.projected.bounds
     }
 
     fn pixel_count(&self) -> Option<&GpuBuffer<u32>> {
