@@ -20,6 +20,28 @@ pub enum BufferKind {
     Readback,
 }
 
+/// `LPMSPLAT_BUFFER_LOG=FILE`: every device-local buffer allocated is appended to FILE as
+/// `name<TAB>bytes` (which buffers hold the memory, and how they scale with the model:
+/// `tests/buffer_widths.rs` checks that none is wider than a binding allows).
+fn log_allocation(name: &str, bytes: u64) {
+    use std::io::Write as _;
+    use std::sync::{Mutex, OnceLock};
+    static LOG: OnceLock<Option<Mutex<std::fs::File>>> = OnceLock::new();
+    let log = LOG.get_or_init(|| {
+        let path = std::env::var_os("LPMSPLAT_BUFFER_LOG")?;
+        let file = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&path)
+            .unwrap_or_else(|e| panic!("LPMSPLAT_BUFFER_LOG={path:?}: {e}"));
+        Some(Mutex::new(file))
+    });
+    if let Some(file) = log {
+        // A diagnostic: a failed write must not stop the run.
+        let _ = writeln!(file.lock().unwrap(), "{name}\t{bytes}");
+    }
+}
+
 /// A buffer of `len` elements of `T`, usable as a storage buffer and as a transfer source and
 /// destination. Zero-length buffers are allowed (one element is allocated, `len` stays 0).
 pub struct GpuBuffer<T: Pod> {
@@ -73,6 +95,7 @@ impl<T: Pod> GpuBuffer<T> {
         // Device-local memory is booked first, so a run under --memory-limit fails here, with
         // the same typed error as a driver that is out of memory.
         let booked = if kind == BufferKind::DeviceLocal {
+            log_allocation(name, bytes);
             if let Err(e) = ctx.memory.reserve(name, requirements.size) {
                 unsafe { device.destroy_buffer(buffer, None) };
                 return Err(e.into());
