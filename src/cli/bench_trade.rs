@@ -85,8 +85,9 @@ pub struct TradeArgs {
     /// The runs to compare, comma separated, in table order: adc, adc-threshold-1e-4, adc+lpm,
     /// lpm-no-add, lpm-no-reset, lpm-authors (the authors' rules), lpm-authors-adc (the same
     /// with ADC on steps without a zone), lpm-sphere (the paper's cone-intersection zone),
-    /// adc-abs-grad (with the absolute-gradient test) (aliases: adc-1e-4, lpm). Default: the
-    /// first five.
+    /// adc-abs-grad (with the absolute-gradient test), lpm-additive (our rules with the additive
+    /// pruning: exactly as many extra prunes as lowered-threshold densifications) (aliases:
+    /// adc-1e-4, lpm). Default: the first five.
     #[arg(long, value_delimiter = ',')]
     pub runs: Vec<String>,
     /// Run the variants one after another instead of interleaving their iterations. Interleaving
@@ -150,7 +151,7 @@ pub struct TradeRow {
     pub model_events: Vec<serde_json::Value>,
 }
 
-pub const RUNS: [(&str, [u8; 3]); 9] = [
+pub const RUNS: [(&str, [u8; 3]); 10] = [
     ("adc", [40, 40, 40]),
     ("adc-threshold-1e-4", [200, 120, 0]),
     ("adc+lpm", [220, 30, 30]),
@@ -164,6 +165,9 @@ pub const RUNS: [(&str, [u8; 3]); 9] = [
     ("lpm-sphere", [120, 90, 40]),
     // ADC with the absolute-gradient test as well (`train --densify-abs-grad`).
     ("adc-abs-grad", [90, 90, 90]),
+    // Our rules with the additive pruning (`train --lpm --lpm-prune additive`), beside the
+    // default authors' pruning in one interleaved run.
+    ("lpm-additive", [240, 150, 150]),
 ];
 
 pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
@@ -501,6 +505,9 @@ fn run_lpm_config(name: &str, cfg: &TrainConfig, args: &TradeArgs) -> Option<Lpm
     c.seed = cfg.seed;
     if name == "lpm-sphere" {
         c.zones.geometry = ZoneGeometry::Sphere;
+    }
+    if name == "lpm-additive" {
+        c.prune = PruneMode::Additive;
     }
     if let Some(p) = args.lpm_prune {
         c.prune = p;
@@ -1133,6 +1140,14 @@ mod tests {
         assert!(no_reset.add_points && !no_reset.reset);
         let sphere = run_lpm_config("lpm-sphere", &cfg, &args.trade).unwrap();
         assert_eq!(sphere.zones.geometry, ZoneGeometry::Sphere);
+        let plain = Cli::parse_from(["bench", "scene"]);
+        let additive = run_lpm_config("lpm-additive", &cfg, &plain.trade).unwrap();
+        let default = run_lpm_config("adc+lpm", &cfg, &plain.trade).unwrap();
+        assert_eq!(additive.prune, PruneMode::Additive);
+        assert_ne!(default.prune, PruneMode::Additive);
+        let mut same = additive.clone();
+        same.prune = default.prune;
+        assert_eq!(same, default, "only the pruning differs");
         assert_eq!(ours.zones.geometry, ZoneGeometry::Triangulated);
     }
 
