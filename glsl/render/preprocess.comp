@@ -124,9 +124,8 @@ void main() {
     sh_basis(sh_degree, dir, basis);
     vec3 raw = basis[0] * vec3(sh_dc[3u * i], sh_dc[3u * i + 1u], sh_dc[3u * i + 2u]);
     uint ncoef = min((sh_degree + 1u) * (sh_degree + 1u), rest_coeffs + 1u);
-    for (uint k = 1u; k < ncoef; k++) {
-        raw += basis[k] * sh_rest_read(i, k - 1u, rest_coeffs);
-    }
+    uint n_rest = ncoef - 1u;
+    FOR_EACH_SH_REST_PLANE(SH_REST_PLANE_COLOUR)
     vec3 shifted = raw + 0.5;
     uint flags = (shifted.r < 0.0 ? 1u : 0u) | (shifted.g < 0.0 ? 2u : 0u) | (shifted.b < 0.0 ? 4u : 0u);
     vec3 rgb = max(shifted, vec3(0.0));

@@ -70,7 +70,7 @@ void write_zeros(uint i) {
     for (uint k = 0u; k < pc.scale_stride; k++) g_log_scales[pc.scale_stride * i + k] = 0.0;
     for (uint k = 0u; k < 4u; k++) g_rotations[4u * i + k] = 0.0;
     g_opacity_logits[i] = 0.0;
-    for (uint k = 0u; k < pc.rest_coeffs; k++) sh_rest_write_grad(i, k, pc.rest_coeffs, vec3(0.0));
+    FOR_EACH_SH_REST_PLANE(SH_REST_PLANE_ZERO)
     view_grad_norm[i] = 0.0;
 }
 
@@ -137,24 +137,17 @@ void main() {
     vec3 dir = view / view_len;
     uint n_active = (pc.sh_degree + 1u) * (pc.sh_degree + 1u);
     vec3 dl_ddir = vec3(0.0);
-    for (uint k = 0u; k < min(n_active, pc.rest_coeffs + 1u); k++) {
+    {
         vec3 bgrad;
-        float b = sh_basis(k, dir, bgrad);
-        vec3 coeff;
-        if (k == 0u) {
-            coeff = vec3(sh_dc[3u * i], sh_dc[3u * i + 1u], sh_dc[3u * i + 2u]);
-            g_sh_dc[3u * i] = b * dl_draw.x;
-            g_sh_dc[3u * i + 1u] = b * dl_draw.y;
-            g_sh_dc[3u * i + 2u] = b * dl_draw.z;
-        } else {
-            coeff = sh_rest_read(i, k - 1u, pc.rest_coeffs);
-            sh_rest_write_grad(i, k - 1u, pc.rest_coeffs, b * dl_draw);
-        }
+        float b = sh_basis(0u, dir, bgrad);
+        vec3 coeff = vec3(sh_dc[3u * i], sh_dc[3u * i + 1u], sh_dc[3u * i + 2u]);
+        g_sh_dc[3u * i] = b * dl_draw.x;
+        g_sh_dc[3u * i + 1u] = b * dl_draw.y;
+        g_sh_dc[3u * i + 2u] = b * dl_draw.z;
         dl_ddir += bgrad * dot(coeff, dl_draw);
     }
-    for (uint k = max(n_active, 1u) - 1u; k < pc.rest_coeffs; k++) {
-        sh_rest_write_grad(i, k, pc.rest_coeffs, vec3(0.0));
-    }
+    uint n_rest = min(n_active - 1u, pc.rest_coeffs);
+    FOR_EACH_SH_REST_PLANE(SH_REST_PLANE_BACKWARD)
     vec3 dl_dpos = (dl_ddir - dir * dot(dir, dl_ddir)) / view_len;
 
     // Rebuild M (as the preprocess) for the box-centre backward.
