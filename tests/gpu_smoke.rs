@@ -117,6 +117,23 @@ fn oversized_buffers_and_unknown_devices_are_clear_errors() {
         msg.contains("huge") && msg.contains("maxStorageBufferRange"),
         "{msg}"
     );
+    // A kernel binding more storage buffers than the device allows (lavapipe: 32) is refused
+    // before the driver sees it, naming the kernel and the limit.
+    let too_many = ctx.info.max_storage_buffers + 1;
+    let err = ComputePipeline::new(&ctx, "fill", shaders::UTIL_FILL_U32, too_many, 8, 64, &[])
+        .err()
+        .expect("must refuse");
+    let msg = err.to_string();
+    assert!(
+        msg.contains("kernel fill") && msg.contains("maxPerStageDescriptorStorageBuffers"),
+        "{msg}"
+    );
+    // The engine's widest kernels (the preprocess backwards: 25) fit the limit.
+    assert!(
+        ctx.info.max_storage_buffers >= 25,
+        "{}",
+        ctx.info.max_storage_buffers
+    );
     let empty = GpuBuffer::<u32>::new(&ctx, "empty", 0, BufferKind::DeviceLocal).unwrap();
     assert!(empty.is_empty() && empty.read().unwrap().is_empty());
     let err = GpuContext::new(&GpuOptions {

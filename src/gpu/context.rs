@@ -50,6 +50,8 @@ pub struct DeviceInfo {
     pub max_workgroup_invocations: u32,
     pub max_workgroup_count: [u32; 3],
     pub max_push_constants: u32,
+    /// Storage buffers one kernel may bind (the smaller of the per-stage and per-set limits).
+    pub max_storage_buffers: u32,
     pub timestamp_period_ns: f64,
     pub timestamps_supported: bool,
     pub float_atomic_add: bool,
@@ -63,7 +65,7 @@ impl DeviceInfo {
     /// A readable multi-line summary.
     pub fn summary(&self) -> String {
         format!(
-            "device [{}] {} ({}), Vulkan {}, driver {}\n  subgroup size {} (range {}..{}), full-subgroup control: {}\n  max storage buffer range {} MiB, max allocation {} MiB, device-local memory {} MiB\n  shared memory {} KiB, workgroup invocations {}, workgroup count {:?}, push constants {} B\n  float32 atomic add: {}, subgroup shuffle: {}, timestamps: {} (period {} ns)",
+            "device [{}] {} ({}), Vulkan {}, driver {}\n  subgroup size {} (range {}..{}), full-subgroup control: {}\n  max storage buffer range {} MiB, max allocation {} MiB, device-local memory {} MiB\n  shared memory {} KiB, workgroup invocations {}, workgroup count {:?}, push constants {} B, storage buffers a kernel {}\n  float32 atomic add: {}, subgroup shuffle: {}, timestamps: {} (period {} ns)",
             self.index,
             self.name,
             self.device_type,
@@ -80,6 +82,7 @@ impl DeviceInfo {
             self.max_workgroup_invocations,
             self.max_workgroup_count,
             self.max_push_constants,
+            self.max_storage_buffers,
             self.float_atomic_add,
             self.subgroup_shuffle,
             self.timestamps_supported,
@@ -550,6 +553,9 @@ impl GpuContext {
             max_workgroup_invocations: limits.max_compute_work_group_invocations,
             max_workgroup_count: limits.max_compute_work_group_count,
             max_push_constants: limits.max_push_constants_size,
+            max_storage_buffers: limits
+                .max_per_stage_descriptor_storage_buffers
+                .min(limits.max_descriptor_set_storage_buffers),
             timestamp_period_ns: limits.timestamp_period as f64,
             // The compute queue's timestampValidBits is what matters for a compute-only engine.
             timestamps_supported: ts_bits > 0,

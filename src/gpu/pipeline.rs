@@ -37,6 +37,14 @@ impl ComputePipeline {
                 ctx.info.max_push_constants
             );
         }
+        if num_buffers > ctx.info.max_storage_buffers {
+            bail!(
+                "kernel {name}: binds {num_buffers} storage buffers but this device allows {} a \
+                 kernel (maxPerStageDescriptorStorageBuffers). Fix: use a device with a higher \
+                 limit (desktop GPUs and lavapipe allow thousands or more)",
+                ctx.info.max_storage_buffers
+            );
+        }
         if workgroup_size == 0 || workgroup_size > ctx.info.max_workgroup_invocations {
             bail!(
                 "kernel {name}: workgroup size {workgroup_size} is outside 1..={}",
