@@ -128,12 +128,6 @@ fn oversized_buffers_and_unknown_devices_are_clear_errors() {
         msg.contains("kernel fill") && msg.contains("maxPerStageDescriptorStorageBuffers"),
         "{msg}"
     );
-    // The engine's widest kernels (the preprocess backwards: 25) fit the limit.
-    assert!(
-        ctx.info.max_storage_buffers >= 25,
-        "{}",
-        ctx.info.max_storage_buffers
-    );
     let empty = GpuBuffer::<u32>::new(&ctx, "empty", 0, BufferKind::DeviceLocal).unwrap();
     assert!(empty.is_empty() && empty.read().unwrap().is_empty());
     let err = GpuContext::new(&GpuOptions {
