@@ -112,3 +112,25 @@ fn no_per_gaussian_buffer_is_wider_than_36_bytes_in_any_model() {
         );
     }
 }
+
+#[test]
+fn an_unwritable_buffer_log_warns_and_the_run_goes_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_lpmsplat"))
+        .arg("train")
+        .arg(data("lego_small"))
+        .args(["--iterations", "1", "--init-points", "500", "-o"])
+        .arg(dir.path().join("run"))
+        .env(
+            "LPMSPLAT_BUFFER_LOG",
+            dir.path().join("no/such/folder/log.tsv"),
+        )
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains("LPMSPLAT_BUFFER_LOG") && err.contains("Fix:"),
+        "{err}"
+    );
+}

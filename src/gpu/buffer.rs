@@ -29,15 +29,24 @@ fn log_allocation(name: &str, bytes: u64) {
     static LOG: OnceLock<Option<Mutex<std::fs::File>>> = OnceLock::new();
     let log = LOG.get_or_init(|| {
         let path = std::env::var_os("LPMSPLAT_BUFFER_LOG")?;
-        let file = std::fs::OpenOptions::new()
+        match std::fs::OpenOptions::new()
             .create(true)
             .append(true)
             .open(&path)
-            .unwrap_or_else(|e| panic!("LPMSPLAT_BUFFER_LOG={path:?}: {e}"));
-        Some(Mutex::new(file))
+        {
+            Ok(file) => Some(Mutex::new(file)),
+            Err(e) => {
+                // A diagnostic that cannot be written must not stop the run.
+                eprintln!(
+                    "warning: LPMSPLAT_BUFFER_LOG={}: {e}; no buffer log is written. Fix: \
+                     point it at a writable file",
+                    path.to_string_lossy()
+                );
+                None
+            }
+        }
     });
     if let Some(file) = log {
-        // A diagnostic: a failed write must not stop the run.
         let _ = writeln!(file.lock().unwrap(), "{name}\t{bytes}");
     }
 }
