@@ -11,8 +11,9 @@
 //!
 //! [`GaussianParams::sh_rest`](super::GaussianParams) keeps the logical layout (all coefficients
 //! of a Gaussian back to back, `[coef][channel]`); [`split`] and [`merge`] convert. Planes a
-//! degree does not use have stride 0. The kernels read them through
-//! `glsl/common/sh_rest_planes.glsl`, which mirrors [`offset`].
+//! degree does not use have stride 0. The kernels walk them plane by plane through
+//! `glsl/common/sh_rest_planes.glsl` (`sh_rest_plane_coefs` mirrors [`plane_coefs`]; coefficient
+//! `j` of plane `p` of Gaussian `i` at `i * stride + 3j`, as [`offset`] says).
 
 /// Column planes of the SH rest coefficients (enough for degree 3's 15 coefficients).
 pub const PLANES: usize = 5;
