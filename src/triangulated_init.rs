@@ -15,7 +15,7 @@
 
 use crate::lpm::epipolar::{fundamental, symmetric_epipolar_distance};
 use crate::lpm::features::{detect_and_describe, match_features, FeatureSettings, Features};
-use crate::lpm::neighbours::{select_neighbours_at_times, NeighbourSettings};
+use crate::lpm::neighbours::{select_neighbours_at_times, NeighbourChoice, NeighbourSettings};
 use crate::scene::images::load_view_image;
 use crate::scene::{Image, PinholeCamera, Pose, Scene};
 use crate::splats::GaussianParams;
@@ -213,9 +213,12 @@ pub fn triangulate_scene(
         &scene.views,
         &views,
         scene.view_times.as_deref(),
+        None,
         &NeighbourSettings {
             max_angle_deg: 45.0,
             max_neighbours: NEIGHBOURS,
+            // The random pick this initialisation was measured with (README, Panoptic).
+            choice: NeighbourChoice::Random,
             seed,
         },
     );

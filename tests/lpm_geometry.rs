@@ -5,7 +5,8 @@ use glam::DVec3;
 use lpmsplat::lpm::enclosing_sphere::minimum_enclosing_sphere;
 use lpmsplat::lpm::epipolar::{fundamental, symmetric_epipolar_distance};
 use lpmsplat::lpm::neighbours::{
-    optical_axis_angle, select_neighbours, NeighbourKind, NeighbourSettings,
+    optical_axis_angle, select_neighbours, Covisibility, NeighbourChoice, NeighbourKind,
+    NeighbourSettings,
 };
 use lpmsplat::lpm::pairing::RegionPair;
 use lpmsplat::lpm::pairing::{pair_regions, PixelBox};
@@ -759,8 +760,11 @@ fn neighbours_on_a_ring_rig() {
         look_at(DVec3::new(5.3, 0.2, 0.0), DVec3::new(5.3, 0.2, 10.0)),
     ));
     let train: Vec<usize> = (0..views.len()).collect();
-    let s = NeighbourSettings::default();
-    let n = select_neighbours(&views, &train, &s);
+    let s = NeighbourSettings {
+        choice: NeighbourChoice::Random,
+        ..NeighbourSettings::default()
+    };
+    let n = select_neighbours(&views, &train, None, &s);
     for v in 0..36 {
         assert_eq!(n.kind[v], NeighbourKind::ByAngle);
         assert_eq!(n.of[v].len(), 3);
@@ -777,8 +781,8 @@ fn neighbours_on_a_ring_rig() {
     assert_eq!(n.kind[37], NeighbourKind::NearestCentre);
     assert_eq!(n.of[37], vec![0], "r0 at (5,0,0) is nearest to (5.3,0.2,0)");
     // Deterministic for a seed; the pick is always among the neighbours.
-    assert_eq!(n, select_neighbours(&views, &train, &s));
-    let other = select_neighbours(&views, &train, &NeighbourSettings { seed: 1234, ..s });
+    assert_eq!(n, select_neighbours(&views, &train, None, &s));
+    let other = select_neighbours(&views, &train, None, &NeighbourSettings { seed: 1234, ..s });
     assert_ne!(
         n.of, other.of,
         "another seed should pick differently somewhere"
@@ -791,6 +795,7 @@ fn neighbours_on_a_ring_rig() {
     let wide = select_neighbours(
         &views,
         &train,
+        None,
         &NeighbourSettings {
             max_angle_deg: 90.0,
             ..s
@@ -802,6 +807,7 @@ fn neighbours_on_a_ring_rig() {
     let narrow = select_neighbours(
         &views,
         &train,
+        None,
         &NeighbourSettings {
             max_angle_deg: 5.0,
             ..s
@@ -809,13 +815,103 @@ fn neighbours_on_a_ring_rig() {
     );
     assert_eq!(narrow.kind[3], NeighbourKind::NearestCentre);
     // Only training views count; one training view has no neighbour.
-    let one = select_neighbours(&views, &[4], &s);
+    let one = select_neighbours(&views, &[4], None, &s);
     assert_eq!(one.kind[4], NeighbourKind::None);
     assert!(one.of.iter().all(|o| o.is_empty()));
     assert!(one.pairs().is_empty());
     // Pairs are unordered and unique.
     let pairs = n.pairs();
     assert!(pairs.windows(2).all(|w| w[0] < w[1]) && pairs.iter().all(|p| p.0 < p.1));
+}
+
+/// Our default keeps, among the views within the angle, those sharing the most SfM tracks, ties
+/// by the nearest camera centre; the random pick ignores both.
+#[test]
+fn overlap_neighbours_follow_shared_tracks_then_centres() {
+    let cam = camera(100, 100, 80.0);
+    // 36 cameras on a ring every 10°, looking at the centre.
+    let views: Vec<View> = (0..36)
+        .map(|i| {
+            let a = (i as f64 * 10.0).to_radians();
+            view(
+                &format!("r{i}"),
+                cam,
+                look_at(DVec3::new(5.0 * a.cos(), 5.0 * a.sin(), 0.0), DVec3::ZERO),
+            )
+        })
+        .collect();
+    let train: Vec<usize> = (0..36).collect();
+    let s = NeighbourSettings::default();
+    assert_eq!(s.choice, NeighbourChoice::Overlap, "overlap is the default");
+    // Without tracks: the nearest centres, ±10° and one of the two at ±20°.
+    let n = select_neighbours(&views, &train, None, &s);
+    for v in 0..36usize {
+        let (next, prev) = ((v + 1) % 36, (v + 35) % 36);
+        let (next2, prev2) = ((v + 2) % 36, (v + 34) % 36);
+        let of = &n.of[v];
+        assert_eq!(n.kind[v], NeighbourKind::ByAngle);
+        assert_eq!(of.len(), 3, "view {v}: {of:?}");
+        assert!(of.contains(&next) && of.contains(&prev), "view {v}: {of:?}");
+        assert!(
+            of.contains(&next2) || of.contains(&prev2),
+            "view {v}: {of:?}"
+        );
+    }
+    // Tracks: view 0 shares 5 points with r4 (40°), 3 with r33 (30°), 1 with r1, none with the
+    // rest; r5 (50°) shares 9 but is outside the 45° limit. A view listed twice in one track
+    // counts once; views outside the angle never qualify whatever they share.
+    let mut tracks: Vec<Vec<(u32, u32)>> = Vec::new();
+    for k in 0..5 {
+        tracks.push(vec![(0, k), (4, k), (4, k + 100)]);
+    }
+    for k in 0..3 {
+        tracks.push(vec![(33, k), (0, 10 + k)]);
+    }
+    tracks.push(vec![(0, 20), (1, 0)]);
+    for k in 0..9 {
+        tracks.push(vec![(0, 30 + k), (5, k)]);
+    }
+    let cv = Covisibility::from_tracks(&tracks);
+    assert_eq!(
+        (cv.shared(0, 4), cv.shared(4, 0), cv.shared(0, 2)),
+        (5, 5, 0)
+    );
+    let n = select_neighbours(&views, &train, Some(&cv), &s);
+    assert_eq!(
+        n.of[0],
+        vec![1, 4, 33],
+        "most shared tracks first, within 45°"
+    );
+    // Two neighbours: the two that share most.
+    let two = select_neighbours(
+        &views,
+        &train,
+        Some(&cv),
+        &NeighbourSettings {
+            max_neighbours: 2,
+            ..s
+        },
+    );
+    assert_eq!(two.of[0], vec![4, 33]);
+    // The seed does not change an overlap choice; it does change a random one.
+    let seeded = NeighbourSettings { seed: 99, ..s };
+    assert_eq!(n, select_neighbours(&views, &train, Some(&cv), &seeded));
+    let random = |seed| {
+        select_neighbours(
+            &views,
+            &train,
+            Some(&cv),
+            &NeighbourSettings {
+                choice: NeighbourChoice::Random,
+                seed,
+                ..s
+            },
+        )
+    };
+    assert!(
+        (0..8).any(|seed| random(seed).of[0] != n.of[0]),
+        "the random pick does not follow the tracks"
+    );
 }
 
 // ---------------------------------------------------------------- regions

@@ -6,7 +6,7 @@
 
 use glam::DVec3;
 use lpmsplat::gpu::{GpuContext, GpuOptions};
-use lpmsplat::lpm::neighbours::{select_neighbours, NeighbourSettings};
+use lpmsplat::lpm::neighbours::{select_neighbours, NeighbourChoice, NeighbourSettings};
 use lpmsplat::lpm::strategy::{LpmConfig, LpmStepReport, LpmStrategy, PruneMode};
 use lpmsplat::lpm::{Correspondences, PairMatches, ZoneGeometry};
 use lpmsplat::scene::{CameraModel, Image, PinholeCamera, Pose, Scene, SceneFormat, View};
@@ -136,9 +136,11 @@ fn correspondences(scene: &Scene) -> Correspondences {
     let neighbours = select_neighbours(
         &scene.views,
         &scene.train,
+        None,
         &NeighbourSettings {
             max_angle_deg: 45.0,
             max_neighbours: 3,
+            choice: NeighbourChoice::Random,
             seed: 1,
         },
     );

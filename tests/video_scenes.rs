@@ -365,7 +365,7 @@ fn lpm_neighbours_of_a_video_view_share_its_time() {
     let scene = lpmsplat::scene::Scene::load(&dir, &LoadOptions::default()).unwrap();
     let times = scene.view_times.clone().unwrap();
     let s = NeighbourSettings::default();
-    let n = select_neighbours_at_times(&scene.views, &scene.train, Some(&times), &s);
+    let n = select_neighbours_at_times(&scene.views, &scene.train, Some(&times), None, &s);
     for &v in &scene.train {
         assert!(!n.of[v].is_empty(), "view {v} has no neighbour");
         for &o in &n.of[v] {
@@ -378,7 +378,7 @@ fn lpm_neighbours_of_a_video_view_share_its_time() {
             assert!(d > 1e-6, "view {v} paired with its own camera ({o})");
         }
     }
-    let plain = select_neighbours(&scene.views, &scene.train, &s);
+    let plain = select_neighbours(&scene.views, &scene.train, None, &s);
     assert!(
         scene
             .train

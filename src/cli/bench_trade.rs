@@ -15,7 +15,7 @@ use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder};
 use lpmsplat::lpips::Lpips;
 use lpmsplat::lpm::strategy::{LpmConfig, LpmStrategy, PruneMode};
-use lpmsplat::lpm::ZoneGeometry;
+use lpmsplat::lpm::{NeighbourChoice, ZoneGeometry};
 use lpmsplat::render::forward::{FrameSettings, Renderer};
 use lpmsplat::render::layout::CameraGpu;
 use lpmsplat::render::spacetime::TimedModel;
@@ -86,8 +86,9 @@ pub struct TradeArgs {
     /// lpm-no-add, lpm-no-reset, lpm-authors (the authors' rules), lpm-authors-adc (the same
     /// with ADC on steps without a zone), lpm-sphere (the paper's cone-intersection zone),
     /// adc-abs-grad (with the absolute-gradient test), lpm-additive (our rules with the additive
-    /// pruning: exactly as many extra prunes as lowered-threshold densifications) (aliases:
-    /// adc-1e-4, lpm). Default: the first five.
+    /// pruning: exactly as many extra prunes as lowered-threshold densifications),
+    /// lpm-random-neighbours (our rules with the paper's random choice of neighbour views)
+    /// (aliases: adc-1e-4, lpm). Default: the first five.
     #[arg(long, value_delimiter = ',')]
     pub runs: Vec<String>,
     /// Run the variants one after another instead of interleaving their iterations. Interleaving
@@ -151,7 +152,7 @@ pub struct TradeRow {
     pub model_events: Vec<serde_json::Value>,
 }
 
-pub const RUNS: [(&str, [u8; 3]); 10] = [
+pub const RUNS: [(&str, [u8; 3]); 11] = [
     ("adc", [40, 40, 40]),
     ("adc-threshold-1e-4", [200, 120, 0]),
     ("adc+lpm", [220, 30, 30]),
@@ -168,6 +169,8 @@ pub const RUNS: [(&str, [u8; 3]); 10] = [
     // Our rules with the additive pruning (`train --lpm --lpm-prune additive`), beside the
     // default authors' pruning in one interleaved run.
     ("lpm-additive", [240, 150, 150]),
+    // Our rules with the paper's random neighbour views (`train --lpm --lpm-neighbours random`).
+    ("lpm-random-neighbours", [60, 200, 200]),
 ];
 
 pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
@@ -508,6 +511,9 @@ fn run_lpm_config(name: &str, cfg: &TrainConfig, args: &TradeArgs) -> Option<Lpm
     }
     if name == "lpm-additive" {
         c.prune = PruneMode::Additive;
+    }
+    if name == "lpm-random-neighbours" {
+        c.matching.neighbours.choice = NeighbourChoice::Random;
     }
     if let Some(p) = args.lpm_prune {
         c.prune = p;

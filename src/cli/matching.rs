@@ -26,7 +26,12 @@ pub struct MatchArgs {
     /// Symmetric epipolar distance threshold for feature matches, pixels.
     #[arg(long, default_value_t = 3.0)]
     pub epipolar_px: f64,
-    /// Seed of the neighbour pick.
+    /// Which views within the angle become neighbours: overlap (most shared SfM tracks, else the
+    /// nearest camera centres; `train --lpm`'s default) or random (the paper's pick, `train
+    /// --lpm-rules authors`).
+    #[arg(long, default_value = "overlap", value_parser = ["overlap", "random"])]
+    pub neighbour_choice: String,
+    /// Seed of the random neighbour pick.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Rebuild even when a valid cache exists (e.g. after replacing image files in place).
@@ -55,6 +60,7 @@ pub fn run(args: &MatchArgs) -> anyhow::Result<()> {
     settings.neighbours.max_angle_deg = args.neighbour_angle;
     settings.neighbours.max_neighbours = args.neighbours;
     settings.neighbours.seed = args.seed;
+    settings.neighbours.choice = lpm::NeighbourChoice::parse(&args.neighbour_choice)?;
     let dir = args.out.clone().unwrap_or_else(|| scene.root.clone());
     std::fs::create_dir_all(&dir)
         .with_context(|| format!("{}: cannot create the output folder", dir.display()))?;

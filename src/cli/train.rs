@@ -11,7 +11,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuContext, GpuOptions, StageTimes};
 use lpmsplat::lpm::strategy::{LpmConfig, LpmStrategy, PruneMode};
-use lpmsplat::lpm::{self, ZoneGeometry};
+use lpmsplat::lpm::{self, NeighbourChoice, ZoneGeometry};
 use lpmsplat::models::BaseModel;
 use lpmsplat::scene::image_source::{TrainImages, ViewImages};
 use lpmsplat::scene::{images, Image, Scene};
@@ -234,6 +234,11 @@ pub struct LpmArgs {
     /// Largest optical-axis angle between neighbour views, degrees (90 suggested indoors).
     #[arg(long, default_value_t = 45.0)]
     pub lpm_neighbour_angle: f64,
+    /// Which views within the angle become a view's neighbours: overlap (ours: those sharing
+    /// the most SfM tracks with it, else the nearest camera centres) or random (the paper and the
+    /// authors' code: three at random). Default: overlap, random under `--lpm-rules authors`.
+    #[arg(long, value_parser = ["overlap", "random"])]
+    pub lpm_neighbours: Option<String>,
     /// Zone geometry: triangulated (ours: the enclosing sphere of the triangulated matches),
     /// sphere (the paper: the cone intersection's enclosing sphere), ray-pairs, authors-box.
     #[arg(long, value_parser = ["triangulated", "sphere", "ray-pairs", "authors-box"])]
@@ -290,6 +295,9 @@ impl LpmArgs {
         }
         c.matching.neighbours.max_angle_deg = self.lpm_neighbour_angle;
         c.matching.neighbours.seed = seed;
+        if let Some(n) = &self.lpm_neighbours {
+            c.matching.neighbours.choice = NeighbourChoice::parse(n)?;
+        }
         if let Some(z) = &self.lpm_zone {
             c.zones.geometry = parse_zone(z)?;
         }

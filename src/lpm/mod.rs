@@ -28,7 +28,7 @@ pub mod strategy;
 pub mod zones;
 
 pub use correspondences::PairMatches;
-pub use neighbours::{NeighbourSettings, Neighbours};
+pub use neighbours::{NeighbourChoice, NeighbourSettings, Neighbours};
 pub use record::{zones_for_step, ConeRadius, StepZones, ZoneRecord};
 pub use regions::{BlockMask, Region, RegionSettings};
 pub use zones::{Zone, ZoneGeometry, ZoneSettings};
@@ -87,6 +87,11 @@ impl MatchSettings {
         h.f64(n.max_angle_deg)
             .u64(n.max_neighbours as u64)
             .u64(n.seed);
+        // A cache built with the other choice (or before there was one) is stale.
+        h.u64(match n.choice {
+            neighbours::NeighbourChoice::Random => 1,
+            neighbours::NeighbourChoice::Overlap => 2,
+        });
         let f = &self.features;
         h.f64(f.fast_threshold as f64)
             .u64(f.max_keypoints as u64)
@@ -294,6 +299,24 @@ fn summarise(
     }
 }
 
+/// The neighbours of `scene`'s training views (at the same time in a video), ranked by shared
+/// SfM tracks under [`neighbours::NeighbourChoice::Overlap`] when the scene has tracks.
+pub fn scene_neighbours(scene: &Scene, s: &NeighbourSettings) -> Neighbours {
+    let covisible = match (s.choice, &scene.points) {
+        (neighbours::NeighbourChoice::Overlap, Some(p)) if has_tracks(scene) => {
+            Some(neighbours::Covisibility::from_tracks(&p.tracks))
+        }
+        _ => None,
+    };
+    neighbours::select_neighbours_at_times(
+        &scene.views,
+        &scene.train,
+        scene.view_times.as_deref(),
+        covisible.as_ref(),
+        s,
+    )
+}
+
 /// Extracts the correspondences of every neighbour pair of the training views. `load_image` is
 /// only called for the features source (once per view, in parallel; images are dropped after
 /// detection so memory stays at a few images). `progress`, when given, gets its length set and
@@ -305,12 +328,7 @@ pub fn extract_correspondences(
     progress: Option<&indicatif::ProgressBar>,
 ) -> anyhow::Result<(Correspondences, MatchSummary)> {
     let start = Instant::now();
-    let neighbours = neighbours::select_neighbours_at_times(
-        &scene.views,
-        &scene.train,
-        scene.view_times.as_deref(),
-        &settings.neighbours,
-    );
+    let neighbours = scene_neighbours(scene, &settings.neighbours);
     let pair_list = neighbours.pairs();
     let source = settings.resolved_source(scene);
     let thr = settings.epipolar_threshold_px;
@@ -422,12 +440,7 @@ pub fn load_or_build(
     let (sh, st) = (cache::scene_hash(scene), settings.hash());
     let miss = match cache::read_cache(cache_path, sh, st, scene.views.len()) {
         Ok(pairs) => {
-            let neighbours = neighbours::select_neighbours_at_times(
-                &scene.views,
-                &scene.train,
-                scene.view_times.as_deref(),
-                &settings.neighbours,
-            );
+            let neighbours = scene_neighbours(scene, &settings.neighbours);
             let expected = neighbours.pairs();
             let got: Vec<(usize, usize)> =
                 pairs.iter().map(|p| (p.a as usize, p.b as usize)).collect();

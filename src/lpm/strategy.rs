@@ -35,8 +35,8 @@ use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext};
 use crate::lpm::gpu::{block_grid, ErrorImages, FilteredOpacity, LpmGpu};
 use crate::lpm::membership::{OpacityResetSettings, FLAG_IN_BALL};
 use crate::lpm::{
-    regions, zones_for_step, ConeRadius, Correspondences, MatchSettings, RegionSettings,
-    ZoneGeometry, ZoneRecord, ZoneSettings,
+    regions, zones_for_step, ConeRadius, Correspondences, MatchSettings, NeighbourChoice,
+    RegionSettings, ZoneGeometry, ZoneRecord, ZoneSettings,
 };
 use crate::scene::image_source::{ImageSource, TrainImages};
 use crate::scene::{Image, Scene, View};
@@ -168,6 +168,7 @@ impl LpmConfig {
         };
         c.zones.geometry = ZoneGeometry::AuthorsBox;
         c.reset_settings.threshold_set = FLAG_IN_BALL;
+        c.matching.neighbours.choice = NeighbourChoice::Random;
         c
     }
 
