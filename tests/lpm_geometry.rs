@@ -733,11 +733,11 @@ fn epipolar_distance_zero_for_true_matches_and_grows_with_corruption() {
 
 // ---------------------------------------------------------------- neighbours
 
-#[test]
-fn neighbours_on_a_ring_rig() {
-    // 36 cameras on a ring, every 10°, all looking at the centre: axis angle = ring angle.
+/// 36 cameras on a ring of radius 5, every 10°, all looking at the centre: axis angle = ring
+/// angle.
+fn ring_views() -> Vec<View> {
     let cam = camera(100, 100, 80.0);
-    let mut views: Vec<View> = (0..36)
+    (0..36)
         .map(|i| {
             let a = (i as f64 * 10.0).to_radians();
             view(
@@ -746,7 +746,13 @@ fn neighbours_on_a_ring_rig() {
                 look_at(DVec3::new(5.0 * a.cos(), 5.0 * a.sin(), 0.0), DVec3::ZERO),
             )
         })
-        .collect();
+        .collect()
+}
+
+#[test]
+fn neighbours_on_a_ring_rig() {
+    let cam = camera(100, 100, 80.0);
+    let mut views = ring_views();
     // A camera with the same axis as r0 (further back): angle 0, never a neighbour of r0.
     views.push(view(
         "twin",
@@ -828,18 +834,7 @@ fn neighbours_on_a_ring_rig() {
 /// by the nearest camera centre; the random pick ignores both.
 #[test]
 fn overlap_neighbours_follow_shared_tracks_then_centres() {
-    let cam = camera(100, 100, 80.0);
-    // 36 cameras on a ring every 10°, looking at the centre.
-    let views: Vec<View> = (0..36)
-        .map(|i| {
-            let a = (i as f64 * 10.0).to_radians();
-            view(
-                &format!("r{i}"),
-                cam,
-                look_at(DVec3::new(5.0 * a.cos(), 5.0 * a.sin(), 0.0), DVec3::ZERO),
-            )
-        })
-        .collect();
+    let views = ring_views();
     let train: Vec<usize> = (0..36).collect();
     let s = NeighbourSettings::default();
     assert_eq!(s.choice, NeighbourChoice::Overlap, "overlap is the default");
