@@ -9,10 +9,10 @@ use lpmsplat::lpm::neighbours::{
     NeighbourSettings,
 };
 use lpmsplat::lpm::pairing::RegionPair;
-use lpmsplat::lpm::pairing::{pair_regions, PixelBox};
+use lpmsplat::lpm::pairing::{pair_regions, pair_regions_on, PixelBox, RegionKeypoints};
 use lpmsplat::lpm::regions::RegionSettings;
 use lpmsplat::lpm::regions::{
-    block_mask, error_map, quantile, regions_from_blocks, BlockMask, Region,
+    block_mask, error_map, quantile, regions_and_owners, regions_from_blocks, BlockMask, Region,
 };
 use lpmsplat::lpm::zones::{triangulated_zone, zone_for_pair};
 use lpmsplat::lpm::zones::{zone_from_boxes, CameraView, Zone, ZoneGeometry, ZoneSettings};
@@ -660,6 +660,7 @@ fn zone_records_layout_and_step() {
         &v0,
         &v1,
         &regions,
+        None,
         &xy0,
         &xy1,
         &gt,
@@ -1011,6 +1012,88 @@ fn regions_on_constructed_error_maps() {
     assert!(BlockMask::from_error_counts(w, h, 16, &counts[1..], 0.85).is_err());
 }
 
+/// A region's own error blocks, not its box: an L-shaped component's box also covers a block
+/// that is no error and a block of another component, and only the error-blocks rule keeps the
+/// matches there out of its zone.
+#[test]
+fn pairing_on_error_blocks_keeps_only_the_regions_own_matches() {
+    // 64×64, 16-px blocks (4×4). Component A: blocks (0,0), (0,1), (0,2), (1,2), (2,2) — an L
+    // whose box is blocks x 0..3, y 0..3. Component B: block (2,0) alone, inside A's box (its
+    // corner touches no block of A: (1,1) is not kept). Block (1,1) is inside A's box, no error.
+    let (w, h) = (64u32, 64u32);
+    let a = [(0, 0), (0, 1), (0, 2), (1, 2), (2, 2)];
+    let b = [(2, 0)];
+    let e = map_with(w, h, |x, y| {
+        let blk = (x / 16, y / 16);
+        a.contains(&blk) || b.contains(&blk)
+    });
+    let m = block_mask(&e, w, h, 0.4, 16, 0.85).unwrap();
+    let (regions, owners) = regions_and_owners(&m);
+    assert_eq!(regions, regions_from_blocks(&m));
+    assert_eq!(regions.len(), 2);
+    let ra = regions
+        .iter()
+        .position(|r| r.x1 == 48 && r.y1 == 48)
+        .unwrap();
+    let rb = 1 - ra;
+    assert_eq!(
+        regions[rb],
+        Region {
+            x0: 32,
+            y0: 0,
+            x1: 48,
+            y1: 16
+        }
+    );
+    // Owners by pixel: A's blocks, B's block, nothing elsewhere or outside.
+    assert_eq!(owners.owner(8.0, 40.0), Some(ra));
+    assert_eq!(owners.owner(40.0, 8.0), Some(rb));
+    assert_eq!(
+        owners.owner(24.0, 24.0),
+        None,
+        "block (1,1) is no error block"
+    );
+    assert_eq!(owners.owner(-1.0, 8.0), None);
+    assert_eq!(owners.owner(64.5, 8.0), None);
+    assert_eq!(owners.owner(f64::NAN, 8.0), None);
+    // Matches (V → V' shifted by 100 px): two on A's blocks, one on the no-error block (1,1),
+    // one on B's block, one outside every box.
+    let xy_v: Vec<[f32; 2]> = vec![
+        [4.0, 4.0],
+        [40.0, 40.0],
+        [24.0, 24.0],
+        [40.0, 4.0],
+        [60.0, 60.0],
+    ];
+    let xy_r: Vec<[f32; 2]> = xy_v.iter().map(|p| [p[0] + 100.0, p[1]]).collect();
+    // The paper's box rule: A gets the four inside its box (B's and the no-error one included).
+    let (boxed, _) = pair_regions(&regions, &xy_v, &xy_r);
+    let a_box = boxed.iter().find(|p| p.region == regions[ra]).unwrap();
+    assert_eq!(a_box.matched, vec![0, 1, 2, 3]);
+    // Ours: A keeps its own two; B has one match only (a zero-area box: not paired).
+    let (own, stats) = pair_regions_on(&regions, Some(&owners), &xy_v, &xy_r);
+    assert_eq!(own.len(), 1);
+    assert_eq!(own[0].region, regions[ra]);
+    assert_eq!(own[0].matched, vec![0, 1]);
+    assert_eq!(
+        (
+            own[0].in_view.x0,
+            own[0].in_view.y0,
+            own[0].in_view.x1,
+            own[0].in_view.y1
+        ),
+        (4.0, 4.0, 40.0, 40.0)
+    );
+    assert_eq!((stats.regions, stats.paired, stats.zero_area), (2, 1, 1));
+    // The rule's names round-trip; an unknown one is refused with the choices.
+    for k in [RegionKeypoints::ErrorBlocks, RegionKeypoints::Box] {
+        assert_eq!(RegionKeypoints::parse(k.name()).unwrap(), k);
+    }
+    let err = RegionKeypoints::parse("blocks").unwrap_err().to_string();
+    assert!(err.contains("error-blocks or box"), "{err}");
+    assert_eq!(RegionKeypoints::default(), RegionKeypoints::ErrorBlocks);
+}
+
 #[test]
 fn regions_with_padding() {
     // 40×30: blocks 3×2, the last column 8 px wide, the last row 14 px high. Padding pixels count
@@ -1080,6 +1163,7 @@ fn zone_step_time_is_small() {
             &v0,
             &v1,
             &regions,
+            None,
             &xy0,
             &xy1,
             &gt,

@@ -14,6 +14,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder};
 use lpmsplat::lpips::Lpips;
+use lpmsplat::lpm::pairing::RegionKeypoints;
 use lpmsplat::lpm::strategy::{LpmConfig, LpmStrategy, PruneMode};
 use lpmsplat::lpm::{NeighbourChoice, ZoneGeometry};
 use lpmsplat::render::forward::{FrameSettings, Renderer};
@@ -87,8 +88,9 @@ pub struct TradeArgs {
     /// with ADC on steps without a zone), lpm-sphere (the paper's cone-intersection zone),
     /// adc-abs-grad (with the absolute-gradient test), lpm-additive (our rules with the additive
     /// pruning: exactly as many extra prunes as lowered-threshold densifications),
-    /// lpm-random-neighbours (our rules with the paper's random choice of neighbour views)
-    /// (aliases: adc-1e-4, lpm). Default: the first five.
+    /// lpm-random-neighbours (our rules with the paper's random choice of neighbour views),
+    /// lpm-box-keypoints (our rules with every match inside a region's box speaking for it, as
+    /// the paper) (aliases: adc-1e-4, lpm). Default: the first five.
     #[arg(long, value_delimiter = ',')]
     pub runs: Vec<String>,
     /// Run the variants one after another instead of interleaving their iterations. Interleaving
@@ -152,7 +154,7 @@ pub struct TradeRow {
     pub model_events: Vec<serde_json::Value>,
 }
 
-pub const RUNS: [(&str, [u8; 3]); 11] = [
+pub const RUNS: [(&str, [u8; 3]); 12] = [
     ("adc", [40, 40, 40]),
     ("adc-threshold-1e-4", [200, 120, 0]),
     ("adc+lpm", [220, 30, 30]),
@@ -171,6 +173,9 @@ pub const RUNS: [(&str, [u8; 3]); 11] = [
     ("lpm-additive", [240, 150, 150]),
     // Our rules with the paper's random neighbour views (`train --lpm --lpm-neighbours random`).
     ("lpm-random-neighbours", [60, 200, 200]),
+    // Our rules with the paper's keypoints for a region: all inside its box
+    // (`train --lpm --lpm-region-keypoints box`).
+    ("lpm-box-keypoints", [230, 190, 40]),
 ];
 
 pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
@@ -514,6 +519,9 @@ fn run_lpm_config(name: &str, cfg: &TrainConfig, args: &TradeArgs) -> Option<Lpm
     }
     if name == "lpm-random-neighbours" {
         c.matching.neighbours.choice = NeighbourChoice::Random;
+    }
+    if name == "lpm-box-keypoints" {
+        c.region_keypoints = RegionKeypoints::Box;
     }
     if let Some(p) = args.lpm_prune {
         c.prune = p;

@@ -10,6 +10,7 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuContext, GpuOptions, StageTimes};
+use lpmsplat::lpm::pairing::RegionKeypoints;
 use lpmsplat::lpm::strategy::{LpmConfig, LpmStrategy, PruneMode};
 use lpmsplat::lpm::{self, NeighbourChoice, ZoneGeometry};
 use lpmsplat::models::BaseModel;
@@ -239,6 +240,12 @@ pub struct LpmArgs {
     /// authors' code: three at random). Default: overlap, random under `--lpm-rules authors`.
     #[arg(long, value_parser = ["overlap", "random"])]
     pub lpm_neighbours: Option<String>,
+    /// Which matched keypoints speak for an error region: error-blocks (ours: those on the
+    /// region's own error blocks) or box (the paper and the authors' code: all inside its
+    /// bounding box, which also covers what lies between its blocks). Default: error-blocks, box
+    /// under `--lpm-rules authors`.
+    #[arg(long, value_parser = ["error-blocks", "box"])]
+    pub lpm_region_keypoints: Option<String>,
     /// Zone geometry: triangulated (ours: the enclosing sphere of the triangulated matches),
     /// sphere (the paper: the cone intersection's enclosing sphere), ray-pairs, authors-box.
     #[arg(long, value_parser = ["triangulated", "sphere", "ray-pairs", "authors-box"])]
@@ -295,6 +302,9 @@ impl LpmArgs {
         }
         c.matching.neighbours.max_angle_deg = self.lpm_neighbour_angle;
         c.matching.neighbours.seed = seed;
+        if let Some(k) = &self.lpm_region_keypoints {
+            c.region_keypoints = RegionKeypoints::parse(k)?;
+        }
         if let Some(n) = &self.lpm_neighbours {
             c.matching.neighbours.choice = NeighbourChoice::parse(n)?;
         }

@@ -8,7 +8,8 @@ use std::path::Path;
 
 use crate::lpm::correspondences::OrientedMatches;
 use crate::lpm::gpu::LpmGpu;
-use crate::lpm::pairing::{pair_regions, PixelBox};
+use crate::lpm::pairing::{pair_regions_on, PixelBox};
+use crate::lpm::regions::BlockOwners;
 use crate::lpm::{BlockMask, Region, Zone};
 use crate::scene::images::save_png;
 use crate::scene::{Image, View};
@@ -74,6 +75,7 @@ pub(super) fn dump_step(
     reference: Option<usize>,
     zones: &[Zone],
     regions: &[Region],
+    owners: Option<&BlockOwners>,
     matches: Option<OrientedMatches>,
 ) -> anyhow::Result<()> {
     std::fs::create_dir_all(dir)
@@ -113,7 +115,7 @@ pub(super) fn dump_step(
     save_png(&name("blocks"), &b)?;
 
     if let (Some(_), Some((xy_v, xy_r))) = (reference, matches) {
-        let (pairs, _) = pair_regions(regions, xy_v, xy_r);
+        let (pairs, _) = pair_regions_on(regions, owners, xy_v, xy_r);
         let mut pv = dimmed(gv);
         for p in xy_v {
             dot(&mut pv, *p, [0.0, 1.0, 1.0]);

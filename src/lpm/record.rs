@@ -1,7 +1,7 @@
 //! Zone records for the GPU, and one LPM step's CPU work (regions → pairs → zones → records).
 
-use super::pairing::{pair_regions, PairingStats, PixelBox};
-use super::regions::Region;
+use super::pairing::{pair_regions_on, PairingStats, PixelBox};
+use super::regions::{BlockOwners, Region};
 use super::zones::{zone_for_pair, CameraView, Zone, ZoneSettings};
 use crate::scene::{Image, View};
 
@@ -160,12 +160,15 @@ pub struct StepZones {
 }
 
 /// Steps 5–6 and the records for one (V, V') pair. `xy_view[i]` in `view` matches `xy_ref[i]` in
-/// `reference`; `gt` is V's ground truth and `background` the render's (for the zone colour).
+/// `reference`; `owners`, when given, restricts each region to the matches on its own error
+/// blocks ([`super::pairing::RegionKeypoints::ErrorBlocks`]); `gt` is V's ground truth and `background` the
+/// render's (for the zone colour).
 #[allow(clippy::too_many_arguments)] // the step's inputs, each used once; a struct would only rename them
 pub fn zones_for_step(
     view: &View,
     reference: &View,
     regions: &[Region],
+    owners: Option<&BlockOwners>,
     xy_view: &[[f32; 2]],
     xy_ref: &[[f32; 2]],
     gt: &Image,
@@ -173,7 +176,7 @@ pub fn zones_for_step(
     s: &ZoneSettings,
     cone: ConeRadius,
 ) -> StepZones {
-    let (pairs, pairing) = pair_regions(regions, xy_view, xy_ref);
+    let (pairs, pairing) = pair_regions_on(regions, owners, xy_view, xy_ref);
     let v = CameraView {
         camera: &view.camera,
         pose: &view.pose,

@@ -215,15 +215,52 @@ pub fn block_mask(
 /// 8-connected components of kept blocks, each as its pixel bounding box (right/bottom exclusive,
 /// clipped to the image). Ordered by the first block met in row-major order.
 pub fn regions_from_blocks(mask: &BlockMask) -> Vec<Region> {
+    regions_and_owners(mask).0
+}
+
+/// Which region owns each kept block: the 8-connected component it belongs to, as an index into
+/// the regions [`regions_and_owners`] returns with it. A region's box can hold blocks of other
+/// components and blocks that are not error blocks at all; this says which are its own.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct BlockOwners {
+    block: u32,
+    blocks_x: u32,
+    blocks_y: u32,
+    /// Per block (row-major): region index + 1, 0 for a block that is not kept.
+    label: Vec<u32>,
+}
+
+impl BlockOwners {
+    /// The region owning the block containing pixel point (x, y) (pixel centres at +0.5);
+    /// `None` outside the image or on a block that is not kept.
+    pub fn owner(&self, x: f64, y: f64) -> Option<usize> {
+        if !(x >= 0.0 && y >= 0.0) || self.block == 0 {
+            return None;
+        }
+        let (bx, by) = (
+            (x / self.block as f64) as u64,
+            (y / self.block as f64) as u64,
+        );
+        if bx >= self.blocks_x as u64 || by >= self.blocks_y as u64 {
+            return None;
+        }
+        let l = self.label[(by * self.blocks_x as u64 + bx) as usize];
+        (l > 0).then(|| l as usize - 1)
+    }
+}
+
+/// [`regions_from_blocks`] with the owner of every kept block.
+pub fn regions_and_owners(mask: &BlockMask) -> (Vec<Region>, BlockOwners) {
     let (bw, bh) = (mask.blocks_x as i64, mask.blocks_y as i64);
-    let mut label = vec![false; mask.kept.len()];
+    let mut label = vec![0u32; mask.kept.len()];
     let mut out = Vec::new();
     let mut stack = Vec::new();
     for start in 0..mask.kept.len() {
-        if !mask.kept[start] || label[start] {
+        if !mask.kept[start] || label[start] > 0 {
             continue;
         }
-        label[start] = true;
+        let id = out.len() as u32 + 1;
+        label[start] = id;
         stack.push(start);
         let (mut bx0, mut by0, mut bx1, mut by1) = (i64::MAX, i64::MAX, i64::MIN, i64::MIN);
         while let Some(i) = stack.pop() {
@@ -239,8 +276,8 @@ pub fn regions_from_blocks(mask: &BlockMask) -> Vec<Region> {
                         continue;
                     }
                     let j = (ny * bw + nx) as usize;
-                    if mask.kept[j] && !label[j] {
-                        label[j] = true;
+                    if mask.kept[j] && label[j] == 0 {
+                        label[j] = id;
                         stack.push(j);
                     }
                 }
@@ -254,7 +291,13 @@ pub fn regions_from_blocks(mask: &BlockMask) -> Vec<Region> {
             y1: (((by1 + 1) * b) as u32).min(mask.height),
         });
     }
-    out
+    let owners = BlockOwners {
+        block: mask.block,
+        blocks_x: mask.blocks_x,
+        blocks_y: mask.blocks_y,
+        label,
+    };
+    (out, owners)
 }
 
 /// Steps 1–2 in one call: render and ground truth (3 floats per pixel) → error regions.

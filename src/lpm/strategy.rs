@@ -34,6 +34,7 @@ use rand::SeedableRng;
 use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext};
 use crate::lpm::gpu::{block_grid, ErrorImages, FilteredOpacity, LpmGpu};
 use crate::lpm::membership::{OpacityResetSettings, FLAG_IN_BALL};
+use crate::lpm::pairing::RegionKeypoints;
 use crate::lpm::{
     regions, zones_for_step, ConeRadius, Correspondences, MatchSettings, NeighbourChoice,
     RegionSettings, ZoneGeometry, ZoneRecord, ZoneSettings,
@@ -86,6 +87,9 @@ pub struct LpmConfig {
     /// densify-and-prune only runs when a zone exists); the iteration's optimizer step then
     /// runs as on any other iteration. Off: global ADC runs on every density step.
     pub skip_adc_without_zone: bool,
+    /// Which matched keypoints speak for an error region (ours: its own error blocks; the
+    /// paper and the authors: its whole box).
+    pub region_keypoints: RegionKeypoints,
 }
 
 /// Density-aware pruning (LPM.md step 8).
@@ -149,6 +153,7 @@ impl Default for LpmConfig {
             prune: PruneMode::Authors,
             cone: ConeRadius::Bounding,
             skip_adc_without_zone: false,
+            region_keypoints: RegionKeypoints::ErrorBlocks,
         }
     }
 }
@@ -169,6 +174,7 @@ impl LpmConfig {
         c.zones.geometry = ZoneGeometry::AuthorsBox;
         c.reset_settings.threshold_set = FLAG_IN_BALL;
         c.matching.neighbours.choice = NeighbourChoice::Random;
+        c.region_keypoints = RegionKeypoints::Box;
         c
     }
 
@@ -250,6 +256,8 @@ impl LpmConfig {
             "zone_geometry": format!("{:?}", self.zones.geometry),
             "zone_margin": self.zones.margin,
             "neighbour_angle_deg": self.matching.neighbours.max_angle_deg,
+            "neighbours": self.matching.neighbours.choice.name(),
+            "region_keypoints": self.region_keypoints.name(),
         })
     }
 }
@@ -566,7 +574,9 @@ impl LpmStrategy {
             &counts,
             settings.keep_fraction,
         )?;
-        let regions = regions::regions_from_blocks(&mask);
+        let (regions, owners) = regions::regions_and_owners(&mask);
+        let owners =
+            (self.config.region_keypoints == RegionKeypoints::ErrorBlocks).then_some(&owners);
         report.regions = regions.len();
 
         // 2. Neighbour, pairing, zones.
@@ -589,6 +599,7 @@ impl LpmStrategy {
                     &self.views[view],
                     &self.views[r],
                     &regions,
+                    owners,
                     xy_v,
                     xy_r,
                     &gt,
@@ -631,6 +642,7 @@ impl LpmStrategy {
                 reference,
                 &step.zones,
                 &regions,
+                owners,
                 self.corr.oriented(view, reference.unwrap_or(view)),
             )?;
         }
