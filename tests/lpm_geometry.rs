@@ -1091,7 +1091,11 @@ fn pairing_on_error_blocks_keeps_only_the_regions_own_matches() {
     }
     let err = RegionKeypoints::parse("blocks").unwrap_err().to_string();
     assert!(err.contains("error-blocks or box"), "{err}");
-    assert_eq!(RegionKeypoints::default(), RegionKeypoints::ErrorBlocks);
+    assert_eq!(
+        RegionKeypoints::default(),
+        RegionKeypoints::Box,
+        "the paper's rule"
+    );
 }
 
 #[test]

@@ -89,8 +89,8 @@ pub struct TradeArgs {
     /// adc-abs-grad (with the absolute-gradient test), lpm-additive (our rules with the additive
     /// pruning: exactly as many extra prunes as lowered-threshold densifications),
     /// lpm-random-neighbours (our rules with the paper's random choice of neighbour views),
-    /// lpm-box-keypoints (our rules with every match inside a region's box speaking for it, as
-    /// the paper) (aliases: adc-1e-4, lpm). Default: the first five.
+    /// lpm-error-blocks (our rules with only the matches on a region's own error blocks speaking
+    /// for it) (aliases: adc-1e-4, lpm). Default: the first five.
     #[arg(long, value_delimiter = ',')]
     pub runs: Vec<String>,
     /// Run the variants one after another instead of interleaving their iterations. Interleaving
@@ -173,9 +173,9 @@ pub const RUNS: [(&str, [u8; 3]); 12] = [
     ("lpm-additive", [240, 150, 150]),
     // Our rules with the paper's random neighbour views (`train --lpm --lpm-neighbours random`).
     ("lpm-random-neighbours", [60, 200, 200]),
-    // Our rules with the paper's keypoints for a region: all inside its box
-    // (`train --lpm --lpm-region-keypoints box`).
-    ("lpm-box-keypoints", [230, 190, 40]),
+    // Our rules with only the matches on a region's own error blocks speaking for it
+    // (`train --lpm --lpm-region-keypoints error-blocks`).
+    ("lpm-error-blocks", [230, 190, 40]),
 ];
 
 pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
@@ -520,8 +520,8 @@ fn run_lpm_config(name: &str, cfg: &TrainConfig, args: &TradeArgs) -> Option<Lpm
     if name == "lpm-random-neighbours" {
         c.matching.neighbours.choice = NeighbourChoice::Random;
     }
-    if name == "lpm-box-keypoints" {
-        c.region_keypoints = RegionKeypoints::Box;
+    if name == "lpm-error-blocks" {
+        c.region_keypoints = RegionKeypoints::ErrorBlocks;
     }
     if let Some(p) = args.lpm_prune {
         c.prune = p;

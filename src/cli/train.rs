@@ -240,10 +240,9 @@ pub struct LpmArgs {
     /// authors' code: three at random). Default: overlap, random under `--lpm-rules authors`.
     #[arg(long, value_parser = ["overlap", "random"])]
     pub lpm_neighbours: Option<String>,
-    /// Which matched keypoints speak for an error region: error-blocks (ours: those on the
-    /// region's own error blocks) or box (the paper and the authors' code: all inside its
-    /// bounding box, which also covers what lies between its blocks). Default: error-blocks, box
-    /// under `--lpm-rules authors`.
+    /// Which matched keypoints speak for an error region: box (default; the paper and the
+    /// authors' code: all inside its bounding box, which also covers what lies between its
+    /// blocks) or error-blocks (only those on the region's own error blocks).
     #[arg(long, value_parser = ["error-blocks", "box"])]
     pub lpm_region_keypoints: Option<String>,
     /// Zone geometry: triangulated (ours: the enclosing sphere of the triangulated matches),

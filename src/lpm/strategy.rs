@@ -87,8 +87,8 @@ pub struct LpmConfig {
     /// densify-and-prune only runs when a zone exists); the iteration's optimizer step then
     /// runs as on any other iteration. Off: global ADC runs on every density step.
     pub skip_adc_without_zone: bool,
-    /// Which matched keypoints speak for an error region (ours: its own error blocks; the
-    /// paper and the authors: its whole box).
+    /// Which matched keypoints speak for an error region (default: all in its box, as the
+    /// paper and the authors; or only those on its own error blocks).
     pub region_keypoints: RegionKeypoints,
 }
 
@@ -153,7 +153,7 @@ impl Default for LpmConfig {
             prune: PruneMode::Authors,
             cone: ConeRadius::Bounding,
             skip_adc_without_zone: false,
-            region_keypoints: RegionKeypoints::ErrorBlocks,
+            region_keypoints: RegionKeypoints::Box,
         }
     }
 }
@@ -174,7 +174,6 @@ impl LpmConfig {
         c.zones.geometry = ZoneGeometry::AuthorsBox;
         c.reset_settings.threshold_set = FLAG_IN_BALL;
         c.matching.neighbours.choice = NeighbourChoice::Random;
-        c.region_keypoints = RegionKeypoints::Box;
         c
     }
 
