@@ -83,3 +83,66 @@ fn single_image_scene_has_no_pairs_and_no_panic() {
     assert_eq!(summary.pairs, 0);
     assert_eq!(summary.views_without_neighbours, 1);
 }
+
+/// On real SfM tracks (the shipped lund_door), the overlap choice keeps, for every training
+/// view, the views within the angle that share the most tracks with it, and the track matches
+/// LPM then uses between two views are exactly their shared tracks.
+#[test]
+fn overlap_neighbours_on_real_tracks_share_the_most_matches() {
+    use lpmsplat::lpm::neighbours::{optical_axis_angle, Covisibility, NeighbourChoice};
+    use lpmsplat::lpm::{correspondences::TrackIndex, scene_neighbours, NeighbourSettings};
+    let scene = Scene::load(
+        Path::new("tests/data/lund_door_small"),
+        &LoadOptions::default(),
+    )
+    .unwrap();
+    let tracks = &scene.points.as_ref().unwrap().tracks;
+    let cv = Covisibility::from_tracks(tracks);
+    let index = TrackIndex::new(&scene).unwrap();
+    let s = NeighbourSettings::default();
+    assert_eq!(s.choice, NeighbourChoice::Overlap);
+    let n = scene_neighbours(&scene, &s);
+    let mut compared = 0;
+    for &v in &scene.train {
+        let candidates: Vec<usize> = scene
+            .train
+            .iter()
+            .copied()
+            .filter(|&o| {
+                let a = optical_axis_angle(&scene.views[v].pose, &scene.views[o].pose);
+                o != v && a > 0.0 && a <= s.max_angle_deg.to_radians()
+            })
+            .collect();
+        for &o in &candidates {
+            assert_eq!(
+                cv.shared(v, o) as usize,
+                index.matches(&scene, v, o).xy_a.len(),
+                "views {v}, {o}"
+            );
+        }
+        let kept = &n.of[v];
+        let least_kept = kept.iter().map(|&o| cv.shared(v, o)).min().unwrap();
+        for &o in candidates.iter().filter(|o| !kept.contains(o)) {
+            assert!(
+                cv.shared(v, o) <= least_kept,
+                "view {v}: {o} shares {} tracks, more than a kept neighbour ({least_kept})",
+                cv.shared(v, o)
+            );
+            compared += 1;
+        }
+    }
+    assert!(
+        compared > 0,
+        "some view had more candidates than neighbours"
+    );
+    // The summary says which choice made the pairs.
+    let settings = MatchSettings::default();
+    let loader = |i: usize| -> anyhow::Result<images::Image> {
+        Ok(images::load_images(&scene, &[i])?.remove(0))
+    };
+    let (_c, summary) = lpm::extract_correspondences(&scene, &settings, &loader, None).unwrap();
+    assert!(
+        summary.to_string().contains("neighbours: overlap"),
+        "{summary}"
+    );
+}

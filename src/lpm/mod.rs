@@ -165,6 +165,8 @@ pub enum CacheStatus {
 #[derive(Debug, Clone, PartialEq)]
 pub struct MatchSummary {
     pub source: MatchSource,
+    /// How the neighbour views were chosen.
+    pub neighbour_choice: NeighbourChoice,
     pub pairs: usize,
     /// (a, b, matches) per pair.
     pub matches_per_pair: Vec<(u32, u32, usize)>,
@@ -204,8 +206,11 @@ impl std::fmt::Display for MatchSummary {
         let (lo, med, hi) = self.matches_min_median_max();
         writeln!(
             f,
-            "source: {:?}   cache: {:?}   time: {:.2} s",
-            self.source, self.cache, self.seconds
+            "source: {:?}   neighbours: {}   cache: {:?}   time: {:.2} s",
+            self.source,
+            self.neighbour_choice.name(),
+            self.cache,
+            self.seconds
         )?;
         writeln!(
             f,
@@ -261,6 +266,7 @@ fn epipolar_errors(scene: &Scene, p: &PairMatches) -> Vec<f64> {
 /// candidates.
 fn summarise(
     source: MatchSource,
+    neighbour_choice: NeighbourChoice,
     neighbours: &Neighbours,
     scene: &Scene,
     pairs: &[PairMatches],
@@ -273,6 +279,7 @@ fn summarise(
     let train = &scene.train;
     MatchSummary {
         source,
+        neighbour_choice,
         pairs: pairs.len(),
         matches_per_pair: pairs.iter().map(|p| (p.a, p.b, p.len())).collect(),
         pairs_without_matches: pairs.iter().filter(|p| p.is_empty()).count(),
@@ -420,7 +427,15 @@ pub fn extract_correspondences(
             (results.into_iter().map(|r| r.0).collect(), errors, no_kp)
         }
     };
-    let mut summary = summarise(source, &neighbours, scene, &pairs, errors, thr);
+    let mut summary = summarise(
+        source,
+        settings.neighbours.choice,
+        &neighbours,
+        scene,
+        &pairs,
+        errors,
+        thr,
+    );
     summary.views_without_keypoints = no_kp;
     summary.seconds = start.elapsed().as_secs_f64();
     Ok((Correspondences { neighbours, pairs }, summary))
@@ -452,6 +467,7 @@ pub fn load_or_build(
                 let source = settings.resolved_source(scene);
                 let mut summary = summarise(
                     source,
+                    settings.neighbours.choice,
                     &neighbours,
                     scene,
                     &pairs,
