@@ -908,6 +908,12 @@ fn overlap_neighbours_follow_shared_tracks_then_centres() {
         (0..8).any(|seed| random(seed).of[0] != n.of[0]),
         "the random pick does not follow the tracks"
     );
+    // The choice's names round-trip; an unknown one is refused with the choices.
+    for c in [NeighbourChoice::Overlap, NeighbourChoice::Random] {
+        assert_eq!(NeighbourChoice::parse(c.name()).unwrap(), c);
+    }
+    let err = NeighbourChoice::parse("nearest").unwrap_err().to_string();
+    assert!(err.contains("overlap or random"), "{err}");
 }
 
 // ---------------------------------------------------------------- regions
