@@ -831,14 +831,21 @@ fn neighbours_on_a_ring_rig() {
     assert!(pairs.windows(2).all(|w| w[0] < w[1]) && pairs.iter().all(|p| p.0 < p.1));
 }
 
-/// Our default keeps, among the views within the angle, those sharing the most SfM tracks, ties
-/// by the nearest camera centre; the random pick ignores both.
+/// The overlap choice keeps, among the views within the angle, those sharing the most SfM
+/// tracks, ties by the nearest camera centre; the random pick ignores both.
 #[test]
 fn overlap_neighbours_follow_shared_tracks_then_centres() {
     let views = ring_views();
     let train: Vec<usize> = (0..36).collect();
-    let s = NeighbourSettings::default();
-    assert_eq!(s.choice, NeighbourChoice::Overlap, "overlap is the default");
+    assert_eq!(
+        NeighbourSettings::default().choice,
+        NeighbourChoice::Random,
+        "the paper's pick is the default"
+    );
+    let s = NeighbourSettings {
+        choice: NeighbourChoice::Overlap,
+        ..NeighbourSettings::default()
+    };
     // Without tracks: the nearest centres, ±10° and one of the two at ±20°.
     let n = select_neighbours(&views, &train, None, &s);
     for v in 0..36usize {

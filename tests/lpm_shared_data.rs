@@ -99,8 +99,10 @@ fn overlap_neighbours_on_real_tracks_share_the_most_matches() {
     let tracks = &scene.points.as_ref().unwrap().tracks;
     let cv = Covisibility::from_tracks(tracks);
     let index = TrackIndex::new(&scene).unwrap();
-    let s = NeighbourSettings::default();
-    assert_eq!(s.choice, NeighbourChoice::Overlap);
+    let s = NeighbourSettings {
+        choice: NeighbourChoice::Overlap,
+        ..NeighbourSettings::default()
+    };
     let n = scene_neighbours(&scene, &s);
     let mut compared = 0;
     for &v in &scene.train {
@@ -136,7 +138,8 @@ fn overlap_neighbours_on_real_tracks_share_the_most_matches() {
         "some view had more candidates than neighbours"
     );
     // The summary says which choice made the pairs.
-    let settings = MatchSettings::default();
+    let mut settings = MatchSettings::default();
+    settings.neighbours.choice = NeighbourChoice::Overlap;
     let loader = |i: usize| -> anyhow::Result<images::Image> {
         Ok(images::load_images(&scene, &[i])?.remove(0))
     };

@@ -88,7 +88,7 @@ pub struct TradeArgs {
     /// with ADC on steps without a zone), lpm-sphere (the paper's cone-intersection zone),
     /// adc-abs-grad (with the absolute-gradient test), lpm-additive (our rules with the additive
     /// pruning: exactly as many extra prunes as lowered-threshold densifications),
-    /// lpm-random-neighbours (our rules with the paper's random choice of neighbour views),
+    /// lpm-overlap-neighbours (our rules with the neighbour views sharing the most tracks),
     /// lpm-error-blocks (our rules with only the matches on a region's own error blocks speaking
     /// for it) (aliases: adc-1e-4, lpm). Default: the first five.
     #[arg(long, value_delimiter = ',')]
@@ -171,8 +171,9 @@ pub const RUNS: [(&str, [u8; 3]); 12] = [
     // Our rules with the additive pruning (`train --lpm --lpm-prune additive`), beside the
     // default authors' pruning in one interleaved run.
     ("lpm-additive", [240, 150, 150]),
-    // Our rules with the paper's random neighbour views (`train --lpm --lpm-neighbours random`).
-    ("lpm-random-neighbours", [60, 200, 200]),
+    // Our rules with the neighbour views sharing the most tracks
+    // (`train --lpm --lpm-neighbours overlap`).
+    ("lpm-overlap-neighbours", [60, 200, 200]),
     // Our rules with only the matches on a region's own error blocks speaking for it
     // (`train --lpm --lpm-region-keypoints error-blocks`).
     ("lpm-error-blocks", [230, 190, 40]),
@@ -517,8 +518,8 @@ fn run_lpm_config(name: &str, cfg: &TrainConfig, args: &TradeArgs) -> Option<Lpm
     if name == "lpm-additive" {
         c.prune = PruneMode::Additive;
     }
-    if name == "lpm-random-neighbours" {
-        c.matching.neighbours.choice = NeighbourChoice::Random;
+    if name == "lpm-overlap-neighbours" {
+        c.matching.neighbours.choice = NeighbourChoice::Overlap;
     }
     if name == "lpm-error-blocks" {
         c.region_keypoints = RegionKeypoints::ErrorBlocks;

@@ -26,10 +26,9 @@ pub struct MatchArgs {
     /// Symmetric epipolar distance threshold for feature matches, pixels.
     #[arg(long, default_value_t = 3.0)]
     pub epipolar_px: f64,
-    /// Which views within the angle become neighbours: overlap (most shared SfM tracks, else the
-    /// nearest camera centres; `train --lpm`'s default) or random (the paper's pick, `train
-    /// --lpm-rules authors`).
-    #[arg(long, default_value = "overlap", value_parser = ["overlap", "random"])]
+    /// Which views within the angle become neighbours: random (the paper's pick, `train --lpm`'s
+    /// default) or overlap (most shared SfM tracks, else the nearest camera centres).
+    #[arg(long, default_value = "random", value_parser = ["random", "overlap"])]
     pub neighbour_choice: String,
     /// Seed of the random neighbour pick.
     #[arg(long, default_value_t = 0)]

@@ -235,9 +235,9 @@ pub struct LpmArgs {
     /// Largest optical-axis angle between neighbour views, degrees (90 suggested indoors).
     #[arg(long, default_value_t = 45.0)]
     pub lpm_neighbour_angle: f64,
-    /// Which views within the angle become a view's neighbours: overlap (ours: those sharing
-    /// the most SfM tracks with it, else the nearest camera centres) or random (the paper and the
-    /// authors' code: three at random). Default: overlap, random under `--lpm-rules authors`.
+    /// Which views within the angle become a view's neighbours: random (default; the paper and
+    /// the authors' code: three at random) or overlap (those sharing the most SfM tracks with
+    /// it, else the nearest camera centres).
     #[arg(long, value_parser = ["overlap", "random"])]
     pub lpm_neighbours: Option<String>,
     /// Which matched keypoints speak for an error region: box (default; the paper and the
