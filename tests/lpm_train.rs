@@ -814,3 +814,28 @@ fn default_rules_add_a_point_in_the_hole() {
     );
     ctx.check_validation().unwrap();
 }
+
+/// A checkpoint written before the neighbour choice and the region-matches rule existed holds
+/// neither; a run with their defaults (the rules those builds always used) must resume it, and a
+/// run with the other value must not. `config.json` always names both.
+#[test]
+fn checkpoint_settings_leave_out_new_rules_at_their_old_values() {
+    use lpmsplat::lpm::pairing::RegionKeypoints;
+    let plain = LpmConfig::default();
+    let ck = plain.checkpoint_json();
+    assert!(ck.get("neighbours").is_none() && ck.get("region_keypoints").is_none());
+    assert_eq!(plain.to_json()["neighbours"], "random");
+    assert_eq!(plain.to_json()["region_keypoints"], "box");
+    let mut overlap = LpmConfig::default();
+    overlap.matching.neighbours.choice = NeighbourChoice::Overlap;
+    assert_eq!(overlap.checkpoint_json()["neighbours"], "overlap");
+    let mut blocks = LpmConfig::default();
+    blocks.region_keypoints = RegionKeypoints::ErrorBlocks;
+    assert_eq!(blocks.checkpoint_json()["region_keypoints"], "error-blocks");
+    // Everything else is the same object.
+    let mut full = plain.to_json();
+    let o = full.as_object_mut().unwrap();
+    o.remove("neighbours");
+    o.remove("region_keypoints");
+    assert_eq!(full, ck);
+}

@@ -261,6 +261,26 @@ impl LpmConfig {
     }
 }
 
+impl LpmConfig {
+    /// The settings a checkpoint records and a resumed run must match: [`LpmConfig::to_json`]
+    /// without the settings added after checkpoints existed while they hold the value every
+    /// earlier build used (the random neighbour pick, a region's whole box), so a checkpoint
+    /// written before they existed resumes under the same rules and one trained with the other
+    /// value is still told apart.
+    pub fn checkpoint_json(&self) -> serde_json::Value {
+        let mut j = self.to_json();
+        if let Some(o) = j.as_object_mut() {
+            if self.matching.neighbours.choice == NeighbourChoice::Random {
+                o.remove("neighbours");
+            }
+            if self.region_keypoints == RegionKeypoints::Box {
+                o.remove("region_keypoints");
+            }
+        }
+        j
+    }
+}
+
 /// What one LPM step did.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct LpmStepReport {
@@ -979,7 +999,7 @@ impl DensityStrategy for LpmStrategy {
     }
 
     fn settings_json(&self) -> serde_json::Value {
-        let mut s = serde_json::json!({ "lpm": self.config.to_json() });
+        let mut s = serde_json::json!({ "lpm": self.config.checkpoint_json() });
         // A wrapped strategy with settings of its own is part of the run's settings too.
         let inner = self.inner.settings_json();
         if !inner.is_null() {
