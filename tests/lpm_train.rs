@@ -829,8 +829,10 @@ fn checkpoint_settings_leave_out_new_rules_at_their_old_values() {
     let mut overlap = LpmConfig::default();
     overlap.matching.neighbours.choice = NeighbourChoice::Overlap;
     assert_eq!(overlap.checkpoint_json()["neighbours"], "overlap");
-    let mut blocks = LpmConfig::default();
-    blocks.region_keypoints = RegionKeypoints::ErrorBlocks;
+    let blocks = LpmConfig {
+        region_keypoints: RegionKeypoints::ErrorBlocks,
+        ..LpmConfig::default()
+    };
     assert_eq!(blocks.checkpoint_json()["region_keypoints"], "error-blocks");
     // Everything else is the same object.
     let mut full = plain.to_json();
