@@ -266,20 +266,20 @@ fn epipolar_errors(scene: &Scene, p: &PairMatches) -> Vec<f64> {
 /// candidates.
 fn summarise(
     source: MatchSource,
-    neighbour_choice: NeighbourChoice,
+    settings: &MatchSettings,
     neighbours: &Neighbours,
     scene: &Scene,
     pairs: &[PairMatches],
     mut candidate_errors: Vec<f64>,
-    threshold: f64,
 ) -> MatchSummary {
+    let threshold = settings.epipolar_threshold_px;
     candidate_errors.sort_by(|a, b| a.total_cmp(b));
     let inliers = candidate_errors.iter().filter(|&&e| e <= threshold).count();
     let candidates = candidate_errors.len();
     let train = &scene.train;
     MatchSummary {
         source,
-        neighbour_choice,
+        neighbour_choice: settings.neighbours.choice,
         pairs: pairs.len(),
         matches_per_pair: pairs.iter().map(|p| (p.a, p.b, p.len())).collect(),
         pairs_without_matches: pairs.iter().filter(|p| p.is_empty()).count(),
@@ -427,15 +427,7 @@ pub fn extract_correspondences(
             (results.into_iter().map(|r| r.0).collect(), errors, no_kp)
         }
     };
-    let mut summary = summarise(
-        source,
-        settings.neighbours.choice,
-        &neighbours,
-        scene,
-        &pairs,
-        errors,
-        thr,
-    );
+    let mut summary = summarise(source, settings, &neighbours, scene, &pairs, errors);
     summary.views_without_keypoints = no_kp;
     summary.seconds = start.elapsed().as_secs_f64();
     Ok((Correspondences { neighbours, pairs }, summary))
@@ -465,15 +457,7 @@ pub fn load_or_build(
                     .flat_map(|p| epipolar_errors(scene, p))
                     .collect();
                 let source = settings.resolved_source(scene);
-                let mut summary = summarise(
-                    source,
-                    settings.neighbours.choice,
-                    &neighbours,
-                    scene,
-                    &pairs,
-                    errors,
-                    settings.epipolar_threshold_px,
-                );
+                let mut summary = summarise(source, settings, &neighbours, scene, &pairs, errors);
                 summary.cache = CacheStatus::Loaded;
                 summary.seconds = start.elapsed().as_secs_f64();
                 return Ok((Correspondences { neighbours, pairs }, summary));
