@@ -37,7 +37,9 @@ mkdir -p .gl /tmp/amd64/partial
 # shellcheck disable=SC2086
 apt-get $o update -qq
 # shellcheck disable=SC2086
-ls .gl/libvulkan1_*.deb >/dev/null 2>&1 || (cd .gl && apt-get $o download -qq libvulkan1)
+# The loader, and glvnd's libraries that the NVIDIA driver's Vulkan library links against.
+ls .gl/libglvnd0_*.deb >/dev/null 2>&1 ||
+    (cd .gl && apt-get $o download -qq libvulkan1 libegl1 libglvnd0 libopengl0 libgl1 libglx0 libgles2)
 # shellcheck disable=SC2086
 (cd .device && apt-get $o download -qq vulkan-validationlayers && mv vulkan-validationlayers_*.deb validation.deb)
 mib() { du -cb "$@" 2>/dev/null | tail -1 | cut -f1; }

@@ -10,6 +10,12 @@
 #   fps      bench fps at 1352x1014: 100k, 1M and 3M generated Gaussians
 #   trade7k  bench trade on the packed scene at full size: ADC vs ADC+LPM, 7k of the 30k
 #            calendar, then bench fps of the LPM model at 1352x1014
+#   trade30k bench trade on the packed scene at full size: ADC vs ADC+LPM, the whole 30k
+#            schedule, evaluated at 3k, 7k and 15k on the way: the rows reached come back
+#            even when the budget ends the run first
+#   ablate7k the same 7k on the packed scene for two LPM ablations: no reset, the authors' rules
+#   pair30k  train the packed scene at full size, ADC and ADC+LPM as two processes side by side
+#            (quality only: they share the GPU), 30k iterations (ITERATIONS=N for fewer)
 #   train30k train the packed scene at full size with LPM, 30k iterations, --timestamps
 set -uo pipefail
 cd "$(dirname "$0")/../.."
@@ -21,8 +27,11 @@ res=$work/results
 mkdir -p "$res" "$OUT"
 for f in .gl/*.deb .device/validation.deb; do [ -f "$f" ] && dpkg -x "$f" /; done
 ldconfig
-if [ ! -e /usr/share/vulkan/icd.d/nvidia_icd.json ] && [ -e /usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json ]; then
-    export VK_DRIVER_FILES=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
+# The NVIDIA driver's Vulkan manifest is not always where the loader looks: name it when not.
+if [ -z "${VK_DRIVER_FILES:-}" ] && ! ls /usr/share/vulkan/icd.d/nvidia_icd*.json \
+    /etc/vulkan/icd.d/nvidia_icd*.json >/dev/null 2>&1; then
+    icd=$(find /usr/local/nvidia /usr/share /etc /usr/lib /opt -name 'nvidia_icd*.json' 2>/dev/null | head -1)
+    [ -n "$icd" ] && export VK_DRIVER_FILES=$icd
 fi
 for k in bin tests; do [ -f ".device/$k.tar.xz" ] && tar -xJf ".device/$k.tar.xz" -C "$work"; done
 scene=
@@ -34,6 +43,29 @@ fi
 bin=$work/bin/lpmsplat
 summary=$res/summary.txt
 : >"$summary"
+{
+    echo "VK_DRIVER_FILES=${VK_DRIVER_FILES:-}"
+    find /usr /etc /opt \( -name 'nvidia_icd*.json' -o -name 'libGLX_nvidia.so*' \) 2>/dev/null | head
+    cat "${VK_DRIVER_FILES:-/dev/null}" 2>/dev/null
+    ldconfig -p | grep -E 'libvulkan|libGLX|libEGL_nvidia|libnvidia-glvkspirv' | head
+} >"$res/vulkan-setup.txt" 2>&1
+
+# collect: the small results so far (logs, the summary, every JSON / Markdown table) as one
+# file, $OUT/live.tar.gz (the tool brings back only a few files a call). Run every 20 s in the
+# background as well, so a call that the lease ends early still brings back the rows a long
+# step had written.
+collect() {
+    local live=$work/live
+    rm -rf "$live" && mkdir -p "$live"
+    cp "$res"/*.log "$res"/*.txt "$live/" 2>/dev/null
+    (cd "$work" && find . \( -name '*.json' -o -name '*.md' \) -size -4M ! -path './results/*' \
+        ! -path './live/*' ! -path './bin/*' ! -path './tests/*' ! -path "./${scene##*/}/*" \
+        -exec cp --parents {} "$live" \; 2>/dev/null)
+    tar -czf "$OUT/live.tar.gz.part" -C "$work" live && mv "$OUT/live.tar.gz.part" "$OUT/live.tar.gz"
+    return 0
+}
+(while sleep 20; do collect; done) &
+collector=$!
 
 # step NAME LIMIT CMD...: runs CMD with its output in NAME.log, for at most LIMIT seconds or
 # what is left of the budget, and notes its exit status and wall time in the summary.
@@ -85,19 +117,45 @@ for s in "$@"; do
             step fps-trained 90 "$bin" bench fps --ply "$work/trade7k/adc+lpm.ply" \
                 --json "$res/fps-trained.json"
         ;;
+    trade30k)
+        need_scene trade30k &&
+            step trade30k 900 "$bin" bench trade "$scene" -r 1 --iterations 30000 \
+                --runs adc,lpm --eval-at 3000,7000,15000 --fps-frames 20 -o "$work/trade30k"
+        ;;
+    ablate7k)
+        need_scene ablate7k &&
+            step ablate7k 900 "$bin" bench trade "$scene" -r 1 --iterations 7000 --calendar 30000 \
+                --runs lpm-no-reset,lpm-authors --fps-frames 5 -o "$work/ablate7k"
+        ;;
+    pair30k)
+        # ADC and ADC+LPM trained side by side as two processes sharing the GPU, for their
+        # quality at 30k in one call (their it/s are shared-GPU rates, not the engine's speed).
+        need_scene pair30k && {
+            n=${ITERATIONS:-30000}
+            step pair30k-adc 900 "$bin" train "$scene" -r 1 --iterations "$n" --eval-every 7000 \
+                -o "$work/pair30k-adc" &
+            adc=$!
+            step pair30k-lpm 900 "$bin" train "$scene" -r 1 --iterations "$n" --eval-every 7000 \
+                --lpm -o "$work/pair30k-lpm"
+            wait "$adc" # not a bare wait: the collector runs in the background too
+        }
+        ;;
     train30k)
         need_scene train30k &&
             step train30k 900 "$bin" train "$scene" -r 1 --iterations 30000 --lpm --eval-every 5000 \
                 --timestamps -o "$work/train30k"
         ;;
-    *) echo "$s: unknown step (info tests demo fps trade7k train30k)" >>"$summary" ;;
+    *) echo "$s: unknown step (info tests demo fps trade7k trade30k ablate7k pair30k train30k)" >>"$summary" ;;
     esac
+    collect
 done
+kill "$collector" 2>/dev/null
 
 # The small outputs come back (no PLY, no renders): JSON, metrics, the per-stage logs.
 (cd "$work" && find . -name '*.json' -size -4M ! -path './results/*' -exec cp --parents {} "$res" \;)
 tar -czf "$OUT/results.tar.gz" -C "$work" results
 cat "$summary"
+head -n 8 "$res/vulkan-setup.txt"
 for f in "$res"/*.log; do
     echo "== $(basename "$f")"
     grep -E "test result|FAILED|panicked|it/s|PSNR|FPS|Gaussians|error|Error|subgroup|device" "$f" | tail -n 12
