@@ -42,7 +42,7 @@ fn random_zones(rng: &mut impl Rng, count: usize) -> Vec<ZoneRecord> {
                 camera_center: [3.0 * r * theta.cos(), 3.0 * r * theta.sin(), 3.0 * z],
                 shape: ZONE_SPHERE,
                 color: [0.5; 3],
-                _pad0: 0.0,
+                front_radius: radius,
                 half_extents: [0.0; 3],
                 cone_radius: radius,
             }

@@ -88,6 +88,15 @@ fn random_zones(rng: &mut Pcg64, n: usize) -> Vec<ZoneRecord> {
                 ConeRadius::Bounding
             };
             zones.push(ZoneRecord::with_cone(&z, cam, [0.2; 3], cone));
+        } else if rng.gen_bool(0.3) {
+            // The view's cone through its error region (`ConeRadius::Region`): narrower than
+            // the bounding sphere, while "in front" still ends at the sphere's near side.
+            let z = Zone::Sphere(Sphere {
+                center: c,
+                radius: r,
+            });
+            let rec = ZoneRecord::with_cone(&z, cam, [0.3; 3], ConeRadius::Region);
+            zones.push(rec.narrow_cone(rng.gen_range(0.0..0.3)));
         } else {
             zones.push(sphere(c, r, cam));
         }
@@ -136,8 +145,10 @@ fn check_against_f64_definition(positions: &[f32], zones: &[ZoneRecord]) -> (usi
         let c = f32s(z.center.map(|x| x as f64)).map(|x| x as f64);
         let o = z.camera_center.map(|x| x as f64);
         // The in-front cone's base is the zone's cone radius (its bounding radius unless the
-        // authors' smallest half-extent was asked for).
+        // authors' smallest half-extent or the region's cone was asked for); "in front" ends at
+        // the near side of the ball of its front radius.
         let r = z.cone_radius as f64;
+        let f = z.front_radius as f64;
         let a = [c[0] - o[0], c[1] - o[1], c[2] - o[2]];
         let h = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
         for p in positions.chunks_exact(3) {
@@ -150,7 +161,7 @@ fn check_against_f64_definition(positions: &[f32], zones: &[ZoneRecord]) -> (usi
             let cos = (v[0] * a[0] + v[1] * a[1] + v[2] * a[2]) / (vl * h);
             let angle = cos.clamp(-1.0, 1.0).acos();
             let half = (r / h).atan();
-            let limit = if h > r { h - r } else { h };
+            let limit = if h > f { h - f } else { h };
             if (angle - half).abs() < 1e-3 || (vl - limit).abs() < 1e-4 {
                 continue;
             }

@@ -1406,6 +1406,80 @@ fn authors_cone_radius_is_the_smallest_half_extent() {
     assert!((s.cone_radius - 0.7).abs() < 1e-7);
 }
 
+/// `--lpm-cone region`: the in-front cone is the view's cone through its error region's
+/// circumcircle (the tangent of its half-angle read off the camera), never wider than the
+/// bounding sphere, and "in front" still ends at the bounding sphere's near side, so a Gaussian
+/// inside the zone is never reset as its own occluder while one beside the region's line of
+/// sight is left alone.
+#[test]
+fn region_cone_follows_the_error_region_and_stops_at_the_zone() {
+    use lpmsplat::lpm::membership::ZoneTest;
+    use lpmsplat::lpm::record::region_tan_half_angle;
+    let cam = PinholeCamera {
+        fx: 100.0,
+        fy: 100.0,
+        cx: 50.0,
+        cy: 50.0,
+        width: 100,
+        height: 100,
+    };
+    // A 20×20 box on the principal point: circumradius 14.14 px, tan = 14.14 / 100.
+    let centred = PixelBox {
+        x0: 40.0,
+        y0: 40.0,
+        x1: 60.0,
+        y1: 60.0,
+    };
+    let t = region_tan_half_angle(&cam, &centred);
+    assert!((t - 200f64.sqrt() / 100.0).abs() < 1e-9, "{t}");
+    // Off the axis the same box subtends a smaller angle (the rays spread out there).
+    let corner = PixelBox {
+        x0: 80.0,
+        y0: 80.0,
+        x1: 100.0,
+        y1: 100.0,
+    };
+    let tc = region_tan_half_angle(&cam, &corner);
+    assert!(tc < t && tc > 0.5 * t, "{tc} vs {t}");
+    // A unit sphere 10 away from its camera along +z: the region cone of tan 0.05 has radius
+    // 0.5 at the centre, the bounding cone 1.
+    let z = Zone::Sphere(lpmsplat::lpm::enclosing_sphere::Sphere {
+        center: [0.0, 0.0, 10.0],
+        radius: 1.0,
+    });
+    let cam_at = [0.0, 0.0, 0.0];
+    let bounding = ZoneRecord::with_cone(&z, cam_at, [0.0; 3], ConeRadius::Bounding);
+    let region = ZoneRecord::with_cone(&z, cam_at, [0.0; 3], ConeRadius::Region).narrow_cone(0.05);
+    assert_eq!(region.cone_radius, 0.5);
+    assert_eq!(region.front_radius, 1.0);
+    assert_eq!(bounding.front_radius, 1.0);
+    // Never wider than the bounding sphere.
+    let wide = ZoneRecord::with_cone(&z, cam_at, [0.0; 3], ConeRadius::Region).narrow_cone(0.5);
+    assert_eq!(wide.cone_radius, 1.0);
+    let (b, r) = (ZoneTest::new(&bounding), ZoneTest::new(&region));
+    // On the axis, in front of the sphere: in front of both.
+    assert!(b.in_front([0.0, 0.0, 5.0]) && r.in_front([0.0, 0.0, 5.0]));
+    // 0.07 rad off the axis at depth 5 (tan 0.07 > 0.05, < 0.1): only the bounding cone's.
+    assert!(b.in_front([0.35, 0.0, 5.0]) && !r.in_front([0.35, 0.0, 5.0]));
+    // Inside the sphere, nearer than its centre: in front of neither (the sphere's near side
+    // ends "in front" for both, not the narrower ball's).
+    assert!(!b.in_front([0.0, 0.0, 9.3]) && !r.in_front([0.0, 0.0, 9.3]));
+    assert!(r.contains([0.0, 0.0, 9.3]));
+    // The authors' cone keeps its own depth: a ball of the smallest half-extent for both.
+    let boxed = Zone::Box {
+        min: [-1.0, -1.0, 9.0],
+        max: [1.0, 1.0, 11.0],
+    };
+    let a = ZoneRecord::with_cone(&boxed, cam_at, [0.0; 3], ConeRadius::SmallestHalfExtent);
+    assert_eq!((a.cone_radius, a.front_radius), (1.0, 1.0));
+    assert!(ConeRadius::parse("region").is_ok());
+    let e = ConeRadius::parse("narrow").unwrap_err().to_string();
+    assert!(
+        e.contains("bounding, smallest-half-extent or region"),
+        "{e}"
+    );
+}
+
 /// LPM's added points: isotropic 3D Gaussians, or surfels facing the camera whose error
 /// created them (normal = the rotation's third column, towards that camera), with the unused
 /// third log-scale; also when the camera is straight "below" (n = −e_z, the quaternion

@@ -6,7 +6,7 @@ struct Zone {
     vec3 camera_center;   // apex of the "in front" cone
     uint shape;           // ZONE_SPHERE or ZONE_BOX
     vec3 color;
-    float pad0;
+    float front_radius;   // "in front" ends at the near side of the ball of this radius
     vec3 half_extents;    // box only
     float cone_radius;    // base radius of the in-front cone, radius of the FLAG_IN_BALL ball
 };

@@ -10,13 +10,15 @@
 // bits are 0.
 //
 // Inside: sphere |x − c|² ≤ r², box |x_k − c_k| ≤ h_k on each axis (boundary included).
-// In front (LPM.md step 7), with apex o = camera_center, v = x − o, a = c − o, and the ball
-// (c, r) with r = the zone's cone_radius (its bounding radius, or the authors' smallest box
-// half-extent): angle(v, a) ≤ atan(r / |a|) and |v| ≤ |a| − r (|v| ≤ |a| when |a| ≤ r).
-// Written without sqrt, atan or division, with V = v·v, A = a·a, D = v·a, R = r²:
+// In front (LPM.md step 7), with apex o = camera_center, v = x − o, a = c − o, the cone's
+// radius r = the zone's cone_radius at the centre (its bounding radius, the authors' smallest
+// box half-extent, or the view's cone through its error region) and f = its front_radius (where
+// "in front" ends: the bounding radius, or the authors' r): angle(v, a) ≤ atan(r / |a|) and
+// |v| ≤ |a| − f (|v| ≤ |a| when |a| ≤ f). Written without sqrt, atan or division, with
+// V = v·v, A = a·a, D = v·a, R = r², F = f²:
 //   angle:    D ≥ 0 and D²(A + R) ≥ A² V       (cos² of the angle ≥ cos² of atan(r/h) = A/(A+R))
-//   distance: A > R:  W = A − V − R ≥ 0 and 4 R V ≤ W²   (|v| + r ≤ h squared twice)
-//             A ≤ R:  V ≤ A
+//   distance: A > F:  W = A − V − F ≥ 0 and 4 F V ≤ W²   (|v| + f ≤ h squared twice)
+//             A ≤ F:  V ≤ A
 // The angle is undefined at the apex (V = 0) and for a zone centred on its camera (A = 0): such
 // points are not in front. Every operation is an IEEE add, sub or mul marked `precise` (no fused
 // multiply-add, no reordering), so src/lpm/membership.rs reproduces each flag bit for bit. Terms
@@ -38,7 +40,7 @@ layout(std430, set = 0, binding = 3) buffer ZoneInside { uint zone_inside[]; };
 layout(push_constant) uniform Push { uint count; uint zone_count; };
 
 shared vec4 s_sphere[ZONE_BATCH];  // centre, r²
-shared vec4 s_half[ZONE_BATCH];    // box half extents
+shared vec4 s_half[ZONE_BATCH];    // box half extents, w: front radius²
 shared vec4 s_apex[ZONE_BATCH];    // camera centre o, A = |c − o|²
 shared vec4 s_axis[ZONE_BATCH];    // a = c − o, w: cone radius²
 shared uint s_shape[ZONE_BATCH];
@@ -81,9 +83,10 @@ bool in_front(vec3 x, uint j) {
     precise float cone_l = (D * D) * (A + R);
     precise float cone_r = (A * A) * V;
     if (!(cone_l >= cone_r)) return false;
-    if (A > R) {
-        precise float W = (A - V) - R;
-        precise float dist_l = (4.0 * R) * V;
+    float F = s_half[j].w;
+    if (A > F) {
+        precise float W = (A - V) - F;
+        precise float dist_l = (4.0 * F) * V;
         precise float dist_r = W * W;
         return W >= 0.0 && dist_l <= dist_r;
     }
@@ -114,7 +117,8 @@ void main() {
             precise float az = z.center.z - z.camera_center.z;
             precise float A = ax * ax + ay * ay + az * az;
             s_sphere[j] = vec4(z.center, R);
-            s_half[j] = vec4(z.half_extents, 0.0);
+            precise float F = z.front_radius * z.front_radius;
+            s_half[j] = vec4(z.half_extents, F);
             s_apex[j] = vec4(z.camera_center, A);
             precise float C = z.cone_radius * z.cone_radius;
             s_axis[j] = vec4(ax, ay, az, C);

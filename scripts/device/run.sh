@@ -13,7 +13,8 @@
 #   trade30k bench trade on the packed scene at full size: ADC vs ADC+LPM, the whole 30k
 #            schedule, evaluated at 3k, 7k and 15k on the way: the rows reached come back
 #            even when the budget ends the run first
-#   ablate7k the same 7k on the packed scene for two LPM ablations: no reset, the authors' rules
+#   ablate7k 7k of the 30k calendar on the packed scene: ADC, ADC+LPM, LPM without its reset and
+#            with the reset's cone through the error region, seed SEED (default 1; 4 runs, ~4 min)
 #   pair30k  train the packed scene at full size, ADC and ADC+LPM as two processes side by side
 #            (quality only: they share the GPU), 30k iterations (ITERATIONS=N for fewer)
 #   train30k train the packed scene at full size with LPM, 30k iterations, --timestamps
@@ -125,7 +126,8 @@ for s in "$@"; do
     ablate7k)
         need_scene ablate7k &&
             step ablate7k 900 "$bin" bench trade "$scene" -r 1 --iterations 7000 --calendar 30000 \
-                --runs lpm-no-reset,lpm-authors --fps-frames 5 -o "$work/ablate7k"
+                --runs adc,lpm,lpm-no-reset,lpm-region-cone --seed "${SEED:-1}" --fps-frames 5 \
+                -o "$work/ablate7k"
         ;;
     pair30k)
         # ADC and ADC+LPM trained side by side as two processes sharing the GPU, for their

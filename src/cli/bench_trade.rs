@@ -16,7 +16,7 @@ use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder};
 use lpmsplat::lpips::Lpips;
 use lpmsplat::lpm::pairing::RegionKeypoints;
 use lpmsplat::lpm::strategy::{LpmConfig, LpmStrategy, PruneMode};
-use lpmsplat::lpm::{NeighbourChoice, ZoneGeometry};
+use lpmsplat::lpm::{ConeRadius, NeighbourChoice, ZoneGeometry};
 use lpmsplat::render::forward::{FrameSettings, Renderer};
 use lpmsplat::render::layout::CameraGpu;
 use lpmsplat::render::spacetime::TimedModel;
@@ -90,7 +90,8 @@ pub struct TradeArgs {
     /// pruning: exactly as many extra prunes as lowered-threshold densifications),
     /// lpm-overlap-neighbours (our rules with the neighbour views sharing the most tracks),
     /// lpm-error-blocks (our rules with only the matches on a region's own error blocks speaking
-    /// for it) (aliases: adc-1e-4, lpm). Default: the first five.
+    /// for it), lpm-region-cone (our rules with the in-front cone through the view's error
+    /// region) (aliases: adc-1e-4, lpm). Default: the first five.
     #[arg(long, value_delimiter = ',')]
     pub runs: Vec<String>,
     /// Run the variants one after another instead of interleaving their iterations. Interleaving
@@ -154,7 +155,7 @@ pub struct TradeRow {
     pub model_events: Vec<serde_json::Value>,
 }
 
-pub const RUNS: [(&str, [u8; 3]); 12] = [
+pub const RUNS: [(&str, [u8; 3]); 13] = [
     ("adc", [40, 40, 40]),
     ("adc-threshold-1e-4", [200, 120, 0]),
     ("adc+lpm", [220, 30, 30]),
@@ -177,6 +178,9 @@ pub const RUNS: [(&str, [u8; 3]); 12] = [
     // Our rules with only the matches on a region's own error blocks speaking for it
     // (`train --lpm --lpm-region-keypoints error-blocks`).
     ("lpm-error-blocks", [230, 190, 40]),
+    // Our rules with the in-front cone through the view's error region
+    // (`train --lpm --lpm-cone region`).
+    ("lpm-region-cone", [40, 60, 160]),
 ];
 
 pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
@@ -523,6 +527,9 @@ fn run_lpm_config(name: &str, cfg: &TrainConfig, args: &TradeArgs) -> Option<Lpm
     }
     if name == "lpm-error-blocks" {
         c.region_keypoints = RegionKeypoints::ErrorBlocks;
+    }
+    if name == "lpm-region-cone" {
+        c.cone = ConeRadius::Region;
     }
     if let Some(p) = args.lpm_prune {
         c.prune = p;

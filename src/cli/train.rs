@@ -12,7 +12,7 @@ use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuContext, GpuOptions, StageTimes};
 use lpmsplat::lpm::pairing::RegionKeypoints;
 use lpmsplat::lpm::strategy::{LpmConfig, LpmStrategy, PruneMode};
-use lpmsplat::lpm::{self, NeighbourChoice, ZoneGeometry};
+use lpmsplat::lpm::{self, ConeRadius, NeighbourChoice, ZoneGeometry};
 use lpmsplat::models::BaseModel;
 use lpmsplat::scene::image_source::{TrainImages, ViewImages};
 use lpmsplat::scene::{images, Image, Scene};
@@ -249,6 +249,12 @@ pub struct LpmArgs {
     /// sphere (the paper: the cone intersection's enclosing sphere), ray-pairs, authors-box.
     #[arg(long, value_parser = ["triangulated", "sphere", "ray-pairs", "authors-box"])]
     pub lpm_zone: Option<String>,
+    /// The cone whose Gaussians count as in front of a zone (the opacity reset's candidates):
+    /// bounding (default under ours: the cone to the zone's bounding sphere),
+    /// smallest-half-extent (the authors': a ball of the box's smallest half-extent), or region
+    /// (the view's cone through its error region, capped at the bounding sphere).
+    #[arg(long, value_parser = ["bounding", "smallest-half-extent", "region"])]
+    pub lpm_cone: Option<String>,
     /// Dump PNGs of every LPM step (error map, kept blocks, paired regions, zones) here.
     #[arg(long)]
     pub lpm_debug: Option<PathBuf>,
@@ -309,6 +315,9 @@ impl LpmArgs {
         }
         if let Some(z) = &self.lpm_zone {
             c.zones.geometry = parse_zone(z)?;
+        }
+        if let Some(k) = &self.lpm_cone {
+            c.cone = ConeRadius::parse(k)?;
         }
         c.validate()?;
         Ok(Some(c))

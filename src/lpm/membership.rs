@@ -23,9 +23,10 @@ pub const FLAG_IN_BALL: u32 = 4;
 ///
 /// Inside: sphere `|x − c|² ≤ r²`, box `|x_k − c_k| ≤ h_k` per axis. In ball: `|x − c|² ≤ ρ²`
 /// with ρ the zone's `cone_radius`. In front (the cone from the zone's `camera_center` o to the
-/// ball (c, r = ρ)): with v = x − o, a = c − o, V = v·v,
-/// A = a·a, D = v·a, R = r²: `D ≥ 0`, `D²(A + R) ≥ A²V` (angle(v, a) ≤ atan(r/|a|)), and
-/// `|v| ≤ |a| − r` as `W = A − V − R ≥ 0 ∧ 4RV ≤ W²` when A > R, else `V ≤ A` (|v| ≤ |a|).
+/// ball (c, r = ρ), ending at the near side of the ball (c, f) with f the `front_radius`): with
+/// v = x − o, a = c − o, V = v·v, A = a·a, D = v·a, R = r², F = f²: `D ≥ 0`,
+/// `D²(A + R) ≥ A²V` (angle(v, a) ≤ atan(r/|a|)), and `|v| ≤ |a| − f` as
+/// `W = A − V − F ≥ 0 ∧ 4FV ≤ W²` when A > F, else `V ≤ A` (|v| ≤ |a|).
 /// Points at the apex (V = 0) and zones centred on their camera (A = 0) have no defined angle and
 /// give "not in front".
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -39,6 +40,8 @@ pub struct ZoneTest {
     a2: f32,
     /// cone_radius².
     c2: f32,
+    /// front_radius².
+    f2: f32,
 }
 
 impl ZoneTest {
@@ -55,6 +58,7 @@ impl ZoneTest {
             axis,
             a2: axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2],
             c2: z.cone_radius * z.cone_radius,
+            f2: z.front_radius * z.front_radius,
         }
     }
 
@@ -88,9 +92,10 @@ impl ZoneTest {
         if !((d * d) * (big_a + big_r) >= (big_a * big_a) * v) {
             return false;
         }
-        if big_a > big_r {
-            let w = (big_a - v) - big_r;
-            return w >= 0.0 && (4.0 * big_r) * v <= w * w;
+        let big_f = self.f2;
+        if big_a > big_f {
+            let w = (big_a - v) - big_f;
+            return w >= 0.0 && (4.0 * big_f) * v <= w * w;
         }
         v <= big_a
     }

@@ -3,7 +3,7 @@
 use super::pairing::{pair_regions_on, PairingStats, PixelBox};
 use super::regions::{BlockOwners, Region};
 use super::zones::{zone_for_pair, CameraView, Zone, ZoneSettings};
-use crate::scene::{Image, View};
+use crate::scene::{Image, PinholeCamera, View};
 
 /// Shape code in [`ZoneRecord::shape`].
 pub const ZONE_SPHERE: u32 = 0;
@@ -18,7 +18,7 @@ pub const ZONE_BOX: u32 = 1;
 ///     vec3  camera_center; // 16  centre of the view the zone was seen from (the "in front" cone apex)
 ///     uint  shape;         // 28  0 = sphere, 1 = axis-aligned box (centre ± half_extents)
 ///     vec3  color;         // 32  mean ground-truth colour of R_e, linear [0, 1]
-///     float _pad0;         // 44
+///     float front_radius;  // 44  "in front" ends at the near side of the ball of this radius
 ///     vec3  half_extents;  // 48  box only (zero for spheres)
 ///     float cone_radius;   // 60  radius of the in-front cone's base and of the reset's ball
 /// };
@@ -33,7 +33,10 @@ pub struct ZoneRecord {
     pub camera_center: [f32; 3],
     pub shape: u32,
     pub color: [f32; 3],
-    pub _pad0: f32,
+    /// "In front" of the zone ends this far before its centre (along the cone): the bounding
+    /// radius, so that no Gaussian inside the zone counts as in front of it, except under the
+    /// authors' rules, whose cone and depth both use the box's smallest half-extent.
+    pub front_radius: f32,
     pub half_extents: [f32; 3],
     pub cone_radius: f32,
 }
@@ -47,6 +50,31 @@ pub enum ConeRadius {
     Bounding,
     /// The authors' code: the box's smallest half-extent (a sphere's own radius).
     SmallestHalfExtent,
+    /// The view's cone through its error region (the circumcircle of the region's box, as the
+    /// paper's zone construction uses it), capped at the bounding radius: only what is drawn over
+    /// the pixels that had the error counts as in front. [`zones_for_step`] sets it from the
+    /// region; [`ZoneRecord::with_cone`] alone, which has no region, gives the bounding radius.
+    Region,
+}
+
+impl ConeRadius {
+    pub fn parse(s: &str) -> anyhow::Result<ConeRadius> {
+        Ok(match s {
+            "bounding" => ConeRadius::Bounding,
+            "smallest-half-extent" => ConeRadius::SmallestHalfExtent,
+            "region" => ConeRadius::Region,
+            other => anyhow::bail!(
+                "LPM cone {other:?} is unknown. Fix: choose bounding, smallest-half-extent or region"
+            ),
+        })
+    }
+    pub fn name(&self) -> &'static str {
+        match self {
+            ConeRadius::Bounding => "bounding",
+            ConeRadius::SmallestHalfExtent => "smallest-half-extent",
+            ConeRadius::Region => "region",
+        }
+    }
 }
 
 impl ZoneRecord {
@@ -78,17 +106,64 @@ impl ZoneRecord {
             (ConeRadius::SmallestHalfExtent, Zone::Box { .. }) => half[0].min(half[1]).min(half[2]),
             _ => s.radius,
         };
+        let front_radius = match cone {
+            ConeRadius::SmallestHalfExtent => cone_radius,
+            ConeRadius::Bounding | ConeRadius::Region => s.radius,
+        };
         ZoneRecord {
             center: f(s.center),
             radius: s.radius as f32,
             camera_center: f(camera_center),
             shape,
             color,
-            _pad0: 0.0,
+            front_radius: front_radius as f32,
             half_extents: f(half),
             cone_radius: cone_radius as f32,
         }
     }
+
+    /// Narrows the in-front cone to half-angle atan(`tan_half_angle`) around the apex-to-centre
+    /// axis (the ball's radius becomes |c − o|·tan), never wider than it was; where "in front"
+    /// ends does not move. ([`ConeRadius::Region`].)
+    pub fn narrow_cone(mut self, tan_half_angle: f64) -> ZoneRecord {
+        let a = [0, 1, 2].map(|k| (self.center[k] - self.camera_center[k]) as f64);
+        let h = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
+        let r = (h * tan_half_angle.max(0.0)) as f32;
+        if r < self.cone_radius {
+            self.cone_radius = r;
+        }
+        self
+    }
+}
+
+/// The tangent of the largest angle between the ray through the centre of `b` and the rays
+/// through its circumcircle (16 points on it), in `camera`: the half-angle of the view's cone
+/// through the region.
+pub fn region_tan_half_angle(camera: &PinholeCamera, b: &PixelBox) -> f64 {
+    let ray = |u: f64, v: f64| {
+        [
+            (u - camera.cx) / camera.fx,
+            (v - camera.cy) / camera.fy,
+            1.0,
+        ]
+    };
+    let [cu, cv] = b.center();
+    let d0 = ray(cu, cv);
+    let r = b.circumradius();
+    let mut largest = 0.0f64;
+    for k in 0..16 {
+        let t = std::f64::consts::TAU * k as f64 / 16.0;
+        let d = ray(cu + r * t.cos(), cv + r * t.sin());
+        let dot = d0[0] * d[0] + d0[1] * d[1] + d0[2] * d[2];
+        let cross = [
+            d0[1] * d[2] - d0[2] * d[1],
+            d0[2] * d[0] - d0[0] * d[2],
+            d0[0] * d[1] - d0[1] * d[0],
+        ];
+        let sin = (cross[0] * cross[0] + cross[1] * cross[1] + cross[2] * cross[2]).sqrt();
+        largest = largest.max(sin.atan2(dot));
+    }
+    largest.tan()
 }
 
 /// The colour of a point added at a zone's centre (LPM.md): the ground truth at the centre of
@@ -193,12 +268,12 @@ pub fn zones_for_step(
     for p in &pairs {
         match zone_for_pair(v, r, p, xy_view, xy_ref, s).zone {
             Some(z) => {
-                out.records.push(ZoneRecord::with_cone(
-                    &z,
-                    apex,
-                    center_color(gt, &p.in_view, background),
-                    cone,
-                ));
+                let mut record =
+                    ZoneRecord::with_cone(&z, apex, center_color(gt, &p.in_view, background), cone);
+                if cone == ConeRadius::Region {
+                    record = record.narrow_cone(region_tan_half_angle(&view.camera, &p.in_view));
+                }
+                out.records.push(record);
                 out.zones.push(z);
                 out.pairs.push(p.clone());
             }
