@@ -1423,23 +1423,17 @@ fn region_cone_follows_the_error_region_and_stops_at_the_zone() {
         width: 100,
         height: 100,
     };
-    // A 20×20 box on the principal point: circumradius 14.14 px, tan = 14.14 / 100.
-    let centred = PixelBox {
-        x0: 40.0,
-        y0: 40.0,
-        x1: 60.0,
-        y1: 60.0,
+    let square = |x0: f64, y0: f64, side: f64| PixelBox {
+        x0,
+        y0,
+        x1: x0 + side,
+        y1: y0 + side,
     };
-    let t = region_tan_half_angle(&cam, &centred);
+    // A 20×20 box on the principal point: circumradius 14.14 px, tan = 14.14 / 100.
+    let t = region_tan_half_angle(&cam, &square(40.0, 40.0, 20.0));
     assert!((t - 200f64.sqrt() / 100.0).abs() < 1e-9, "{t}");
     // Off the axis the same box subtends a smaller angle (the rays spread out there).
-    let corner = PixelBox {
-        x0: 80.0,
-        y0: 80.0,
-        x1: 100.0,
-        y1: 100.0,
-    };
-    let tc = region_tan_half_angle(&cam, &corner);
+    let tc = region_tan_half_angle(&cam, &square(80.0, 80.0, 20.0));
     assert!(tc < t && tc > 0.5 * t, "{tc} vs {t}");
     // A unit sphere 10 away from its camera along +z: the region cone of tan 0.05 has radius
     // 0.5 at the centre, the bounding cone 1.
