@@ -68,13 +68,6 @@ impl ConeRadius {
             ),
         })
     }
-    pub fn name(&self) -> &'static str {
-        match self {
-            ConeRadius::Bounding => "bounding",
-            ConeRadius::SmallestHalfExtent => "smallest-half-extent",
-            ConeRadius::Region => "region",
-        }
-    }
 }
 
 impl ZoneRecord {
