@@ -2,8 +2,9 @@
 
 use super::pairing::{pair_regions_on, PairingStats, PixelBox};
 use super::regions::{BlockOwners, Region};
-use super::zones::{zone_for_pair, CameraView, Zone, ZoneSettings};
+use super::zones::{circle_samples, zone_for_pair, CameraView, Zone, ZoneSettings};
 use crate::scene::{Image, PinholeCamera, View};
+use glam::DVec3;
 
 /// Shape code in [`ZoneRecord::shape`].
 pub const ZONE_SPHERE: u32 = 0;
@@ -133,29 +134,19 @@ impl ZoneRecord {
 /// through its circumcircle (16 points on it), in `camera`: the half-angle of the view's cone
 /// through the region.
 pub fn region_tan_half_angle(camera: &PinholeCamera, b: &PixelBox) -> f64 {
-    let ray = |u: f64, v: f64| {
-        [
+    let ray = |[u, v]: [f64; 2]| {
+        DVec3::new(
             (u - camera.cx) / camera.fx,
             (v - camera.cy) / camera.fy,
             1.0,
-        ]
+        )
     };
-    let [cu, cv] = b.center();
-    let d0 = ray(cu, cv);
-    let r = b.circumradius();
-    let mut largest = 0.0f64;
-    for k in 0..16 {
-        let t = std::f64::consts::TAU * k as f64 / 16.0;
-        let d = ray(cu + r * t.cos(), cv + r * t.sin());
-        let dot = d0[0] * d[0] + d0[1] * d[1] + d0[2] * d[2];
-        let cross = [
-            d0[1] * d[2] - d0[2] * d[1],
-            d0[2] * d[0] - d0[0] * d[2],
-            d0[0] * d[1] - d0[1] * d[0],
-        ];
-        let sin = (cross[0] * cross[0] + cross[1] * cross[1] + cross[2] * cross[2]).sqrt();
-        largest = largest.max(sin.atan2(dot));
-    }
+    let samples = circle_samples(b, 16);
+    let d0 = ray(samples[0]);
+    let largest = samples[1..]
+        .iter()
+        .map(|&p| d0.angle_between(ray(p)))
+        .fold(0.0f64, f64::max);
     largest.tan()
 }
 

@@ -152,7 +152,7 @@ impl CameraView<'_> {
 }
 
 /// Pixel positions: the circle's centre, then `n` points on the circle.
-fn circle_samples(b: &PixelBox, n: usize) -> Vec<[f64; 2]> {
+pub(crate) fn circle_samples(b: &PixelBox, n: usize) -> Vec<[f64; 2]> {
     let [cu, cv] = b.center();
     let r = b.circumradius();
     let mut out = vec![[cu, cv]];
