@@ -8,7 +8,7 @@ use glam::DVec3;
 use lpmsplat::gpu::{GpuContext, GpuOptions};
 use lpmsplat::lpm::neighbours::{select_neighbours, NeighbourChoice, NeighbourSettings};
 use lpmsplat::lpm::strategy::{LpmConfig, LpmStepReport, LpmStrategy, PruneMode};
-use lpmsplat::lpm::{Correspondences, PairMatches, ZoneGeometry};
+use lpmsplat::lpm::{ConeRadius, Correspondences, PairMatches, ZoneGeometry};
 use lpmsplat::scene::{CameraModel, Image, PinholeCamera, Pose, Scene, SceneFormat, View};
 use lpmsplat::splats::GaussianParams;
 use lpmsplat::train::trainer::{Background, StepReport, TrainConfig, Trainer};
@@ -227,9 +227,12 @@ fn lpm_config() -> LpmConfig {
     // This scene was built for the paper's cone-intersection sphere at 16-pixel blocks: the
     // occluder's footprint (radius about 6 px) holds no 16-px block of 85 % error pixels, and
     // it is reset because a neighbouring region's sphere zone (large at this baseline) puts it
-    // in front. `default_rules_add_a_point_in_the_hole` covers the default local zones.
+    // in front, which needs that zone's bounding cone (the default region cone keeps "in front"
+    // to what covers the region's own pixels: `the_region_cone_leaves_the_occluder_alone`).
+    // `default_rules_add_a_point_in_the_hole` covers the default local zones.
     c.regions.block = 16;
     c.zones.geometry = ZoneGeometry::Sphere;
+    c.cone = ConeRadius::Bounding;
     c
 }
 
@@ -715,6 +718,45 @@ fn authors_rules_skip_adc_without_a_zone_and_still_take_the_optimizer_step() {
     let (densified, reports) = run(config(2e-5, 5), Some(ours));
     assert!(reports.iter().all(|r| !r.skipped_adc));
     assert!(densified.len() > init.len(), "ADC did not densify");
+    ctx.check_validation().unwrap();
+}
+
+/// The same step with the default region cone: the occluder's footprint holds no error region
+/// of its own, so the view's cone through the regions that were found does not reach it and its
+/// opacity stays, while the hole is still filled. (Under the bounding cone it is reset only
+/// because a neighbouring region's zone is wide at this baseline.)
+#[test]
+fn the_region_cone_leaves_the_occluder_alone() {
+    let ctx = GpuContext::new(&GpuOptions::for_tests()).unwrap();
+    let scene = scene();
+    let gt = ground_truth(&ctx, &scene);
+    let init = initial_model();
+    let c = LpmConfig {
+        cone: ConeRadius::Region,
+        ..lpm_config()
+    };
+    assert_eq!(LpmConfig::default().cone, ConeRadius::Region);
+    let mut t = Trainer::new(&ctx, &scene, &gt, &init, config(1e9, 1)).unwrap();
+    t.set_strategy(Box::new(
+        LpmStrategy::new(&ctx, &scene, &gt, correspondences(&scene), c).unwrap(),
+    ));
+    let r = t.step().unwrap();
+    let rep = lpm_report(&r).expect("LPM ran at iteration 1");
+    assert!(rep.zones >= 2 && rep.added >= 1, "{rep:?}");
+    let m = t.model().unwrap();
+    let occ: Vec<usize> = (0..m.len())
+        .filter(|&i| dist(m.positions[i], OCCLUDER) < 0.05)
+        .collect();
+    assert_eq!(occ.len(), 1);
+    assert!(
+        m.opacity_logits[occ[0]] > logit(0.9),
+        "the region cone reset the occluder (logit {}): {rep:?}",
+        m.opacity_logits[occ[0]]
+    );
+    assert!(
+        (0..m.len()).any(|i| i >= init.len() && dist(m.positions[i], HOLE) < 0.6),
+        "no Gaussian added in the hole"
+    );
     ctx.check_validation().unwrap();
 }
 

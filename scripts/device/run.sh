@@ -14,9 +14,10 @@
 #            schedule, evaluated at 3k, 7k and 15k on the way: the rows reached come back
 #            even when the budget ends the run first
 #   ablate7k 7k of the 30k calendar on the packed scene: ADC, ADC+LPM, LPM without its reset and
-#            with the reset's cone through the error region, seed SEED (default 1; 4 runs, ~4 min)
+#            with the reset's cone to the zone's bounding sphere, seed SEED (default 1; 4 runs)
 #   pair30k  train the packed scene at full size, ADC and ADC+LPM as two processes side by side
-#            (quality only: they share the GPU), 30k iterations (ITERATIONS=N for fewer)
+#            (quality only: they share the GPU), 30k iterations (ITERATIONS=N for fewer),
+#            LPM_FLAGS=... added to the LPM run, each process's GPU memory logged
 #   train30k train the packed scene at full size with LPM, 30k iterations, --timestamps
 set -uo pipefail
 cd "$(dirname "$0")/../.."
@@ -126,20 +127,28 @@ for s in "$@"; do
     ablate7k)
         need_scene ablate7k &&
             step ablate7k 900 "$bin" bench trade "$scene" -r 1 --iterations 7000 --calendar 30000 \
-                --runs adc,lpm,lpm-no-reset,lpm-region-cone --seed "${SEED:-1}" --fps-frames 5 \
+                --runs adc,lpm,lpm-no-reset,lpm-bounding-cone --seed "${SEED:-1}" --fps-frames 5 \
                 -o "$work/ablate7k"
         ;;
     pair30k)
         # ADC and ADC+LPM trained side by side as two processes sharing the GPU, for their
         # quality at 30k in one call (their it/s are shared-GPU rates, not the engine's speed).
+        # LPM_FLAGS adds options to the LPM run (e.g. "--lpm-cone bounding"). Each process's GPU
+        # memory is sampled every 5 s into gpu-mem.log (memory, unlike speed, is not shared).
         need_scene pair30k && {
             n=${ITERATIONS:-30000}
+            nvidia-smi --query-compute-apps=pid,used_memory --format=csv,noheader -l 5 \
+                >"$res/gpu-mem.log" 2>&1 &
+            smi=$!
+            (sleep 30 && ps -eo pid,args | grep '[l]pmsplat train' >"$res/gpu-mem-pids.txt") &
             step pair30k-adc 900 "$bin" train "$scene" -r 1 --iterations "$n" --eval-every 7000 \
                 -o "$work/pair30k-adc" &
             adc=$!
+            # shellcheck disable=SC2086
             step pair30k-lpm 900 "$bin" train "$scene" -r 1 --iterations "$n" --eval-every 7000 \
-                --lpm -o "$work/pair30k-lpm"
+                --lpm ${LPM_FLAGS:-} -o "$work/pair30k-lpm"
             wait "$adc" # not a bare wait: the collector runs in the background too
+            kill "$smi" 2>/dev/null
         }
         ;;
     train30k)

@@ -90,8 +90,8 @@ pub struct TradeArgs {
     /// pruning: exactly as many extra prunes as lowered-threshold densifications),
     /// lpm-overlap-neighbours (our rules with the neighbour views sharing the most tracks),
     /// lpm-error-blocks (our rules with only the matches on a region's own error blocks speaking
-    /// for it), lpm-region-cone (our rules with the in-front cone through the view's error
-    /// region) (aliases: adc-1e-4, lpm). Default: the first five.
+    /// for it), lpm-bounding-cone (our rules with the in-front cone to the zone's bounding
+    /// sphere, the default before 2026-11-26) (aliases: adc-1e-4, lpm). Default: the first five.
     #[arg(long, value_delimiter = ',')]
     pub runs: Vec<String>,
     /// Run the variants one after another instead of interleaving their iterations. Interleaving
@@ -178,9 +178,9 @@ pub const RUNS: [(&str, [u8; 3]); 13] = [
     // Our rules with only the matches on a region's own error blocks speaking for it
     // (`train --lpm --lpm-region-keypoints error-blocks`).
     ("lpm-error-blocks", [230, 190, 40]),
-    // Our rules with the in-front cone through the view's error region
-    // (`train --lpm --lpm-cone region`).
-    ("lpm-region-cone", [40, 60, 160]),
+    // Our rules with the in-front cone to the zone's bounding sphere
+    // (`train --lpm --lpm-cone bounding`; the default until the region cone measured better).
+    ("lpm-bounding-cone", [40, 60, 160]),
 ];
 
 pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
@@ -528,8 +528,8 @@ fn run_lpm_config(name: &str, cfg: &TrainConfig, args: &TradeArgs) -> Option<Lpm
     if name == "lpm-error-blocks" {
         c.region_keypoints = RegionKeypoints::ErrorBlocks;
     }
-    if name == "lpm-region-cone" {
-        c.cone = ConeRadius::Region;
+    if name == "lpm-bounding-cone" {
+        c.cone = ConeRadius::Bounding;
     }
     if let Some(p) = args.lpm_prune {
         c.prune = p;

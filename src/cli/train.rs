@@ -250,9 +250,9 @@ pub struct LpmArgs {
     #[arg(long, value_parser = ["triangulated", "sphere", "ray-pairs", "authors-box"])]
     pub lpm_zone: Option<String>,
     /// The cone whose Gaussians count as in front of a zone (the opacity reset's candidates):
-    /// bounding (default under ours: the cone to the zone's bounding sphere),
-    /// smallest-half-extent (the authors': a ball of the box's smallest half-extent), or region
-    /// (the view's cone through its error region, capped at the bounding sphere).
+    /// region (default under ours: the view's cone through its error region, capped at the
+    /// bounding sphere), bounding (the cone to the zone's bounding sphere, LPM.md step 7), or
+    /// smallest-half-extent (the authors': a ball of the box's smallest half-extent).
     #[arg(long, value_parser = ["bounding", "smallest-half-extent", "region"])]
     pub lpm_cone: Option<String>,
     /// Dump PNGs of every LPM step (error map, kept blocks, paired regions, zones) here.

@@ -47,7 +47,6 @@ pub struct ZoneRecord {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Hash)]
 pub enum ConeRadius {
     /// The zone's bounding sphere (LPM.md step 7: the cone to the zone sphere).
-    #[default]
     Bounding,
     /// The authors' code: the box's smallest half-extent (a sphere's own radius).
     SmallestHalfExtent,
@@ -55,6 +54,8 @@ pub enum ConeRadius {
     /// paper's zone construction uses it), capped at the bounding radius: only what is drawn over
     /// the pixels that had the error counts as in front. [`zones_for_step`] sets it from the
     /// region; [`ZoneRecord::with_cone`] alone, which has no region, gives the bounding radius.
+    /// The default under our rules.
+    #[default]
     Region,
 }
 
