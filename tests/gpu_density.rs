@@ -4,7 +4,7 @@
 
 use lpmsplat::gpu::{BufferKind, GpuBuffer, GpuContext, GpuOptions, Recorder};
 use lpmsplat::render::layout::ProjectedBoundsGpu;
-use lpmsplat::splats::gpu::{grown_capacity, GpuSplats, SplatShape};
+use lpmsplat::splats::gpu::{grown_capacity, GpuSplats};
 use lpmsplat::splats::{ExtraGroup, ExtraValues, GaussianParams};
 use lpmsplat::train::adam::SplatState;
 use lpmsplat::train::density::abs_quantile::abs_grad_threshold;
@@ -128,21 +128,14 @@ fn with_extras(mut p: GaussianParams, rng: &mut impl Rng) -> GaussianParams {
     p
 }
 
-/// A destination state filled with NaN bits, so any row the step forgets shows up.
-fn poisoned_spare(ctx: &Arc<GpuContext>, degree: u32, capacity: usize) -> SplatState {
-    poisoned_spare_shaped(ctx, &SplatShape::plain(degree), capacity)
-}
-
-fn poisoned_spare_shaped(ctx: &Arc<GpuContext>, shape: &SplatShape, capacity: usize) -> SplatState {
-    let s = SplatState::allocate(ctx, shape, capacity).unwrap();
-    let mut rec = Recorder::new(ctx).unwrap();
-    for set in [&s.params, &s.m, &s.v] {
-        for (b, _) in set.groups() {
-            rec.fill(b, NAN_BITS);
-        }
-    }
-    rec.submit_and_wait().unwrap();
-    s
+/// Every buffer of `s` in full (all `capacity` rows), as bits.
+fn raw_buffers(s: &SplatState) -> Vec<Vec<u32>> {
+    [&s.params, &s.m, &s.v]
+        .iter()
+        .flat_map(|set| set.groups())
+        .filter(|g| g.1 > 0)
+        .map(|(b, stride)| bits(&b.read_range(0, s.capacity() * stride).unwrap()))
+        .collect()
 }
 
 fn bits<T: bytemuck::Pod>(v: &[T]) -> Vec<u32> {
@@ -194,20 +187,22 @@ fn assert_states_match(gpu: &HostState, host: &HostState, children_from: usize, 
     assert_eq!(gpu.v, host.v, "{what}: second moments");
 }
 
-/// Rows in `[count, capacity)` of every buffer must still hold the poison.
-fn assert_tail_untouched(s: &SplatState, what: &str) {
-    let (n, cap) = (s.count(), s.capacity());
-    for set in [&s.params, &s.m, &s.v] {
-        for (b, stride) in set.groups() {
-            if stride > 0 && cap > n {
-                let tail = b.read_range(n * stride, (cap - n) * stride).unwrap();
-                assert!(
-                    tail.iter().all(|v| v.to_bits() == NAN_BITS),
-                    "{what}: {} written past the new count",
-                    b.name()
-                );
-            }
-        }
+/// An in-place step writes no row at or past its new count: those rows hold what they held
+/// before it (`before`: [`raw_buffers`] of the state before the step).
+fn assert_tail_untouched(s: &SplatState, before: &[Vec<u32>], what: &str) {
+    let n = s.count();
+    let groups: Vec<_> = [&s.params, &s.m, &s.v]
+        .iter()
+        .flat_map(|set| set.groups())
+        .filter(|g| g.1 > 0)
+        .map(|(b, stride)| (b.name().to_string(), stride))
+        .collect();
+    assert_eq!(groups.len(), before.len(), "{what}: group count");
+    for ((name, stride), (now, was)) in groups.iter().zip(raw_buffers(s).iter().zip(before)) {
+        assert!(
+            now[n * stride..] == was[n * stride..],
+            "{what}: {name} written past the new count"
+        );
     }
 }
 
@@ -257,7 +252,8 @@ fn constructed_cases_clone_split_and_prune_exactly_the_expected_gaussians() {
     };
     let mut dc = DensityControl::new(&ctx, capacity, cfg).unwrap();
     upload_stats(&dc, &stats);
-    dc.set_spare(poisoned_spare(&ctx, degree, capacity));
+    dc.poison_move_scratch(&state, NAN_BITS).unwrap();
+    let before = raw_buffers(&state);
     let args = DensifyArgs {
         extent: extent as f64,
         prune_large: true,
@@ -322,7 +318,7 @@ fn constructed_cases_clone_split_and_prune_exactly_the_expected_gaussians() {
     let t = Thresholds::new(&cfg, &args).unwrap();
     let expect = reference::apply(&host, &d, fold_seed(cfg.seed), 700, t.log_split_shrink);
     assert_states_match(&gpu, &expect, 6, "constructed");
-    assert_tail_untouched(&state, "constructed");
+    assert_tail_untouched(&state, &before, "constructed");
     // Statistics are zero after the step.
     for b in [
         &dc.stats().grad_accum,
@@ -381,7 +377,8 @@ fn random_steps_match_the_host_reference_and_grow_past_the_capacity() {
         let scale_buf = scale
             .as_ref()
             .map(|s| GpuBuffer::from_slice(&ctx, "threshold scale", s).unwrap());
-        dc.set_spare(poisoned_spare_shaped(&ctx, &state.shape(), cap));
+        dc.poison_move_scratch(&state, NAN_BITS).unwrap();
+        let before = raw_buffers(&state);
         let out = dc
             .step(&mut rec, &mut state, &args, scale_buf.as_ref())
             .unwrap();
@@ -431,7 +428,7 @@ fn random_steps_match_the_host_reference_and_grow_past_the_capacity() {
             assert_eq!(dc.stats().capacity(), state.capacity());
         } else {
             assert_eq!(state.capacity(), cap);
-            assert_tail_untouched(&state, &format!("step {step}"));
+            assert_tail_untouched(&state, &before, &format!("step {step}"));
         }
         assert!(out.clones > 0 && out.split_children > 0 && out.kept < count);
         eprintln!("step {step}: {out:?}");
@@ -925,7 +922,8 @@ fn decisions_can_be_edited_between_decide_and_apply() {
         }
     }
     dc.decisions().upload(&d).unwrap();
-    dc.set_spare(poisoned_spare(&ctx, degree, cap));
+    dc.poison_move_scratch(&state, NAN_BITS).unwrap();
+    let before = raw_buffers(&state);
     let out = dc.apply(&mut rec, &mut state, &args).unwrap();
     let t = Thresholds::new(&cfg, &args).unwrap();
     let expect = reference::apply(&host, &d, fold_seed(cfg.seed), 900, t.log_split_shrink);
@@ -936,7 +934,7 @@ fn decisions_can_be_edited_between_decide_and_apply() {
         out.kept + out.clones,
         "hook",
     );
-    assert_tail_untouched(&state, "hook");
+    assert_tail_untouched(&state, &before, "hook");
     // apply needs a matching record_decide.
     assert!(dc.apply(&mut rec, &mut state, &args).is_err());
     let bad = DensifyArgs {

@@ -13,10 +13,12 @@
 //! 3. `expand` + [`PrefixScan`]: slot counts (kept 0/1, clone 0/1, children 0/2) laid out as
 //!    three blocks of `count` and scanned as one array: the scan gives every destination and
 //!    the new count (the only value the host reads back, with the two block starts).
-//! 4. `scatter` for every per-Gaussian buffer (6 parameter groups, both moment sets) and
-//!    `split` for the children's positions and log-scales, into a second [`SplatState`]
-//!    (double buffering: the old one becomes the spare for the next step; when the new count
-//!    exceeds the capacity, a bigger one is allocated with [`grown_capacity`]).
+//! 4. `scatter` for every per-Gaussian buffer (the parameter groups, both moment sets) and
+//!    `split` for the children's positions and log-scales. In place when the new count fits
+//!    the capacity: each group is scattered into a scratch buffer of the widest group's size and
+//!    copied back (a second [`SplatState`] as destination held as much memory as the model and
+//!    its moments); when it does not fit, into a bigger state allocated with
+//!    [`grown_capacity`], which replaces the old one.
 //!
 //! # New layout
 //! `[survivors in their old order | clones in parent order | split children: two adjacent rows
@@ -406,7 +408,36 @@ const SCATTER_COPY: u32 = 0;
 const SCATTER_ZERO_NEW: u32 = 1;
 const SCATTER_SKIP_CHILDREN: u32 = 2;
 
-/// Density control: owns the statistics, the step's scratch buffers and the spare state.
+/// The per-Gaussian groups of a state: parameters, first and second moments.
+fn groups(s: &SplatState) -> [Vec<(&GpuBuffer<f32>, usize)>; 3] {
+    [s.params.groups(), s.m.groups(), s.v.groups()]
+}
+
+/// Floats in each move scratch buffer for `state`: its widest group at its capacity.
+fn move_scratch_floats(state: &SplatState) -> usize {
+    let widest = groups(state)
+        .iter()
+        .flatten()
+        .map(|g| g.1)
+        .max()
+        .unwrap_or(1);
+    widest * state.capacity()
+}
+
+/// How group `k` of set `set` (0 parameters, 1–2 moments) moves: moments start at zero for new
+/// Gaussians; the split kernel writes the children's positions and log-scales (groups 0 and 1);
+/// every other group, the model's extra groups included, is copied from the parent.
+fn scatter_mode(set: usize, k: usize) -> u32 {
+    if set > 0 {
+        SCATTER_ZERO_NEW
+    } else if k < 2 {
+        SCATTER_SKIP_CHILDREN
+    } else {
+        SCATTER_COPY
+    }
+}
+
+/// Density control: owns the statistics and the step's scratch buffers.
 pub struct DensityControl {
     ctx: Arc<GpuContext>,
     pub config: DensityConfig,
@@ -432,7 +463,8 @@ pub struct DensityControl {
     decided: Option<usize>,
     /// The absolute-gradient quantile of the last decision (with `config.abs_grad`).
     pub last_abs_threshold: Option<f32>,
-    spare: Option<SplatState>,
+    /// Where each group is scattered before it is copied back (`record_move_in_place`).
+    move_scratch: [GpuBuffer<f32>; 2],
 }
 
 impl DensityControl {
@@ -497,7 +529,10 @@ impl DensityControl {
             scratch_capacity: capacity,
             decided: None,
             last_abs_threshold: None,
-            spare: None,
+            move_scratch: [
+                GpuBuffer::new(ctx, "density move scratch", 1, BufferKind::DeviceLocal)?,
+                GpuBuffer::new(ctx, "density move scratch", 1, BufferKind::DeviceLocal)?,
+            ],
         })
     }
 
@@ -509,12 +544,6 @@ impl DensityControl {
     /// Kernels recorded between `record_decide` and `apply` may modify them (the LPM hook).
     pub fn decisions(&self) -> &GpuBuffer<u32> {
         &self.decisions
-    }
-
-    /// Hands over a state to use as the next step's destination (it must have the current
-    /// state's capacity and SH degree to be used; its contents are overwritten).
-    pub fn set_spare(&mut self, spare: SplatState) {
-        self.spare = Some(spare);
     }
 
     /// Grows the statistics to `capacity` Gaussians, keeping their values (for callers that
@@ -725,9 +754,9 @@ impl DensityControl {
     }
 
     /// Applies the recorded decisions: submits everything recorded in `rec` so far, reads the
-    /// new count, moves every per-Gaussian buffer into the new layout and replaces `*state` with
-    /// it (the old buffers become the spare), zeroes the statistics, and leaves `rec` begun and
-    /// empty. Waits for the GPU twice.
+    /// new count, moves every per-Gaussian buffer into the new layout (in place, or into bigger
+    /// buffers that replace `*state`'s when the count outgrows its capacity), zeroes the
+    /// statistics, and leaves `rec` begun and empty. Waits for the GPU twice.
     pub fn apply(
         &mut self,
         rec: &mut Recorder,
@@ -779,90 +808,40 @@ impl DensityControl {
             "density control: inconsistent counts from the GPU ({kept}, {kept_and_clones}, {after})"
         );
 
-        // Destination: the spare when it fits, else fresh buffers (grown geometrically).
+        // Destination: fresh buffers (grown geometrically) when the new count does not fit,
+        // else the state's own buffers, each group moved through a scratch buffer and copied
+        // back (`record_move_in_place`): one group's width of scratch rather than a second
+        // state, which held half of a large model's training memory.
         let grew = after > state.capacity();
         let capacity = if grew {
             grown_capacity(after)
         } else {
             state.capacity()
         };
-        let shape = state.shape();
-        let spare = self
-            .spare
-            .take()
-            .filter(|s| s.capacity() == capacity && s.shape() == shape);
-        let mut dst = match spare {
-            Some(s) => s,
-            None => SplatState::allocate(&self.ctx, &shape, capacity)?,
+        let split = SplitPush {
+            count: count as u32,
+            seed: rng::fold_seed(self.config.seed),
+            step: args.iteration,
+            log_split_shrink: t.log_split_shrink,
         };
         if grew {
+            let mut dst = SplatState::allocate(&self.ctx, &state.shape(), capacity)?;
             // Nothing pending uses the old statistics (phase 1 has completed).
             self.stats = DensityStats::zeroed(&self.ctx, capacity)?;
-        }
-
-        // Phase 2: scatter every per-Gaussian buffer, then the children's geometry.
-        rec.begin()?;
-        fn groups(s: &SplatState) -> [Vec<(&GpuBuffer<f32>, usize)>; 3] {
-            [s.params.groups(), s.m.groups(), s.v.groups()]
-        }
-        // Positions and log-scales of split children come from the split kernel below; every
-        // other group, the model's extra groups included, is copied from the parent.
-        let (src_sets, dst_sets) = (groups(state), groups(&dst));
-        for (set, (src, dstg)) in src_sets.iter().zip(dst_sets.iter()).enumerate() {
-            for k in 0..src.len() {
-                let stride = src[k].1;
-                if stride == 0 {
-                    continue;
-                }
-                let mode = if set > 0 {
-                    SCATTER_ZERO_NEW
-                } else if k < 2 {
-                    SCATTER_SKIP_CHILDREN
-                } else {
-                    SCATTER_COPY
-                };
-                rec.dispatch(
-                    &self.scatter,
-                    &[&self.decisions, &self.slots, src[k].0, dstg[k].0],
-                    &ScatterPush {
-                        count: count as u32,
-                        stride: stride as u32,
-                        mode,
-                    },
-                    self.ctx.groups_1d(count as u64, WG),
-                );
-            }
-        }
-        rec.dispatch(
-            &self.split,
-            &[
-                &self.decisions,
-                &self.slots,
-                &state.params.positions,
-                &state.params.log_scales,
-                &state.params.rotations,
-                &dst.params.positions,
-                &dst.params.log_scales,
-            ],
-            &SplitPush {
-                count: count as u32,
-                seed: rng::fold_seed(self.config.seed),
-                step: args.iteration,
-                log_split_shrink: t.log_split_shrink,
-            },
-            self.ctx.groups_1d(count as u64, WG),
-        );
-        if !grew {
+            rec.begin()?;
+            self.record_move_to(rec, state, &dst, count, &split);
+            rec.submit_and_wait()?;
+            rec.begin()?;
+            dst.set_count(after);
+            std::mem::swap(state, &mut dst);
+        } else {
+            self.ensure_move_scratch(move_scratch_floats(state))?;
+            rec.begin()?;
+            self.record_move_in_place(rec, state, count, after, &split);
             self.record_reset_stats(rec);
-        }
-        rec.submit_and_wait()?;
-        rec.begin()?;
-
-        dst.set_count(after);
-        std::mem::swap(state, &mut dst);
-        // The old buffers are the next destination when the capacity did not change.
-        if !grew {
-            self.spare = Some(dst);
+            rec.submit_and_wait()?;
+            rec.begin()?;
+            state.set_count(after);
         }
         Ok(DensifyOutcome {
             before: count,
@@ -874,6 +853,157 @@ impl DensityControl {
             capacity,
             skipped: false,
         })
+    }
+
+    /// Records the move of every per-Gaussian buffer of `src` into `dst` (another state of at
+    /// least the new count's capacity), the children's geometry from the split kernel.
+    fn record_move_to(
+        &self,
+        rec: &mut Recorder,
+        src: &SplatState,
+        dst: &SplatState,
+        count: usize,
+        split: &SplitPush,
+    ) {
+        for (set, (s, d)) in groups(src).iter().zip(groups(dst).iter()).enumerate() {
+            for k in 0..s.len() {
+                if s[k].1 > 0 {
+                    self.record_scatter(rec, s[k].0, d[k].0, s[k].1, scatter_mode(set, k), count);
+                }
+            }
+        }
+        self.record_split(
+            rec,
+            src,
+            &dst.params.positions,
+            &dst.params.log_scales,
+            count,
+            split,
+        );
+    }
+
+    /// Records the move of every per-Gaussian buffer of `state` into its new layout in the same
+    /// buffers: each group is scattered into one of the two move scratch buffers and copied back,
+    /// pipelined so one barrier separates the steps (group j's copy-back runs beside group
+    /// j+1's scatter into the other scratch). Positions and log-scales go first, together,
+    /// because the split kernel reads the parents' positions, log-scales and rotations.
+    fn record_move_in_place(
+        &self,
+        rec: &mut Recorder,
+        state: &SplatState,
+        count: usize,
+        after: usize,
+        split: &SplitPush,
+    ) {
+        let [a, b] = &self.move_scratch;
+        let p = &state.params;
+        self.record_scatter(rec, &p.positions, a, 3, SCATTER_SKIP_CHILDREN, count);
+        self.record_scatter(rec, &p.log_scales, b, 3, SCATTER_SKIP_CHILDREN, count);
+        self.record_split(rec, state, a, b, count, split);
+        rec.barrier();
+        rec.copy(a, &p.positions, 3 * after);
+        rec.copy(b, &p.log_scales, 3 * after);
+        let rest: Vec<_> = groups(state)
+            .iter()
+            .enumerate()
+            .flat_map(|(set, g)| {
+                g.iter()
+                    .enumerate()
+                    .filter(move |&(k, e)| e.1 > 0 && (set > 0 || k >= 2))
+                    .map(move |(k, e)| (e.0, e.1, scatter_mode(set, k)))
+            })
+            .collect();
+        // `pending`: the group whose scatter the last barrier completed, still to copy back.
+        let mut pending: Option<(&GpuBuffer<f32>, &GpuBuffer<f32>, usize)> = None;
+        for (j, &(buf, stride, mode)) in rest.iter().enumerate() {
+            rec.barrier();
+            if let Some((scratch, to, n)) = pending.take() {
+                rec.copy(scratch, to, n);
+            }
+            let scratch = if j % 2 == 0 { a } else { b };
+            self.record_scatter(rec, buf, scratch, stride, mode, count);
+            pending = Some((scratch, buf, stride * after));
+        }
+        rec.barrier();
+        if let Some((scratch, to, n)) = pending {
+            rec.copy(scratch, to, n);
+        }
+        rec.barrier();
+    }
+
+    fn record_scatter(
+        &self,
+        rec: &mut Recorder,
+        src: &GpuBuffer<f32>,
+        dst: &GpuBuffer<f32>,
+        stride: usize,
+        mode: u32,
+        count: usize,
+    ) {
+        rec.dispatch(
+            &self.scatter,
+            &[&self.decisions, &self.slots, src, dst],
+            &ScatterPush {
+                count: count as u32,
+                stride: stride as u32,
+                mode,
+            },
+            self.ctx.groups_1d(count as u64, WG),
+        );
+    }
+
+    /// The split children's positions and log-scales, from the parents in `src`.
+    fn record_split(
+        &self,
+        rec: &mut Recorder,
+        src: &SplatState,
+        positions: &GpuBuffer<f32>,
+        log_scales: &GpuBuffer<f32>,
+        count: usize,
+        push: &SplitPush,
+    ) {
+        rec.dispatch(
+            &self.split,
+            &[
+                &self.decisions,
+                &self.slots,
+                &src.params.positions,
+                &src.params.log_scales,
+                &src.params.rotations,
+                positions,
+                log_scales,
+            ],
+            push,
+            self.ctx.groups_1d(count as u64, WG),
+        );
+    }
+
+    /// Fills the move scratch buffers (sized for `state`) with `bits`, so that a test sees any
+    /// row an in-place step forgets to write: they are what is copied back into the state.
+    pub fn poison_move_scratch(&mut self, state: &SplatState, bits: u32) -> anyhow::Result<()> {
+        self.ensure_move_scratch(move_scratch_floats(state))?;
+        let mut rec = Recorder::new(&self.ctx)?;
+        for b in &self.move_scratch {
+            rec.fill(b, bits);
+        }
+        rec.submit_and_wait()
+    }
+
+    /// The two move scratch buffers hold at least `floats` each.
+    fn ensure_move_scratch(&mut self, floats: usize) -> anyhow::Result<()> {
+        if self.move_scratch[0].len() >= floats {
+            return Ok(());
+        }
+        let new = || {
+            GpuBuffer::new(
+                &self.ctx,
+                "density move scratch",
+                floats,
+                BufferKind::DeviceLocal,
+            )
+        };
+        self.move_scratch = [new()?, new()?];
+        Ok(())
     }
 
     /// `record_decide` then `apply`: one densify-and-prune step.
