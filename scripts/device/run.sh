@@ -18,6 +18,8 @@
 #   pair30k  train the packed scene at full size, ADC and ADC+LPM as two processes side by side
 #            (quality only: they share the GPU), 30k iterations (ITERATIONS=N for fewer),
 #            LPM_FLAGS=... added to the LPM run, each process's GPU memory logged
+#   serial30k train the packed scene at full size to 30k (ITERATIONS) with LPM, then without, alone
+#            with --timestamps and its GPU memory logged (~12 min: detach it over two calls)
 #   train30k train the packed scene at full size with LPM, 30k iterations, --timestamps
 set -uo pipefail
 cd "$(dirname "$0")/../.."
@@ -151,12 +153,31 @@ for s in "$@"; do
             kill "$smi" 2>/dev/null
         }
         ;;
+    serial30k)
+        # ADC+LPM then ADC, each alone on the GPU with --timestamps (the speed and the 30k
+        # quality in one lease: about 12 minutes on an H100, so it runs detached over two calls,
+        # scripts/device/README.md). GPU memory is sampled every 5 s into gpu-mem.log.
+        need_scene serial30k && {
+            nvidia-smi --query-compute-apps=pid,used_memory --format=csv,noheader -l 5 \
+                >"$res/gpu-mem.log" 2>&1 &
+            smi=$!
+            for run in lpm adc; do
+                flags=
+                [ "$run" = lpm ] && flags=--lpm
+                # shellcheck disable=SC2086
+                step "serial30k-$run" 900 "$bin" train "$scene" -r 1 --iterations "${ITERATIONS:-30000}" \
+                    --eval-every 7000 --timestamps $flags -o "$work/serial30k-$run"
+                echo "serial30k-$run ended at $SECONDS s" >>"$res/gpu-mem.log"
+            done
+            kill "$smi" 2>/dev/null
+        }
+        ;;
     train30k)
         need_scene train30k &&
             step train30k 900 "$bin" train "$scene" -r 1 --iterations 30000 --lpm --eval-every 5000 \
                 --timestamps -o "$work/train30k"
         ;;
-    *) echo "$s: unknown step (info tests demo fps trade7k trade30k ablate7k pair30k train30k)" >>"$summary" ;;
+    *) echo "$s: unknown step (info tests demo fps trade7k trade30k ablate7k pair30k serial30k train30k)" >>"$summary" ;;
     esac
     collect
 done
