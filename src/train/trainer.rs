@@ -324,12 +324,15 @@ impl Trainer {
             .as_ref()
             .is_none_or(|s| s.capacity < count || s.shape() != shape)
         {
+            // Exactly the model's size, no headroom: snapshots are taken only on evaluation
+            // iterations, and this copy adds to the run's peak of device memory.
+            self.snapshot = None;
             self.snapshot = Some(GpuSplats::zeroed_shape(
                 &self.ctx,
                 "snapshot ",
                 &shape,
                 0,
-                grown_capacity(count),
+                count.max(1),
             )?);
         }
         let snap = self.snapshot.as_mut().expect("allocated above");
