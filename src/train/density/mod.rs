@@ -756,7 +756,8 @@ impl DensityControl {
     /// Applies the recorded decisions: submits everything recorded in `rec` so far, reads the
     /// new count, moves every per-Gaussian buffer into the new layout (in place, or into bigger
     /// buffers that replace `*state`'s when the count outgrows its capacity), zeroes the
-    /// statistics, and leaves `rec` begun and empty. Waits for the GPU twice.
+    /// statistics, and leaves `rec` begun and empty. Waits for the GPU twice (four times when
+    /// the state grows: once for each set moved).
     pub fn apply(
         &mut self,
         rec: &mut Recorder,
@@ -810,8 +811,8 @@ impl DensityControl {
 
         // Destination: fresh buffers (grown geometrically) when the new count does not fit,
         // else the state's own buffers, each group moved through a scratch buffer and copied
-        // back (`record_move_in_place`): one group's width of scratch rather than a second
-        // state, which held half of a large model's training memory.
+        // back (`record_move_in_place`): two groups' width of scratch rather than a second
+        // state, which held about 40 % of a large model's training memory.
         let grew = after > state.capacity();
         let capacity = if grew {
             grown_capacity(after)
