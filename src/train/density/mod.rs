@@ -17,8 +17,8 @@
 //!    `split` for the children's positions and log-scales. In place when the new count fits
 //!    the capacity: each group is scattered into a scratch buffer of the widest group's size and
 //!    copied back (a second [`SplatState`] as destination held as much memory as the model and
-//!    its moments); when it does not fit, into bigger buffers of [`grown_capacity`], one set
-//!    (parameters, first moments, second moments) at a time, each replacing the old one.
+//!    its moments); when it does not fit, into a bigger state allocated with
+//!    [`grown_capacity`], which replaces the old one.
 //!
 //! # New layout
 //! `[survivors in their old order | clones in parent order | split children: two adjacent rows
@@ -53,7 +53,7 @@ use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder};
 use crate::render::layout::ProjectedBoundsGpu;
 use crate::render::scan::PrefixScan;
 use crate::shaders;
-use crate::splats::gpu::{grown_capacity, GpuSplats};
+use crate::splats::gpu::grown_capacity;
 use anyhow::{bail, ensure};
 use std::sync::Arc;
 
@@ -756,8 +756,7 @@ impl DensityControl {
     /// Applies the recorded decisions: submits everything recorded in `rec` so far, reads the
     /// new count, moves every per-Gaussian buffer into the new layout (in place, or into bigger
     /// buffers that replace `*state`'s when the count outgrows its capacity), zeroes the
-    /// statistics, and leaves `rec` begun and empty. Waits for the GPU twice (four times when
-    /// the state grows: once for each set moved).
+    /// statistics, and leaves `rec` begun and empty. Waits for the GPU twice.
     pub fn apply(
         &mut self,
         rec: &mut Recorder,
@@ -826,31 +825,19 @@ impl DensityControl {
             log_split_shrink: t.log_split_shrink,
         };
         if grew {
+            // The whole destination is allocated before anything moves, so that running out of
+            // device memory here leaves the state as it was, to be checkpointed and resumed
+            // (moving one set at a time and freeing each old set lowers this step's peak but
+            // can fail half-moved).
+            let mut dst = SplatState::allocate(&self.ctx, &state.shape(), capacity)?;
             // Nothing pending uses the old statistics (phase 1 has completed).
             self.stats = DensityStats::zeroed(&self.ctx, capacity)?;
-            // One set at a time (the moments, then the parameters with the split children's
-            // geometry, which the split kernel reads from the old parameters), each old set
-            // freed as soon as its move has run: the old and the new state are never whole side
-            // by side, which made a growth step the run's peak of device memory.
-            let shape = state.shape();
-            for set in [1, 2, 0] {
-                let prefix = ["params ", "adam m ", "adam v "][set];
-                let new = GpuSplats::allocate_shape(&self.ctx, prefix, &shape, capacity)?;
-                rec.begin()?;
-                let old = [&state.params, &state.m, &state.v][set];
-                for (k, (s, d)) in old.groups().iter().zip(new.groups().iter()).enumerate() {
-                    if s.1 > 0 {
-                        self.record_scatter(rec, s.0, d.0, s.1, scatter_mode(set, k), count);
-                    }
-                }
-                if set == 0 {
-                    self.record_split(rec, state, &new.positions, &new.log_scales, count, &split);
-                }
-                rec.submit_and_wait()?;
-                *[&mut state.params, &mut state.m, &mut state.v][set] = new;
-            }
             rec.begin()?;
-            state.set_count(after);
+            self.record_move_to(rec, state, &dst, count, &split);
+            rec.submit_and_wait()?;
+            rec.begin()?;
+            dst.set_count(after);
+            std::mem::swap(state, &mut dst);
         } else {
             self.ensure_move_scratch(move_scratch_floats(state))?;
             rec.begin()?;
@@ -870,6 +857,33 @@ impl DensityControl {
             capacity,
             skipped: false,
         })
+    }
+
+    /// Records the move of every per-Gaussian buffer of `src` into `dst` (another state of at
+    /// least the new count's capacity), the children's geometry from the split kernel.
+    fn record_move_to(
+        &self,
+        rec: &mut Recorder,
+        src: &SplatState,
+        dst: &SplatState,
+        count: usize,
+        split: &SplitPush,
+    ) {
+        for (set, (s, d)) in groups(src).iter().zip(groups(dst).iter()).enumerate() {
+            for k in 0..s.len() {
+                if s[k].1 > 0 {
+                    self.record_scatter(rec, s[k].0, d[k].0, s[k].1, scatter_mode(set, k), count);
+                }
+            }
+        }
+        self.record_split(
+            rec,
+            src,
+            &dst.params.positions,
+            &dst.params.log_scales,
+            count,
+            split,
+        );
     }
 
     /// Records the move of every per-Gaussian buffer of `state` into its new layout in the same
