@@ -3,6 +3,8 @@
 //! decodes ahead, refuses a budget below one step; training through it equals training with every
 //! image resident. On the video fixture, validation layer on.
 
+mod one_thread;
+
 use std::path::Path;
 use std::sync::Arc;
 
@@ -161,6 +163,10 @@ fn train(
 
 #[test]
 fn training_through_a_streaming_cache_equals_training_with_every_image_resident() {
+    let name = "training_through_a_streaming_cache_equals_training_with_every_image_resident";
+    if one_thread::rerun_single_threaded(name) {
+        return;
+    }
     let ctx = ctx();
     let scene = fixture();
     let gt = images::load_images(&scene, &scene.train).unwrap();
@@ -183,19 +189,37 @@ fn training_through_a_streaming_cache_equals_training_with_every_image_resident(
     );
     // The first step reads the same pixels through either cache: the same loss exactly.
     assert_eq!(la[0].to_bits(), lc[0].to_bits());
-    let diff = |x: &[f32], y: &[f32]| {
-        assert_eq!(x.len(), y.len());
-        x.iter()
-            .zip(y)
-            .map(|(p, q)| (p - q).abs())
-            .fold(0.0, f32::max)
-    };
-    let (noise, got) = (diff(&a, &b), diff(&a, &c));
-    eprintln!("resident runs differ by {noise:e}, streamed by {got:e}");
-    assert!(
-        got <= 4.0 * noise,
-        "streamed training differs by {got}, run-to-run noise {noise}"
-    );
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    if bits(&a) == bits(&b) {
+        // One lavapipe thread: identical runs are bitwise equal, so the streamed one must be.
+        assert!(
+            bits(&a) == bits(&c),
+            "streamed training differs from resident"
+        );
+    } else {
+        // A driver that ignores LP_NUM_THREADS (a GPU) adds the backward's float atomics in a
+        // varying order, and one pair of identical runs is a poor estimate of that noise (it
+        // varied 5x between repeats on lavapipe with threads). The scale instead: what two
+        // images trading places does to the model; it must dwarf the noise, and streaming
+        // must stay far below it.
+        let diff = |x: &[f32], y: &[f32]| {
+            assert_eq!(x.len(), y.len());
+            x.iter()
+                .zip(y)
+                .map(|(p, q)| (p - q).abs())
+                .fold(0.0, f32::max)
+        };
+        let mut swapped = gt.clone();
+        swapped.swap(3, 4);
+        let (s, _, _) = train(&ctx, &scene, TrainImages::from(&swapped), n);
+        let (noise, got, wrong) = (diff(&a, &b), diff(&a, &c), diff(&a, &s));
+        eprintln!("identical runs differ by {noise:e}, streamed by {got:e}, swapped by {wrong:e}");
+        assert!(wrong > 10.0 * noise, "two swapped images hide in the noise");
+        assert!(
+            got <= wrong / 10.0,
+            "streamed training differs by {got}, two swapped images by {wrong}"
+        );
+    }
     ctx.check_validation().unwrap();
 }
 

@@ -4,6 +4,8 @@
 //! One LPM step must add a Gaussian in the hole and reset the occluder's opacity; ADC alone does
 //! neither. With LPM off, the trainer is bit-identical to the ADC-only trainer.
 
+mod one_thread;
+
 use glam::DVec3;
 use lpmsplat::gpu::{GpuContext, GpuOptions};
 use lpmsplat::lpm::neighbours::{select_neighbours, NeighbourChoice, NeighbourSettings};
@@ -12,6 +14,7 @@ use lpmsplat::lpm::{ConeRadius, Correspondences, PairMatches, ZoneGeometry};
 use lpmsplat::scene::{CameraModel, Image, PinholeCamera, Pose, Scene, SceneFormat, View};
 use lpmsplat::splats::GaussianParams;
 use lpmsplat::train::trainer::{Background, StepReport, TrainConfig, Trainer};
+use one_thread::rerun_single_threaded;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use std::sync::Arc;
@@ -330,29 +333,6 @@ fn one_lpm_step_fills_the_hole_and_resets_the_occluder_adc_does_neither() {
         assert_eq!(lpm.opacity_logits[i], logit(0.8));
     }
     ctx.check_validation().unwrap();
-}
-
-/// Bitwise comparisons need a deterministic backward: lavapipe's float atomics add in a
-/// thread-dependent order unless it runs one thread (see the trainer's determinism docs). Unless
-/// this process already runs with LP_NUM_THREADS=1, re-runs test `name` in a child that does
-/// (other drivers ignore the variable), asserts it passed, and returns true: the caller returns.
-fn rerun_single_threaded(name: &str) -> bool {
-    if std::env::var("LP_NUM_THREADS").as_deref() == Ok("1") {
-        return false;
-    }
-    let out = std::process::Command::new(std::env::current_exe().unwrap())
-        .env("LP_NUM_THREADS", "1")
-        .args(["--exact", name, "--test-threads=1"])
-        .output()
-        .unwrap();
-    let text =
-        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "child run failed:\n{text}");
-    assert!(
-        text.contains("1 passed"),
-        "child ran the wrong tests:\n{text}"
-    );
-    true
 }
 
 /// Largest absolute difference between two equally long runs' parameter words (as f32 bits),
