@@ -1027,3 +1027,94 @@ fn added_gaussians_carry_the_models_extra_groups() {
     }
     ctx.check_validation().unwrap();
 }
+
+/// Device-local bytes of every buffer of `s`.
+fn state_bytes(s: &SplatState) -> u64 {
+    groups_of(s).iter().map(|g| g.0.byte_len()).sum()
+}
+
+/// Every buffer of `s` with its floats per Gaussian.
+fn groups_of(s: &SplatState) -> Vec<(&GpuBuffer<f32>, usize)> {
+    [&s.params, &s.m, &s.v]
+        .iter()
+        .flat_map(|set| set.groups())
+        .collect()
+}
+
+/// How many buffers of `s` are longer than `capacity` rows need.
+fn buffers_past(s: &SplatState, capacity: usize) -> usize {
+    groups_of(s)
+        .iter()
+        .filter(|(b, w)| b.len() > (capacity * w).max(1))
+        .count()
+}
+
+#[test]
+fn a_state_grows_one_buffer_at_a_time_and_running_out_part_way_keeps_every_gaussian() {
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(91);
+    let (n, degree) = (3_000usize, 3u32);
+    let host = HostState {
+        params: with_extras(random_params(&mut rng, n, degree, 2.0), &mut rng),
+        m: with_extras(random_moments(&mut rng, n, degree, false), &mut rng),
+        v: with_extras(random_moments(&mut rng, n, degree, true), &mut rng),
+    };
+
+    // Enough memory: every row kept, every buffer at the new capacity, and at the peak the
+    // old state, the new one and one buffer being copied at most (a whole second state
+    // beside the first was 3× the state).
+    let ctx = ctx_with_limit(None);
+    let mut state = upload_state(&ctx, &host, n);
+    let before = state_bytes(&state);
+    let widest = groups_of(&state)
+        .iter()
+        .map(|g| g.0.byte_len())
+        .max()
+        .unwrap();
+    let base = ctx.memory.in_use() - before;
+    let mut rec = Recorder::new(&ctx).unwrap();
+    state.grow(&ctx, &mut rec, 2 * n).unwrap();
+    assert_eq!((state.count(), state.capacity()), (n, 2 * n));
+    for (b, w) in groups_of(&state) {
+        assert_eq!(b.len(), (2 * n * w).max(1), "{}", b.name());
+    }
+    assert_states_match(&download_state(&state), &host, n, "grown");
+    let peak = ctx.memory.peak() - base;
+    assert!(
+        peak <= 2 * before + widest,
+        "growing a state of {before} bytes to twice its capacity peaked at {peak}"
+    );
+    assert!(
+        state.grow(&ctx, &mut rec, n).is_err(),
+        "a state shrank by growing"
+    );
+    ctx.check_validation().unwrap();
+    drop((state, rec, ctx));
+
+    // Too little memory for the bigger state: an out-of-memory error, part of the buffers
+    // grown, and the state still holds every Gaussian bit for bit at its old capacity.
+    let ctx = ctx_with_limit(Some(base + 2 * before - before / 3));
+    let mut state = upload_state(&ctx, &host, n);
+    assert_eq!(ctx.memory.in_use(), base + before);
+    let mut rec = Recorder::new(&ctx).unwrap();
+    let err = state.grow(&ctx, &mut rec, 2 * n).unwrap_err();
+    assert!(
+        lpmsplat::gpu::out_of_memory(&err).is_some(),
+        "not an out-of-memory error: {err:#}"
+    );
+    assert_eq!((state.count(), state.capacity()), (n, n));
+    let grown = buffers_past(&state, n);
+    assert!(
+        grown > 0 && grown < groups_of(&state).len(),
+        "{grown} buffers grew: not part-way"
+    );
+    assert_states_match(&download_state(&state), &host, n, "after running out");
+    ctx.check_validation().unwrap();
+}
+
+fn ctx_with_limit(limit: Option<u64>) -> Arc<GpuContext> {
+    GpuContext::new(&GpuOptions {
+        memory_limit: limit,
+        ..GpuOptions::for_tests()
+    })
+    .unwrap()
+}

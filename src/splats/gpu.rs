@@ -249,6 +249,31 @@ impl GpuSplats {
         g
     }
 
+    /// Every buffer with its floats per Gaussian, mutable (in the order of [`Self::groups`]).
+    pub fn groups_mut(&mut self) -> Vec<(&mut GpuBuffer<f32>, usize)> {
+        let r = GaussianParams::empty(self.sh_degree).rest_coeffs();
+        let mut g = vec![
+            (&mut self.positions, 3),
+            (&mut self.log_scales, 3),
+            (&mut self.rotations, 4),
+            (&mut self.opacity_logits, 1),
+            (&mut self.sh_dc, 3),
+        ];
+        g.extend(
+            self.sh_rest
+                .iter_mut()
+                .enumerate()
+                .map(|(p, b)| (b, sh_planes::plane_stride(r, p))),
+        );
+        g.extend(
+            self.extra
+                .iter_mut()
+                .zip(&self.extra_groups)
+                .map(|(b, e)| (b, e.stride)),
+        );
+        g
+    }
+
     /// The buffer of the extra group called `name`.
     pub fn extra_group(&self, name: &str) -> Option<&GpuBuffer<f32>> {
         self.extra_groups

@@ -198,6 +198,42 @@ impl SplatState {
         self.params.shape()
     }
 
+    /// Grows every buffer to `capacity` Gaussians, keeping the rows below the count. One buffer
+    /// at a time: a bigger buffer, a copy, a wait, the old one freed; so the state grows by at
+    /// most one buffer beyond itself, where a second whole state (parameters and both moments,
+    /// 708 bytes a Gaussian at SH degree 3) used to sit beside the first. Running out of memory
+    /// part-way returns the error with the same Gaussians in the same rows, some buffers already
+    /// bigger and the capacity still the old one: a state as good as before for the checkpoint.
+    /// Waits for the GPU once per buffer (growth is geometric: a few times a run); expects `rec`
+    /// not recording and leaves it so.
+    pub fn grow(
+        &mut self,
+        ctx: &Arc<GpuContext>,
+        rec: &mut Recorder,
+        capacity: usize,
+    ) -> anyhow::Result<()> {
+        ensure!(
+            capacity >= self.capacity(),
+            "growing a state of capacity {} to {capacity}",
+            self.capacity()
+        );
+        let count = self.count();
+        for set in [&mut self.params, &mut self.m, &mut self.v] {
+            for (buf, width) in set.groups_mut() {
+                let bigger =
+                    GpuBuffer::new(ctx, buf.name(), (capacity * width).max(1), buf.kind())?;
+                rec.begin()?;
+                rec.copy_region(buf, 0, &bigger, 0, count * width);
+                rec.submit_and_wait()?;
+                *buf = bigger;
+            }
+        }
+        for set in [&mut self.params, &mut self.m, &mut self.v] {
+            set.capacity = capacity;
+        }
+        Ok(())
+    }
+
     /// Sets the count of all three sets.
     pub fn set_count(&mut self, count: usize) {
         self.params.count = count;

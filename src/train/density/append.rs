@@ -4,7 +4,6 @@
 use crate::gpu::{BufferKind, GpuBuffer};
 use crate::splats::gpu::{grown_capacity, FIXED_GROUPS};
 use crate::splats::SH_C0;
-use crate::train::adam::SplatState;
 use crate::train::strategy::{DensityContext, Primitive};
 
 /// A Gaussian to append: SH DC only, fresh optimizer state; isotropic for 3D Gaussians, a disc
@@ -71,24 +70,9 @@ pub fn append_with_extras(
     let new = n + rows.len();
     if new > t.state.capacity() {
         let cap = grown_capacity(new);
-        let mut dst = SplatState::allocate(&ctx, &t.state.shape(), cap)?;
-        {
-            let src = [
-                t.state.params.groups(),
-                t.state.m.groups(),
-                t.state.v.groups(),
-            ];
-            let dsts = [dst.params.groups(), dst.m.groups(), dst.v.groups()];
-            for (s, d) in src.iter().zip(dsts.iter()) {
-                for (sk, dk) in s.iter().zip(d) {
-                    t.rec.copy(sk.0, dk.0, n * sk.1);
-                }
-            }
-        }
-        t.rec.submit_and_wait()?;
+        // One buffer at a time, the rows kept (see `SplatState::grow`).
+        t.state.grow(&ctx, t.rec, cap)?;
         t.rec.begin()?;
-        dst.set_count(n);
-        std::mem::swap(&mut *t.state, &mut dst);
         t.density.ensure_capacity(cap)?;
     }
     let m = rows.len();

@@ -14,11 +14,11 @@
 //!    three blocks of `count` and scanned as one array: the scan gives every destination and
 //!    the new count (the only value the host reads back, with the two block starts).
 //! 4. `scatter` for every per-Gaussian buffer (the parameter groups, both moment sets) and
-//!    `split` for the children's positions and log-scales. In place when the new count fits
-//!    the capacity: each group is scattered into a scratch buffer of the widest group's size and
-//!    copied back (a second [`SplatState`] as destination held as much memory as the model and
-//!    its moments); when it does not fit, into a bigger state allocated with
-//!    [`grown_capacity`], which replaces the old one.
+//!    `split` for the children's positions and log-scales, in place: each group is scattered
+//!    into a scratch buffer of the widest group's size and copied back (a second
+//!    [`SplatState`] as destination held as much memory as the model and its moments). When
+//!    the new count outgrows the capacity, [`SplatState::grow`] first moves the state into
+//!    buffers of [`grown_capacity`], one buffer at a time with the rows unchanged.
 //!
 //! # New layout
 //! `[survivors in their old order | clones in parent order | split children: two adjacent rows
@@ -754,9 +754,10 @@ impl DensityControl {
     }
 
     /// Applies the recorded decisions: submits everything recorded in `rec` so far, reads the
-    /// new count, moves every per-Gaussian buffer into the new layout (in place, or into bigger
-    /// buffers that replace `*state`'s when the count outgrows its capacity), zeroes the
-    /// statistics, and leaves `rec` begun and empty. Waits for the GPU twice.
+    /// new count, moves every per-Gaussian buffer into the new layout in place (after growing
+    /// the state's buffers when the count outgrows its capacity), zeroes the statistics, and
+    /// leaves `rec` begun and empty. Waits for the GPU twice, and once more per buffer on a
+    /// step that grows the state.
     pub fn apply(
         &mut self,
         rec: &mut Recorder,
@@ -808,10 +809,10 @@ impl DensityControl {
             "density control: inconsistent counts from the GPU ({kept}, {kept_and_clones}, {after})"
         );
 
-        // Destination: fresh buffers (grown geometrically) when the new count does not fit,
-        // else the state's own buffers, each group moved through a scratch buffer and copied
-        // back (`record_move_in_place`): two groups' width of scratch rather than a second
-        // state, which held about 40 % of a large model's training memory.
+        // The state's own buffers are the destination (grown geometrically first when the
+        // new count does not fit), each group moved through a scratch buffer and copied back
+        // (`record_move_in_place`): two groups' width of scratch rather than a second state,
+        // which held about 40 % of a large model's training memory.
         let grew = after > state.capacity();
         let capacity = if grew {
             grown_capacity(after)
@@ -825,28 +826,21 @@ impl DensityControl {
             log_split_shrink: t.log_split_shrink,
         };
         if grew {
-            // The whole destination is allocated before anything moves, so that running out of
-            // device memory here leaves the state as it was, to be checkpointed and resumed
-            // (moving one set at a time and freeing each old set lowers this step's peak but
-            // can fail half-moved).
-            let mut dst = SplatState::allocate(&self.ctx, &state.shape(), capacity)?;
             // Nothing pending uses the old statistics (phase 1 has completed).
             self.stats = DensityStats::zeroed(&self.ctx, capacity)?;
-            rec.begin()?;
-            self.record_move_to(rec, state, &dst, count, &split);
-            rec.submit_and_wait()?;
-            rec.begin()?;
-            dst.set_count(after);
-            std::mem::swap(state, &mut dst);
-        } else {
-            self.ensure_move_scratch(move_scratch_floats(state))?;
-            rec.begin()?;
-            self.record_move_in_place(rec, state, count, after, &split);
-            self.record_reset_stats(rec);
-            rec.submit_and_wait()?;
-            rec.begin()?;
-            state.set_count(after);
+            // Bigger buffers first, rows in their old order, one buffer at a time: running out
+            // of memory there leaves the Gaussians as they were for the checkpoint (moving
+            // each set straight into its bigger buffer would lower the peak as much but could
+            // fail with some sets in the new layout and some in the old).
+            state.grow(&self.ctx, rec, capacity)?;
         }
+        self.ensure_move_scratch(move_scratch_floats(state))?;
+        rec.begin()?;
+        self.record_move_in_place(rec, state, count, after, &split);
+        self.record_reset_stats(rec);
+        rec.submit_and_wait()?;
+        rec.begin()?;
+        state.set_count(after);
         Ok(DensifyOutcome {
             before: count,
             after,
@@ -857,33 +851,6 @@ impl DensityControl {
             capacity,
             skipped: false,
         })
-    }
-
-    /// Records the move of every per-Gaussian buffer of `src` into `dst` (another state of at
-    /// least the new count's capacity), the children's geometry from the split kernel.
-    fn record_move_to(
-        &self,
-        rec: &mut Recorder,
-        src: &SplatState,
-        dst: &SplatState,
-        count: usize,
-        split: &SplitPush,
-    ) {
-        for (set, (s, d)) in groups(src).iter().zip(groups(dst).iter()).enumerate() {
-            for k in 0..s.len() {
-                if s[k].1 > 0 {
-                    self.record_scatter(rec, s[k].0, d[k].0, s[k].1, scatter_mode(set, k), count);
-                }
-            }
-        }
-        self.record_split(
-            rec,
-            src,
-            &dst.params.positions,
-            &dst.params.log_scales,
-            count,
-            split,
-        );
     }
 
     /// Records the move of every per-Gaussian buffer of `state` into its new layout in the same
