@@ -407,6 +407,8 @@ impl Backward {
     pub fn reserve(&mut self, ctx: &Arc<GpuContext>, count: usize) -> Result<()> {
         if count > self.capacity {
             let capacity = grown_capacity(count);
+            // Freed first: its contents are rewritten every pass.
+            self.grad2d = Self::alloc_grad2d(ctx, 0)?;
             self.grad2d = Self::alloc_grad2d(ctx, capacity)?;
             self.capacity = capacity;
         }

@@ -98,10 +98,10 @@ pub fn logical_group(k: usize) -> usize {
     }
 }
 
-/// Capacity for `count` Gaussians with room to grow: 1.5× (at least 1024 more), the geometric
+/// Capacity for `count` Gaussians with room to grow: 1.125× (at least 1024 more), the geometric
 /// growth density control relies on.
 pub fn grown_capacity(count: usize) -> usize {
-    (count + count / 2).max(count + 1024)
+    (count + count / 8).max(count + 1024)
 }
 
 impl GpuSplats {

@@ -348,7 +348,13 @@ impl Trainer {
     pub(super) fn follow_capacity(&mut self) -> anyhow::Result<()> {
         let cap = self.state.capacity();
         if self.grads.capacity < cap {
-            self.grads = GpuSplats::zeroed_shape(&self.ctx, "grad ", &self.state.shape(), 0, cap)?;
+            // Nothing in the old buffers is kept: free them before allocating the bigger ones
+            // (both at once were a training run's peak of device memory).
+            let shape = self.state.shape();
+            self.grads = GpuSplats::allocate_shape(&self.ctx, "grad ", &shape, 0)?;
+            self.grads = GpuSplats::zeroed_shape(&self.ctx, "grad ", &shape, 0, cap)?;
+            self.view_grad_norm =
+                GpuBuffer::new(&self.ctx, "view grad norm", 0, BufferKind::DeviceLocal)?;
             self.view_grad_norm =
                 GpuBuffer::new(&self.ctx, "view grad norm", cap, BufferKind::DeviceLocal)?;
         }

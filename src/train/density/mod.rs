@@ -841,6 +841,7 @@ impl DensityControl {
         rec.submit_and_wait()?;
         rec.begin()?;
         state.set_count(after);
+        self.release_move_scratch()?;
         Ok(DensifyOutcome {
             before: count,
             after,
@@ -961,6 +962,23 @@ impl DensityControl {
     }
 
     /// The two move scratch buffers hold at least `floats` each.
+    /// Frees the move scratch once a step is done with it: kept between steps, its 72 bytes a
+    /// Gaussian of capacity were held all run, and on a growing step they sat beside the
+    /// gradients' reallocation at the run's peak. Allocating it again every step costs little
+    /// (density steps come every 100 iterations).
+    fn release_move_scratch(&mut self) -> anyhow::Result<()> {
+        let empty = || {
+            GpuBuffer::new(
+                &self.ctx,
+                "density move scratch",
+                0,
+                BufferKind::DeviceLocal,
+            )
+        };
+        self.move_scratch = [empty()?, empty()?];
+        Ok(())
+    }
+
     fn ensure_move_scratch(&mut self, floats: usize) -> anyhow::Result<()> {
         if self.move_scratch[0].len() >= floats {
             return Ok(());
