@@ -5,6 +5,8 @@
 //! every scene. Output buffers are poisoned with NaN before each run, so anything left unwritten
 //! (or written past `count`) is caught.
 
+mod child_run;
+
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder};
 use lpmsplat::reference::gpu_layout::{
     gaussian_params, gpu_forward_fixture, round_gaussians_to_f32, round_view_to_f32,
@@ -987,27 +989,10 @@ fn backward_under_subgroup_size_16() {
     // lavapipe runs with subgroup size 16 when LP_NATIVE_VECTOR_WIDTH=512 (set before the driver
     // loads, hence a child process), so the subgroup reduction is covered at two sizes. Other
     // drivers ignore the variable.
-    if std::env::var_os("LPMSPLAT_CHILD").is_some() {
-        return;
-    }
-    let exe = std::env::current_exe().unwrap();
-    let out = std::process::Command::new(exe)
-        .env("LP_NATIVE_VECTOR_WIDTH", "512")
-        .env("LPMSPLAT_CHILD", "1")
-        .args([
-            "--test-threads=1",
-            "random_scenes_match_reference",
-            "thousand_gaussians_on_one_pixel",
-        ])
-        .output()
-        .unwrap();
-    let text =
-        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "child run failed:\n{text}");
-    assert!(
-        text.contains("2 passed"),
-        "child ran the wrong tests:\n{text}"
-    );
+    child_run::rerun_under_subgroup_size_16(&[
+        "random_scenes_match_reference",
+        "thousand_gaussians_on_one_pixel",
+    ]);
 }
 
 #[test]

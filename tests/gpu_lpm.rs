@@ -2,6 +2,8 @@
 //! per-zone counts (exact), the opacity reset (exact), error blocks (exact given the GPU's error
 //! map, and within the f32-vs-f64 error-map tolerance against regions.rs).
 
+mod child_run;
+
 use lpmsplat::gpu::{BufferKind, GpuBuffer, GpuContext, GpuOptions, Recorder};
 use lpmsplat::lpm::enclosing_sphere::Sphere;
 use lpmsplat::lpm::gpu::{
@@ -620,27 +622,11 @@ fn bad_inputs_are_errors() {
 fn lpm_passes_under_subgroup_size_16() {
     // lavapipe runs with subgroup size 16 when LP_NATIVE_VECTOR_WIDTH=512 (set before the driver
     // loads, hence a child process); the subgroup reductions must not assume a size.
-    if std::env::var_os("LPMSPLAT_CHILD").is_some() {
-        return;
-    }
-    let out = std::process::Command::new(std::env::current_exe().unwrap())
-        .env("LP_NATIVE_VECTOR_WIDTH", "512")
-        .env("LPMSPLAT_CHILD", "1")
-        .args([
-            "--test-threads=1",
-            "membership_matches_cpu_exactly",
-            "opacity_reset_matches_cpu_exactly",
-            "error_blocks_match_cpu",
-        ])
-        .output()
-        .unwrap();
-    let text =
-        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "child run failed:\n{text}");
-    assert!(
-        text.contains("3 passed"),
-        "child ran the wrong tests:\n{text}"
-    );
+    child_run::rerun_under_subgroup_size_16(&[
+        "membership_matches_cpu_exactly",
+        "opacity_reset_matches_cpu_exactly",
+        "error_blocks_match_cpu",
+    ]);
 }
 
 /// The weighted rank selection (the authors' density-aware pruning ranks the model after

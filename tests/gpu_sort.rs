@@ -2,6 +2,8 @@
 //! Also re-runs itself with lavapipe forced to subgroup size 16, so two subgroup sizes are
 //! covered on one machine.
 
+mod child_run;
+
 use lpmsplat::gpu::{BufferKind, GpuBuffer, GpuContext, GpuOptions, Recorder};
 use lpmsplat::render::scan::PrefixScan;
 use lpmsplat::render::sort::{RadixSort, SortedIn};
@@ -195,28 +197,11 @@ fn splat_like_depth_then_tile_sort_orders_pairs_by_tile_then_depth() {
 fn sort_and_scan_under_subgroup_size_16() {
     // lavapipe runs with subgroup size 16 when LP_NATIVE_VECTOR_WIDTH=512 (set before the driver
     // loads, hence a child process). Other drivers ignore the variable.
-    if std::env::var_os("LPMSPLAT_CHILD").is_some() {
-        return;
-    }
-    let exe = std::env::current_exe().unwrap();
-    let out = std::process::Command::new(exe)
-        .env("LP_NATIVE_VECTOR_WIDTH", "512")
-        .env("LPMSPLAT_CHILD", "1")
-        .args([
-            "--test-threads=1",
-            "radix_sort_is_stable",
-            "exclusive_scan",
-            "splat_like",
-        ])
-        .output()
-        .unwrap();
-    let text =
-        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "child run failed:\n{text}");
-    assert!(
-        text.contains("3 passed"),
-        "child ran the wrong tests:\n{text}"
-    );
+    child_run::rerun_under_subgroup_size_16(&[
+        "radix_sort_is_stable",
+        "exclusive_scan",
+        "splat_like",
+    ]);
 }
 
 #[test]

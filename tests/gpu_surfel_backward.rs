@@ -6,6 +6,8 @@
 //! validation layer is on.
 #![allow(clippy::too_many_arguments)]
 
+mod child_run;
+
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder};
 use lpmsplat::reference::scenes;
 use lpmsplat::reference::surfel::regularise;
@@ -411,24 +413,14 @@ fn run(settings: SurfelSettings, seeds: u64, shrink: f64, tolerance: (f64, f64),
 #[test]
 fn reach_culled_lists_give_the_gradients_of_full_lists() {
     let one_thread = std::env::var("LP_NUM_THREADS").as_deref() == Ok("1");
-    if std::env::var_os("LPMSPLAT_CHILD").is_none() {
-        let exe = std::env::current_exe().unwrap();
-        let out = std::process::Command::new(exe)
-            .env("LP_NUM_THREADS", "1")
-            .env("LPMSPLAT_CHILD", "1")
-            .args([
-                "--test-threads=1",
+    if !child_run::is_child() {
+        child_run::run_child(
+            &[("LP_NUM_THREADS", "1")],
+            &[
                 "--exact",
                 "reach_culled_lists_give_the_gradients_of_full_lists",
-            ])
-            .output()
-            .unwrap();
-        let text = String::from_utf8_lossy(&out.stdout).to_string()
-            + &String::from_utf8_lossy(&out.stderr);
-        assert!(out.status.success(), "one-thread run failed:\n{text}");
-        assert!(
-            text.contains("1 passed"),
-            "the child ran the wrong tests:\n{text}"
+            ],
+            1,
         );
     }
     let ctx = ctx();

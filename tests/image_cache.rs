@@ -3,7 +3,7 @@
 //! decodes ahead, refuses a budget below one step; training through it equals training with every
 //! image resident. On the video fixture, validation layer on.
 
-mod one_thread;
+mod child_run;
 
 use std::path::Path;
 use std::sync::Arc;
@@ -164,7 +164,7 @@ fn train(
 #[test]
 fn training_through_a_streaming_cache_equals_training_with_every_image_resident() {
     let name = "training_through_a_streaming_cache_equals_training_with_every_image_resident";
-    if one_thread::rerun_single_threaded(name) {
+    if child_run::rerun_single_threaded(name) {
         return;
     }
     let ctx = ctx();

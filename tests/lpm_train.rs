@@ -4,8 +4,9 @@
 //! One LPM step must add a Gaussian in the hole and reset the occluder's opacity; ADC alone does
 //! neither. With LPM off, the trainer is bit-identical to the ADC-only trainer.
 
-mod one_thread;
+mod child_run;
 
+use child_run::rerun_single_threaded;
 use glam::DVec3;
 use lpmsplat::gpu::{GpuContext, GpuOptions};
 use lpmsplat::lpm::neighbours::{select_neighbours, NeighbourChoice, NeighbourSettings};
@@ -14,7 +15,6 @@ use lpmsplat::lpm::{ConeRadius, Correspondences, PairMatches, ZoneGeometry};
 use lpmsplat::scene::{CameraModel, Image, PinholeCamera, Pose, Scene, SceneFormat, View};
 use lpmsplat::splats::GaussianParams;
 use lpmsplat::train::trainer::{Background, StepReport, TrainConfig, Trainer};
-use one_thread::rerun_single_threaded;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use std::sync::Arc;
