@@ -315,27 +315,18 @@ impl Trainer {
         )
     }
 
-    /// Records copies of every parameter group of the first `count` Gaussians into the
-    /// snapshot buffers (grown as needed) inside the iteration's command buffer.
+    /// Records copies of every parameter group of the first `count` Gaussians into a snapshot
+    /// allocated for this iteration (exactly the model's size: it adds to the run's peak of
+    /// device memory; freed at the next step) inside the iteration's command buffer.
     fn record_snapshot(&mut self, count: usize) -> anyhow::Result<()> {
         let shape = self.state.shape();
-        if self
-            .snapshot
-            .as_ref()
-            .is_none_or(|s| s.capacity < count || s.shape() != shape)
-        {
-            // Exactly the model's size, no headroom: snapshots are taken only on evaluation
-            // iterations, and this copy adds to the run's peak of device memory.
-            self.snapshot = None;
-            self.snapshot = Some(GpuSplats::zeroed_shape(
-                &self.ctx,
-                "snapshot ",
-                &shape,
-                0,
-                count.max(1),
-            )?);
-        }
-        let snap = self.snapshot.as_mut().expect("allocated above");
+        // Every row below `count` is copied in before anything reads it.
+        let snap = self.snapshot.insert(GpuSplats::allocate_shape(
+            &self.ctx,
+            "snapshot ",
+            &shape,
+            count.max(1),
+        )?);
         snap.count = count;
         self.rec.barrier();
         for ((src, stride), (dst, _)) in self.state.params.groups().into_iter().zip(snap.groups()) {
@@ -600,7 +591,10 @@ impl Trainer {
         if cfg.timestamps {
             self.rec.timestamp(&mut self.pool, "adam");
         }
+        // A snapshot serves only the iteration it was taken at: free it rather than hold a
+        // copy of the parameters (236 bytes a Gaussian) to the next evaluation.
         self.snapshot_iteration = None;
+        self.snapshot = None;
         if std::mem::take(&mut self.snapshot_requested)
             && (densifies || cfg.schedule.resets_opacity(it))
         {
