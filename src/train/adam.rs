@@ -222,9 +222,11 @@ impl SplatState {
             for (buf, width) in set.groups_mut() {
                 let bigger =
                     GpuBuffer::new(ctx, buf.name(), (capacity * width).max(1), buf.kind())?;
-                rec.begin()?;
-                rec.copy_region(buf, 0, &bigger, 0, count * width);
-                rec.submit_and_wait()?;
+                if count * width > 0 {
+                    rec.begin()?;
+                    rec.copy_region(buf, 0, &bigger, 0, count * width);
+                    rec.submit_and_wait()?;
+                }
                 *buf = bigger;
             }
         }

@@ -961,7 +961,6 @@ impl DensityControl {
         rec.submit_and_wait()
     }
 
-    /// The two move scratch buffers hold at least `floats` each.
     /// Frees the move scratch once a step is done with it: kept between steps, its 72 bytes a
     /// Gaussian of capacity were held all run, and on a growing step they sat beside the
     /// gradients' reallocation at the run's peak. Allocating it again every step costs little
@@ -979,6 +978,7 @@ impl DensityControl {
         Ok(())
     }
 
+    /// The two move scratch buffers hold at least `floats` each.
     fn ensure_move_scratch(&mut self, floats: usize) -> anyhow::Result<()> {
         if self.move_scratch[0].len() >= floats {
             return Ok(());
