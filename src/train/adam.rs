@@ -155,36 +155,6 @@ impl SplatState {
         Ok(Self { params, m, v })
     }
 
-    /// Three zeroed sets of `capacity` Gaussians holding `count` (the destination of a density
-    /// step).
-    pub fn zeroed(
-        ctx: &Arc<GpuContext>,
-        sh_degree: u32,
-        count: usize,
-        capacity: usize,
-    ) -> anyhow::Result<Self> {
-        Ok(Self {
-            params: GpuSplats::zeroed(ctx, "params ", sh_degree, count, capacity)?,
-            m: GpuSplats::zeroed(ctx, "adam m ", sh_degree, count, capacity)?,
-            v: GpuSplats::zeroed(ctx, "adam v ", sh_degree, count, capacity)?,
-        })
-    }
-
-    /// Three sets of `capacity` Gaussians, count 0, contents undefined: the destination of a
-    /// density step, which writes every row below its new count (skips the host-side zero
-    /// upload that [`SplatState::zeroed`] pays, gigabytes at millions of Gaussians).
-    pub fn allocate(
-        ctx: &Arc<GpuContext>,
-        shape: &SplatShape,
-        capacity: usize,
-    ) -> anyhow::Result<Self> {
-        Ok(Self {
-            params: GpuSplats::allocate_shape(ctx, "params ", shape, capacity)?,
-            m: GpuSplats::allocate_shape(ctx, "adam m ", shape, capacity)?,
-            v: GpuSplats::allocate_shape(ctx, "adam v ", shape, capacity)?,
-        })
-    }
-
     pub fn count(&self) -> usize {
         self.params.count
     }
