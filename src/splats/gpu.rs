@@ -249,29 +249,21 @@ impl GpuSplats {
         g
     }
 
-    /// Every buffer with its floats per Gaussian, mutable (in the order of [`Self::groups`]).
+    /// Every buffer with its floats per Gaussian, mutable (in the order of [`Self::groups`],
+    /// whose widths it takes).
     pub fn groups_mut(&mut self) -> Vec<(&mut GpuBuffer<f32>, usize)> {
-        let r = GaussianParams::empty(self.sh_degree).rest_coeffs();
-        let mut g = vec![
-            (&mut self.positions, 3),
-            (&mut self.log_scales, 3),
-            (&mut self.rotations, 4),
-            (&mut self.opacity_logits, 1),
-            (&mut self.sh_dc, 3),
+        let widths: Vec<usize> = self.groups().iter().map(|g| g.1).collect();
+        let mut buffers = vec![
+            &mut self.positions,
+            &mut self.log_scales,
+            &mut self.rotations,
+            &mut self.opacity_logits,
+            &mut self.sh_dc,
         ];
-        g.extend(
-            self.sh_rest
-                .iter_mut()
-                .enumerate()
-                .map(|(p, b)| (b, sh_planes::plane_stride(r, p))),
-        );
-        g.extend(
-            self.extra
-                .iter_mut()
-                .zip(&self.extra_groups)
-                .map(|(b, e)| (b, e.stride)),
-        );
-        g
+        buffers.extend(self.sh_rest.iter_mut());
+        buffers.extend(self.extra.iter_mut());
+        debug_assert_eq!(buffers.len(), widths.len());
+        buffers.into_iter().zip(widths).collect()
     }
 
     /// The buffer of the extra group called `name`.
