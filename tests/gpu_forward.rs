@@ -258,6 +258,45 @@ fn random_scenes_match_the_reference() {
     ctx.check_validation().unwrap();
 }
 
+/// Long thin splats at every angle, faint and opaque: the GPU pairs each with the tiles its
+/// ellipse reaches (glsl/common/tile_rows.glsl), the same lists as the reference's
+/// `Projected::row_tiles`, the same image, and far fewer pairs than the rectangles hold.
+#[test]
+fn elongated_splats_pair_with_the_tiles_their_ellipse_reaches() {
+    let ctx = ctx();
+    let mut renderer = renderer(&ctx);
+    let settings = RenderSettings::default();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(0x7115);
+    let (mut pairs, mut rect_pairs) = (0usize, 0u64);
+    for seed in 0..40 {
+        let n = rng.gen_range(1..120);
+        let mut g = scenes::random_gaussians(&mut rng, n);
+        for (s, o) in g.log_scales.iter_mut().zip(&mut g.opacity_logits) {
+            s[0] += rng.gen_range(0.0..3.0);
+            s[1] -= rng.gen_range(0.0..1.0);
+            *o = rng.gen_range(-4.0..3.0);
+        }
+        let (w, h) = (rng.gen_range(16..120), rng.gen_range(16..120));
+        let (camera, pose) = scenes::random_view(&mut rng, w, h);
+        let bg = [rng.gen(), rng.gen(), rng.gen()];
+        let (frame, exact) = render_gpu(&ctx, &mut renderer, &g, 3, &camera, &pose, bg, &settings);
+        let label = format!("elongated seed {seed} ({n} Gaussians, {w}×{h})");
+        compare(&frame, &exact, 3, &camera, &pose, bg, &settings, &label);
+        pairs += frame.tile_lists.iter().map(Vec::len).sum::<usize>();
+        rect_pairs += frame
+            .projected
+            .iter()
+            .map(|p| p.tiles_touched())
+            .sum::<u64>();
+    }
+    assert!(
+        (pairs as f64) < 0.8 * rect_pairs as f64,
+        "{pairs} pairs of the rectangles' {rect_pairs}"
+    );
+    eprintln!("GPU pairs: {pairs} of the rectangles' {rect_pairs}");
+    ctx.check_validation().unwrap();
+}
+
 /// Every pixels-per-invocation layout of the rasterizer against the reference: 1 is what GPUs
 /// run (a shared-memory load per splat), more take each splat from its lane by shuffles (CPU
 /// drivers); the default layout is covered above.

@@ -604,7 +604,8 @@ fn tiles_touched_are_consistent_with_the_radius() {
                 .iter()
                 .filter(|l| l.contains(&(gi as u32)))
                 .count() as u64;
-            assert_eq!(in_lists, p.tiles_touched());
+            assert_eq!(in_lists, p.pairs(&settings));
+            assert!(in_lists <= p.tiles_touched());
             if p.culled {
                 continue;
             }
@@ -636,10 +637,26 @@ fn tiles_touched_are_consistent_with_the_radius() {
                         })
                     });
                     let touched = p.touches_tile(tx, ty);
+                    let paired =
+                        out.bins.lists[(ty * tiles_x + tx) as usize].contains(&(gi as u32));
                     if within {
                         assert!(
-                            touched,
-                            "tile ({tx},{ty}) holds a pixel the splat reaches but is not touched"
+                            touched && paired,
+                            "tile ({tx},{ty}) holds a pixel the splat reaches but is not paired"
+                        );
+                    }
+                    if paired {
+                        assert!(touched, "tile ({tx},{ty}) paired outside the rectangle");
+                        // Paired only where the ellipse q <= q_cut meets the tile's pixel
+                        // centres, up to the documented margin (1e-3 px + 1e-6 relative).
+                        let q_cut = reference::project::splat_q_cut(p.opacity, &settings);
+                        let m = 2e-3 + 1e-5 * (p.mean2d[0].abs() + p.mean2d[1].abs() + p.radius);
+                        let lo = [tx as f64 * 16.0 + 0.5 - m, ty as f64 * 16.0 + 0.5 - m];
+                        let hi = [lo[0] + 15.0 + 2.0 * m, lo[1] + 15.0 + 2.0 * m];
+                        let q = min_q_over_box(p.mean2d, p.conic, lo, hi);
+                        assert!(
+                            q <= q_cut * (1.0 + 1e-9),
+                            "tile ({tx},{ty}) paired but min q {q} > q_cut {q_cut}"
                         );
                     }
                     if touched {
@@ -666,6 +683,108 @@ fn tiles_touched_are_consistent_with_the_radius() {
             }
         }
     }
+}
+
+/// The least of `q(x − mean) = dᵀ·conic·d` over the box `[lo, hi]`, by dense sampling of its
+/// edges refined around the best sample (a convex quadratic whose minimum lies outside a box is
+/// smallest on its boundary): independent of the closed form the binning uses.
+fn min_q_over_box(mean: [f64; 2], conic: [f64; 3], lo: [f64; 2], hi: [f64; 2]) -> f64 {
+    let [a, b, c] = conic;
+    let q = |x: f64, y: f64| {
+        let (dx, dy) = (x - mean[0], y - mean[1]);
+        a * dx * dx + 2.0 * b * dx * dy + c * dy * dy
+    };
+    if (lo[0]..=hi[0]).contains(&mean[0]) && (lo[1]..=hi[1]).contains(&mean[1]) {
+        return 0.0;
+    }
+    let edge = |p0: [f64; 2], p1: [f64; 2]| {
+        let at = |t: f64| q(p0[0] + t * (p1[0] - p0[0]), p0[1] + t * (p1[1] - p0[1]));
+        // Convex along the edge: a ternary search finds its minimum on [0, 1].
+        let (mut t0, mut t1) = (0.0f64, 1.0f64);
+        for _ in 0..200 {
+            let (m0, m1) = (t0 + (t1 - t0) / 3.0, t1 - (t1 - t0) / 3.0);
+            if at(m0) <= at(m1) {
+                t1 = m1;
+            } else {
+                t0 = m0;
+            }
+        }
+        at(0.5 * (t0 + t1)).min(at(0.0)).min(at(1.0))
+    };
+    let (x0, y0, x1, y1) = (lo[0], lo[1], hi[0], hi[1]);
+    edge([x0, y0], [x1, y0])
+        .min(edge([x0, y1], [x1, y1]))
+        .min(edge([x0, y0], [x0, y1]))
+        .min(edge([x1, y0], [x1, y1]))
+}
+
+/// Pairing a splat only with the tiles its ellipse reaches (`Projected::row_tiles`) leaves out
+/// pairs that the rasterizer would skip at every pixel: the image, the transmittance, every
+/// per-pixel count and every gradient are the same as with the whole rectangle, exactly, while
+/// elongated splats lose a good share of their pairs.
+#[test]
+fn pairing_by_ellipse_changes_no_pixel_and_no_gradient() {
+    use reference::backward::rasterize_backward;
+    use reference::raster::{rasterize, TileBins};
+    let mut rng = Pcg64::seed_from_u64(0xE111);
+    let settings = RenderSettings::default();
+    let (mut pairs, mut rect_pairs) = (0u64, 0u64);
+    for _ in 0..6 {
+        let (w, h) = (rng.gen_range(40..120), rng.gen_range(40..120));
+        let (cam, pose) = random_view(&mut rng, w, h);
+        let mut g = random_gaussians(&mut rng, 40);
+        for (s, o) in g.log_scales.iter_mut().zip(&mut g.opacity_logits) {
+            s[0] += rng.gen_range(0.0..3.0); // long thin splats at every angle
+            s[1] -= rng.gen_range(0.0..1.0);
+            *o = rng.gen_range(-4.0..3.0); // faint ones too: a shorter reach
+        }
+        let out = reference::render(&g, &cam, &pose, 3, [0.1, 0.2, 0.3], &settings).unwrap();
+        let mut rect = out.bins.clone();
+        for list in &mut rect.lists {
+            list.clear();
+        }
+        for (gi, p) in out.projected.iter().enumerate() {
+            if p.culled {
+                continue;
+            }
+            for ty in p.tile_min[1]..p.tile_max[1] {
+                for tx in p.tile_min[0]..p.tile_max[0] {
+                    rect.lists[(ty * rect.tiles_x + tx) as usize].push(gi as u32);
+                }
+            }
+            rect_pairs += p.tiles_touched();
+        }
+        for list in &mut rect.lists {
+            list.sort_by(|&x, &y| {
+                let (dx, dy) = (
+                    out.projected[x as usize].depth,
+                    out.projected[y as usize].depth,
+                );
+                dx.total_cmp(&dy).then(x.cmp(&y))
+            });
+        }
+        pairs += out.bins.intersections();
+        let by_rect: TileBins = rect;
+        let r = rasterize(&out.projected, &by_rect, &cam, [0.1, 0.2, 0.3], &settings).unwrap();
+        assert_eq!(r.image, out.raster.image);
+        assert_eq!(r.final_transmittance, out.raster.final_transmittance);
+        assert_eq!(r.contributors, out.raster.contributors);
+        assert_eq!(r.pixel_count, out.raster.pixel_count);
+        assert_eq!(r.median_depth, out.raster.median_depth);
+        let dl: Vec<[f64; 3]> = (0..(w * h) as usize)
+            .map(|_| [rng.gen_range(-1.0..1.0), rng.gen_range(-1.0..1.0), 0.5])
+            .collect();
+        let bg = [0.1, 0.2, 0.3];
+        let ga = rasterize_backward(&out.projected, &out.bins, &out.raster, bg, &settings, &dl);
+        let gb = rasterize_backward(&out.projected, &by_rect, &r, bg, &settings, &dl);
+        assert_eq!(ga.unwrap(), gb.unwrap());
+    }
+    // Not vacuous: the ellipse leaves out a good share of the rectangles' tiles.
+    assert!(
+        (pairs as f64) < 0.8 * rect_pairs as f64,
+        "{pairs} pairs of {rect_pairs}"
+    );
+    eprintln!("pairs by ellipse: {pairs} of the rectangles' {rect_pairs}");
 }
 
 #[test]

@@ -1,19 +1,25 @@
 #version 460
-// Forward step 2b: one (tile, Gaussian) pair per touched tile, written in depth order at the
-// Gaussian's scanned offset. The key holds only the tile id: a later stable sort by tile keeps
+// Forward step 2b: one (tile, Gaussian) pair per paired tile (tile_rows.glsl), written in depth
+// order at the Gaussian's scanned offset. The key holds only the tile id: a later stable sort by tile keeps
 // the depth order inside each tile. Writes past `capacity` are dropped and the host regrows the
 // buffers from the frame's 64-bit total (gather_tile_counts.comp), or refuses a frame past what
 // one binding of pairs holds; the scan's 32-bit total in counts[1] only bounds the writes.
 layout(constant_id = 0) const uint WG_SIZE = 256;
 layout(local_size_x_id = 0) in;
 #include "projected.glsl"
+#include "splat_reach.glsl"
+#include "tile_rows.glsl"
 layout(std430, set = 0, binding = 0) readonly buffer Bounds { ProjectedBounds bounds[]; };
 layout(std430, set = 0, binding = 1) readonly buffer Ids { uint depth_sorted_ids[]; };
 layout(std430, set = 0, binding = 2) readonly buffer Offsets { uint offsets[]; };
 layout(std430, set = 0, binding = 3) writeonly buffer Keys { uint keys[]; };
 layout(std430, set = 0, binding = 4) writeonly buffer Vals { uint vals[]; };
 layout(std430, set = 0, binding = 5) buffer Counts { uint counts[]; };
-layout(push_constant) uniform Push { uint capacity; uint tiles_x; };
+layout(std430, set = 0, binding = 6) readonly buffer Splats { ProjectedSplat splats[]; };
+// The same tile choice as gather_tile_counts.comp (its push constants, then these).
+layout(push_constant) uniform Push {
+    float alpha_min; uint ellipse; uint smooth_mode; uint capacity; uint tiles_x;
+};
 
 void main() {
     uint s = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * WG_SIZE;
@@ -23,8 +29,13 @@ void main() {
     uint g = depth_sorted_ids[s];
     ProjectedBounds p = bounds[g];
     uint slot = offsets[s];
+    uvec2 cols = uvec2(p.tile_min_x, p.tile_max_x);
+    bool use_ellipse = ellipse != 0u && cols.x < cols.y;
+    ProjectedSplat sp;
+    if (use_ellipse) sp = splats[g];
     for (uint ty = p.tile_min_y; ty < p.tile_max_y; ty++) {
-        for (uint tx = p.tile_min_x; tx < p.tile_max_x; tx++) {
+        uvec2 r = use_ellipse ? row_tiles(sp, ty, cols, true, alpha_min, smooth_mode != 0u) : cols;
+        for (uint tx = r.x; tx < r.y; tx++) {
             if (slot >= capacity) return;
             keys[slot] = ty * tiles_x + tx;
             vals[slot] = g;

@@ -1,5 +1,5 @@
 #version 460
-// Forward step 2a: in depth order, how many tiles each Gaussian touches (the input of the scan
+// Forward step 2a: in depth order, how many tiles each Gaussian is paired with (the input of the scan
 // whose exclusive prefix gives every Gaussian its first slot in the intersection list), and
 // the frame's total as 64 bits: the scan's 32-bit total wraps past 2^32 pairs, and the host
 // must tell such a frame from a small one to refuse it clearly rather than draw garbage.
@@ -8,20 +8,35 @@
 layout(constant_id = 0) const uint WG_SIZE = 256;
 layout(local_size_x_id = 0) in;
 #include "projected.glsl"
+#include "splat_reach.glsl"
+#include "tile_rows.glsl"
 layout(std430, set = 0, binding = 0) readonly buffer Bounds { ProjectedBounds bounds[]; };
 layout(std430, set = 0, binding = 1) readonly buffer Ids { uint depth_sorted_ids[]; };
 layout(std430, set = 0, binding = 2) writeonly buffer Touched { uint touched[]; };
 layout(std430, set = 0, binding = 3) readonly buffer Counts { uint counts[]; };
 // [0]: the total modulo 2^32, [1]: how many times adding to [0] wrapped (zeroed per frame).
 layout(std430, set = 0, binding = 4) buffer PairTotal { uint pair_total[]; };
+layout(std430, set = 0, binding = 5) readonly buffer Splats { ProjectedSplat splats[]; };
+// ellipse: pair only the tiles row_tiles keeps (1) or the whole rectangle (0).
+layout(push_constant) uniform Push { float alpha_min; uint ellipse; uint smooth_mode; };
 
 void main() {
     uint s = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * WG_SIZE;
     uint t = 0u;
     if (s < counts[0]) {
-        ProjectedBounds p = bounds[depth_sorted_ids[s]];
-        // A Gaussian covers at most tiles_x × tiles_y tiles, which fits a uint.
-        t = (p.tile_max_x - p.tile_min_x) * (p.tile_max_y - p.tile_min_y);
+        uint g = depth_sorted_ids[s];
+        ProjectedBounds p = bounds[g];
+        uvec2 cols = uvec2(p.tile_min_x, p.tile_max_x);
+        if (ellipse == 0u || cols.x >= cols.y) {
+            // A Gaussian covers at most tiles_x × tiles_y tiles, which fits a uint.
+            t = (cols.y - cols.x) * (p.tile_max_y - p.tile_min_y);
+        } else {
+            ProjectedSplat sp = splats[g];
+            for (uint ty = p.tile_min_y; ty < p.tile_max_y; ty++) {
+                uvec2 r = row_tiles(sp, ty, cols, true, alpha_min, smooth_mode != 0u);
+                t += r.y - r.x;
+            }
+        }
         touched[s] = t;
     }
     // A subgroup's sum fits a uint (subgroup size × tiles of one frame); one atomic a subgroup.

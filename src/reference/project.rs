@@ -50,6 +50,37 @@ impl Projected {
         w * h
     }
 
+    /// The tile columns `[x0, x1)` of tile row `ty` that this splat is paired with: those of
+    /// the rectangle where a pixel centre may get alpha ≥ `alpha_min` ([`ellipse_row_span`]).
+    /// The rest of the rectangle's tiles would skip the splat at every pixel, so leaving them
+    /// out changes no pixel and no gradient. Empty outside the rectangle's rows.
+    pub fn row_tiles(&self, ty: u32, s: &RenderSettings) -> std::ops::Range<u32> {
+        let (x0, x1) = (self.tile_min[0], self.tile_max[0]);
+        if self.culled || !(self.tile_min[1]..self.tile_max[1]).contains(&ty) || x0 >= x1 {
+            return 0..0;
+        }
+        let ts = s.tile_size as f64;
+        let q_cut = splat_q_cut(self.opacity, s);
+        let band = [ty as f64 * ts + 0.5, (ty + 1) as f64 * ts - 0.5];
+        match ellipse_row_span(self.mean2d, self.conic, q_cut, band) {
+            RowSpan::Empty => 0..0,
+            RowSpan::Whole => x0..x1,
+            RowSpan::Pixels(lo, hi) => {
+                // Tile tx holds the pixel centres tx·ts + 0.5 ..= (tx + 1)·ts − 0.5.
+                let first = ((lo - (ts - 0.5)) / ts).ceil().clamp(x0 as f64, x1 as f64) as u32;
+                let end = (((hi - 0.5) / ts).floor() + 1.0).clamp(x0 as f64, x1 as f64) as u32;
+                first..end.max(first)
+            }
+        }
+    }
+
+    /// The number of (tile, splat) pairs: the tiles of [`Projected::row_tiles`] over its rows.
+    pub fn pairs(&self, s: &RenderSettings) -> u64 {
+        (self.tile_min[1]..self.tile_max[1])
+            .map(|ty| self.row_tiles(ty, s).len() as u64)
+            .sum()
+    }
+
     /// True when tile (tx, ty) lies in the rectangle.
     pub fn touches_tile(&self, tx: u32, ty: u32) -> bool {
         (self.tile_min[0]..self.tile_max[0]).contains(&tx)
@@ -178,6 +209,77 @@ pub fn footprint_extent(radius: f64, lambda_max: f64, opacity: f64, s: &RenderSe
         return 0.0;
     }
     radius.min((2.0 * p * lambda_max).sqrt().ceil())
+}
+
+/// Beyond which `q(d) = dᵀ·conic·d` (= −2·power) a splat's alpha is below `alpha_min`, with the
+/// GPU's margins for f32 rounding (`splat_q_cut` in glsl/common/splat_reach.glsl): 1e-3 on the
+/// log, then 2 % and 1e-3 on q. Negative: never above `alpha_min`; infinite in smooth mode
+/// (which has no `alpha_min` skip).
+pub fn splat_q_cut(opacity: f64, s: &RenderSettings) -> f64 {
+    if s.smooth {
+        return f64::INFINITY;
+    }
+    let p = (opacity / s.alpha_min).ln() + 1e-3;
+    if p.is_nan() || p < 0.0 {
+        -1.0
+    } else {
+        2.0 * p * 1.02 + 1e-3
+    }
+}
+
+/// Where, along one horizontal band of pixel centres, an ellipse `q(x − mean) ≤ q_cut` lies.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum RowSpan {
+    /// The band misses the ellipse.
+    Empty,
+    /// No usable bound (smooth mode, a badly conditioned or non-finite conic): all of it.
+    Whole,
+    /// The ellipse's x-extent over the band, `[lo, hi]` in pixels, widened by the margin.
+    Pixels(f64, f64),
+}
+
+/// The x-extent of the ellipse `q(x − mean) ≤ q_cut` over the band `band[0] ≤ y ≤ band[1]`.
+/// With `d = x − mean`, `q = a·dx² + 2b·dx·dy + c·dy²` and `det = ac − b²`: the ellipse spans
+/// `|dy| ≤ sqrt(a·q_cut / det)`; at a given dy its x-range is
+/// `(−b·dy ± sqrt(a·q_cut − det·dy²)) / a`; its leftmost point has `dy = b·sqrt(q_cut / (c·det))`
+/// and the rightmost the opposite, and since the left boundary is convex in dy (the right one
+/// concave), the band's extremes are at those points clamped into the band. Both the band and
+/// the result are widened by `1e-3 + 1e-6·(|mean| + half extents)` pixels, for the f32 rounding
+/// of the GPU's copy (glsl/common/tile_rows.glsl) on top of the 2 % of `q_cut`. The same
+/// conditioning rule as the rasterizers' ellipse test: `det > 1e-4·ac`, else `Whole`.
+pub fn ellipse_row_span(mean: [f64; 2], conic: [f64; 3], q_cut: f64, band: [f64; 2]) -> RowSpan {
+    let [a, b, c] = conic;
+    if q_cut < 0.0 {
+        return RowSpan::Empty;
+    }
+    let ac = a * c;
+    let det = ac - b * b;
+    if !(a > 0.0 && c > 0.0 && det > 1e-4 * ac && q_cut.is_finite()) {
+        return RowSpan::Whole;
+    }
+    let hx = (c * q_cut / det).sqrt();
+    let hy = (a * q_cut / det).sqrt();
+    let m = 1e-3 + 1e-6 * (mean[0].abs() + mean[1].abs() + hx + hy);
+    let lo_y = (band[0] - mean[1] - m).max(-hy);
+    let hi_y = (band[1] - mean[1] + m).min(hy);
+    if !(lo_y <= hi_y) {
+        return if lo_y > hi_y {
+            RowSpan::Empty
+        } else {
+            RowSpan::Whole
+        };
+    }
+    let k = b * (q_cut / (c * det)).sqrt();
+    let half = |dy: f64| (a * q_cut - det * dy * dy).max(0.0).sqrt();
+    let dl = k.clamp(lo_y, hi_y);
+    let dr = (-k).clamp(lo_y, hi_y);
+    let lo = mean[0] + (-b * dl - half(dl)) / a - m;
+    let hi = mean[0] + (-b * dr + half(dr)) / a + m;
+    if lo.is_finite() && hi.is_finite() {
+        RowSpan::Pixels(lo, hi)
+    } else {
+        RowSpan::Whole
+    }
 }
 
 /// The 2D Mip filter's opacity factor `sqrt(max(ρ_min², det0 / det1))` for the undilated

@@ -6,7 +6,8 @@ use super::project::Projected;
 use super::RenderSettings;
 use crate::scene::PinholeCamera;
 
-/// Per tile, the Gaussians whose tile rectangle holds it, sorted by depth (ties by index):
+/// Per tile, the Gaussians paired with it ([`Projected::row_tiles`]: the tiles of the
+/// rectangle where the splat may reach `alpha_min` at a pixel centre), sorted by depth (ties by index):
 /// exactly the order a GPU sort of (tile | depth) keys with values emitted in Gaussian order
 /// and a stable sort produces.
 #[derive(Debug, Clone, PartialEq)]
@@ -47,7 +48,7 @@ pub fn bin_gaussians(
             continue;
         }
         for ty in p.tile_min[1]..p.tile_max[1].min(tiles_y) {
-            for tx in p.tile_min[0]..p.tile_max[0].min(tiles_x) {
+            for tx in p.row_tiles(ty, settings) {
                 lists[ty as usize * tiles_x as usize + tx as usize].push(g as u32);
             }
         }

@@ -43,11 +43,49 @@ struct PreprocessPush {
     rc: RenderConstants,
 }
 
+/// Which tiles of a splat's rectangle get a (tile, splat) pair (glsl/common/tile_rows.glsl).
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct PairingPush {
+    alpha_min: f32,
+    /// 1: only the tiles where the splat's ellipse may reach `alpha_min`; 0: the rectangle.
+    ellipse: u32,
+    smooth_mode: u32,
+}
+
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 struct EmitPush {
+    pairing: PairingPush,
     capacity: u32,
     tiles_x: u32,
+}
+
+/// How a frame's preprocess output is paired with tiles.
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum Pairing {
+    /// Every tile of the rectangle (surfels: their footprint is not a conic's ellipse).
+    Rectangle,
+    /// Only the tiles where a pixel centre may get alpha ≥ `alpha_min` under these constants
+    /// (3DGS's conic splats): the others would skip the splat at every pixel anyway.
+    Ellipse(RenderConstants),
+}
+
+impl Pairing {
+    fn push(self) -> PairingPush {
+        match self {
+            Pairing::Rectangle => PairingPush {
+                alpha_min: 0.0,
+                ellipse: 0,
+                smooth_mode: 0,
+            },
+            Pairing::Ellipse(rc) => PairingPush {
+                alpha_min: rc.alpha_min,
+                ellipse: 1,
+                smooth_mode: u32::from(rc.flags & RenderConstants::SMOOTH != 0),
+            },
+        }
+    }
 }
 
 #[repr(C)]
@@ -251,13 +289,13 @@ impl Renderer {
             gather: pipe(
                 "render/gather_tile_counts",
                 shaders::RENDER_GATHER_TILE_COUNTS,
-                5,
-                0,
+                6,
+                std::mem::size_of::<PairingPush>(),
             )?,
             emit: pipe(
                 "render/emit_intersections",
                 shaders::RENDER_EMIT_INTERSECTIONS,
-                6,
+                7,
                 std::mem::size_of::<EmitPush>(),
             )?,
             ranges: pipe("render/tile_ranges", shaders::RENDER_TILE_RANGES, 3, 0)?,
@@ -469,7 +507,13 @@ impl Renderer {
         stamp(rec, timestamps.as_deref_mut(), "preprocess");
 
         // 2–5 (tile ranges).
-        self.record_binning(rec, n, camera, timestamps.as_deref_mut());
+        self.record_binning(
+            rec,
+            n,
+            camera,
+            Pairing::Ellipse(rc),
+            timestamps.as_deref_mut(),
+        );
 
         // 5. Rasterize one workgroup per tile.
         if let Some(fc) = settings.features {
@@ -550,12 +594,14 @@ impl Renderer {
     /// Steps 2–5 of a frame whose preprocess (of `n` splats, 3DGS's or another model's) has
     /// filled `frame.projected`, the depth keys and values and `counts[0]`, and zeroed
     /// `frame.tile_ranges`: the depth sort, tile counts, scan and emit, the stable tile sort
-    /// and the tile ranges. The sorted pairs are then [`Renderer::sorted_ids`].
+    /// and the tile ranges, pairing each splat with the tiles `pairing` says. The sorted pairs
+    /// are then [`Renderer::sorted_ids`].
     pub(super) fn record_binning(
         &mut self,
         rec: &mut Recorder,
         n: u64,
         camera: &CameraGpu,
+        pairing: Pairing,
         mut timestamps: Option<&mut TimestampPool>,
     ) {
         let ctx = self.ctx.clone();
@@ -590,8 +636,9 @@ impl Renderer {
                 &f.touched,
                 &f.counts,
                 &f.pair_total,
+                &f.projected.splats,
             ],
-            &(),
+            &pairing.push(),
             ctx.groups_1d(n, WG),
         );
         self.scan.record(
@@ -611,8 +658,10 @@ impl Renderer {
                 &f.tile_keys,
                 &f.tile_vals,
                 &f.counts,
+                &f.projected.splats,
             ],
             &EmitPush {
+                pairing: pairing.push(),
                 capacity: self.capacity.intersections.min(u32::MAX as usize) as u32,
                 tiles_x: camera.size[2],
             },

@@ -8,7 +8,7 @@ use std::sync::Arc;
 use super::layout::{SurfelConstants, GEOM_STRIDE, MAPS_STRIDE, NORMAL_STRIDE};
 use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder, TimestampPool};
 use crate::render::backward::default_pixels_per_invocation;
-use crate::render::forward::{Capacity, Renderer};
+use crate::render::forward::{Capacity, Pairing, Renderer};
 use crate::render::layout::CameraGpu;
 use crate::shaders;
 use crate::splats::gpu::GpuSplats;
@@ -211,8 +211,13 @@ impl SurfelRenderer {
             rec.timestamp(p, "preprocess");
         }
 
-        self.base
-            .record_binning(rec, n, camera, timestamps.as_deref_mut());
+        self.base.record_binning(
+            rec,
+            n,
+            camera,
+            Pairing::Rectangle,
+            timestamps.as_deref_mut(),
+        );
 
         let f = &self.base.frame;
         rec.dispatch(
