@@ -262,12 +262,11 @@ pub fn ellipse_row_span(mean: [f64; 2], conic: [f64; 3], q_cut: f64, band: [f64;
     let m = 1e-3 + 1e-6 * (mean[0].abs() + mean[1].abs() + hx + hy);
     let lo_y = (band[0] - mean[1] - m).max(-hy);
     let hi_y = (band[1] - mean[1] + m).min(hy);
-    if !(lo_y <= hi_y) {
-        return if lo_y > hi_y {
-            RowSpan::Empty
-        } else {
-            RowSpan::Whole
-        };
+    if lo_y > hi_y {
+        return RowSpan::Empty;
+    }
+    if lo_y.is_nan() || hi_y.is_nan() {
+        return RowSpan::Whole;
     }
     let k = b * (q_cut / (c * det)).sqrt();
     let half = |dy: f64| (a * q_cut - det * dy * dy).max(0.0).sqrt();
