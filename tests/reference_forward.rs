@@ -787,6 +787,88 @@ fn pairing_by_ellipse_changes_no_pixel_and_no_gradient() {
     eprintln!("pairs by ellipse: {pairs} of the rectangles' {rect_pairs}");
 }
 
+/// The row span at its extremes: what it returns where it cannot bound the ellipse, and that
+/// it stays exact for far-off means and needle-thin or huge footprints.
+#[test]
+fn ellipse_row_span_at_the_extremes() {
+    use reference::project::{ellipse_row_span, RowSpan};
+    let band = [0.5, 15.5];
+    // Never above alpha_min: no tile; smooth mode or no finite cut: every tile.
+    assert_eq!(
+        ellipse_row_span([8.0, 8.0], [1.0, 0.0, 1.0], -1.0, band),
+        RowSpan::Empty
+    );
+    assert_eq!(
+        ellipse_row_span([8.0, 8.0], [1.0, 0.0, 1.0], f64::INFINITY, band),
+        RowSpan::Whole
+    );
+    // Badly conditioned (det ≤ 1e-4·ac), degenerate or non-finite conics: every tile.
+    for conic in [
+        [1.0, 0.99999, 1.0],
+        [0.0, 0.0, 1.0],
+        [1.0, 0.0, -1.0],
+        [f64::NAN, 0.0, 1.0],
+        [1.0, f64::INFINITY, 1.0],
+    ] {
+        assert_eq!(
+            ellipse_row_span([8.0, 8.0], conic, 10.0, band),
+            RowSpan::Whole,
+            "{conic:?}"
+        );
+    }
+    assert_eq!(
+        ellipse_row_span([f64::NAN, 8.0], [1.0, 0.0, 1.0], 10.0, band),
+        RowSpan::Whole
+    );
+    // A circle of radius 2 around (100, 8): x from 98 to 102, plus the margin.
+    match ellipse_row_span([100.0, 8.0], [1.0, 0.0, 1.0], 4.0, band) {
+        RowSpan::Pixels(lo, hi) => {
+            assert!(
+                (lo - 98.0).abs() < 3e-3 && lo < 98.0 && (hi - 102.0).abs() < 3e-3 && hi > 102.0
+            )
+        }
+        other => panic!("{other:?}"),
+    }
+    // The same circle just above the band reaches it in a narrow span; 0.5 px higher, not at all.
+    match ellipse_row_span([100.0, -1.4], [1.0, 0.0, 1.0], 4.0, band) {
+        RowSpan::Pixels(lo, hi) => assert!(lo > 99.0 && hi < 101.0 && lo < hi, "{lo} {hi}"),
+        other => panic!("{other:?}"),
+    }
+    assert_eq!(
+        ellipse_row_span([100.0, -1.6], [1.0, 0.0, 1.0], 4.0, band),
+        RowSpan::Empty
+    );
+    // Far from the origin (4K and beyond): the margin grows with the coordinates, the span stays
+    // around the true one.
+    for x in [1e4, 1e6, 1e7] {
+        match ellipse_row_span([x, 8.0], [1.0, 0.0, 1.0], 4.0, band) {
+            RowSpan::Pixels(lo, hi) => {
+                let m = 1e-3 + 1e-6 * (x + 8.0 + 4.0);
+                assert!(
+                    (lo - (x - 2.0 - m)).abs() < 1e-6 * x && (hi - (x + 2.0 + m)).abs() < 1e-6 * x
+                );
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+    // A needle at 45° (standard deviations 100 and 1 px; det = 4e-4·ac, just bounded): the
+    // band of rows 0.5..15.5 through its centre meets it where x ≈ y (−3.7 to 19.7), not over
+    // the 424 px its x-extent spans.
+    let (l1, l2) = (1e4f64, 1.0f64); // variances along (1, 1)/√2 and (1, −1)/√2
+    let (a, b) = ((l1 + l2) / 2.0, (l1 - l2) / 2.0);
+    let det = a * a - b * b;
+    let conic = [a / det, -b / det, a / det];
+    match ellipse_row_span([8.0, 8.0], conic, 9.0, band) {
+        RowSpan::Pixels(lo, hi) => {
+            assert!(
+                (lo + 3.738).abs() < 0.01 && (hi - 19.738).abs() < 0.01,
+                "{lo} {hi}"
+            )
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
 #[test]
 fn equal_depths_sort_by_index() {
     let cam = camera(16, 16, 20.0);
