@@ -233,3 +233,41 @@ fn a_full_binding_of_pairs_sorted_reversed_and_equal() {
     check_sort(&ctx, &sorter, &keys, bits);
     ctx.check_validation().unwrap();
 }
+
+/// Group counts computed on the GPU from a count in a buffer: enough workgroups for every item,
+/// not a row more, within the device's limits, at least one, and no wrap for counts near 2^32.
+#[test]
+fn dispatch_sizes_from_a_gpu_count_cover_it_exactly() {
+    use lpmsplat::render::dispatch_size::DispatchSize;
+    let ctx = ctx();
+    let max_x = ctx.info.max_workgroup_count[0] as u64;
+    let counts_host = [0u32, 1, 255, 256, 257, 1_000_000, u32::MAX - 1, u32::MAX];
+    let counts = GpuBuffer::from_slice(&ctx, "counts", &counts_host).unwrap();
+    let sizes = DispatchSize::new(&ctx, counts_host.len()).unwrap();
+    for per_group in [1u64, 256, 16_384] {
+        let mut rec = Recorder::new(&ctx).unwrap();
+        for slot in 0..counts_host.len() as u32 {
+            sizes.record(&mut rec, &counts, slot, per_group, slot);
+        }
+        rec.submit_and_wait().unwrap();
+        let (args, at) = sizes.args(0);
+        assert_eq!(at, 0);
+        let got = args.read_range(0, 3 * counts_host.len()).unwrap();
+        for (slot, &n) in counts_host.iter().enumerate() {
+            let [x, y, z] = [0, 1, 2].map(|k| got[3 * slot + k] as u64);
+            let need = (n as u64).div_ceil(per_group).max(1);
+            let label = format!("{n} items, {per_group} a group: {x}×{y}×{z}");
+            assert_eq!(z, 1, "{label}");
+            assert!(x >= 1 && x <= max_x && y >= 1, "{label}");
+            assert!(x * y >= need, "{label}: too few groups for {need}");
+            assert!(
+                x * (y - 1) < need,
+                "{label}: a whole row of groups too many"
+            );
+            if need <= max_x {
+                assert_eq!((x, y), (need, 1), "{label}");
+            }
+        }
+    }
+    ctx.check_validation().unwrap();
+}

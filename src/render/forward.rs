@@ -23,6 +23,7 @@
 use std::sync::Arc;
 
 use super::backward::default_pixels_per_invocation;
+use super::dispatch_size::DispatchSize;
 use super::layout::{CameraGpu, RenderConstants};
 use super::projected::ProjectedBuffers;
 use super::scan::PrefixScan;
@@ -209,6 +210,8 @@ pub struct Renderer {
     feature_image: Option<GpuBuffer<f32>>,
     depth_sort: RadixSort,
     tile_sort: RadixSort,
+    /// The tile-ranges pass's group count, from the frame's pair count on the GPU.
+    pair_groups: DispatchSize,
     scan: PrefixScan,
     capacity: Capacity,
     pub frame: FrameBuffers,
@@ -312,6 +315,7 @@ impl Renderer {
             feature_image: None,
             depth_sort: RadixSort::new(ctx, capacity.gaussians as u64)?,
             tile_sort: RadixSort::new(ctx, capacity.intersections as u64)?,
+            pair_groups: DispatchSize::new(ctx, 1)?,
             scan: PrefixScan::new(ctx, capacity.gaussians as u64)?,
             frame: FrameBuffers::new(ctx, &capacity)?,
             capacity,
@@ -693,13 +697,17 @@ impl Renderer {
         let (keys, _) = self.sorted_pairs();
         stamp(rec, timestamps, "tile sort");
 
-        // 5. Tile ranges.
+        // 5. Tile ranges, over the frame's pairs (not the capacity).
         let f = &self.frame;
-        rec.dispatch(
+        self.pair_groups
+            .record(rec, &f.counts, COUNT_STORED_PAIRS, WG as u64, 0);
+        let (args, at) = self.pair_groups.args(0);
+        rec.dispatch_indirect(
             &self.ranges,
             &[keys, &f.tile_ranges, &f.counts],
             &(),
-            ctx.groups_1d(self.capacity.intersections as u64, WG),
+            args,
+            at,
         );
         rec.barrier();
     }

@@ -4,6 +4,7 @@
 
 pub mod backward;
 pub mod decoder;
+pub mod dispatch_size;
 pub mod filter3d;
 pub mod forward;
 pub mod layout;

@@ -3,6 +3,7 @@
 //! exclusive scan of all histograms, then a stable scatter. No decoupled look-back: Vulkan gives
 //! no forward-progress guarantee between workgroups.
 
+use super::dispatch_size::DispatchSize;
 use super::scan::PrefixScan;
 use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder};
 use crate::shaders;
@@ -53,6 +54,8 @@ pub struct RadixSort {
     scatter: ComputePipeline,
     scan: PrefixScan,
     hist: GpuBuffer<u32>,
+    /// The passes' group counts, from the count on the GPU (not the capacity).
+    sizes: DispatchSize,
     capacity: u64,
 }
 
@@ -108,6 +111,7 @@ impl RadixSort {
             scatter,
             scan,
             hist,
+            sizes: DispatchSize::new(ctx, 1)?,
             capacity,
         })
     }
@@ -147,7 +151,10 @@ impl RadixSort {
         hist_len_index: u32,
         bits: u32,
     ) -> SortedIn {
-        let groups = ctx.groups_1d(self.capacity.div_ceil(Self::block_of(self.items)), 1);
+        // As many blocks as there are keys this time, not as the capacity holds.
+        self.sizes
+            .record(rec, counts, count_index, Self::block_of(self.items), 0);
+        let (args, at) = self.sizes.args(0);
         let mut from_input = true;
         for pass in 0..Self::passes(bits) {
             let shift = pass * BITS_PER_PASS;
@@ -159,7 +166,7 @@ impl RadixSort {
                 (scratch_keys, scratch_values, keys, values)
             };
             rec.barrier();
-            rec.dispatch(
+            rec.dispatch_indirect(
                 &self.upsweep,
                 &[ki, &self.hist, counts],
                 &UpPush {
@@ -168,11 +175,12 @@ impl RadixSort {
                     shift,
                     digit_mask,
                 },
-                groups,
+                args,
+                at,
             );
             self.scan
                 .record(ctx, rec, &self.hist, counts, hist_len_index, None);
-            rec.dispatch(
+            rec.dispatch_indirect(
                 &self.scatter,
                 &[ki, vi, ko, vo, &self.hist, counts],
                 &ScatterPush {
@@ -180,7 +188,8 @@ impl RadixSort {
                     shift,
                     digit_mask,
                 },
-                groups,
+                args,
+                at,
             );
             from_input = !from_input;
         }
