@@ -31,10 +31,12 @@ void main() {
     uint slot = offsets[s];
     uvec2 cols = uvec2(p.tile_min_x, p.tile_max_x);
     bool use_ellipse = ellipse != 0u && cols.x < cols.y;
-    ProjectedSplat sp;
-    if (use_ellipse) sp = splats[g];
+    RowSpanner rs;
+    rs.bounded = false;
+    rs.empty = false;
+    if (use_ellipse) rs = row_spanner(splats[g], true, alpha_min, smooth_mode != 0u);
     for (uint ty = p.tile_min_y; ty < p.tile_max_y; ty++) {
-        uvec2 r = use_ellipse ? row_tiles(sp, ty, cols, true, alpha_min, smooth_mode != 0u) : cols;
+        uvec2 r = row_tiles(rs, ty, cols);
         for (uint tx = r.x; tx < r.y; tx++) {
             if (slot >= capacity) return;
             keys[slot] = ty * tiles_x + tx;

@@ -31,9 +31,9 @@ void main() {
             // A Gaussian covers at most tiles_x × tiles_y tiles, which fits a uint.
             t = (cols.y - cols.x) * (p.tile_max_y - p.tile_min_y);
         } else {
-            ProjectedSplat sp = splats[g];
+            RowSpanner rs = row_spanner(splats[g], true, alpha_min, smooth_mode != 0u);
             for (uint ty = p.tile_min_y; ty < p.tile_max_y; ty++) {
-                uvec2 r = row_tiles(sp, ty, cols, true, alpha_min, smooth_mode != 0u);
+                uvec2 r = row_tiles(rs, ty, cols);
                 t += r.y - r.x;
             }
         }
