@@ -6,6 +6,8 @@
 #   .device/scene.tar.xz  one scene, when given as the first argument (../shared/data/tnt_truck)
 #   .gl/libvulkan1_*.deb  the Vulkan loader, which that machine lacks
 #   .device/validation.deb  the Khronos validation layer, which the tests turn on
+#   .device/base.tar.xz   with BASE=REV: the stripped release binary of commit REV, for the
+#                         `fpspair` step's side-by-side ratios (built in a worktree under /tmp)
 # A call carries some of them (the working tree travels too, 64 MiB in all): this script prints
 # the size of each call of scripts/device/README.md and refuses one that would not fit.
 set -euo pipefail
@@ -27,6 +29,17 @@ for line in sys.stdin:
 '
 strip .device/bin/* .device/tests/*
 for k in bin tests; do tar -cJf ".device/$k.tar.xz" -C .device "$k" && rm -rf ".device/$k"; done
+if [ -n "${BASE:-}" ]; then
+    rev=$(git rev-parse --short "$BASE")
+    wt=/tmp/lpmsplat-base-$rev
+    [ -d "$wt" ] || git worktree add -f --detach "$wt" "$rev" >/dev/null
+    (cd "$wt" && CARGO_TARGET_DIR=/tmp/lpmsplat-base-target cargo build --release --quiet)
+    mkdir -p .device/base
+    cp /tmp/lpmsplat-base-target/release/lpmsplat .device/base/lpmsplat
+    echo "$rev" >.device/base/REV
+    strip .device/base/lpmsplat
+    tar -cJf .device/base.tar.xz -C .device base && rm -rf .device/base
+fi
 if [ -n "$scene" ]; then
     [ -d "$scene" ] || { echo "no scene folder at $scene" >&2; exit 1; }
     # xz: the JPEGs stay as they are, the COLMAP model halves (Truck: 52 -> 43 MiB).
@@ -53,5 +66,6 @@ call() {
     [ "$bytes" -lt $((63 * 1048576)) ] || { echo "  too large for one call (64 MiB)" >&2; fits=0; }
 }
 call check .gl .device/bin.tar.xz .device/tests.tar.xz .device/validation.deb
+[ -z "${BASE:-}" ] || call fpspair .gl .device/bin.tar.xz .device/base.tar.xz
 [ -z "$scene" ] || call scene .gl .device/bin.tar.xz .device/scene.tar.xz
 [ "$fits" = 1 ]

@@ -8,6 +8,8 @@
 #   tests    the gpu_* test executables (kernels against the f64 references), validation on
 #   demo     the README's main job, 3DGS then 2DGS (lund_door_small -r 2, 2000 iterations)
 #   fps      bench fps at 1352x1014: 100k, 1M and 3M generated Gaussians
+#   fpspair  the same with the packed baseline (pack.sh with BASE=REV) and this build, alternated
+#            twice: the FPS ratio measured side by side on one GPU
 #   trade7k  bench trade on the packed scene at full size: ADC vs ADC+LPM, 7k of the 30k
 #            calendar, then bench fps of the LPM model at 1352x1014
 #   trade30k bench trade on the packed scene at full size: ADC vs ADC+LPM, the whole 30k
@@ -37,7 +39,7 @@ if [ -z "${VK_DRIVER_FILES:-}" ] && ! ls /usr/share/vulkan/icd.d/nvidia_icd*.jso
     icd=$(find /usr/local/nvidia /usr/share /etc /usr/lib /opt -name 'nvidia_icd*.json' 2>/dev/null | head -1)
     [ -n "$icd" ] && export VK_DRIVER_FILES=$icd
 fi
-for k in bin tests; do [ -f ".device/$k.tar.xz" ] && tar -xJf ".device/$k.tar.xz" -C "$work"; done
+for k in bin tests base; do [ -f ".device/$k.tar.xz" ] && tar -xJf ".device/$k.tar.xz" -C "$work"; done
 scene=
 if [ -f .device/scene.tar.xz ]; then
     tar -xJf .device/scene.tar.xz -C "$work"
@@ -114,6 +116,19 @@ for s in "$@"; do
     fps)
         step fps 120 "$bin" bench fps --gaussians 100000,1000000,3000000 --json "$res/fps.json"
         ;;
+    fpspair)
+        if [ -x "$work/base/lpmsplat" ]; then
+            for r in 1 2; do
+                step "fps-base-$r" 100 "$work/base/lpmsplat" bench fps \
+                    --gaussians 100000,1000000,3000000 --json "$res/fps-base-$r.json"
+                step "fps-new-$r" 100 "$bin" bench fps --gaussians 100000,1000000,3000000 \
+                    --json "$res/fps-new-$r.json"
+            done
+            echo "fpspair: baseline $(cat "$work/base/REV")" >>"$summary"
+        else
+            echo "fpspair: skipped (no .device/base.tar.xz: pack.sh with BASE=REV)" >>"$summary"
+        fi
+        ;;
     trade7k)
         need_scene trade7k &&
             step trade7k 900 "$bin" bench trade "$scene" -r 1 --iterations 7000 --calendar 30000 \
@@ -177,7 +192,7 @@ for s in "$@"; do
             step train30k 900 "$bin" train "$scene" -r 1 --iterations 30000 --lpm --eval-every 5000 \
                 --timestamps -o "$work/train30k"
         ;;
-    *) echo "$s: unknown step (info tests demo fps trade7k trade30k ablate7k pair30k serial30k train30k)" >>"$summary" ;;
+    *) echo "$s: unknown step (info tests demo fps fpspair trade7k trade30k ablate7k pair30k serial30k train30k)" >>"$summary" ;;
     esac
     collect
 done
