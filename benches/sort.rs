@@ -20,19 +20,25 @@ fn main() -> anyhow::Result<()> {
         .unwrap_or(4 << 20);
     // The renderer's two sorts at 1352x1014: depths (32 bits) and tile ids (13 bits).
     println!(
-        "{:>10} {:>6} {:>12} {:>14} {:>14} {:>8}",
-        "pairs", "bits", "gpu ms", "gpu Mkeys/s", "host Mkeys/s", "ratio"
+        "{:>10} {:>6} {:>8} {:>12} {:>14} {:>14} {:>8}",
+        "pairs", "bits", "passes", "gpu ms", "gpu Mkeys/s", "host Mkeys/s", "ratio"
     );
     let mut rng = rand_pcg::Pcg64::seed_from_u64(1);
-    for (n, bits) in std::iter::successors(Some(1024usize), |n| Some(n * 4))
+    for (n, bits, wide) in std::iter::successors(Some(1024usize), |n| Some(n * 4))
         .take_while(|&n| n <= max)
-        .flat_map(|n| [(n, 32u32), (n, 13)])
+        .flat_map(|n| [(n, 32u32), (n, 31), (n, 13)])
+        .flat_map(|(n, bits)| [(n, bits, false), (n, bits, true)])
+        // 5-bit digits only where they change the passes.
+        .filter(|&(_, bits, wide)| {
+            !wide || RadixSort::pass_widths(bits, true) != RadixSort::pass_widths(bits, false)
+        })
     {
         let keys: Vec<u32> = (0..n)
             .map(|_| rng.gen::<u32>() & (u32::MAX >> (32 - bits)))
             .collect();
         let vals: Vec<u32> = (0..n as u32).collect();
-        let sorter = RadixSort::new(&ctx, n as u64)?;
+        let items = RadixSort::new(&ctx, 1)?.items();
+        let sorter = RadixSort::with_options(&ctx, n as u64, items, wide)?;
         let kb = GpuBuffer::from_slice(&ctx, "keys", &keys)?;
         let vb = GpuBuffer::from_slice(&ctx, "vals", &vals)?;
         let sk = GpuBuffer::<u32>::new(&ctx, "sk", n, BufferKind::DeviceLocal)?;
@@ -65,9 +71,10 @@ fn main() -> anyhow::Result<()> {
         host_ms.sort_by(|a, b| a.partial_cmp(b).unwrap());
         let host = host_ms[host_ms.len() / 2];
         println!(
-            "{:>10} {:>6} {:>12.3} {:>14.1} {:>14.1} {:>8.2}",
+            "{:>10} {:>6} {:>8} {:>12.3} {:>14.1} {:>14.1} {:>8.2}",
             n,
             bits,
+            RadixSort::pass_widths(bits, wide).len(),
             gpu,
             n as f64 / gpu / 1e3,
             n as f64 / host / 1e3,

@@ -100,11 +100,14 @@ fn check_sort_with(
 fn radix_sort_is_stable_and_matches_host_sort() {
     let ctx = ctx();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
-    // Both block sizes (GPUs take 8 keys per invocation, CPU drivers 64), whatever the device;
-    // the sizes straddle both block lengths (2048 and 16384 keys).
+    // Both block sizes (GPUs take 8 keys per invocation, CPU drivers 64), whatever the device,
+    // with 4-bit passes only and with the 5-bit passes that save a pass (13, 29, 31 and 32 bits
+    // use them); the sizes straddle both block lengths (2048 and 16384 keys).
     let sorters = [
-        RadixSort::with_items(&ctx, 300_000, 8).unwrap(),
-        RadixSort::with_items(&ctx, 300_000, 64).unwrap(),
+        RadixSort::with_options(&ctx, 300_000, 8, false).unwrap(),
+        RadixSort::with_options(&ctx, 300_000, 64, false).unwrap(),
+        RadixSort::with_options(&ctx, 300_000, 8, true).unwrap(),
+        RadixSort::with_options(&ctx, 300_000, 64, true).unwrap(),
     ];
     assert!(
         RadixSort::with_items(&ctx, 10, 256).is_err(),
@@ -121,9 +124,11 @@ fn radix_sort_is_stable_and_matches_host_sort() {
         (70_001, 29),
         (300_000, 32),
         (50_000, 6),
+        (40_000, 13),
+        (9_000, 1),
     ]
     .iter()
-    .flat_map(|c| [(c, 0usize), (c, 1)])
+    .flat_map(|c| (0..sorters.len()).map(move |k| (c, k)))
     {
         let sorter = &sorters[k];
         // Keys carry random bits above `bits` too: the sort must ignore them. Few distinct
@@ -145,7 +150,8 @@ fn radix_sort_is_stable_and_matches_host_sort() {
 
 #[test]
 fn splat_like_depth_then_tile_sort_orders_pairs_by_tile_then_depth() {
-    // The renderer's two sorts: Gaussians by depth (the float bits of positive depths, 32 bits),
+    // The renderer's two sorts: Gaussians by depth (the float bits of positive depths, 31 bits,
+    // culled ones 0x7FFFFFFF),
     // then their (tile, Gaussian) pairs, emitted in depth order, stably by tile id alone (13 bits
     // at 1352×1014 in 16×16 tiles). Together they must equal one sort by (tile, depth, index).
     let ctx = ctx();
@@ -158,15 +164,24 @@ fn splat_like_depth_then_tile_sort_orders_pairs_by_tile_then_depth() {
     let depths: Vec<f32> = (0..gaussians)
         .map(|_| rng.gen_range(1..2_000) as f32 * 0.05)
         .collect();
-    let depth_keys: Vec<u32> = depths.iter().map(|d| d.to_bits()).collect();
+    // A tenth culled: the largest key, and no tiles.
+    let culled: Vec<bool> = (0..gaussians).map(|_| rng.gen_bool(0.1)).collect();
+    let depth_keys: Vec<u32> = depths
+        .iter()
+        .zip(&culled)
+        .map(|(d, &c)| if c { 0x7FFF_FFFF } else { d.to_bits() })
+        .collect();
     let by_depth = check_sort(
         &ctx,
         &RadixSort::new(&ctx, gaussians as u64).unwrap(),
         &depth_keys,
-        32,
+        31,
     );
     let touched: Vec<Vec<u32>> = (0..gaussians)
-        .map(|_| {
+        .map(|g| {
+            if culled[g] {
+                return Vec::new();
+            }
             let first = rng.gen_range(0..tiles);
             let len = rng.gen_range(1..6u32);
             (first..(first + len).min(tiles)).collect()

@@ -8,6 +8,12 @@ struct Projected {
     uint tile_min_x, tile_min_y, tile_max_x, tile_max_y;
 };
 
+// The depth sort's key: the bits of the camera depth, a positive float past the near plane
+// (> 0), so the sign bit is always clear and the sort takes 31 bits (7 passes rather than 8:
+// `RadixSort::pass_widths`). Culled splats carry the largest key, above +inf's bits, and end
+// last. `DEPTH_KEY_BITS` in src/render/forward.rs must match.
+const uint CULLED_DEPTH_KEY = 0x7FFFFFFFu;
+
 // It is stored as two buffers, so that no per-Gaussian buffer is wider than 36 bytes and one
 // storage binding (128 MiB on lavapipe) holds 3.7 M Gaussians rather than 2.1 M; the split also
 // follows the readers: the rasterizers, forward and backward, read only `ProjectedSplat`;

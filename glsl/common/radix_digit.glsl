@@ -1,8 +1,9 @@
-// 4-bit digits of 32-bit keys (the renderer sorts depths and tile ids, both 32 bits wide).
-// Small digits keep the per-invocation counters of the stable scatter in registers for any
-// subgroup size.
-const uint RADIX_BITS = 4u;
-const uint RADIX = 16u;
+// Digits of 32-bit keys (the renderer sorts depths and tile ids, both 32 bits wide): 4 bits, or
+// 5 where a 5-bit pass saves a whole pass (13-bit tile keys: 5 + 4 + 4 instead of 4 · 4). Small
+// digits keep the per-invocation counters of the stable scatter in registers for any subgroup
+// size. A specialisation constant, so each width is its own pipeline with fixed loop bounds.
+layout(constant_id = 3) const uint RADIX_BITS = 4u;
+const uint RADIX = 1u << RADIX_BITS;
 
 // `digit_mask` is RADIX - 1 except in a last pass that has fewer bits to sort: the bits above
 // the sort's width are ignored, whatever the keys hold there.

@@ -58,7 +58,7 @@ void write_culled(uint i, float depth) {
     p.tile_min_x = 0u; p.tile_min_y = 0u; p.tile_max_x = 0u; p.tile_max_y = 0u;
     projected_splats[i] = projected_splat(p);
     projected_bounds_out[i] = projected_bounds(p);
-    depth_keys[i] = 0xFFFFFFFFu;
+    depth_keys[i] = CULLED_DEPTH_KEY;
     depth_vals[i] = i;
 }
 
@@ -180,6 +180,6 @@ void main() {
     if (!on_screen) p.radius = 0.0;  // off-screen: treated as culled downstream
     projected_splats[i] = projected_splat(p);
     projected_bounds_out[i] = projected_bounds(p);
-    depth_keys[i] = touches ? floatBitsToUint(t.z) : 0xFFFFFFFFu;
+    depth_keys[i] = touches ? floatBitsToUint(t.z) : CULLED_DEPTH_KEY;
     depth_vals[i] = i;
 }

@@ -1,8 +1,8 @@
 #version 460
 #extension GL_KHR_shader_subgroup_basic : require
 // Radix sort pass, step 1 (reduce): per block of WG_SIZE * ITEMS keys, the histogram of the
-// 4-bit digit at `shift`, stored digit-major (hist[digit * blocks + block]) so that one exclusive
-// scan of the whole array yields every block's scatter offset for every digit.
+// RADIX_BITS-bit digit at `shift`, stored digit-major (hist[digit * blocks + block]) so that one
+// exclusive scan of the whole array yields every block's scatter offset for every digit.
 layout(constant_id = 0) const uint WG_SIZE = 256;
 layout(constant_id = 2) const uint ITEMS = 8;
 layout(local_size_x_id = 0) in;

@@ -65,7 +65,7 @@ void write_culled(uint i, float depth) {
     projected_bounds_out[i] = projected_bounds(p);
     for (uint k = 0u; k < GEOM_STRIDE; k++) geom[GEOM_STRIDE * i + k] = 0.0;
     for (uint k = 0u; k < 3u; k++) normals[3u * i + k] = 0.0;
-    depth_keys[i] = 0xFFFFFFFFu;
+    depth_keys[i] = CULLED_DEPTH_KEY;
     depth_vals[i] = i;
 }
 
@@ -170,6 +170,6 @@ void main() {
         normals[3u * i + r] = n[r];
     }
     // Step 9: sort by the centre's camera depth.
-    depth_keys[i] = touches ? floatBitsToUint(t.z) : 0xFFFFFFFFu;
+    depth_keys[i] = touches ? floatBitsToUint(t.z) : CULLED_DEPTH_KEY;
     depth_vals[i] = i;
 }

@@ -39,6 +39,9 @@ pub const COUNT_INTERSECTIONS: u32 = 1;
 pub const COUNT_STORED_PAIRS: u32 = 2;
 const COUNT_SCRATCH: u32 = 3;
 const COUNT_SLOTS: usize = 4;
+/// Bits of the depth keys: positive float bits, culled splats `0x7FFFFFFF`
+/// (`CULLED_DEPTH_KEY` in `glsl/common/projected.glsl`).
+const DEPTH_KEY_BITS: u32 = 31;
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
@@ -628,7 +631,7 @@ impl Renderer {
             &f.counts,
             COUNT_GAUSSIANS,
             COUNT_SCRATCH,
-            32,
+            DEPTH_KEY_BITS,
         );
         self.depth_sorted_in = depth_in;
         let depth_ids = match depth_in {

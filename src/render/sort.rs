@@ -1,5 +1,5 @@
-//! Key–value GPU radix sort: u32 keys, u32 values, 4 bits a pass,
-//! only the bits in use. Each pass is reduce-then-scan: per-block digit histograms, one
+//! Key–value GPU radix sort: u32 keys, u32 values, 4 or 5 bits a pass (as few passes as the
+//! bits in use need, the narrow digit wherever it does not cost a pass). Each pass is reduce-then-scan: per-block digit histograms, one
 //! exclusive scan of all histograms, then a stable scatter. No decoupled look-back: Vulkan gives
 //! no forward-progress guarantee between workgroups.
 
@@ -17,8 +17,12 @@ const GPU_ITEMS: u32 = 8;
 /// `cargo bench --bench sort`, 262k 45-bit keys (the 64-bit keys of the time), 2 loaded cores:
 /// 8 → 290 ms, 16 → 208, 32 → 157, 64 → 129, 128 → 144.
 const CPU_ITEMS: u32 = 64;
-const RADIX: u64 = 16;
-const BITS_PER_PASS: u32 = 4;
+/// The narrow digit, and the wide one used only where it saves a pass: a 5-bit scatter keeps
+/// twice the per-invocation counters of a 4-bit one, so it costs more a key.
+const NARROW_BITS: u32 = 4;
+const WIDE_BITS: u32 = 5;
+/// Histogram entries a block at the widest digit.
+const MAX_RADIX: u64 = 1 << WIDE_BITS;
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
@@ -50,8 +54,11 @@ pub enum SortedIn {
 pub struct RadixSort {
     /// Keys per invocation; a block (workgroup) sorts `WG · items` keys.
     items: u32,
-    upsweep: ComputePipeline,
-    scatter: ComputePipeline,
+    /// Whether 5-bit passes may be used (see [`RadixSort::pass_widths`]).
+    wide: bool,
+    /// The upsweep and scatter pipelines for 4-bit and 5-bit digits.
+    narrow: [ComputePipeline; 2],
+    wide_pipes: [ComputePipeline; 2],
     scan: PrefixScan,
     hist: GpuBuffer<u32>,
     /// The passes' group counts, from the count on the GPU (not the capacity).
@@ -60,44 +67,59 @@ pub struct RadixSort {
 }
 
 impl RadixSort {
-    /// A sorter with the block size suited to the device (see [`CPU_ITEMS`]).
+    /// A sorter with the block size suited to the device (see [`CPU_ITEMS`]), 5-bit passes
+    /// where they save a pass.
     pub fn new(ctx: &Arc<GpuContext>, capacity: u64) -> anyhow::Result<Self> {
         let items = if ctx.info.device_type.starts_with("CPU") {
             CPU_ITEMS
         } else {
             GPU_ITEMS
         };
-        Self::with_items(ctx, capacity, items)
+        Self::with_options(ctx, capacity, items, true)
     }
 
-    /// A sorter whose invocations take `items` keys each (tests cover both block sizes on any
-    /// device). A block must hold fewer than 65536 keys: the scatter packs per-digit counts in
-    /// 16 bits.
+    /// A sorter whose invocations take `items` keys each, 4-bit passes only (tests cover both
+    /// block sizes on any device).
     pub fn with_items(ctx: &Arc<GpuContext>, capacity: u64, items: u32) -> anyhow::Result<Self> {
+        Self::with_options(ctx, capacity, items, false)
+    }
+
+    /// A sorter whose invocations take `items` keys each; `wide` allows 5-bit passes. A block
+    /// must hold fewer than 65536 keys: the scatter packs per-digit counts in 16 bits.
+    pub fn with_options(
+        ctx: &Arc<GpuContext>,
+        capacity: u64,
+        items: u32,
+        wide: bool,
+    ) -> anyhow::Result<Self> {
         anyhow::ensure!(
             items >= 1 && (WG as u64) * (items as u64) < 65536,
             "radix sort: {items} keys per invocation makes blocks of 65536 keys or more"
         );
         let capacity = capacity.max(1);
-        let upsweep = ComputePipeline::new(
-            ctx,
-            "sort/upsweep",
-            shaders::SORT_UPSWEEP,
-            3,
-            16,
-            WG,
-            &[items],
-        )?;
-        let scatter = ComputePipeline::new(
-            ctx,
-            "sort/scatter",
-            shaders::SORT_SCATTER,
-            6,
-            12,
-            WG,
-            &[items],
-        )?;
-        let hist_len = RADIX * capacity.div_ceil(Self::block_of(items));
+        let pipes = |digit_bits: u32| -> anyhow::Result<[ComputePipeline; 2]> {
+            Ok([
+                ComputePipeline::new(
+                    ctx,
+                    "sort/upsweep",
+                    shaders::SORT_UPSWEEP,
+                    3,
+                    16,
+                    WG,
+                    &[items, digit_bits],
+                )?,
+                ComputePipeline::new(
+                    ctx,
+                    "sort/scatter",
+                    shaders::SORT_SCATTER,
+                    6,
+                    12,
+                    WG,
+                    &[items, digit_bits],
+                )?,
+            ])
+        };
+        let hist_len = MAX_RADIX * capacity.div_ceil(Self::block_of(items));
         let scan = PrefixScan::new(ctx, hist_len)?;
         let hist = GpuBuffer::new(
             ctx,
@@ -107,8 +129,9 @@ impl RadixSort {
         )?;
         Ok(Self {
             items,
-            upsweep,
-            scatter,
+            wide,
+            narrow: pipes(NARROW_BITS)?,
+            wide_pipes: pipes(WIDE_BITS)?,
             scan,
             hist,
             sizes: DispatchSize::new(ctx, 1)?,
@@ -129,9 +152,26 @@ impl RadixSort {
         self.capacity
     }
 
-    /// Number of passes for keys using the low `bits` bits.
-    pub fn passes(bits: u32) -> u32 {
-        bits.min(32).div_ceil(BITS_PER_PASS)
+    /// The digit width of each pass for keys using the low `bits` bits, low digits first: as
+    /// many 4-bit passes as the bits need, unless 5-bit digits (when `wide`) need fewer passes;
+    /// then only as many passes are widened as that takes (13 bits: 5, 4, 4; 32 bits: four
+    /// 5-bit and three 4-bit passes). The last pass may hold fewer bits than its width.
+    pub fn pass_widths(bits: u32, wide: bool) -> Vec<u32> {
+        let bits = bits.min(32);
+        let narrow = bits.div_ceil(NARROW_BITS);
+        let fewest = bits.div_ceil(WIDE_BITS);
+        if !wide || fewest == narrow {
+            return vec![NARROW_BITS; narrow as usize];
+        }
+        let widened = bits.saturating_sub(NARROW_BITS * fewest);
+        (0..fewest)
+            .map(|p| if p < widened { WIDE_BITS } else { NARROW_BITS })
+            .collect()
+    }
+
+    /// Number of passes this sorter makes for keys using the low `bits` bits.
+    pub fn passes(&self, bits: u32) -> u32 {
+        Self::pass_widths(bits, self.wide).len() as u32
     }
 
     /// Records a stable sort of the first `counts[count_index]` pairs of (`keys`, `values`) by
@@ -156,10 +196,15 @@ impl RadixSort {
             .record(rec, counts, count_index, Self::block_of(self.items), 0);
         let (args, at) = self.sizes.args(0);
         let mut from_input = true;
-        for pass in 0..Self::passes(bits) {
-            let shift = pass * BITS_PER_PASS;
-            // The last pass of a width that is not a multiple of 4 takes only the bits left.
-            let digit_mask = (1u32 << BITS_PER_PASS.min(bits.min(32) - shift)) - 1;
+        let mut shift = 0;
+        for width in Self::pass_widths(bits, self.wide) {
+            // The last pass takes only the bits left.
+            let digit_mask = (1u32 << width.min(bits.min(32) - shift)) - 1;
+            let [upsweep, scatter] = if width == WIDE_BITS {
+                &self.wide_pipes
+            } else {
+                &self.narrow
+            };
             let (ki, vi, ko, vo) = if from_input {
                 (keys, values, scratch_keys, scratch_values)
             } else {
@@ -167,7 +212,7 @@ impl RadixSort {
             };
             rec.barrier();
             rec.dispatch_indirect(
-                &self.upsweep,
+                upsweep,
                 &[ki, &self.hist, counts],
                 &UpPush {
                     count_index,
@@ -181,7 +226,7 @@ impl RadixSort {
             self.scan
                 .record(ctx, rec, &self.hist, counts, hist_len_index, None);
             rec.dispatch_indirect(
-                &self.scatter,
+                scatter,
                 &[ki, vi, ko, vo, &self.hist, counts],
                 &ScatterPush {
                     count_index,
@@ -192,6 +237,7 @@ impl RadixSort {
                 at,
             );
             from_input = !from_input;
+            shift += width;
         }
         rec.barrier();
         if from_input {
@@ -199,5 +245,41 @@ impl RadixSort {
         } else {
             SortedIn::Scratch
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::RadixSort;
+
+    #[test]
+    fn pass_widths_cover_the_bits_in_the_fewest_passes() {
+        for bits in 0..=40u32 {
+            for wide in [false, true] {
+                let widths = RadixSort::pass_widths(bits, wide);
+                let covered: u32 = widths.iter().sum();
+                let want = bits.min(32);
+                // Every bit is sorted, and no pass could be dropped.
+                assert!(covered >= want, "{bits} bits, wide {wide}: {widths:?}");
+                assert!(covered < want + 4 || want == 0, "{bits}: {widths:?}");
+                let fewest = want.div_ceil(if wide { 5 } else { 4 });
+                assert_eq!(widths.len() as u32, fewest, "{bits} bits, wide {wide}");
+                // 5-bit digits only when allowed, and only as many as the saved pass needs.
+                let wide_passes = widths.iter().filter(|&&w| w == 5).count() as u32;
+                assert!(wide || wide_passes == 0);
+                assert!(widths.iter().all(|&w| w == 4 || w == 5));
+                // Widened passes fill the bits exactly: one fewer would leave a bit unsorted.
+                if wide_passes > 0 {
+                    assert_eq!(covered, want, "{bits}: {widths:?}");
+                }
+            }
+        }
+        assert_eq!(RadixSort::pass_widths(13, true), [5, 4, 4]);
+        assert_eq!(RadixSort::pass_widths(12, true), [4, 4, 4]);
+        assert_eq!(RadixSort::pass_widths(8, true), [4, 4]);
+        assert_eq!(RadixSort::pass_widths(31, true), [5, 5, 5, 4, 4, 4, 4]);
+        assert_eq!(RadixSort::pass_widths(32, true), [5, 5, 5, 5, 4, 4, 4]);
+        assert_eq!(RadixSort::pass_widths(32, false), [4; 8]);
+        assert!(RadixSort::pass_widths(0, true).is_empty());
     }
 }
