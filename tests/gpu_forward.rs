@@ -22,6 +22,8 @@ struct Frame {
     last_index: Vec<u32>,
     projected: Vec<ProjectedGpu>,
     tile_lists: Vec<Vec<u32>>,
+    /// The Gaussians the depth sort kept (the renderer's count).
+    visible: u64,
 }
 
 /// Renders `g` (rounded to f32) on the GPU; returns the frame and the f32-exact reference input.
@@ -110,6 +112,7 @@ fn render_gpu_filtered(
         last_index: f.last_index.read_range(0, px).unwrap(),
         projected: f.projected.read_range(0, params.len()).unwrap(),
         tile_lists,
+        visible: renderer.last_visible().unwrap(),
     };
     (frame, exact)
 }
@@ -143,6 +146,13 @@ fn compare(
     assert!(
         frame.image.iter().all(|v| v.is_finite()),
         "{label}: non-finite pixel"
+    );
+    // The depth sort keeps exactly the splats whose tile rectangle is not empty.
+    let touching = frame.projected.iter().filter(|p| p.tiles_touched() > 0);
+    assert_eq!(
+        frame.visible,
+        touching.count() as u64,
+        "{label}: visible count"
     );
     // Tile rectangles decide which lists a Gaussian joins; a rectangle can only differ where
     // 3·sqrt(λmax) sits within f32 rounding of an integer. Those seeds are reported, not hidden.

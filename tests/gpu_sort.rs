@@ -6,7 +6,7 @@ mod child_run;
 
 use lpmsplat::gpu::{BufferKind, GpuBuffer, GpuContext, GpuOptions, Recorder};
 use lpmsplat::render::scan::PrefixScan;
-use lpmsplat::render::sort::{RadixSort, SortedIn};
+use lpmsplat::render::sort::{DropKeys, RadixSort, SortedIn};
 use rand::{Rng, SeedableRng};
 use std::sync::Arc;
 
@@ -144,6 +144,103 @@ fn radix_sort_is_stable_and_matches_host_sort() {
             })
             .collect();
         check_sort(&ctx, sorter, &keys, bits);
+    }
+    ctx.check_validation().unwrap();
+}
+
+/// Keys equal to the dropped key are left out: the kept ones come first, stably sorted, their
+/// number lands in the counts buffer, and nothing is written past them (the scratch buffers
+/// keep their poison there).
+#[test]
+fn radix_sort_drops_the_named_key_in_its_first_pass() {
+    let ctx = ctx();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(9);
+    let drop_key = 0x7FFF_FFFF;
+    for wide in [false, true] {
+        for items in [8, 64] {
+            let sorter = RadixSort::with_options(&ctx, 100_000, items, wide).unwrap();
+            // (n, bits, share dropped): none, all, some; one and several passes; the dropped
+            // key's digits collide with kept keys' digits in every pass.
+            for (n, bits, share) in [
+                (0usize, 31u32, 0.5),
+                (1, 31, 1.0),
+                (3_000, 31, 0.0),
+                (3_000, 31, 1.0),
+                (20_001, 31, 0.3),
+                (70_000, 31, 0.9),
+                (50_000, 4, 0.5),
+                (40_000, 32, 0.5),
+            ] {
+                let keys: Vec<u32> = (0..n)
+                    .map(|_| {
+                        if rng.gen_bool(share) {
+                            drop_key
+                        } else if rng.gen_bool(0.3) {
+                            // Equal to the dropped key in the sorted bits or in one digit.
+                            drop_key ^ (1 << rng.gen_range(0..32))
+                        } else {
+                            rng.gen::<u32>() >> rng.gen_range(0..8)
+                        }
+                    })
+                    .collect();
+                let values: Vec<u32> = (0..n as u32).collect();
+                let cap = sorter.capacity() as usize;
+                let dl = BufferKind::DeviceLocal;
+                let bufs: Vec<GpuBuffer<u32>> = (0..4)
+                    .map(|_| GpuBuffer::<u32>::new(&ctx, "sort buffer", cap, dl).unwrap())
+                    .collect();
+                bufs[0].upload(&keys).unwrap();
+                bufs[1].upload(&values).unwrap();
+                let counts = GpuBuffer::from_slice(&ctx, "counts", &[n as u32, 0, POISON]).unwrap();
+                let mut rec = Recorder::new(&ctx).unwrap();
+                rec.fill(&bufs[2], POISON);
+                rec.fill(&bufs[3], POISON);
+                rec.barrier();
+                let drop = Some(DropKeys {
+                    key: drop_key,
+                    kept_index: 2,
+                });
+                let at = sorter.record_dropping(
+                    &ctx,
+                    &mut rec,
+                    [&bufs[0], &bufs[1], &bufs[2], &bufs[3]],
+                    &counts,
+                    0,
+                    1,
+                    bits,
+                    drop,
+                );
+                rec.submit_and_wait().unwrap();
+                let mask = if bits >= 32 {
+                    u32::MAX
+                } else {
+                    (1u32 << bits) - 1
+                };
+                let mut expect: Vec<(u32, u32)> = keys
+                    .iter()
+                    .copied()
+                    .zip(values.iter().copied())
+                    .filter(|&(k, _)| k != drop_key)
+                    .collect();
+                expect.sort_by_key(|&(k, _)| k & mask);
+                let label = format!("n={n} bits={bits} items={items} wide={wide}");
+                let kept = counts.read().unwrap()[2] as usize;
+                assert_eq!(kept, expect.len(), "{label}: kept count");
+                let (ko, vo) = match at {
+                    SortedIn::Input => (&bufs[0], &bufs[1]),
+                    SortedIn::Scratch => (&bufs[2], &bufs[3]),
+                };
+                let (ko, vo) = (ko.read().unwrap(), vo.read().unwrap());
+                for (i, e) in expect.iter().enumerate() {
+                    assert_eq!((ko[i], vo[i]), *e, "{label}: position {i}");
+                }
+                // One pass: the output is the scratch, poisoned past the kept keys.
+                if RadixSort::pass_widths(bits, wide).len() == 1 {
+                    assert_eq!(at, SortedIn::Scratch);
+                    assert!(ko[kept..].iter().all(|&k| k == POISON), "{label}: tail");
+                }
+            }
+        }
     }
     ctx.check_validation().unwrap();
 }

@@ -6,6 +6,9 @@
 // one binding of pairs holds; the scan's 32-bit total in counts[1] only bounds the writes.
 layout(constant_id = 0) const uint WG_SIZE = 256;
 layout(local_size_x_id = 0) in;
+// counts[COUNT_VISIBLE]: the Gaussians the depth sort kept (`COUNT_VISIBLE` in
+// src/render/forward.rs); the culled ones were dropped from the depth order.
+const uint COUNT_VISIBLE = 4u;
 #include "projected.glsl"
 #include "splat_reach.glsl"
 #include "tile_rows.glsl"
@@ -25,7 +28,7 @@ void main() {
     uint s = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * WG_SIZE;
     // counts[2] = the number of pairs actually stored: what the tile sort and ranges read.
     if (s == 0u) counts[2] = min(counts[1], capacity);
-    if (s >= counts[0]) return;
+    if (s >= counts[COUNT_VISIBLE]) return;
     uint g = depth_sorted_ids[s];
     ProjectedBounds p = bounds[g];
     uint slot = offsets[s];

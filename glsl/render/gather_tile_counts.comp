@@ -7,6 +7,9 @@
 #extension GL_KHR_shader_subgroup_arithmetic : require
 layout(constant_id = 0) const uint WG_SIZE = 256;
 layout(local_size_x_id = 0) in;
+// counts[COUNT_VISIBLE]: the Gaussians the depth sort kept (`COUNT_VISIBLE` in
+// src/render/forward.rs); the culled ones were dropped from the depth order.
+const uint COUNT_VISIBLE = 4u;
 #include "projected.glsl"
 #include "splat_reach.glsl"
 #include "tile_rows.glsl"
@@ -23,7 +26,7 @@ layout(push_constant) uniform Push { float alpha_min; uint ellipse; uint smooth_
 void main() {
     uint s = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * WG_SIZE;
     uint t = 0u;
-    if (s < counts[0]) {
+    if (s < counts[COUNT_VISIBLE]) {
         uint g = depth_sorted_ids[s];
         ProjectedBounds p = bounds[g];
         uvec2 cols = uvec2(p.tile_min_x, p.tile_max_x);

@@ -18,7 +18,10 @@ layout(std430, set = 0, binding = 2) writeonly buffer KeysOut { uint keys_out[];
 layout(std430, set = 0, binding = 3) writeonly buffer ValsOut { uint vals_out[]; };
 layout(std430, set = 0, binding = 4) readonly buffer Hist { uint hist[]; };
 layout(std430, set = 0, binding = 5) readonly buffer Count { uint counts[]; };
-layout(push_constant) uniform Push { uint count_index; uint shift; uint digit_mask; };
+// drop_keys 1: keys equal to drop_key are left out, as the upsweep left them out of the counts.
+layout(push_constant) uniform Push {
+    uint count_index; uint shift; uint digit_mask; uint drop_keys; uint drop_key;
+};
 #include "radix_digit.glsl"
 // [subgroup · RADIX/2 + word]: each subgroup's totals (room for subgroups of size 1).
 shared uint sg_totals[WG_SIZE * (RADIX / 2u)];
@@ -38,8 +41,11 @@ void main() {
     for (uint k = 0u; k < ITEMS; k++) {
         uint i = first + k;
         if (i < n) {
-            uint d = radix_digit(keys_in[i], shift, digit_mask);
-            uint one = 1u << ((d & 1u) * 16u);
+            uint key = keys_in[i];
+            uint d = radix_digit(key, shift, digit_mask);
+            // A dropped key counts for no digit.
+            uint one = drop_keys != 0u && key == drop_key ? 0u : 1u;
+            one <<= ((d & 1u) * 16u);
             [[unroll]] for (uint d2 = 0u; d2 < RADIX / 2u; d2++) {
                 packed[d2] += (d >> 1u) == d2 ? one : 0u;
             }
@@ -71,8 +77,8 @@ void main() {
     }
     for (uint k = 0u; k < ITEMS; k++) {
         uint i = first + k;
-        if (i < n) {
-            uint key = keys_in[i];
+        uint key = i < n ? keys_in[i] : 0u;
+        if (i < n && (drop_keys == 0u || key != drop_key)) {
             uint d = radix_digit(key, shift, digit_mask);
             uint dst = 0u;
             [[unroll]] for (uint r = 0u; r < RADIX; r++) {

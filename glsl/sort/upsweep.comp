@@ -14,6 +14,8 @@ layout(push_constant) uniform Push {
     uint hist_len_index;
     uint shift;
     uint digit_mask;
+    uint drop_keys;  // 1: keys equal to drop_key are left out (not counted)
+    uint drop_key;
 };
 #include "radix_digit.glsl"
 shared uint block_hist[RADIX];
@@ -29,7 +31,12 @@ void main() {
     uint base = block * WG_SIZE * ITEMS;
     for (uint k = 0u; k < ITEMS; k++) {
         uint i = base + k * WG_SIZE + gl_LocalInvocationIndex;
-        if (i < n) atomicAdd(block_hist[radix_digit(keys[i], shift, digit_mask)], 1u);
+        if (i < n) {
+            uint key = keys[i];
+            if (drop_keys == 0u || key != drop_key) {
+                atomicAdd(block_hist[radix_digit(key, shift, digit_mask)], 1u);
+            }
+        }
     }
     barrier();
     if (gl_LocalInvocationIndex < RADIX) {

@@ -79,6 +79,8 @@ pub struct FpsResult {
     pub width: u32,
     pub height: u32,
     pub frames: usize,
+    /// Gaussians that pair with a tile in the last frame (the rest are culled).
+    pub visible: u64,
     pub intersections: u64,
     pub fps_median: f64,
     pub frame_ms_median: f64,
@@ -196,6 +198,7 @@ fn fps_one(
     // First frame sizes the intersection buffers.
     renderer.render_blocking(splats, &cameras, 0, &cam, &settings)?;
     let intersections = renderer.last_intersections()?;
+    let visible = renderer.last_visible()?;
     let mut pool = TimestampPool::new(ctx, 16)?;
     let mut rec = Recorder::new(ctx)?;
     let mut wall = Vec::new();
@@ -250,6 +253,7 @@ fn fps_one(
         width: args.width,
         height: args.height,
         frames: args.frames,
+        visible,
         intersections,
         fps_median: 1e3 / median,
         frame_ms_median: median,
@@ -265,8 +269,8 @@ fn fps_one(
 
 fn print_result(r: &FpsResult) {
     println!(
-        "{} — {} Gaussians at {}×{} on {} ({} intersections)",
-        r.source, r.gaussians, r.width, r.height, r.device, r.intersections
+        "{} — {} Gaussians at {}×{} on {} ({} visible, {} intersections)",
+        r.source, r.gaussians, r.width, r.height, r.device, r.visible, r.intersections
     );
     println!(
         "  {:.2} FPS (median frame {:.2} ms; p10 {:.2}, p90 {:.2}, min {:.2}, max {:.2}; {} frames)",

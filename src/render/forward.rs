@@ -27,7 +27,7 @@ use super::dispatch_size::DispatchSize;
 use super::layout::{CameraGpu, RenderConstants};
 use super::projected::ProjectedBuffers;
 use super::scan::PrefixScan;
-use super::sort::{RadixSort, SortedIn};
+use super::sort::{DropKeys, RadixSort, SortedIn};
 use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder, TimestampPool};
 use crate::shaders;
 use crate::splats::gpu::GpuSplats;
@@ -38,10 +38,18 @@ pub const COUNT_GAUSSIANS: u32 = 0;
 pub const COUNT_INTERSECTIONS: u32 = 1;
 pub const COUNT_STORED_PAIRS: u32 = 2;
 const COUNT_SCRATCH: u32 = 3;
-const COUNT_SLOTS: usize = 4;
-/// Bits of the depth keys: positive float bits, culled splats `0x7FFFFFFF`
-/// (`CULLED_DEPTH_KEY` in `glsl/common/projected.glsl`).
+/// The Gaussians the depth sort kept (those pairing with a tile): what binning reads
+/// (`glsl/render/gather_tile_counts.comp` and `emit_intersections.comp` name the slot too).
+pub const COUNT_VISIBLE: u32 = 4;
+const COUNT_SLOTS: usize = 5;
+/// Slots of `Renderer::pair_groups`: the tile ranges' groups, the binning kernels' groups.
+const PAIR_GROUPS: u32 = 0;
+const VISIBLE_GROUPS: u32 = 1;
+/// Bits of the depth keys: positive float bits, culled splats [`CULLED_DEPTH_KEY`].
 const DEPTH_KEY_BITS: u32 = 31;
+/// The depth key of a culled splat (`CULLED_DEPTH_KEY` in `glsl/common/projected.glsl`): the
+/// depth sort drops these.
+const CULLED_DEPTH_KEY: u32 = 0x7FFF_FFFF;
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
@@ -213,7 +221,8 @@ pub struct Renderer {
     feature_image: Option<GpuBuffer<f32>>,
     depth_sort: RadixSort,
     tile_sort: RadixSort,
-    /// The tile-ranges pass's group count, from the frame's pair count on the GPU.
+    /// The group counts of the tile-ranges pass and the binning kernels, from the frame's pair
+    /// and visible counts on the GPU ([`PAIR_GROUPS`], [`VISIBLE_GROUPS`]).
     pair_groups: DispatchSize,
     scan: PrefixScan,
     capacity: Capacity,
@@ -318,7 +327,7 @@ impl Renderer {
             feature_image: None,
             depth_sort: RadixSort::new(ctx, capacity.gaussians as u64)?,
             tile_sort: RadixSort::new(ctx, capacity.intersections as u64)?,
-            pair_groups: DispatchSize::new(ctx, 1)?,
+            pair_groups: DispatchSize::new(ctx, 2)?,
             scan: PrefixScan::new(ctx, capacity.gaussians as u64)?,
             frame: FrameBuffers::new(ctx, &capacity)?,
             capacity,
@@ -520,13 +529,7 @@ impl Renderer {
         stamp(rec, timestamps.as_deref_mut(), "preprocess");
 
         // 2–5 (tile ranges).
-        self.record_binning(
-            rec,
-            n,
-            camera,
-            Pairing::Ellipse(rc),
-            timestamps.as_deref_mut(),
-        );
+        self.record_binning(rec, camera, Pairing::Ellipse(rc), timestamps.as_deref_mut());
 
         // 5. Rasterize one workgroup per tile.
         if let Some(fc) = settings.features {
@@ -604,15 +607,14 @@ impl Renderer {
         Ok(())
     }
 
-    /// Steps 2–5 of a frame whose preprocess (of `n` splats, 3DGS's or another model's) has
-    /// filled `frame.projected`, the depth keys and values and `counts[0]`, and zeroed
+    /// Steps 2–5 of a frame whose preprocess (3DGS's or another model's) has filled
+    /// `frame.projected`, the depth keys and values and `counts[0]` (its splats), and zeroed
     /// `frame.tile_ranges`: the depth sort, tile counts, scan and emit, the stable tile sort
     /// and the tile ranges, pairing each splat with the tiles `pairing` says. The sorted pairs
     /// are then [`Renderer::sorted_ids`].
     pub(super) fn record_binning(
         &mut self,
         rec: &mut Recorder,
-        n: u64,
         camera: &CameraGpu,
         pairing: Pairing,
         mut timestamps: Option<&mut TimestampPool>,
@@ -620,18 +622,25 @@ impl Renderer {
         let ctx = self.ctx.clone();
         let f = &self.frame;
         rec.fill(&f.pair_total, 0);
-        // 2. Depth sort of all Gaussians (culled ones carry the largest key).
-        let depth_in = self.depth_sort.record(
+        // 2. Depth sort of the Gaussians that pair with a tile: the culled ones (the largest
+        // key) are dropped by the sort's first pass, counts[COUNT_VISIBLE] are kept.
+        let depth_in = self.depth_sort.record_dropping(
             &ctx,
             rec,
-            &f.depth_keys,
-            &f.depth_vals,
-            &f.depth_keys_tmp,
-            &f.depth_vals_tmp,
+            [
+                &f.depth_keys,
+                &f.depth_vals,
+                &f.depth_keys_tmp,
+                &f.depth_vals_tmp,
+            ],
             &f.counts,
             COUNT_GAUSSIANS,
             COUNT_SCRATCH,
             DEPTH_KEY_BITS,
+            Some(DropKeys {
+                key: CULLED_DEPTH_KEY,
+                kept_index: COUNT_VISIBLE,
+            }),
         );
         self.depth_sorted_in = depth_in;
         let depth_ids = match depth_in {
@@ -640,8 +649,12 @@ impl Renderer {
         };
         stamp(rec, timestamps.as_deref_mut(), "depth sort");
 
-        // 3. Tile counts in depth order, scan, emit pairs.
-        rec.dispatch(
+        // 3. Tile counts in depth order, scan, emit pairs, each over the kept Gaussians (as many
+        // workgroups as they need: CPU drivers pay for idle ones).
+        self.pair_groups
+            .record(rec, &f.counts, COUNT_VISIBLE, WG as u64, VISIBLE_GROUPS);
+        let (visible_args, visible_at) = self.pair_groups.args(VISIBLE_GROUPS);
+        rec.dispatch_indirect(
             &self.gather,
             &[
                 &f.projected.bounds,
@@ -652,17 +665,18 @@ impl Renderer {
                 &f.projected.splats,
             ],
             &pairing.push(),
-            ctx.groups_1d(n, WG),
+            visible_args,
+            visible_at,
         );
         self.scan.record(
             &ctx,
             rec,
             &f.touched,
             &f.counts,
-            COUNT_GAUSSIANS,
+            COUNT_VISIBLE,
             Some(COUNT_INTERSECTIONS),
         );
-        rec.dispatch(
+        rec.dispatch_indirect(
             &self.emit,
             &[
                 &f.projected.bounds,
@@ -678,7 +692,8 @@ impl Renderer {
                 capacity: self.capacity.intersections.min(u32::MAX as usize) as u32,
                 tiles_x: camera.size[2],
             },
-            ctx.groups_1d(n.max(1), WG),
+            visible_args,
+            visible_at,
         );
         rec.barrier();
         stamp(rec, timestamps.as_deref_mut(), "binning");
@@ -703,8 +718,8 @@ impl Renderer {
         // 5. Tile ranges, over the frame's pairs (not the capacity).
         let f = &self.frame;
         self.pair_groups
-            .record(rec, &f.counts, COUNT_STORED_PAIRS, WG as u64, 0);
-        let (args, at) = self.pair_groups.args(0);
+            .record(rec, &f.counts, COUNT_STORED_PAIRS, WG as u64, PAIR_GROUPS);
+        let (args, at) = self.pair_groups.args(PAIR_GROUPS);
         rec.dispatch_indirect(
             &self.ranges,
             &[keys, &f.tile_ranges, &f.counts],
@@ -748,6 +763,12 @@ impl Renderer {
     pub fn last_intersections(&self) -> anyhow::Result<u64> {
         let c = self.frame.counts_host.read()?;
         Ok(((c[COUNT_SLOTS + 1] as u64) << 32) | c[COUNT_SLOTS] as u64)
+    }
+
+    /// How many Gaussians of the last completed frame paired with a tile (the depth sort kept
+    /// them; call after its fence).
+    pub fn last_visible(&self) -> anyhow::Result<u64> {
+        Ok(self.frame.counts_host.read()?[COUNT_VISIBLE as usize] as u64)
     }
 
     /// True when the last completed frame had room for every intersection.

@@ -31,6 +31,8 @@ struct UpPush {
     hist_len_index: u32,
     shift: u32,
     digit_mask: u32,
+    drop_keys: u32,
+    drop_key: u32,
 }
 
 #[repr(C)]
@@ -39,6 +41,18 @@ struct ScatterPush {
     count_index: u32,
     shift: u32,
     digit_mask: u32,
+    drop_keys: u32,
+    drop_key: u32,
+}
+
+/// Keys to leave out of a sort: every key equal to `key` (all 32 bits) is dropped by the first
+/// pass, and the later passes sort only the `counts[kept_index]` keys kept, which end first in
+/// the output, in order; nothing is written past them. The renderer drops culled Gaussians this
+/// way: they cost one pass instead of all, and no extra pass compacts them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct DropKeys {
+    pub key: u32,
+    pub kept_index: u32,
 }
 
 /// Which buffers hold the sorted result after [`RadixSort::record`].
@@ -104,7 +118,7 @@ impl RadixSort {
                     "sort/upsweep",
                     shaders::SORT_UPSWEEP,
                     3,
-                    16,
+                    std::mem::size_of::<UpPush>() as u32,
                     WG,
                     &[items, digit_bits],
                 )?,
@@ -113,7 +127,7 @@ impl RadixSort {
                     "sort/scatter",
                     shaders::SORT_SCATTER,
                     6,
-                    12,
+                    std::mem::size_of::<ScatterPush>() as u32,
                     WG,
                     &[items, digit_bits],
                 )?,
@@ -134,7 +148,7 @@ impl RadixSort {
             wide_pipes: pipes(WIDE_BITS)?,
             scan,
             hist,
-            sizes: DispatchSize::new(ctx, 1)?,
+            sizes: DispatchSize::new(ctx, 2)?,
             capacity,
         })
     }
@@ -191,13 +205,49 @@ impl RadixSort {
         hist_len_index: u32,
         bits: u32,
     ) -> SortedIn {
+        self.record_dropping(
+            ctx,
+            rec,
+            [keys, values, scratch_keys, scratch_values],
+            counts,
+            count_index,
+            hist_len_index,
+            bits,
+            None,
+        )
+    }
+
+    /// [`RadixSort::record`] of `[keys, values, scratch keys, scratch values]`, leaving out
+    /// the keys `drop` names (when given; then `bits` must be at least 1).
+    #[allow(clippy::too_many_arguments)]
+    pub fn record_dropping(
+        &self,
+        ctx: &GpuContext,
+        rec: &mut Recorder,
+        [keys, values, scratch_keys, scratch_values]: [&GpuBuffer<u32>; 4],
+        counts: &GpuBuffer<u32>,
+        count_index: u32,
+        hist_len_index: u32,
+        bits: u32,
+        drop: Option<DropKeys>,
+    ) -> SortedIn {
+        assert!(
+            drop.is_none() || bits > 0,
+            "radix sort: dropping keys needs a pass"
+        );
         // As many blocks as there are keys this time, not as the capacity holds.
         self.sizes
             .record(rec, counts, count_index, Self::block_of(self.items), 0);
-        let (args, at) = self.sizes.args(0);
         let mut from_input = true;
         let mut shift = 0;
-        for width in Self::pass_widths(bits, self.wide) {
+        for (pass, width) in Self::pass_widths(bits, self.wide).into_iter().enumerate() {
+            // The first pass drops; the later ones sort what it kept.
+            let dropping = drop.filter(|_| pass == 0);
+            let count_index = match drop {
+                Some(d) if pass > 0 => d.kept_index,
+                _ => count_index,
+            };
+            let (args, at) = self.sizes.args(u32::from(drop.is_some() && pass > 0));
             // The last pass takes only the bits left.
             let digit_mask = (1u32 << width.min(bits.min(32) - shift)) - 1;
             let [upsweep, scatter] = if width == WIDE_BITS {
@@ -219,12 +269,16 @@ impl RadixSort {
                     hist_len_index,
                     shift,
                     digit_mask,
+                    drop_keys: u32::from(dropping.is_some()),
+                    drop_key: dropping.map_or(0, |d| d.key),
                 },
                 args,
                 at,
             );
+            // The histograms' total is the number of keys kept.
+            let total = dropping.map(|d| d.kept_index);
             self.scan
-                .record(ctx, rec, &self.hist, counts, hist_len_index, None);
+                .record(ctx, rec, &self.hist, counts, hist_len_index, total);
             rec.dispatch_indirect(
                 scatter,
                 &[ki, vi, ko, vo, &self.hist, counts],
@@ -232,10 +286,22 @@ impl RadixSort {
                     count_index,
                     shift,
                     digit_mask,
+                    drop_keys: u32::from(dropping.is_some()),
+                    drop_key: dropping.map_or(0, |d| d.key),
                 },
                 args,
                 at,
             );
+            if dropping.is_some() {
+                // The later passes' group counts, from the kept count.
+                self.sizes.record(
+                    rec,
+                    counts,
+                    drop.map_or(0, |d| d.kept_index),
+                    Self::block_of(self.items),
+                    1,
+                );
+            }
             from_input = !from_input;
             shift += width;
         }

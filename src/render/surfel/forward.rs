@@ -211,13 +211,8 @@ impl SurfelRenderer {
             rec.timestamp(p, "preprocess");
         }
 
-        self.base.record_binning(
-            rec,
-            n,
-            camera,
-            Pairing::Rectangle,
-            timestamps.as_deref_mut(),
-        );
+        self.base
+            .record_binning(rec, camera, Pairing::Rectangle, timestamps.as_deref_mut());
 
         let f = &self.base.frame;
         rec.dispatch(
