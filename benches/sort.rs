@@ -53,7 +53,7 @@ fn main() -> anyhow::Result<()> {
             kb.upload(&keys)?;
             let mut rec = Recorder::new(&ctx)?;
             rec.start_timestamps(&mut pool);
-            sorter.record(&ctx, &mut rec, &kb, &vb, &sk, &sv, &counts, 0, 1, bits);
+            sorter.record(&mut rec, &kb, &vb, &sk, &sv, &counts, 0, 1, bits);
             rec.timestamp(&mut pool, "sort");
             rec.submit_and_wait()?;
             gpu_ms.push(pool.read()?.total_ms());

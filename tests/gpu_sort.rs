@@ -29,7 +29,7 @@ fn exclusive_scan_matches_host() {
         let buf = GpuBuffer::from_slice(&ctx, "data", &padded).unwrap();
         let counts = GpuBuffer::from_slice(&ctx, "counts", &[n as u32, POISON]).unwrap();
         let mut rec = Recorder::new(&ctx).unwrap();
-        scan.record(&ctx, &mut rec, &buf, &counts, 0, Some(1));
+        scan.record(&mut rec, &buf, &counts, 0, Some(1));
         rec.submit_and_wait().unwrap();
         let out = buf.read().unwrap();
         let mut acc = 0u32;
@@ -73,7 +73,7 @@ fn check_sort_with(
     rec.fill(&sk, POISON);
     rec.fill(&sv, POISON);
     rec.barrier();
-    let where_ = sorter.record(ctx, &mut rec, &kbuf, &vbuf, &sk, &sv, &counts, 0, 1, bits);
+    let where_ = sorter.record(&mut rec, &kbuf, &vbuf, &sk, &sv, &counts, 0, 1, bits);
     rec.submit_and_wait().unwrap();
     let (ko, vo) = match where_ {
         SortedIn::Input => (
@@ -201,7 +201,6 @@ fn radix_sort_drops_the_named_key_in_its_first_pass() {
                     kept_index: 2,
                 });
                 let at = sorter.record_dropping(
-                    &ctx,
                     &mut rec,
                     [&bufs[0], &bufs[1], &bufs[2], &bufs[3]],
                     &counts,

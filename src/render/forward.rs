@@ -619,13 +619,11 @@ impl Renderer {
         pairing: Pairing,
         mut timestamps: Option<&mut TimestampPool>,
     ) {
-        let ctx = self.ctx.clone();
         let f = &self.frame;
         rec.fill(&f.pair_total, 0);
         // 2. Depth sort of the Gaussians that pair with a tile: the culled ones (the largest
         // key) are dropped by the sort's first pass, counts[COUNT_VISIBLE] are kept.
         let depth_in = self.depth_sort.record_dropping(
-            &ctx,
             rec,
             [
                 &f.depth_keys,
@@ -669,7 +667,6 @@ impl Renderer {
             visible_at,
         );
         self.scan.record(
-            &ctx,
             rec,
             &f.touched,
             &f.counts,
@@ -701,7 +698,6 @@ impl Renderer {
         // 4. Stable sort by tile id (only the bits this image needs).
         let bits = tile_bits(camera.tile_count());
         self.tile_sorted_in = self.tile_sort.record(
-            &ctx,
             rec,
             &f.tile_keys,
             &f.tile_vals,

@@ -2,6 +2,7 @@
 //! waiting, so it needs no forward-progress guarantee). The element count is read on the GPU
 //! from a counts buffer, so it can come from an earlier kernel without a host round trip.
 
+use super::dispatch_size::DispatchSize;
 use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder};
 use crate::shaders;
 use std::sync::Arc;
@@ -19,6 +20,9 @@ pub struct PrefixScan {
     levels: Vec<GpuBuffer<u32>>,
     capacity: u64,
     dummy: GpuBuffer<u32>,
+    /// Per level, the group count for this scan's element count (read on the GPU): a scan
+    /// of a few elements in a large buffer runs a few workgroups, not the capacity's.
+    sizes: DispatchSize,
 }
 
 #[repr(C)]
@@ -62,12 +66,14 @@ impl PrefixScan {
             )?);
         }
         let dummy = GpuBuffer::new(ctx, "scan dummy", 1, BufferKind::DeviceLocal)?;
+        let sizes = DispatchSize::new(ctx, levels.len() + 1)?;
         Ok(Self {
             reduce,
             downsweep,
             levels,
             capacity: capacity.max(1),
             dummy,
+            sizes,
         })
     }
 
@@ -80,7 +86,6 @@ impl PrefixScan {
     /// `counts[total_index]`. Barriers are included before and after.
     pub fn record(
         &self,
-        ctx: &GpuContext,
         rec: &mut Recorder,
         data: &GpuBuffer<u32>,
         counts: &GpuBuffer<u32>,
@@ -89,24 +94,30 @@ impl PrefixScan {
     ) {
         rec.barrier();
         let total_index = total_index.unwrap_or(u32::MAX);
-        // Up: data -> level 1 -> level 2 ...; each level's length is ceil(count / B^level).
+        // Level l holds ceil(count / B^l) elements and needs ceil(count / B^(l+1)) groups
+        // (the divisor saturates at u32::MAX, where one group is what any u32 count needs).
+        for l in 0..=self.levels.len() {
+            let per_group = SCAN_BLOCK.saturating_pow(l as u32 + 1);
+            self.sizes
+                .record(rec, counts, count_index, per_group, l as u32);
+        }
+        // Up: data -> level 1 -> level 2 ...
         let mut divisor = 1u64;
-        let mut sizes = vec![self.capacity];
         for (l, partials) in self.levels.iter().enumerate() {
             let src: &GpuBuffer<u32> = if l == 0 { data } else { &self.levels[l - 1] };
-            let n = sizes[l];
-            rec.dispatch(
+            let (args, at) = self.sizes.args(l as u32);
+            rec.dispatch_indirect(
                 &self.reduce,
                 &[src, partials, counts],
                 &ReducePush {
                     count_index,
                     divisor: divisor as u32,
                 },
-                ctx.groups_1d(n.div_ceil(SCAN_BLOCK), 1),
+                args,
+                at,
             );
             rec.barrier();
             divisor *= SCAN_BLOCK;
-            sizes.push(n.div_ceil(SCAN_BLOCK));
         }
         // Down: scan the top level in one workgroup, then each level below with its offsets.
         let top = self.levels.len();
@@ -118,7 +129,8 @@ impl PrefixScan {
                 &self.levels[l]
             };
             let divisor = SCAN_BLOCK.pow(l as u32) as u32;
-            rec.dispatch(
+            let (args, at) = self.sizes.args(l as u32);
+            rec.dispatch_indirect(
                 &self.downsweep,
                 &[buf, partials, counts],
                 &DownPush {
@@ -127,7 +139,8 @@ impl PrefixScan {
                     has_partials: (l != top) as u32,
                     total_index: if l == top { total_index } else { u32::MAX },
                 },
-                ctx.groups_1d(sizes[l].div_ceil(SCAN_BLOCK), 1),
+                args,
+                at,
             );
             rec.barrier();
         }

@@ -194,7 +194,6 @@ impl RadixSort {
     #[allow(clippy::too_many_arguments)]
     pub fn record(
         &self,
-        ctx: &GpuContext,
         rec: &mut Recorder,
         keys: &GpuBuffer<u32>,
         values: &GpuBuffer<u32>,
@@ -206,7 +205,6 @@ impl RadixSort {
         bits: u32,
     ) -> SortedIn {
         self.record_dropping(
-            ctx,
             rec,
             [keys, values, scratch_keys, scratch_values],
             counts,
@@ -222,7 +220,6 @@ impl RadixSort {
     #[allow(clippy::too_many_arguments)]
     pub fn record_dropping(
         &self,
-        ctx: &GpuContext,
         rec: &mut Recorder,
         [keys, values, scratch_keys, scratch_values]: [&GpuBuffer<u32>; 4],
         counts: &GpuBuffer<u32>,
@@ -278,7 +275,7 @@ impl RadixSort {
             // The histograms' total is the number of keys kept.
             let total = dropping.map(|d| d.kept_index);
             self.scan
-                .record(ctx, rec, &self.hist, counts, hist_len_index, total);
+                .record(rec, &self.hist, counts, hist_len_index, total);
             rec.dispatch_indirect(
                 scatter,
                 &[ki, vi, ko, vo, &self.hist, counts],

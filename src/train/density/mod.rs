@@ -797,8 +797,7 @@ impl DensityControl {
             },
             self.ctx.groups_1d(count as u64, WG),
         );
-        self.scan
-            .record(&self.ctx, rec, &self.slots, &self.counts, 0, Some(1));
+        self.scan.record(rec, &self.slots, &self.counts, 0, Some(1));
         rec.copy_region(&self.slots, count, &self.counts, 2, 1);
         rec.copy_region(&self.slots, 2 * count, &self.counts, 3, 1);
         rec.submit_and_wait()?;
