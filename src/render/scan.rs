@@ -20,7 +20,7 @@ pub struct PrefixScan {
     levels: Vec<GpuBuffer<u32>>,
     capacity: u64,
     dummy: GpuBuffer<u32>,
-    /// Per level, the group count for this scan's element count (read on the GPU): a scan
+    /// Per level below the top, the group count for this scan's element count (read on the GPU): a scan
     /// of a few elements in a large buffer runs a few workgroups, not the capacity's.
     sizes: DispatchSize,
 }
@@ -66,7 +66,7 @@ impl PrefixScan {
             )?);
         }
         let dummy = GpuBuffer::new(ctx, "scan dummy", 1, BufferKind::DeviceLocal)?;
-        let sizes = DispatchSize::new(ctx, levels.len() + 1)?;
+        let sizes = DispatchSize::new(ctx, levels.len())?;
         Ok(Self {
             reduce,
             downsweep,
@@ -96,7 +96,10 @@ impl PrefixScan {
         let total_index = total_index.unwrap_or(u32::MAX);
         // Level l holds ceil(count / B^l) elements and needs ceil(count / B^(l+1)) groups
         // (the divisor saturates at u32::MAX, where one group is what any u32 count needs).
-        for l in 0..=self.levels.len() {
+        // The top level holds at most B elements by construction: one group, no sizing (a
+        // scan that fits one block, such as a sort's histograms, adds no dispatch).
+        let top = self.levels.len();
+        for l in 0..top {
             let per_group = SCAN_BLOCK.saturating_pow(l as u32 + 1);
             self.sizes
                 .record(rec, counts, count_index, per_group, l as u32);
@@ -120,7 +123,6 @@ impl PrefixScan {
             divisor *= SCAN_BLOCK;
         }
         // Down: scan the top level in one workgroup, then each level below with its offsets.
-        let top = self.levels.len();
         for l in (0..=top).rev() {
             let buf: &GpuBuffer<u32> = if l == 0 { data } else { &self.levels[l - 1] };
             let partials: &GpuBuffer<u32> = if l == top {
@@ -129,19 +131,18 @@ impl PrefixScan {
                 &self.levels[l]
             };
             let divisor = SCAN_BLOCK.pow(l as u32) as u32;
-            let (args, at) = self.sizes.args(l as u32);
-            rec.dispatch_indirect(
-                &self.downsweep,
-                &[buf, partials, counts],
-                &DownPush {
-                    count_index,
-                    divisor,
-                    has_partials: (l != top) as u32,
-                    total_index: if l == top { total_index } else { u32::MAX },
-                },
-                args,
-                at,
-            );
+            let push = DownPush {
+                count_index,
+                divisor,
+                has_partials: (l != top) as u32,
+                total_index: if l == top { total_index } else { u32::MAX },
+            };
+            if l == top {
+                rec.dispatch(&self.downsweep, &[buf, partials, counts], &push, [1, 1, 1]);
+            } else {
+                let (args, at) = self.sizes.args(l as u32);
+                rec.dispatch_indirect(&self.downsweep, &[buf, partials, counts], &push, args, at);
+            }
             rec.barrier();
         }
     }
