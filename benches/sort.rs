@@ -38,7 +38,7 @@ fn main() -> anyhow::Result<()> {
             .collect();
         let vals: Vec<u32> = (0..n as u32).collect();
         let items = RadixSort::new(&ctx, 1)?.items();
-        let sorter = RadixSort::with_options(&ctx, n as u64, items, wide)?;
+        let sorter = RadixSort::with_options(&ctx, n as u64, items, wide, false)?;
         let kb = GpuBuffer::from_slice(&ctx, "keys", &keys)?;
         let vb = GpuBuffer::from_slice(&ctx, "vals", &vals)?;
         let sk = GpuBuffer::<u32>::new(&ctx, "sk", n, BufferKind::DeviceLocal)?;

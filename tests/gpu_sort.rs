@@ -104,10 +104,10 @@ fn radix_sort_is_stable_and_matches_host_sort() {
     // with 4-bit passes only and with the 5-bit passes that save a pass (13, 29, 31 and 32 bits
     // use them); the sizes straddle both block lengths (2048 and 16384 keys).
     let sorters = [
-        RadixSort::with_options(&ctx, 300_000, 8, false).unwrap(),
-        RadixSort::with_options(&ctx, 300_000, 64, false).unwrap(),
-        RadixSort::with_options(&ctx, 300_000, 8, true).unwrap(),
-        RadixSort::with_options(&ctx, 300_000, 64, true).unwrap(),
+        RadixSort::with_options(&ctx, 300_000, 8, false, false).unwrap(),
+        RadixSort::with_options(&ctx, 300_000, 64, false, false).unwrap(),
+        RadixSort::with_options(&ctx, 300_000, 8, true, false).unwrap(),
+        RadixSort::with_options(&ctx, 300_000, 64, true, false).unwrap(),
     ];
     assert!(
         RadixSort::with_items(&ctx, 10, 256).is_err(),
@@ -158,7 +158,7 @@ fn radix_sort_drops_the_named_key_in_its_first_pass() {
     let drop_key = 0x7FFF_FFFF;
     for wide in [false, true] {
         for items in [8, 64] {
-            let sorter = RadixSort::with_options(&ctx, 100_000, items, wide).unwrap();
+            let sorter = RadixSort::with_options(&ctx, 100_000, items, wide, true).unwrap();
             // (n, bits, share dropped): none, all, some; one and several passes; the dropped
             // key's digits collide with kept keys' digits in every pass.
             for (n, bits, share) in [

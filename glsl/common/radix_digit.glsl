@@ -4,6 +4,9 @@
 // size. A specialisation constant, so each width is its own pipeline with fixed loop bounds.
 layout(constant_id = 3) const uint RADIX_BITS = 4u;
 const uint RADIX = 1u << RADIX_BITS;
+// Whether the pass may drop keys (push constant drop_keys, a sorter made to drop): a sorter
+// that never drops compiles the test out.
+layout(constant_id = 4) const bool DROPS = false;
 
 // `digit_mask` is RADIX - 1 except in a last pass that has fewer bits to sort: the bits above
 // the sort's width are ignored, whatever the keys hold there.

@@ -44,7 +44,7 @@ void main() {
             uint key = keys_in[i];
             uint d = radix_digit(key, shift, digit_mask);
             // A dropped key counts for no digit.
-            uint one = drop_keys != 0u && key == drop_key ? 0u : 1u;
+            uint one = DROPS && drop_keys != 0u && key == drop_key ? 0u : 1u;
             one <<= ((d & 1u) * 16u);
             [[unroll]] for (uint d2 = 0u; d2 < RADIX / 2u; d2++) {
                 packed[d2] += (d >> 1u) == d2 ? one : 0u;
@@ -77,8 +77,9 @@ void main() {
     }
     for (uint k = 0u; k < ITEMS; k++) {
         uint i = first + k;
-        uint key = i < n ? keys_in[i] : 0u;
-        if (i < n && (drop_keys == 0u || key != drop_key)) {
+        if (i < n) {
+            uint key = keys_in[i];
+            if (DROPS && drop_keys != 0u && key == drop_key) continue;
             uint d = radix_digit(key, shift, digit_mask);
             uint dst = 0u;
             [[unroll]] for (uint r = 0u; r < RADIX; r++) {

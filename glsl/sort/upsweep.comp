@@ -33,7 +33,7 @@ void main() {
         uint i = base + k * WG_SIZE + gl_LocalInvocationIndex;
         if (i < n) {
             uint key = keys[i];
-            if (drop_keys == 0u || key != drop_key) {
+            if (!DROPS || drop_keys == 0u || key != drop_key) {
                 atomicAdd(block_hist[radix_digit(key, shift, digit_mask)], 1u);
             }
         }

@@ -325,7 +325,7 @@ impl Renderer {
             raster: Self::raster_pipeline(ctx, default_pixels_per_invocation(&ctx.info), 0)?,
             raster_features: None,
             feature_image: None,
-            depth_sort: RadixSort::new(ctx, capacity.gaussians as u64)?,
+            depth_sort: RadixSort::dropping(ctx, capacity.gaussians as u64)?,
             tile_sort: RadixSort::new(ctx, capacity.intersections as u64)?,
             pair_groups: DispatchSize::new(ctx, 2)?,
             scan: PrefixScan::new(ctx, capacity.gaussians as u64)?,
@@ -441,7 +441,7 @@ impl Renderer {
         // Free the old buffers first so peak memory does not double.
         self.frame = FrameBuffers::new(&self.ctx, &Capacity::single())?;
         if next.gaussians != cur.gaussians {
-            self.depth_sort = RadixSort::new(&self.ctx, next.gaussians as u64)?;
+            self.depth_sort = RadixSort::dropping(&self.ctx, next.gaussians as u64)?;
             self.scan = PrefixScan::new(&self.ctx, next.gaussians as u64)?;
         }
         if next.intersections != cur.intersections {

@@ -70,6 +70,8 @@ pub struct RadixSort {
     items: u32,
     /// Whether 5-bit passes may be used (see [`RadixSort::pass_widths`]).
     wide: bool,
+    /// Whether the kernels can drop keys ([`RadixSort::dropping`]).
+    drops: bool,
     /// The upsweep and scatter pipelines for 4-bit and 5-bit digits.
     narrow: [ComputePipeline; 2],
     wide_pipes: [ComputePipeline; 2],
@@ -84,27 +86,38 @@ impl RadixSort {
     /// A sorter with the block size suited to the device (see [`CPU_ITEMS`]), 5-bit passes
     /// where they save a pass.
     pub fn new(ctx: &Arc<GpuContext>, capacity: u64) -> anyhow::Result<Self> {
-        let items = if ctx.info.device_type.starts_with("CPU") {
+        Self::with_options(ctx, capacity, Self::device_items(ctx), true, false)
+    }
+
+    /// [`RadixSort::new`] whose sorts may drop keys ([`RadixSort::record_dropping`]).
+    pub fn dropping(ctx: &Arc<GpuContext>, capacity: u64) -> anyhow::Result<Self> {
+        Self::with_options(ctx, capacity, Self::device_items(ctx), true, true)
+    }
+
+    fn device_items(ctx: &GpuContext) -> u32 {
+        if ctx.info.device_type.starts_with("CPU") {
             CPU_ITEMS
         } else {
             GPU_ITEMS
-        };
-        Self::with_options(ctx, capacity, items, true)
+        }
     }
 
     /// A sorter whose invocations take `items` keys each, 4-bit passes only (tests cover both
     /// block sizes on any device).
     pub fn with_items(ctx: &Arc<GpuContext>, capacity: u64, items: u32) -> anyhow::Result<Self> {
-        Self::with_options(ctx, capacity, items, false)
+        Self::with_options(ctx, capacity, items, false, false)
     }
 
-    /// A sorter whose invocations take `items` keys each; `wide` allows 5-bit passes. A block
-    /// must hold fewer than 65536 keys: the scatter packs per-digit counts in 16 bits.
+    /// A sorter whose invocations take `items` keys each; `wide` allows 5-bit passes, `drops`
+    /// sorts that drop keys (the kernels of a sorter that never drops leave the test out: it
+    /// cost the tile sort about a tenth on lavapipe). A block must hold fewer than 65536 keys:
+    /// the scatter packs per-digit counts in 16 bits.
     pub fn with_options(
         ctx: &Arc<GpuContext>,
         capacity: u64,
         items: u32,
         wide: bool,
+        drops: bool,
     ) -> anyhow::Result<Self> {
         anyhow::ensure!(
             items >= 1 && (WG as u64) * (items as u64) < 65536,
@@ -120,7 +133,7 @@ impl RadixSort {
                     3,
                     std::mem::size_of::<UpPush>() as u32,
                     WG,
-                    &[items, digit_bits],
+                    &[items, digit_bits, u32::from(drops)],
                 )?,
                 ComputePipeline::new(
                     ctx,
@@ -129,7 +142,7 @@ impl RadixSort {
                     6,
                     std::mem::size_of::<ScatterPush>() as u32,
                     WG,
-                    &[items, digit_bits],
+                    &[items, digit_bits, u32::from(drops)],
                 )?,
             ])
         };
@@ -144,6 +157,7 @@ impl RadixSort {
         Ok(Self {
             items,
             wide,
+            drops,
             narrow: pipes(NARROW_BITS)?,
             wide_pipes: pipes(WIDE_BITS)?,
             scan,
@@ -229,8 +243,8 @@ impl RadixSort {
         drop: Option<DropKeys>,
     ) -> SortedIn {
         assert!(
-            drop.is_none() || bits > 0,
-            "radix sort: dropping keys needs a pass"
+            drop.is_none() || (bits > 0 && self.drops),
+            "radix sort: dropping keys needs a pass and a sorter made by RadixSort::dropping"
         );
         // As many blocks as there are keys this time, not as the capacity holds.
         self.sizes
