@@ -20,8 +20,9 @@ pub struct PrefixScan {
     levels: Vec<GpuBuffer<u32>>,
     capacity: u64,
     dummy: GpuBuffer<u32>,
-    /// Per level below the top, the group count for this scan's element count (read on the GPU): a scan
-    /// of a few elements in a large buffer runs a few workgroups, not the capacity's.
+    /// Per level below the top, the group count for this scan's element count (read on the
+    /// GPU): a scan of a few elements in a large buffer runs a few workgroups, not the
+    /// capacity's.
     sizes: DispatchSize,
 }
 

@@ -1,7 +1,8 @@
 //! Key–value GPU radix sort: u32 keys, u32 values, 4 or 5 bits a pass (as few passes as the
-//! bits in use need, the narrow digit wherever it does not cost a pass). Each pass is reduce-then-scan: per-block digit histograms, one
-//! exclusive scan of all histograms, then a stable scatter. No decoupled look-back: Vulkan gives
-//! no forward-progress guarantee between workgroups.
+//! bits in use need, the narrow digit wherever it does not cost a pass). Each pass is
+//! reduce-then-scan: per-block digit histograms, one exclusive scan of all histograms, then a
+//! stable scatter. No decoupled look-back: Vulkan gives no forward-progress guarantee between
+//! workgroups.
 
 use super::dispatch_size::DispatchSize;
 use super::scan::PrefixScan;
@@ -303,15 +304,10 @@ impl RadixSort {
                 args,
                 at,
             );
-            if dropping.is_some() {
+            if let Some(d) = dropping {
                 // The later passes' group counts, from the kept count.
-                self.sizes.record(
-                    rec,
-                    counts,
-                    drop.map_or(0, |d| d.kept_index),
-                    Self::block_of(self.items),
-                    1,
-                );
+                self.sizes
+                    .record(rec, counts, d.kept_index, Self::block_of(self.items), 1);
             }
             from_input = !from_input;
             shift += width;
