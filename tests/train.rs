@@ -1297,3 +1297,85 @@ fn init_triangulate_on_a_scene_with_points_says_the_points_win() {
         "{err}"
     );
 }
+
+/// `visible_adam`: a Gaussian the step's view does not see keeps its parameters bit for bit,
+/// where the dense optimiser moves it on the momentum of an earlier step; the seen ones move.
+/// Two trainers with the same seed see the same views; the model fills a box twice lego's, so
+/// every view misses part of it.
+#[test]
+fn visible_adam_moves_only_what_the_step_sees() {
+    let ctx = ctx();
+    let scene = lego();
+    let train = images::load_images(&scene, &scene.train).unwrap();
+    let n = 2000;
+    let init = random_init(n, [0.0; 3], [2.6; 3], 3, 0).unwrap();
+    let mut cfg = fixed_config(6);
+    cfg.visible_adam = true;
+    let mut sparse = Trainer::new(&ctx, &scene, &train, &init, cfg).unwrap();
+    let mut dense = Trainer::new(&ctx, &scene, &train, &init, fixed_config(6)).unwrap();
+    assert!(dense.visible_mask().unwrap().is_none());
+    // Per Gaussian: every stored float of the model.
+    let rows = |p: &GaussianParams| -> Vec<Vec<u32>> {
+        (0..p.len())
+            .map(|i| {
+                let mut v: Vec<f32> = p.positions[i].to_vec();
+                v.extend(p.log_scales[i]);
+                v.extend(p.rotations[i]);
+                v.push(p.opacity_logits[i]);
+                v.extend(p.sh_dc[i]);
+                v.iter().map(|x| x.to_bits()).collect()
+            })
+            .collect()
+    };
+    let mut sparse_before = rows(&sparse.model().unwrap());
+    let mut dense_before = rows(&dense.model().unwrap());
+    let mut moved_before = vec![false; n];
+    let (mut checked_unseen, mut dense_moved_unseen, mut seen_total) = (0, 0, 0);
+    for step in 1..=4 {
+        let (a, b) = (sparse.step().unwrap(), dense.step().unwrap());
+        assert_eq!(a.view, b.view, "the two runs see the same views");
+        let mask = sparse.visible_mask().unwrap().unwrap();
+        assert_eq!(mask.len(), n);
+        let (sparse_now, dense_now) = (
+            rows(&sparse.model().unwrap()),
+            rows(&dense.model().unwrap()),
+        );
+        for i in 0..n {
+            if mask[i] == 0 {
+                assert_eq!(
+                    sparse_now[i], sparse_before[i],
+                    "step {step}: Gaussian {i}, unseen, moved under visible Adam"
+                );
+                // Moved before (momentum) and unseen now: the dense update still moves it.
+                if step > 1 && moved_before[i] {
+                    checked_unseen += 1;
+                    dense_moved_unseen += (dense_now[i] != dense_before[i]) as usize;
+                }
+            } else {
+                seen_total += 1;
+                moved_before[i] |= sparse_now[i] != sparse_before[i];
+            }
+        }
+        sparse_before = sparse_now;
+        dense_before = dense_now;
+    }
+    eprintln!(
+        "seen {seen_total} of {} Gaussian-steps; {checked_unseen} unseen after moving, of which \
+         the dense update moved {dense_moved_unseen}",
+        4 * n
+    );
+    assert!(
+        seen_total > n && seen_total < 4 * n * 9 / 10,
+        "the views should see part of the model: {seen_total}"
+    );
+    assert!(checked_unseen > 50, "{checked_unseen}");
+    assert!(
+        dense_moved_unseen * 10 >= checked_unseen * 9,
+        "dense Adam moved {dense_moved_unseen} of {checked_unseen}"
+    );
+    assert!(
+        moved_before.iter().filter(|&&m| m).count() > n / 2,
+        "visible Adam moved the seen Gaussians"
+    );
+    ctx.check_validation().unwrap();
+}
