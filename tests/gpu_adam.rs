@@ -1,15 +1,12 @@
 //! GPU Adam against the op-by-op host reference over 100 steps of random gradients, with the
-//! Inria learning-rate schedule, dense and on the seen Gaussians only (`--visible-adam`, with
-//! the kernel that marks them), validation on.
+//! Inria learning-rate schedule, validation on.
 
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder};
-use lpmsplat::render::layout::ProjectedBoundsGpu;
 use lpmsplat::splats::gpu::{logical_group, GpuSplats};
 use lpmsplat::splats::sh_planes;
 use lpmsplat::splats::GaussianParams;
-use lpmsplat::train::adam::{adam_host_step, adam_host_step_visible, Adam, SplatState};
+use lpmsplat::train::adam::{adam_host_step, Adam, SplatState};
 use lpmsplat::train::schedule::LearningRates;
-use lpmsplat::train::visible::VisibleMask;
 use rand::{Rng, SeedableRng};
 use std::sync::Arc;
 
@@ -72,18 +69,6 @@ fn ulps(a: f32, b: f32) -> u32 {
 
 #[test]
 fn hundred_steps_match_the_host_reference() {
-    hundred_steps(false);
-}
-
-/// The same with a random "seen" mask each step (a third of the Gaussians seen, with steps
-/// where none and where all are): the unseen keep parameters and both moments bit for bit, as
-/// the host reference says; a kernel that ignored the mask fails the comparison.
-#[test]
-fn hundred_visible_steps_match_the_host_reference() {
-    hundred_steps(true);
-}
-
-fn hundred_steps(visible_only: bool) {
     let ctx = ctx();
     let exact = ctx.info.driver.to_lowercase().contains("llvmpipe")
         || ctx.info.name.to_lowercase().contains("llvmpipe");
@@ -132,23 +117,6 @@ fn hundred_steps(visible_only: bool) {
         .iter()
         .map(|v| GpuBuffer::from_slice(&ctx, "all grads", v).unwrap())
         .collect();
-    // The masks of the steps (visible_only): step 5 sees nothing, step 6 everything, the others
-    // a random third; 0 and other non-zero values than 1 both occur.
-    let masks: Vec<u32> = (1..=steps)
-        .flat_map(|t| {
-            (0..n)
-                .map(|_| match t {
-                    5 => 0,
-                    6 => 1,
-                    _ if rng.gen_bool(0.33) => rng.gen_range(1..4u32),
-                    _ => 0,
-                })
-                .collect::<Vec<_>>()
-        })
-        .collect();
-    let masks_gpu = GpuBuffer::from_slice(&ctx, "all masks", &masks).unwrap();
-    // A capacity above the count, its tail marked seen: Adam must not read past the count.
-    let mask = GpuBuffer::from_slice(&ctx, "mask", &vec![1u32; capacity]).unwrap();
     let adam = Adam::new(&ctx).unwrap();
     let lrs = LearningRates::default();
     let extent = 4.2;
@@ -158,11 +126,7 @@ fn hundred_steps(visible_only: bool) {
             let len = n * stride;
             rec.copy_region(&all_gpu[k], (t as usize - 1) * len, buf, 0, len);
         }
-        if visible_only {
-            rec.copy_region(&masks_gpu, (t as usize - 1) * n, &mask, 0, n);
-        }
-        let seen = visible_only.then_some(&mask);
-        adam.record_state(&ctx, &mut rec, &state, &grads, t, &lrs.at(t, extent), seen)
+        adam.record_state(&ctx, &mut rec, &state, &grads, t, &lrs.at(t, extent))
             .unwrap();
     }
     rec.submit_and_wait().unwrap();
@@ -187,23 +151,7 @@ fn hundred_steps(visible_only: bool) {
             let len = hp[k].len();
             let lr_k = lr[logical_group(k)];
             let g = &all[k][(t as usize - 1) * len..t as usize * len];
-            if visible_only {
-                let seen = &masks[(t as usize - 1) * n..t as usize * n];
-                let stride = len / n;
-                adam_host_step_visible(
-                    &adam.hyper,
-                    &mut hp[k],
-                    g,
-                    &mut hm[k],
-                    &mut hv[k],
-                    lr_k,
-                    t,
-                    stride,
-                    seen,
-                );
-            } else {
-                adam_host_step(&adam.hyper, &mut hp[k], g, &mut hm[k], &mut hv[k], lr_k, t);
-            }
+            adam_host_step(&adam.hyper, &mut hp[k], g, &mut hm[k], &mut hv[k], lr_k, t);
             for i in 0..len {
                 scale_p[k][i] += lr_k as f32;
                 scale_m[k][i] = scale_m[k][i].max(g[i].abs());
@@ -271,121 +219,6 @@ fn hundred_steps(visible_only: bool) {
         .filter(|(a, b)| a != b)
         .count();
     assert!(moved > hp[0].len() * 9 / 10, "{moved}");
-    if visible_only {
-        // The last step's unseen Gaussians kept what the step before left them (the host
-        // reference one step short), and the seen ones moved.
-        let last = &masks[(steps as usize - 1) * n..];
-        let mut before = flat(&params);
-        let mut bm: [Vec<f32>; GROUPS] = std::array::from_fn(|k| vec![0.0; before[k].len()]);
-        let mut bv = bm.clone();
-        for t in 1..steps {
-            let lr = lrs.at(t, extent).0;
-            for k in 0..GROUPS {
-                let len = before[k].len();
-                let g = &all[k][(t as usize - 1) * len..t as usize * len];
-                let seen = &masks[(t as usize - 1) * n..t as usize * n];
-                let (lr_k, stride) = (lr[logical_group(k)], len / n);
-                let (p, m, v) = (&mut before[k], &mut bm[k], &mut bv[k]);
-                adam_host_step_visible(&adam.hyper, p, g, m, v, lr_k, t, stride, seen);
-            }
-        }
-        let got = state.params.groups()[0].0.read_range(0, 3 * n).unwrap();
-        let (mut kept, mut moved) = (0, 0);
-        for i in 0..n {
-            let same = (0..3).all(|c| got[3 * i + c].to_bits() == before[0][3 * i + c].to_bits());
-            if last[i] == 0 {
-                assert!(same, "Gaussian {i}, unseen at the last step, moved");
-                kept += 1;
-            } else if !same {
-                moved += 1;
-            }
-        }
-        assert!(
-            kept > n / 2 && moved > n / 4,
-            "kept {kept}, moved {moved} of {n}"
-        );
-    }
-    ctx.check_validation().unwrap();
-}
-
-/// The mark kernel: the first view writes radius > 0 (NaN, 0, −0 and negative radii are not
-/// seen), a later view ORs into the mask, entries past the count stay as they were.
-#[test]
-fn the_mask_marks_what_any_view_of_the_step_sees() {
-    let ctx = ctx();
-    let radii_a = [
-        0.0f32,
-        1.0,
-        -1.0,
-        f32::NAN,
-        f32::INFINITY,
-        1e-30,
-        -0.0,
-        0.0,
-        3.0,
-    ];
-    let radii_b = [2.0f32, 0.0, 0.0, 0.0, 0.0, 0.0, 5.0, f32::NAN, 0.0];
-    let (count, capacity) = (radii_a.len() - 1, radii_a.len() + 3);
-    let bounds = |radii: &[f32]| {
-        let b: Vec<ProjectedBoundsGpu> = radii
-            .iter()
-            .map(|&radius| ProjectedBoundsGpu {
-                depth: 1.0,
-                radius,
-                flags: 0,
-                tile_min: [0; 2],
-                tile_max: [1; 2],
-            })
-            .collect();
-        GpuBuffer::from_slice(&ctx, "bounds", &b).unwrap()
-    };
-    let (a, b) = (bounds(&radii_a), bounds(&radii_b));
-    let mut vis = VisibleMask::new(&ctx, 2).unwrap();
-    vis.reserve(&ctx, capacity).unwrap();
-    assert!(vis.mask().len() >= capacity);
-    let poison = vec![0xDEAD_BEEFu32; vis.mask().len()];
-    vis.mask().upload(&poison).unwrap();
-    let mut rec = Recorder::new(&ctx).unwrap();
-    rec.begin().unwrap();
-    vis.record_view(&ctx, &mut rec, &a, count, true).unwrap();
-    rec.submit_and_wait().unwrap();
-    let first = vis.mask().read().unwrap();
-    assert_eq!(&first[..count], &[0, 1, 0, 0, 1, 1, 0, 0]);
-    assert!(
-        first[count..].iter().all(|&x| x == 0xDEAD_BEEF),
-        "wrote past the count"
-    );
-    rec.begin().unwrap();
-    vis.record_view(&ctx, &mut rec, &b, count, false).unwrap();
-    rec.submit_and_wait().unwrap();
-    let both = vis.mask().read().unwrap();
-    assert_eq!(&both[..count], &[1, 1, 0, 0, 1, 1, 1, 0]);
-    assert!(both[count..].iter().all(|&x| x == 0xDEAD_BEEF));
-    // More Gaussians than the mask or the bounds hold is refused.
-    rec.begin().unwrap();
-    assert!(vis
-        .record_view(&ctx, &mut rec, &a, capacity + 1, true)
-        .is_err());
-    rec.submit_and_wait().unwrap();
-    let small = GpuBuffer::from_slice(&ctx, "small", &[1u32; 4]).unwrap();
-    let state = SplatState::new(
-        &ctx,
-        GpuSplats::upload(
-            &ctx,
-            &random_params(&mut rand_pcg::Pcg64::seed_from_u64(1), 10, 0, 1.0),
-            10,
-        )
-        .unwrap(),
-    )
-    .unwrap();
-    let grads = GpuSplats::zeroed(&ctx, "g ", 0, 10, 10).unwrap();
-    let adam = Adam::new(&ctx).unwrap();
-    let lrs = LearningRates::default().at(1, 1.0);
-    let e = adam
-        .record_state(&ctx, &mut rec, &state, &grads, 1, &lrs, Some(&small))
-        .unwrap_err()
-        .to_string();
-    assert!(e.contains("mask holds 4 entries for 10 Gaussians"), "{e}");
     ctx.check_validation().unwrap();
 }
 
@@ -403,23 +236,23 @@ fn bad_calls_are_refused() {
     let mut rec = Recorder::new(&ctx).unwrap();
     let (pa, m, v) = (&state.params, &state.m, &state.v);
     assert!(adam
-        .record(&ctx, &mut rec, pa, &grads, m, v, 10, 0, &lrs, None)
+        .record(&ctx, &mut rec, pa, &grads, m, v, 10, 0, &lrs)
         .is_err());
     assert!(adam
-        .record(&ctx, &mut rec, pa, &small, m, v, 10, 1, &lrs, None)
+        .record(&ctx, &mut rec, pa, &small, m, v, 10, 1, &lrs)
         .is_err());
     assert!(adam
-        .record(&ctx, &mut rec, pa, &other_degree, m, v, 10, 1, &lrs, None)
+        .record(&ctx, &mut rec, pa, &other_degree, m, v, 10, 1, &lrs)
         .is_err());
     assert!(adam
-        .record(&ctx, &mut rec, pa, &grads, m, v, 11, 1, &lrs, None)
+        .record(&ctx, &mut rec, pa, &grads, m, v, 11, 1, &lrs)
         .is_err());
     let mut nan = lrs.clone();
     nan.0[3] = f64::NAN;
     assert!(adam
-        .record(&ctx, &mut rec, pa, &grads, m, v, 10, 1, &nan, None)
+        .record(&ctx, &mut rec, pa, &grads, m, v, 10, 1, &nan)
         .is_err());
-    adam.record(&ctx, &mut rec, pa, &grads, m, v, 10, 1, &lrs, None)
+    adam.record(&ctx, &mut rec, pa, &grads, m, v, 10, 1, &lrs)
         .unwrap();
     rec.submit_and_wait().unwrap();
     ctx.check_validation().unwrap();
@@ -454,13 +287,13 @@ fn extra_groups_get_their_own_learning_rates() {
     let mut lrs = LearningRates::default().at(1, 1.0);
     let mut rec = Recorder::new(&ctx).unwrap();
     let e = adam
-        .record_state(&ctx, &mut rec, &state, &grads, 1, &lrs, None)
+        .record_state(&ctx, &mut rec, &state, &grads, 1, &lrs)
         .unwrap_err()
         .to_string();
     assert!(e.contains("6 learning rates for 8 parameter groups"), "{e}");
     lrs.0.extend([0.02, 0.3]);
     let mut rec = Recorder::new(&ctx).unwrap();
-    adam.record_state(&ctx, &mut rec, &state, &grads, 1, &lrs, None)
+    adam.record_state(&ctx, &mut rec, &state, &grads, 1, &lrs)
         .unwrap();
     rec.submit_and_wait().unwrap();
     let got = state.params.download().unwrap();

@@ -91,9 +91,7 @@ pub struct TradeArgs {
     /// lpm-overlap-neighbours (our rules with the neighbour views sharing the most tracks),
     /// lpm-error-blocks (our rules with only the matches on a region's own error blocks speaking
     /// for it), lpm-bounding-cone (our rules with the in-front cone to the zone's bounding
-    /// sphere, the default before 2026-11-26), adc-visible-adam (ADC with Adam on the seen
-    /// Gaussians only, `train --visible-adam`) (aliases: adc-1e-4, lpm). Default: the first
-    /// five.
+    /// sphere, the default before 2026-11-26) (aliases: adc-1e-4, lpm). Default: the first five.
     #[arg(long, value_delimiter = ',')]
     pub runs: Vec<String>,
     /// Run the variants one after another instead of interleaving their iterations. Interleaving
@@ -115,9 +113,6 @@ pub struct TradeArgs {
     /// Mip-Splatting's official densification).
     #[arg(long)]
     pub densify_abs_grad: bool,
-    /// Every run updates only the Gaussians each step sees (as `train --visible-adam`).
-    #[arg(long)]
-    pub visible_adam: bool,
     /// The test view trade.html shows (name, file stem or index into the test views; default
     /// the first): the truth beside each run's final render and error map.
     #[arg(long)]
@@ -160,7 +155,7 @@ pub struct TradeRow {
     pub model_events: Vec<serde_json::Value>,
 }
 
-pub const RUNS: [(&str, [u8; 3]); 14] = [
+pub const RUNS: [(&str, [u8; 3]); 13] = [
     ("adc", [40, 40, 40]),
     ("adc-threshold-1e-4", [200, 120, 0]),
     ("adc+lpm", [220, 30, 30]),
@@ -186,9 +181,6 @@ pub const RUNS: [(&str, [u8; 3]); 14] = [
     // Our rules with the in-front cone to the zone's bounding sphere
     // (`train --lpm --lpm-cone bounding`; the default until the region cone measured better).
     ("lpm-bounding-cone", [40, 60, 160]),
-    // ADC with Adam on the Gaussians each step sees only (`train --visible-adam`): the
-    // optimiser's speed / accuracy trade beside the dense default.
-    ("adc-visible-adam", [120, 200, 120]),
 ];
 
 pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
@@ -268,7 +260,6 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
         abs_grad_applies(args.model)?;
         base.density.abs_grad = true;
     }
-    base.visible_adam = args.visible_adam;
     if let Some(g) = base.spacetime.as_mut().and_then(|s| s.guided.as_mut()) {
         // SpacetimeGaussians' guided sampling on the same calendar (official 1600 and 100).
         g.from = scale(g.from);
@@ -311,9 +302,6 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
             if name == "adc-abs-grad" {
                 abs_grad_applies(args.model)?;
                 cfg.density.abs_grad = true;
-            }
-            if name == "adc-visible-adam" {
-                cfg.visible_adam = true;
             }
             let lpm = run_lpm_config(name, &cfg, args);
             if let Some(c) = &lpm {

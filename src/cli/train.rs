@@ -171,13 +171,6 @@ pub struct TrainArgs {
     /// official batch), 1 otherwise.
     #[arg(long)]
     pub batch_views: Option<u32>,
-    /// Adam updates only the Gaussians this step's views see (radius > 0); the others keep
-    /// their parameters and Adam moments as they are (gsplat's visible_adam, the Inria code's
-    /// sparse_adam). Less optimiser work where a view sees a small part of the scene, at the
-    /// price of a different optimiser: unseen Gaussians no longer drift on their momentum.
-    /// Off: the dense update of torch.optim.Adam, as the reference trains.
-    #[arg(long)]
-    pub visible_adam: bool,
     #[command(flatten)]
     pub lpm: Box<LpmArgs>,
 }
@@ -408,7 +401,6 @@ impl TrainArgs {
             background: background_from(self.background.as_deref(), scene)?,
             ssim_weight: self.ssim_weight,
             timestamps: self.timestamps,
-            visible_adam: self.visible_adam,
             ..TrainConfig::default()
         };
         c.lr.position_init = self.lr_position;

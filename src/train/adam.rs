@@ -14,11 +14,8 @@
 //! so on a device with correctly rounded `/` and `sqrt` (lavapipe) the two agree bit for bit.
 //! (torch itself builds with FMA contraction on CUDA, so it is not bit-reproducible either.)
 //!
-//! The update is dense by default: every Gaussian below `count` moves, seen this iteration or
-//! not, as in the reference (moments keep decaying for Gaussians with zero gradient). Given a
-//! visibility mask ([`super::visible::VisibleMask`], `train --visible-adam`), only the seen
-//! Gaussians move and the others keep parameters and moments bit for bit, as gsplat's
-//! `visible_adam` and the Inria code's `sparse_adam` do ([`adam_host_step_visible`]).
+//! The update is dense: every Gaussian below `count` moves, seen this iteration or not, as in
+//! the reference (moments keep decaying for Gaussians with zero gradient).
 
 use crate::gpu::{ComputePipeline, GpuBuffer, GpuContext, Recorder};
 use crate::shaders;
@@ -126,46 +123,6 @@ pub fn adam_host_step(
     }
 }
 
-/// [`adam_host_step`] on the Gaussians seen this step only: float `i` belongs to Gaussian
-/// `i / stride`, and the floats of a Gaussian whose `visible` entry is 0 are left as they are
-/// (the host reference of `glsl/train/adam_visible.comp`).
-#[allow(clippy::too_many_arguments)]
-pub fn adam_host_step_visible(
-    hyper: &AdamHyper,
-    params: &mut [f32],
-    grads: &[f32],
-    m: &mut [f32],
-    v: &mut [f32],
-    lr: f64,
-    step: u32,
-    stride: usize,
-    visible: &[u32],
-) {
-    assert!(stride > 0, "a group of stride 0 has no floats");
-    let seen = |i: usize| visible[i / stride] != 0;
-    let mut run = 0;
-    // Consecutive seen floats go through adam_host_step as one slice (the same arithmetic).
-    while run < params.len() {
-        if !seen(run) {
-            run += 1;
-            continue;
-        }
-        let end = (run..params.len())
-            .find(|&i| !seen(i))
-            .unwrap_or(params.len());
-        adam_host_step(
-            hyper,
-            &mut params[run..end],
-            &grads[run..end],
-            &mut m[run..end],
-            &mut v[run..end],
-            lr,
-            step,
-        );
-        run = end;
-    }
-}
-
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 struct AdamPush {
@@ -176,8 +133,7 @@ struct AdamPush {
     neg_step_size: f32,
     bias2_sqrt: f32,
     eps: f32,
-    /// Floats per Gaussian of the group (the visible kernel maps a float to its Gaussian).
-    stride: u32,
+    pad: u32,
 }
 
 /// The parameters with their two Adam moment sets, all of one capacity and count. Density
@@ -262,8 +218,6 @@ impl SplatState {
 /// wherever the caller keeps them).
 pub struct Adam {
     pipe: ComputePipeline,
-    /// The same step on the Gaussians a mask marks as seen (`adam_visible.comp`).
-    visible_pipe: ComputePipeline,
     pub hyper: AdamHyper,
 }
 
@@ -283,26 +237,12 @@ impl Adam {
             WG,
             &[],
         )?;
-        let visible_pipe = ComputePipeline::new(
-            ctx,
-            "train/adam_visible",
-            shaders::TRAIN_ADAM_VISIBLE,
-            5,
-            std::mem::size_of::<AdamPush>() as u32,
-            WG,
-            &[],
-        )?;
-        Ok(Self {
-            pipe,
-            visible_pipe,
-            hyper,
-        })
+        Ok(Self { pipe, hyper })
     }
 
-    /// Records step `step` (1-based) on the first `count` Gaussians of every group: one
-    /// dispatch a stored group, with a barrier before (the gradients must be complete) and after
-    /// (the parameters are read next). `params`, `m` and `v` are updated in place. With
-    /// `visible`, only the Gaussians whose entry is non-zero (at least `count` entries).
+    /// Records step `step` (1-based) on the first `count` Gaussians of every group: six
+    /// dispatches, with a barrier before (the gradients must be complete) and after (the
+    /// parameters are read next). `params`, `m` and `v` are updated in place.
     #[allow(clippy::too_many_arguments)]
     pub fn record(
         &self,
@@ -315,16 +255,8 @@ impl Adam {
         count: usize,
         step: u32,
         lrs: &GroupLrs,
-        visible: Option<&GpuBuffer<u32>>,
     ) -> anyhow::Result<()> {
         ensure!(step >= 1, "Adam step numbers start at 1 (got 0)");
-        if let Some(mask) = visible {
-            ensure!(
-                mask.len() >= count,
-                "Adam: the visibility mask holds {} entries for {count} Gaussians",
-                mask.len()
-            );
-        }
         for (name, s) in [("gradients", grads), ("m", m), ("v", v)] {
             ensure!(
                 s.sh_degree == params.sh_degree,
@@ -371,23 +303,13 @@ impl Adam {
                 n <= u32::MAX as u64,
                 "Adam: group {k} has {n} floats, over 2^32"
             );
-            let mut push = self.push(n as u32, lrs.0[logical_group(k)], step);
-            push.stride = p[k].1 as u32;
-            let groups = ctx.groups_1d(n / 4 + n % 4, WG);
-            match visible {
-                None => rec.dispatch(
-                    &self.pipe,
-                    &[p[k].0, g[k].0, mm[k].0, vv[k].0],
-                    &push,
-                    groups,
-                ),
-                Some(mask) => rec.dispatch(
-                    &self.visible_pipe,
-                    &[p[k].0, g[k].0, mm[k].0, vv[k].0, mask],
-                    &push,
-                    groups,
-                ),
-            }
+            let push = self.push(n as u32, lrs.0[logical_group(k)], step);
+            rec.dispatch(
+                &self.pipe,
+                &[p[k].0, g[k].0, mm[k].0, vv[k].0],
+                &push,
+                ctx.groups_1d(n / 4 + n % 4, WG),
+            );
         }
         rec.barrier();
         Ok(())
@@ -404,7 +326,7 @@ impl Adam {
             neg_step_size: s.neg_step_size,
             bias2_sqrt: s.bias2_sqrt,
             eps: s.eps,
-            stride: 1,
+            pad: 0,
         }
     }
 
@@ -454,7 +376,6 @@ impl Adam {
     }
 
     /// [`Adam::record`] on a [`SplatState`] (its own count).
-    #[allow(clippy::too_many_arguments)]
     pub fn record_state(
         &self,
         ctx: &GpuContext,
@@ -463,7 +384,6 @@ impl Adam {
         grads: &GpuSplats,
         step: u32,
         lrs: &GroupLrs,
-        visible: Option<&GpuBuffer<u32>>,
     ) -> anyhow::Result<()> {
         self.record(
             ctx,
@@ -475,7 +395,6 @@ impl Adam {
             state.count(),
             step,
             lrs,
-            visible,
         )
     }
 }

@@ -56,9 +56,6 @@ pub struct TrainConfig {
     /// Views per optimizer step: the scheduled view and `batch_views − 1` other training views
     /// of its time, their gradients averaged (`train::batch`; SpacetimeGaussians: 2).
     pub batch_views: u32,
-    /// Adam updates only the Gaussians the step's views see (`train::visible`; gsplat's
-    /// `visible_adam`); off: the dense update of torch.optim.Adam.
-    pub visible_adam: bool,
 }
 
 impl Default for TrainConfig {
@@ -77,7 +74,6 @@ impl Default for TrainConfig {
             surfels: None,
             spacetime: None,
             batch_views: 1,
-            visible_adam: false,
         }
     }
 }
@@ -127,10 +123,6 @@ impl TrainConfig {
         // Only when batched, so checkpoints from before the key still resume.
         if self.batch_views != 1 {
             j["batch_views"] = serde_json::json!(self.batch_views);
-        }
-        // Only when on, so checkpoints from before the key still resume.
-        if self.visible_adam {
-            j["visible_adam"] = serde_json::json!(true);
         }
         // Only when on, so checkpoints from before the key still resume.
         if self.mip_filters {

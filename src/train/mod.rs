@@ -14,4 +14,3 @@ pub mod passes;
 pub mod schedule;
 pub mod strategy;
 pub mod trainer;
-pub mod visible;

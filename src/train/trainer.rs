@@ -37,7 +37,6 @@ use super::strategy::{
     Adc, DensityContext, DensityStrategy, IterationView, ModelRule, OpacityFilter, StepSeen,
     StrategyEvent,
 };
-use super::visible::VisibleMask;
 use crate::gpu::{BufferKind, GpuBuffer, GpuContext, Recorder, StageTimes, TimestampPool};
 use crate::render::forward::Capacity;
 use crate::render::layout::{CameraGpu, RenderConstants};
@@ -127,8 +126,6 @@ pub struct Trainer {
     pub(super) passes: Box<dyn ModelPasses>,
     loss: Loss,
     adam: Adam,
-    /// `visible_adam`: the Gaussians the step's views see (Adam updates only those).
-    visible: Option<VisibleMask>,
     pub density: DensityControl,
     dl_dimage: GpuBuffer<f32>,
     loss_out: GpuBuffer<f32>,
@@ -258,11 +255,6 @@ impl Trainer {
             passes,
             loss: Loss::new(ctx, max_w, max_h)?,
             adam: Adam::new(ctx)?,
-            visible: if config.visible_adam {
-                Some(VisibleMask::new(ctx, capacity)?)
-            } else {
-                None
-            },
             density: DensityControl::new(ctx, capacity, density)?,
             dl_dimage: GpuBuffer::new(ctx, "dL/dimage", pixels * 3, BufferKind::DeviceLocal)?,
             // One loss slot per view of a step.
@@ -358,9 +350,6 @@ impl Trainer {
                 GpuBuffer::new(&self.ctx, "view grad norm", cap, BufferKind::DeviceLocal)?;
         }
         self.passes.reserve(cap)?;
-        if let Some(v) = self.visible.as_mut() {
-            v.reserve(&self.ctx, cap)?;
-        }
         self.grads.count = self.state.count();
         if self.batch_grads.as_ref().is_some_and(|b| b.capacity < cap) {
             self.batch_grads = None;
@@ -580,15 +569,6 @@ impl Trainer {
                 };
                 self.blend
                     .record(&mut self.rec, &self.grads, grads, count, scale)?;
-            }
-            if let Some(vis) = &self.visible {
-                vis.record_view(
-                    &self.ctx,
-                    &mut self.rec,
-                    self.passes.projected_bounds(),
-                    count,
-                    k == 0,
-                )?;
             }
         }
         if cfg.schedule.accumulates(it) {
@@ -847,7 +827,6 @@ impl Trainer {
             &self.grads,
             self.adam_step,
             &lrs,
-            self.visible.as_ref().map(|v| v.mask()),
         )?;
         self.passes
             .record_model_step(&self.ctx, &mut self.rec, self.adam_step, it)
@@ -874,15 +853,7 @@ impl Trainer {
         self.passes.reserve_intersections(n)
     }
 
-    /// With `visible_adam`, the last step's mask of seen Gaussians (1 seen, 0 not), downloaded:
-    /// for tests and debugging.
-    pub fn visible_mask(&self) -> anyhow::Result<Option<Vec<u32>>> {
-        self.visible
-            .as_ref()
-            .map(|v| v.mask().read_range(0, self.state.count()))
-            .transpose()
-    }
-
+    /// The model to evaluate or export (see [`Trainer::eval_params`]).
     /// The last step's gradients (the batch mean when batched), downloaded: for tests and
     /// debugging.
     pub fn gradients(&self) -> anyhow::Result<GaussianParams> {
