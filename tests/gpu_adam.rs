@@ -126,7 +126,7 @@ fn hundred_steps_match_the_host_reference() {
             let len = n * stride;
             rec.copy_region(&all_gpu[k], (t as usize - 1) * len, buf, 0, len);
         }
-        adam.record_state(&ctx, &mut rec, &state, &grads, t, &lrs.at(t, extent))
+        adam.record_state(&ctx, &mut rec, &state, &grads, t, &lrs.at(t, extent), None)
             .unwrap();
     }
     rec.submit_and_wait().unwrap();
@@ -236,23 +236,23 @@ fn bad_calls_are_refused() {
     let mut rec = Recorder::new(&ctx).unwrap();
     let (pa, m, v) = (&state.params, &state.m, &state.v);
     assert!(adam
-        .record(&ctx, &mut rec, pa, &grads, m, v, 10, 0, &lrs)
+        .record(&ctx, &mut rec, pa, &grads, m, v, 10, 0, &lrs, None)
         .is_err());
     assert!(adam
-        .record(&ctx, &mut rec, pa, &small, m, v, 10, 1, &lrs)
+        .record(&ctx, &mut rec, pa, &small, m, v, 10, 1, &lrs, None)
         .is_err());
     assert!(adam
-        .record(&ctx, &mut rec, pa, &other_degree, m, v, 10, 1, &lrs)
+        .record(&ctx, &mut rec, pa, &other_degree, m, v, 10, 1, &lrs, None)
         .is_err());
     assert!(adam
-        .record(&ctx, &mut rec, pa, &grads, m, v, 11, 1, &lrs)
+        .record(&ctx, &mut rec, pa, &grads, m, v, 11, 1, &lrs, None)
         .is_err());
     let mut nan = lrs.clone();
     nan.0[3] = f64::NAN;
     assert!(adam
-        .record(&ctx, &mut rec, pa, &grads, m, v, 10, 1, &nan)
+        .record(&ctx, &mut rec, pa, &grads, m, v, 10, 1, &nan, None)
         .is_err());
-    adam.record(&ctx, &mut rec, pa, &grads, m, v, 10, 1, &lrs)
+    adam.record(&ctx, &mut rec, pa, &grads, m, v, 10, 1, &lrs, None)
         .unwrap();
     rec.submit_and_wait().unwrap();
     ctx.check_validation().unwrap();
@@ -287,13 +287,13 @@ fn extra_groups_get_their_own_learning_rates() {
     let mut lrs = LearningRates::default().at(1, 1.0);
     let mut rec = Recorder::new(&ctx).unwrap();
     let e = adam
-        .record_state(&ctx, &mut rec, &state, &grads, 1, &lrs)
+        .record_state(&ctx, &mut rec, &state, &grads, 1, &lrs, None)
         .unwrap_err()
         .to_string();
     assert!(e.contains("6 learning rates for 8 parameter groups"), "{e}");
     lrs.0.extend([0.02, 0.3]);
     let mut rec = Recorder::new(&ctx).unwrap();
-    adam.record_state(&ctx, &mut rec, &state, &grads, 1, &lrs)
+    adam.record_state(&ctx, &mut rec, &state, &grads, 1, &lrs, None)
         .unwrap();
     rec.submit_and_wait().unwrap();
     let got = state.params.download().unwrap();
@@ -314,6 +314,63 @@ fn extra_groups_get_their_own_learning_rates() {
             got.extra[k].values != params.extra[k].values,
             "group {k} moved"
         );
+    }
+    ctx.check_validation().unwrap();
+}
+
+/// SH rest planes wholly above the active coefficients are not updated (their parameters and
+/// moments stay bit for bit, even under non-zero gradients, which the trainer never gives
+/// them); the other groups, a partly used plane included, take the host reference's step.
+#[test]
+fn planes_above_the_active_degree_are_skipped() {
+    let ctx = ctx();
+    let exact = ctx.info.driver.to_lowercase().contains("llvmpipe")
+        || ctx.info.name.to_lowercase().contains("llvmpipe");
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(17);
+    let n = 203usize;
+    let params = random_params(&mut rng, n, 3, 1.0);
+    let grads_host = random_params(&mut rng, n, 3, 0.3);
+    let adam = Adam::new(&ctx).unwrap();
+    let lrs = LearningRates::default().at(1, 1.0);
+    // Degrees 0..3 use 0, 3, 8 and 15 rest coefficients: planes 0..5 hold 3 each.
+    for (active, used_planes) in [(0usize, 0usize), (3, 1), (8, 3), (15, 5)] {
+        let state = SplatState::new(&ctx, GpuSplats::upload(&ctx, &params, n).unwrap()).unwrap();
+        let grads = GpuSplats::upload(&ctx, &grads_host, n).unwrap();
+        let mut rec = Recorder::new(&ctx).unwrap();
+        rec.begin().unwrap();
+        adam.record_state(&ctx, &mut rec, &state, &grads, 1, &lrs, Some(active))
+            .unwrap();
+        rec.submit_and_wait().unwrap();
+        let (before, g) = (flat(&params), flat(&grads_host));
+        for (k, (buf, _)) in state.params.groups().into_iter().enumerate() {
+            let got = buf.read_range(0, before[k].len()).unwrap();
+            let m = state.m.groups()[k]
+                .0
+                .read_range(0, before[k].len())
+                .unwrap();
+            let plane = k.checked_sub(5);
+            if plane.is_some_and(|p| p >= used_planes) {
+                assert_eq!(
+                    got.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+                    before[k].iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+                    "active {active}: plane {plane:?} was updated"
+                );
+                assert!(m.iter().all(|&x| x.to_bits() == 0), "plane {plane:?}: m");
+            } else {
+                let mut p = before[k].clone();
+                let (mut hm, mut hv) = (vec![0.0; p.len()], vec![0.0; p.len()]);
+                let lr = lrs.0[logical_group(k)];
+                adam_host_step(&adam.hyper, &mut p, &g[k], &mut hm, &mut hv, lr, 1);
+                for (i, (a, b)) in got.iter().zip(&p).enumerate() {
+                    let ok = if exact {
+                        a.to_bits() == b.to_bits()
+                    } else {
+                        (a - b).abs() <= 1e-6 * (1.0 + b.abs())
+                    };
+                    assert!(ok, "active {active}, group {k}, value {i}: {a} vs {b}");
+                }
+            }
+        }
     }
     ctx.check_validation().unwrap();
 }

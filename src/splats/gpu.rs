@@ -86,6 +86,11 @@ pub const FIXED_GROUPS: usize = REST + PLANES;
 /// opacity logits, SH DC, SH rest, extras).
 const REST: usize = 5;
 
+/// The SH rest plane stored buffer `k` of [`GpuSplats::groups`] is, if it is one.
+pub fn sh_rest_plane(k: usize) -> Option<usize> {
+    (REST..REST + PLANES).contains(&k).then(|| k - REST)
+}
+
 /// The logical group (learning rate, checkpoint group) of stored buffer `k` of
 /// [`GpuSplats::groups`].
 pub fn logical_group(k: usize) -> usize {

@@ -15,11 +15,15 @@
 //! (torch itself builds with FMA contraction on CUDA, so it is not bit-reproducible either.)
 //!
 //! The update is dense: every Gaussian below `count` moves, seen this iteration or not, as in
-//! the reference (moments keep decaying for Gaussians with zero gradient).
+//! the reference (moments keep decaying for Gaussians with zero gradient). The one exception is
+//! exact: SH rest planes wholly above the active degree are not dispatched (`active_rest`),
+//! because their gradients have been zero since the start (the degree only grows), so their
+//! moments are zero and the update would leave every value as it is.
 
 use crate::gpu::{ComputePipeline, GpuBuffer, GpuContext, Recorder};
 use crate::shaders;
-use crate::splats::gpu::{logical_group, GpuSplats, SplatShape};
+use crate::splats::gpu::{logical_group, sh_rest_plane, GpuSplats, SplatShape};
+use crate::splats::sh_planes::COEFS_PER_PLANE;
 use anyhow::{bail, ensure};
 use std::sync::Arc;
 
@@ -240,9 +244,12 @@ impl Adam {
         Ok(Self { pipe, hyper })
     }
 
-    /// Records step `step` (1-based) on the first `count` Gaussians of every group: six
-    /// dispatches, with a barrier before (the gradients must be complete) and after (the
-    /// parameters are read next). `params`, `m` and `v` are updated in place.
+    /// Records step `step` (1-based) on the first `count` Gaussians of every group: one
+    /// dispatch a stored group, with a barrier before (the gradients must be complete) and after
+    /// (the parameters are read next). `params`, `m` and `v` are updated in place.
+    /// `active_rest`: the SH rest coefficients the step's render used; planes wholly above
+    /// them are skipped, which is exact only when their gradients have always been zero (the
+    /// trainer's degree only grows). `None`: every plane.
     #[allow(clippy::too_many_arguments)]
     pub fn record(
         &self,
@@ -255,6 +262,7 @@ impl Adam {
         count: usize,
         step: u32,
         lrs: &GroupLrs,
+        active_rest: Option<usize>,
     ) -> anyhow::Result<()> {
         ensure!(step >= 1, "Adam step numbers start at 1 (got 0)");
         for (name, s) in [("gradients", grads), ("m", m), ("v", v)] {
@@ -296,7 +304,11 @@ impl Adam {
         rec.barrier();
         for k in 0..p.len() {
             let n = (count * p[k].1) as u64;
-            if n == 0 {
+            let unused = match (sh_rest_plane(k), active_rest) {
+                (Some(plane), Some(rest)) => plane * COEFS_PER_PLANE >= rest,
+                _ => false,
+            };
+            if n == 0 || unused {
                 continue;
             }
             ensure!(
@@ -376,6 +388,7 @@ impl Adam {
     }
 
     /// [`Adam::record`] on a [`SplatState`] (its own count).
+    #[allow(clippy::too_many_arguments)]
     pub fn record_state(
         &self,
         ctx: &GpuContext,
@@ -384,6 +397,7 @@ impl Adam {
         grads: &GpuSplats,
         step: u32,
         lrs: &GroupLrs,
+        active_rest: Option<usize>,
     ) -> anyhow::Result<()> {
         self.record(
             ctx,
@@ -395,6 +409,7 @@ impl Adam {
             state.count(),
             step,
             lrs,
+            active_rest,
         )
     }
 }

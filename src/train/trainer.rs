@@ -820,6 +820,10 @@ impl Trainer {
         lrs.0.extend(self.passes.extra_lrs(it, self.extent));
         self.passes
             .record_before_step(&mut self.rec, &self.state, &self.grads, it)?;
+        // The render used SH up to this degree, so the planes above it have had zero
+        // gradients since the start (the degree only grows): Adam skips them, exactly.
+        let sh = sh_degree_at(it, self.config.sh_degree);
+        let active_rest = ((sh + 1) * (sh + 1) - 1) as usize;
         self.adam.record_state(
             &self.ctx,
             &mut self.rec,
@@ -827,6 +831,7 @@ impl Trainer {
             &self.grads,
             self.adam_step,
             &lrs,
+            Some(active_rest),
         )?;
         self.passes
             .record_model_step(&self.ctx, &mut self.rec, self.adam_step, it)
