@@ -7,6 +7,7 @@
 use super::trade_report;
 use crate::cli::lpips_scores::{self, LpipsArgs};
 use crate::cli::train::{background_from, build_lpm, initial_model, mean_metrics, prepare_output};
+use crate::cli::world_culls_arg::N3dvCulls;
 use crate::cli::SceneArgs;
 use anyhow::Context;
 use clap::Args;
@@ -113,6 +114,10 @@ pub struct TradeArgs {
     /// Mip-Splatting's official densification).
     #[arg(long)]
     pub densify_abs_grad: bool,
+    /// spacetime-*: SpacetimeGaussians' Neural 3D Video culls (as `train --n3dv-culls`; their
+    /// 1000-iteration rhythm scaled to the calendar).
+    #[arg(long, value_enum, default_value_t = N3dvCulls::Auto)]
+    pub n3dv_culls: N3dvCulls,
     /// The test view trade.html shows (name, file stem or index into the test views; default
     /// the first): the truth beside each run's final render and error map.
     #[arg(long)]
@@ -273,6 +278,14 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
         // The angular-velocity split on the same calendar (official 8001 of 30k).
         f.from = scale(f.from);
     }
+    // The Neural 3D Video culls on the same calendar (official: every 1000 of 30k).
+    crate::cli::world_culls_arg::apply(
+        args.n3dv_culls,
+        &scene.root,
+        args.model,
+        &mut base,
+        scale(1000),
+    )?;
     if let Some(t) = base.surfels.as_mut() {
         // 2DGS's regularisers start on the same calendar (official 7000 and 3000 of 30k).
         t.normal_from = scale(t.normal_from);

@@ -14,6 +14,7 @@ mod render;
 
 mod train;
 mod train_plot;
+mod world_culls_arg;
 
 use clap::{Args, Parser, Subcommand};
 use lpmsplat::gpu::GpuOptions;

@@ -4,6 +4,7 @@
 use super::lpips_scores::{self, LpipsArgs};
 use super::render::parse_rgb;
 use super::train_plot::{write_training_plot, EvalPoint, Sample};
+use super::world_culls_arg::N3dvCulls;
 use super::SceneArgs;
 use anyhow::Context;
 use clap::Args;
@@ -166,6 +167,13 @@ pub struct TrainArgs {
     /// rotation; the others lose it and keep learning rotation), or `off`.
     #[arg(long)]
     pub omega_freeze: Option<String>,
+    /// spacetime-*: SpacetimeGaussians' Neural 3D Video culls by world position (remove
+    /// Gaussians with world z < 4.5 before training; `official` also after densification, at
+    /// …500 of every 1000 iterations, and outside the initial points' bounding box 1000
+    /// iterations after it ends). `auto`: as the official config of the scene (the six N3DV
+    /// scenes by folder name), off elsewhere.
+    #[arg(long, value_enum, default_value_t = N3dvCulls::Auto)]
+    pub n3dv_culls: N3dvCulls,
     /// Views per optimizer step, their gradients averaged: the scheduled view and others of its
     /// time (another camera of the same frame in a video). Default 2 for the spacetime models (the
     /// official batch), 1 otherwise.
@@ -521,6 +529,7 @@ impl TrainArgs {
                 }
             };
         }
+        super::world_culls_arg::apply(self.n3dv_culls, &scene.root, self.model, &mut c, 1000)?;
         if let Some(b) = self.batch_views {
             anyhow::ensure!(
                 (1..=16).contains(&b),

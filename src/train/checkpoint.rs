@@ -713,7 +713,7 @@ impl Trainer {
                 path.display()
             )
         })?;
-        let mut t = Trainer::new(ctx, scene, train_images, &params, config)?;
+        let mut t = Trainer::set_up(ctx, scene, train_images, &params, config, false)?;
         for rule in t.model_rules.iter_mut() {
             if let Some(state) = rule_states.get(rule.name()) {
                 rule.restore_state(state)

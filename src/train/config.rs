@@ -161,6 +161,15 @@ impl TrainConfig {
                 }),
                 None => serde_json::Value::Null,
             };
+            // Only when on, so checkpoints from before the culls existed still resume.
+            if let Some(w) = &r.world_culls {
+                j["spacetime"]["world_culls"] = serde_json::json!({
+                    "below_z": w.below_z,
+                    "later": w.later.map(|l| serde_json::json!({
+                        "from": l.from, "every": l.every, "offset": l.offset, "box_at": l.box_at,
+                    })),
+                });
+            }
             // Only for the full model, so lite checkpoints from before the key still resume.
             if let Some(f) = &r.full {
                 j["spacetime"]["full"] = serde_json::json!({
@@ -274,6 +283,55 @@ pub struct SpacetimeTraining {
     pub full: Option<FullModelRates>,
     /// The official angular-velocity / rotation split from iteration 8001 (`None`: off).
     pub omega_freeze: Option<OmegaFreeze>,
+    /// The official Neural 3D Video culls in world space (`None`: off; the CLI turns them on
+    /// for the official N3DV scenes).
+    pub world_culls: Option<WorldCulls>,
+}
+
+/// SpacetimeGaussians' culls of Gaussians by their world position on Neural 3D Video
+/// (helper_train.py `controlgaussians`, `removeminmax`; train.py; BASE_MODELS.md §4.6): before
+/// training, every Gaussian with world z below `below_z` (4.5) is removed (the official
+/// `densify` modes 1 and 2); mode 1 (`later`) also repeats that cull after densification and
+/// once removes the Gaussians outside the initial points' bounding box. The threshold is in the
+/// world of the scene's `poses_bounds.npy`, which the N3DV loader keeps as the official
+/// conversion does (`train::passes::world_culls`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WorldCulls {
+    pub below_z: f64,
+    pub later: Option<LaterCulls>,
+}
+
+/// When mode 1's later culls run: the z cull at every iteration `≥ from` with
+/// `iteration % every == offset` (official: from the end of densification, 9000, at …500 of
+/// every 1000), the bounding-box cull at `box_at` (official 10000, a thousand after the end of
+/// densification).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LaterCulls {
+    pub from: u32,
+    pub every: u32,
+    pub offset: u32,
+    pub box_at: u32,
+}
+
+impl WorldCulls {
+    /// The official z threshold in Neural 3D Video's world units.
+    pub const N3DV_BELOW_Z: f64 = 4.5;
+
+    /// The official mode 1 (`later`) or 2 on a schedule that densifies until
+    /// `densify_until`, with `per_thousand` iterations standing for the official 1000 (1000 at
+    /// full length; `bench trade` scales it to its calendar).
+    pub fn n3dv(later: bool, densify_until: u32, per_thousand: u32) -> WorldCulls {
+        let every = per_thousand.max(1);
+        WorldCulls {
+            below_z: Self::N3DV_BELOW_Z,
+            later: later.then_some(LaterCulls {
+                from: densify_until,
+                every,
+                offset: every / 2,
+                box_at: densify_until + every,
+            }),
+        }
+    }
 }
 
 /// SpacetimeGaussians' split of rotation and angular velocity (helper_train.py
@@ -380,6 +438,7 @@ impl Default for SpacetimeTraining {
             guided: Some(GuidedSamplingSettings::default()),
             full: None,
             omega_freeze: Some(OmegaFreeze::default()),
+            world_culls: None,
         }
     }
 }

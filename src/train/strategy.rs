@@ -24,6 +24,7 @@ use crate::gpu::{GpuBuffer, GpuContext, Recorder};
 use crate::render::filter3d::SmoothingFilter;
 use crate::render::layout::CameraGpu;
 use crate::splats::gpu::GpuSplats;
+use crate::splats::GaussianParams;
 
 /// What a strategy reports for one iteration (telemetry; typed access through `as_any`).
 pub trait StrategyEvent: Any + Debug + Send + Sync {
@@ -188,6 +189,11 @@ pub struct StepSeen<'a> {
 /// strategy (SpacetimeGaussians' guided error sampling); made by `passes::rules_for_config`.
 pub trait ModelRule {
     fn name(&self) -> &'static str;
+    /// Edits the initial model of a fresh run before it is uploaded (not called when a run
+    /// resumes from a checkpoint); the result must keep at least one Gaussian.
+    fn prepare_initial(&mut self, init: GaussianParams) -> anyhow::Result<GaussianParams> {
+        Ok(init)
+    }
     /// After the step and the strategy's work, with `t.rec` idle (begin it to record, and
     /// submit and wait before returning).
     fn after_step(

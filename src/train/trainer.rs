@@ -188,6 +188,20 @@ impl Trainer {
         init: &GaussianParams,
         config: TrainConfig,
     ) -> anyhow::Result<Self> {
+        Self::set_up(ctx, scene, train_images, init, config, true)
+    }
+
+    /// [`Trainer::new`]; `fresh`: a new run, whose initial model the base model's own rules
+    /// may edit first ([`ModelRule::prepare_initial`]); a resumed run's model is the
+    /// checkpoint's as it is.
+    pub(super) fn set_up(
+        ctx: &Arc<GpuContext>,
+        scene: &Scene,
+        train_images: impl Into<TrainImages>,
+        init: &GaussianParams,
+        config: TrainConfig,
+        fresh: bool,
+    ) -> anyhow::Result<Self> {
         let train_images = train_images.into();
         anyhow::ensure!(
             train_images.source.count() == scene.train.len(),
@@ -208,7 +222,13 @@ impl Trainer {
         for (k, &v) in scene.train.iter().enumerate() {
             image_of_view[v] = Some(k);
         }
-        let model_rules = passes::rules_for_config(&config, scene, &init)?;
+        let mut model_rules = passes::rules_for_config(&config, scene, &init)?;
+        let mut init = init;
+        if fresh {
+            for rule in model_rules.iter_mut() {
+                init = rule.prepare_initial(init)?;
+            }
+        }
         let capacity = grown_capacity(init.len());
         let params = GpuSplats::upload(ctx, &init, capacity)?;
         let state = SplatState::new(ctx, params)?;

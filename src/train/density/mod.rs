@@ -398,6 +398,14 @@ struct SplitPush {
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct BoxPush {
+    count: u32,
+    lo: [f32; 3],
+    hi: [f32; 3],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 struct ResetPush {
     count: u32,
     max_logit: f32,
@@ -443,6 +451,7 @@ pub struct DensityControl {
     pub config: DensityConfig,
     accumulate: ComputePipeline,
     decide: ComputePipeline,
+    prune_box: ComputePipeline,
     expand: ComputePipeline,
     scatter: ComputePipeline,
     split: ComputePipeline,
@@ -494,6 +503,12 @@ impl DensityControl {
                 shaders::DENSITY_DECIDE,
                 8,
                 size_of::<DecidePush>(),
+            )?,
+            prune_box: pipe(
+                "density/prune_outside_box",
+                shaders::DENSITY_PRUNE_OUTSIDE_BOX,
+                2,
+                size_of::<BoxPush>(),
             )?,
             expand: pipe(
                 "density/expand",
@@ -746,6 +761,45 @@ impl DensityControl {
                 &self.decisions,
                 &self.stats.abs_accum,
             ],
+            &push,
+            self.ctx.groups_1d(count as u64, WG),
+        );
+        rec.barrier();
+        Ok(())
+    }
+
+    /// Records decisions that remove exactly the Gaussians of `state` whose centre lies
+    /// outside the box `[lo, hi]` (infinite bounds leave an axis open), in place of
+    /// [`DensityControl::record_decide`]; follow it with [`DensityControl::apply`], which
+    /// also zeroes the statistics (a model's world culls run outside the densification
+    /// window, where they are unused).
+    pub fn record_prune_outside(
+        &mut self,
+        rec: &mut Recorder,
+        state: &SplatState,
+        lo: [f32; 3],
+        hi: [f32; 3],
+    ) -> anyhow::Result<()> {
+        let count = state.count();
+        ensure!(
+            count <= self.stats.capacity(),
+            "density control: {count} Gaussians but statistics for {}",
+            self.stats.capacity()
+        );
+        self.ensure_scratch(state.capacity().max(count))?;
+        self.decided = Some(count);
+        if count == 0 {
+            return Ok(());
+        }
+        let push = BoxPush {
+            count: count as u32,
+            lo,
+            hi,
+        };
+        rec.barrier();
+        rec.dispatch(
+            &self.prune_box,
+            &[&state.params.positions, &self.decisions],
             &push,
             self.ctx.groups_1d(count as u64, WG),
         );

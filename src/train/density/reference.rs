@@ -199,6 +199,34 @@ pub fn child_position(p: &GaussianParams, i: usize, j: u32, seed: u32, step: u32
     })
 }
 
+/// The decision word of every Gaussian under `prune_outside_box.comp`: `DECIDE_REMOVE` when a
+/// coordinate of its centre is below `lo` or above `hi` (a NaN coordinate is kept), else 0.
+pub fn prune_outside_box(positions: &[[f32; 3]], lo: [f32; 3], hi: [f32; 3]) -> Vec<u32> {
+    positions
+        .iter()
+        .map(|p| {
+            let outside = (0..3).any(|a| p[a] < lo[a] || p[a] > hi[a]);
+            if outside {
+                DECIDE_REMOVE
+            } else {
+                0
+            }
+        })
+        .collect()
+}
+
+/// The rows of `p` whose decision keeps them (neither removed nor split), in order: what a
+/// density step that only prunes leaves.
+pub fn kept_rows(p: &GaussianParams, decisions: &[u32]) -> GaussianParams {
+    let mut out = empty_like(p);
+    for (i, &d) in decisions.iter().enumerate() {
+        if keeps(d) {
+            push_row(&mut out, p, i, false);
+        }
+    }
+    out
+}
+
 /// The state after applying `decisions`: survivors in order, then clones, then two adjacent
 /// children per split parent. New Gaussians get zero moments.
 pub fn apply(

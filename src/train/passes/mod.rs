@@ -15,6 +15,7 @@ pub mod guided_sampling;
 pub mod omega_freeze;
 pub mod spacetime;
 pub mod surfels;
+pub mod world_culls;
 
 use std::sync::Arc;
 
@@ -236,7 +237,8 @@ pub fn for_config(
 }
 
 /// The base model's own density rules besides the strategy (SpacetimeGaussians' guided error
-/// sampling when its settings ask for it), for `scene`'s training views from `initial`.
+/// sampling and its Neural 3D Video culls when its settings ask for them), for `scene`'s
+/// training views from `initial`.
 pub fn rules_for_config(
     config: &TrainConfig,
     scene: &crate::scene::Scene,
@@ -255,6 +257,9 @@ pub fn rules_for_config(
             times,
             initial,
         )?));
+    }
+    if let Some(w) = config.spacetime.as_ref().and_then(|s| s.world_culls) {
+        rules.push(Box::new(world_culls::WorldCuller::new(w, initial)?));
     }
     Ok(rules)
 }
