@@ -115,6 +115,17 @@ impl BaseModel {
 
     /// The prune threshold on opacity when the user gives none (2DGS's `opacity_cull` 0.05,
     /// else the Inria 0.005).
+    /// The iteration densification stops at in the model's official code: 9000 for
+    /// SpacetimeGaussians (its `densify_until_iter`; its opacity resets then fall at 3000 and
+    /// 6000 only), 15,000 (the Inria default) for the others.
+    pub fn default_densify_until(&self) -> u32 {
+        if self.is_spacetime() {
+            9000
+        } else {
+            15_000
+        }
+    }
+
     pub fn default_min_opacity(&self) -> f64 {
         match self {
             BaseModel::Surfels2d => 0.05,

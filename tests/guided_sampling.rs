@@ -330,6 +330,9 @@ fn cli_guided_sampling_reports_its_choice_and_can_be_turned_off() {
     let config: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("config.json")).unwrap()).unwrap();
     assert_eq!(config["spacetime"]["guided_sampling"]["from"], 3);
+    // The official schedule's end of densification, and no N3DV culls on the fixture's world.
+    assert_eq!(config["density"]["densify_until"], 9000);
+    assert!(config["spacetime"].get("world_culls").is_none());
 
     let off = dir.path().join("off");
     let o = cli_train(

@@ -276,3 +276,60 @@ fn training_culls_before_after_densification_and_outside_the_initial_box() {
     assert_eq!(states(&r)["hi"], states(&t)["hi"]);
     ctx.check_validation().unwrap();
 }
+
+fn cli_train(scene: &std::path::Path, extra: &[&str], out: &std::path::Path) -> (bool, String) {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_lpmsplat"))
+        .env("LPMSPLAT_VALIDATION", "1")
+        .arg("train")
+        .arg(scene)
+        .args(["--init-points", "500", "--iterations", "2", "-o"])
+        .arg(out)
+        .args(extra)
+        .output()
+        .unwrap();
+    (
+        o.status.success(),
+        String::from_utf8_lossy(&o.stderr).to_string(),
+    )
+}
+
+#[test]
+fn cli_turns_the_culls_on_for_an_official_scene_and_explains_a_foreign_world() {
+    let dir = tempfile::tempdir().unwrap();
+    // The fixture under an official scene's name: `auto` applies mode 1, whose z threshold
+    // removes every point of this world, which is refused with the fix.
+    let scene = dir.path().join("cook_spinach");
+    std::fs::create_dir_all(&scene).unwrap();
+    for e in std::fs::read_dir(fixture()).unwrap().flatten() {
+        let to = scene.join(e.file_name());
+        if e.path().is_dir() {
+            std::fs::create_dir_all(&to).unwrap();
+            for f in std::fs::read_dir(e.path()).unwrap().flatten() {
+                std::fs::copy(f.path(), to.join(f.file_name())).unwrap();
+            }
+        } else {
+            std::fs::copy(e.path(), &to).unwrap();
+        }
+    }
+    let out = dir.path().join("out");
+    let (ok, text) = cli_train(&scene, &["--model", "spacetime-lite"], &out);
+    assert!(
+        !ok && text.contains("world z below 4.5") && text.contains("--n3dv-culls off"),
+        "{text}"
+    );
+    let (ok, text) = cli_train(
+        &scene,
+        &["--model", "spacetime-lite", "--n3dv-culls", "off"],
+        &out,
+    );
+    assert!(ok, "{text}");
+    let config: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("config.json")).unwrap()).unwrap();
+    assert!(config["spacetime"].get("world_culls").is_none());
+    // A still model has no such rule.
+    let (ok, text) = cli_train(&fixture(), &["--n3dv-culls", "official"], &out);
+    assert!(
+        !ok && text.contains("spacetime models only") && text.contains("Fix"),
+        "{text}"
+    );
+}

@@ -256,7 +256,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
         ..TrainConfig::default()
     };
     base.schedule.densify_from = scale(500);
-    base.schedule.densify_until = scale(15_000);
+    base.schedule.densify_until = scale(args.model.default_densify_until());
     base.schedule.opacity_reset_interval = (scale(3000) / 100).max(1) * 100;
     base.lr.position_max_steps = calendar;
     base.density.min_opacity = args.model.default_min_opacity();

@@ -110,8 +110,10 @@ pub struct TrainArgs {
     pub densify_grad_threshold: f32,
     #[arg(long, default_value_t = 500)]
     pub densify_from: u32,
-    #[arg(long, default_value_t = 15_000)]
-    pub densify_until: u32,
+    /// Densification stops here (default the model's official value: 15000, 9000 for the
+    /// spacetime models).
+    #[arg(long)]
+    pub densify_until: Option<u32>,
     #[arg(long, default_value_t = 100)]
     pub densify_interval: u32,
     #[arg(long, default_value_t = 3000)]
@@ -382,6 +384,9 @@ pub fn background_from(arg: Option<&str>, scene: &Scene) -> anyhow::Result<Backg
 
 impl TrainArgs {
     pub fn config(&self, scene: &Scene) -> anyhow::Result<TrainConfig> {
+        let densify_until = self
+            .densify_until
+            .unwrap_or(self.model.default_densify_until());
         anyhow::ensure!(
             self.sh_degree <= 3,
             "--sh-degree {}: the engine supports 0..=3. Fix: pass 0, 1, 2 or 3",
@@ -392,10 +397,10 @@ impl TrainArgs {
             "--iterations 0: nothing to train. Fix: pass at least 1"
         );
         anyhow::ensure!(
-            self.densify_from <= self.densify_until,
+            self.densify_from <= densify_until,
             "--densify-from {} is after --densify-until {}. Fix: make from ≤ until",
             self.densify_from,
-            self.densify_until
+            densify_until
         );
         anyhow::ensure!(
             (0.0..=1.0).contains(&self.ssim_weight),
@@ -424,7 +429,7 @@ impl TrainArgs {
         c.density.min_opacity = self.min_opacity.unwrap_or(self.model.default_min_opacity());
         c.density.screen_size_limit = self.screen_size_limit;
         c.schedule.densify_from = self.densify_from;
-        c.schedule.densify_until = self.densify_until;
+        c.schedule.densify_until = densify_until;
         c.schedule.interval = self.densify_interval;
         c.schedule.opacity_reset_interval = self.opacity_reset_interval;
         c.schedule.growth_rounds = self.growth_rounds;
