@@ -363,12 +363,25 @@ fn reference_decoder_backward_matches_finite_differences() {
 fn decoder_matches_the_reference_forward_and_backward() {
     let ctx = ctx();
     let mut rng = Pcg64::seed_from_u64(11);
-    let mut decoder = Decoder::new(&ctx).unwrap();
-    // Sizes that are not multiples of the workgroup, one larger than a few workgroups.
-    for (w, h) in [(19u32, 13u32), (64, 40), (5, 3)] {
+    // Every layout on this device: one pixel an invocation (GPUs), 8 (CPU drivers), and 3 (not
+    // a power of two; 16, the largest allowed, compiles for 15 s on lavapipe).
+    for per_invocation in [1, 3, 8] {
+        decoder_matches_with(&ctx, &mut rng, per_invocation);
+    }
+    assert!(Decoder::with_pixels_per_invocation(&ctx, 0).is_err());
+    assert!(Decoder::with_pixels_per_invocation(&ctx, 17).is_err());
+    ctx.check_validation().unwrap();
+}
+
+fn decoder_matches_with(ctx: &Arc<GpuContext>, rng: &mut Pcg64, per_invocation: u32) {
+    let ctx = ctx.clone();
+    let mut decoder = Decoder::with_pixels_per_invocation(&ctx, per_invocation).unwrap();
+    // Sizes that are not multiples of the workgroup or of the pixels an invocation, one larger
+    // than a few workgroups.
+    for (w, h) in [(19u32, 13u32), (64, 40), (5, 3), (97, 61)] {
         let px = (w * h) as usize;
-        let (weights, base, feats) = decoder_inputs(&mut rng, px);
-        let (camera, pose) = scenes::random_view(&mut rng, w, h);
+        let (weights, base, feats) = decoder_inputs(rng, px);
+        let (camera, pose) = scenes::random_view(rng, w, h);
         let cam = CameraGpu::new(&camera, &pose);
         let mut decoy = cam;
         decoy.r0[0] = 0.3;
@@ -414,7 +427,7 @@ fn decoder_matches_the_reference_forward_and_backward() {
         let want_rgb = decoder::decode_image(&weights, &base, &feats, &camera, &pose);
         let (want_db, want_df, want_dw) =
             decoder::decode_image_backward(&weights, &base, &feats, &camera, &pose, &dl);
-        let label = format!("{w}×{h}");
+        let label = format!("{w}×{h}, {per_invocation} pixels an invocation");
         let flat = |v: &[[f64; 3]]| v.iter().flatten().copied().collect::<Vec<_>>();
         compare(
             &format!("{label} decoded"),

@@ -3,7 +3,8 @@
 //! (6) of a frame become RGB through a 90-weight per-pixel MLP; backward, the RGB gradient
 //! becomes the rasterizer backward's colour and feature gradients, and the weights' gradient is
 //! reduced over all pixels in a fixed order (per-workgroup rows, then one workgroup per weight).
-//! One invocation per pixel, no host work, no readback.
+//! One invocation per pixel on GPUs, eight on CPU drivers (each weight load is shared by the
+//! invocation's pixels); no host work, no readback.
 
 use std::sync::Arc;
 
@@ -50,6 +51,8 @@ pub struct Decoder {
     forward: ComputePipeline,
     backward: ComputePipeline,
     reduce: ComputePipeline,
+    /// Pixels each invocation of the forward and backward decodes.
+    per_invocation: u32,
     pixels: usize,
     rgb: GpuBuffer<f32>,
     dl_dbase: GpuBuffer<f32>,
@@ -58,10 +61,25 @@ pub struct Decoder {
 }
 
 impl Decoder {
+    /// With the device's pixels per invocation (8 on CPU drivers, 1 on GPUs; as the
+    /// rasterizers, [`super::backward::default_pixels_per_invocation`]).
     pub fn new(ctx: &Arc<GpuContext>) -> Result<Self> {
+        Self::with_pixels_per_invocation(
+            ctx,
+            super::backward::default_pixels_per_invocation(&ctx.info),
+        )
+    }
+
+    /// With `per_invocation` pixels decoded by each invocation (1 to 16; tests run every
+    /// layout on one device).
+    pub fn with_pixels_per_invocation(ctx: &Arc<GpuContext>, per_invocation: u32) -> Result<Self> {
         use std::mem::size_of;
-        let pipe = |name: &str, spirv: &[u8], buffers: u32, push: usize| {
-            ComputePipeline::new(ctx, name, spirv, buffers, push as u32, WG, &[])
+        ensure!(
+            (1..=16).contains(&per_invocation),
+            "decoder: {per_invocation} pixels per invocation (1 to 16)"
+        );
+        let pipe = |name: &str, spirv: &[u8], buffers: u32, push: usize, constants: &[u32]| {
+            ComputePipeline::new(ctx, name, spirv, buffers, push as u32, WG, constants)
         };
         let dl = BufferKind::DeviceLocal;
         Ok(Self {
@@ -71,19 +89,23 @@ impl Decoder {
                 shaders::SPACETIME_DECODE,
                 5,
                 size_of::<CameraPush>(),
+                &[per_invocation],
             )?,
             backward: pipe(
                 "spacetime/decode_backward",
                 shaders::SPACETIME_DECODE_BACKWARD,
                 8,
                 size_of::<CameraPush>(),
+                &[per_invocation],
             )?,
             reduce: pipe(
                 "spacetime/decode_reduce",
                 shaders::SPACETIME_DECODE_REDUCE,
                 2,
                 size_of::<ReducePush>(),
+                &[],
             )?,
+            per_invocation,
             pixels: 0,
             rgb: GpuBuffer::new(ctx, "decoded image", 1, dl)?,
             dl_dbase: GpuBuffer::new(ctx, "dL/d(base image)", 1, dl)?,
@@ -112,9 +134,15 @@ impl Decoder {
         Ok(())
     }
 
+    /// The workgroups of either pass for `pixels`.
+    fn groups(&self, pixels: usize) -> [u32; 3] {
+        let invocations = pixels.div_ceil(self.per_invocation as usize);
+        self.ctx.groups_1d(invocations as u64, WG)
+    }
+
     /// Workgroups (and partial rows) of the backward for `pixels`.
     fn rows(&self, pixels: usize) -> usize {
-        let g = self.ctx.groups_1d(pixels as u64, WG);
+        let g = self.groups(pixels);
         g[0] as usize * g[1] as usize
     }
 
@@ -165,7 +193,7 @@ impl Decoder {
             &CameraPush {
                 camera_index: f.camera_index,
             },
-            self.ctx.groups_1d(pixels as u64, WG),
+            self.groups(pixels),
         );
         Ok(())
     }
@@ -206,7 +234,7 @@ impl Decoder {
             &CameraPush {
                 camera_index: f.camera_index,
             },
-            self.ctx.groups_1d(pixels as u64, WG),
+            self.groups(pixels),
         );
         rec.barrier();
         rec.dispatch(
