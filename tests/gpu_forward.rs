@@ -4,7 +4,9 @@
 #![allow(clippy::too_many_arguments, clippy::needless_range_loop)]
 
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions};
-use lpmsplat::reference::{self, mip, scenes, RefGaussians, RenderSettings};
+use lpmsplat::reference::{
+    self, alpha_min_edges, mip, scenes, Footprint, RefGaussians, RenderSettings,
+};
 use lpmsplat::render::forward::{Capacity, FrameSettings, Renderer};
 use lpmsplat::render::layout::{CameraGpu, ProjectedGpu, RenderConstants};
 use lpmsplat::scene::{PinholeCamera, Pose};
@@ -130,6 +132,58 @@ fn renderer(ctx: &Arc<GpuContext>) -> Renderer {
     .unwrap()
 }
 
+/// The GPU's sorted tile lists against the reference's: the same, except that a splat whose
+/// ellipse reaches a tile only within f32 rounding of its margin (badly conditioned conics)
+/// may be paired with the tile on one side only; such a splat must stay below alpha_min over
+/// that whole tile in both footprints (so it is blended in neither), and the splats both
+/// lists hold must come in the same order.
+fn compare_tile_lists(
+    frame: &Frame,
+    r: &reference::RenderOutput,
+    gpu: &[Footprint],
+    camera: &PinholeCamera,
+    settings: &RenderSettings,
+    label: &str,
+) {
+    let below = settings.alpha_min * (1.0 - 1e-4);
+    let tile = r.bins.tile_size;
+    for (t, (a, b)) in frame.tile_lists.iter().zip(&r.bins.lists).enumerate() {
+        if a == b {
+            continue;
+        }
+        let in_a: std::collections::HashSet<u32> = a.iter().copied().collect();
+        let in_b: std::collections::HashSet<u32> = b.iter().copied().collect();
+        let common_a: Vec<u32> = a.iter().copied().filter(|g| in_b.contains(g)).collect();
+        let common_b: Vec<u32> = b.iter().copied().filter(|g| in_a.contains(g)).collect();
+        assert_eq!(
+            common_a, common_b,
+            "{label}: tile {t}: order of the sorted list"
+        );
+        let (tx, ty) = (t as u32 % r.bins.tiles_x, t as u32 / r.bins.tiles_x);
+        for &g in in_a.symmetric_difference(&in_b) {
+            for j in ty * tile..((ty + 1) * tile).min(camera.height) {
+                for i in tx * tile..((tx + 1) * tile).min(camera.width) {
+                    let (px, py) = (i as f64 + 0.5, j as f64 + 0.5);
+                    let ours = gpu[g as usize].raw_alpha(px, py);
+                    let exact = Footprint::of(&r.projected[g as usize]).raw_alpha(px, py);
+                    assert!(
+                        ours < below && exact < below,
+                        "{label}: tile {t}: Gaussian {g} is paired on one side only (GPU {}) but \
+                         reaches alpha {ours} (GPU) / {exact} at pixel ({i}, {j})",
+                        in_a.contains(&g)
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// The condition number λmax / λmin of a symmetric 2×2 matrix [a, b, c] (∞ when singular).
+fn condition([a, b, c]: [f64; 3]) -> f64 {
+    let (m, r) = (0.5 * (a + c), (0.25 * (a - c) * (a - c) + b * b).sqrt());
+    (m.abs() + r) / (m.abs() - r).max(0.0)
+}
+
 /// Compares one GPU frame with the reference; returns the max abs image difference.
 fn compare(
     frame: &Frame,
@@ -177,11 +231,15 @@ fn compare(
                 "{label}: Gaussian {i} mean2d"
             );
             assert!(close(p.depth, q.depth, 1e-5), "{label}: Gaussian {i} depth");
+            // Inverting a 2×2 covariance of condition κ in f32 loses about κ·ε of the largest
+            // entry (elongated splats reach κ ~ 1e4 here).
+            let conic_tol = 1e-3 + 4.0 * f32::EPSILON as f64 * condition(q.conic);
             for (a, b) in [p.conic_a, p.conic_b, p.conic_c].iter().zip(q.conic) {
                 let scale = q.conic.iter().fold(0.0f64, |m, v| m.max(v.abs()));
                 assert!(
-                    (*a as f64 - b).abs() <= 1e-3 * scale + 1e-7,
-                    "{label}: Gaussian {i} conic {a} vs {b}"
+                    (*a as f64 - b).abs() <= conic_tol * scale + 1e-7,
+                    "{label}: Gaussian {i} conic {a} vs {b} (condition {})",
+                    condition(q.conic)
                 );
             }
             for c in 0..3 {
@@ -200,37 +258,96 @@ fn compare(
         );
         return 0.0;
     }
-    assert_eq!(frame.tile_lists, r.bins.lists, "{label}: sorted tile lists");
+    let gpu_footprints: Vec<Footprint> = frame
+        .projected
+        .iter()
+        .map(|p| Footprint {
+            mean2d: [p.mean_x as f64, p.mean_y as f64],
+            conic: [p.conic_a as f64, p.conic_b as f64, p.conic_c as f64],
+            opacity: p.opacity as f64,
+        })
+        .collect();
+    compare_tile_lists(frame, &r, &gpu_footprints, camera, settings, label);
+    // A splat whose alpha at a pixel lands within f32 rounding of alpha_min may be blended on
+    // one side and skipped on the other (seed 547 of 3,000 below; elongated splats, whose
+    // conics carry more rounding, more often): the GPU's own footprints say where. Such pixels
+    // get a bound from their count of those splats, each worth at most alpha_min of the
+    // transmittance (T) and twice that times the largest colour (the colour behind it is scaled
+    // by 1 − alpha). Every other pixel must match to 1e-3, and such pixels must stay rare.
+    let edges = alpha_min_edges(
+        &r.projected,
+        &gpu_footprints,
+        &r.bins,
+        camera,
+        settings,
+        1e-4,
+    );
+    let colour_scale = r
+        .projected
+        .iter()
+        .flat_map(|p| p.rgb)
+        .chain(bg)
+        .fold(1.0f64, |m, v| m.max(v.abs()));
+    let toggle = settings.alpha_min * (1.0 + 1e-4);
     let mut max_diff = 0.0f64;
     for (pix, rgb) in r.raster.image.iter().enumerate() {
+        let e = edges[pix] as f64;
+        let tol_colour = 1e-3 + e * 2.0 * toggle * colour_scale;
         for c in 0..3 {
             let d = (frame.image[pix * 3 + c] as f64 - rgb[c]).abs();
-            max_diff = max_diff.max(d);
+            assert!(
+                d < tol_colour,
+                "{label}: pixel {pix} channel {c}: {} vs {} ({e} splats at the alpha_min edge)",
+                frame.image[pix * 3 + c],
+                rgb[c]
+            );
+            if e == 0.0 {
+                max_diff = max_diff.max(d);
+            }
         }
         let t = r.raster.final_transmittance[pix];
         assert!(
-            (frame.final_t[pix] as f64 - t).abs() <= 1e-3,
-            "{label}: pixel {pix} final T {} vs {t}",
+            (frame.final_t[pix] as f64 - t).abs() <= 1e-3 + e * toggle,
+            "{label}: pixel {pix} final T {} vs {t} ({e} splats at the alpha_min edge)",
             frame.final_t[pix]
         );
     }
+    let edge_pixels = edges.iter().filter(|&&e| e > 0).count();
+    assert!(
+        edge_pixels <= edges.len() / 100 + 1,
+        "{label}: {edge_pixels} of {} pixels have a splat at the alpha_min edge",
+        edges.len()
+    );
     // The stop rule compares T against 1e-4 in f32 vs f64: a pixel whose transmittance lands
-    // right on it may stop one splat earlier or later; anything else must match exactly.
-    let last_mismatch = frame
-        .last_index
-        .iter()
-        .zip(&r.raster.last_contributor)
-        .filter(|(a, b)| a != b)
+    // right on it may stop one splat earlier or later (as may an edge pixel); anything else
+    // must match exactly.
+    // Compared as Gaussians (a list may hold a splat the other lacks, compare_tile_lists).
+    let last_of = |lists: &[Vec<u32>], pix: usize, last: u32| {
+        let tile = r
+            .bins
+            .tile_of_pixel(pix as u32 % camera.width, pix as u32 / camera.width);
+        (last > 0).then(|| lists[tile][last as usize - 1])
+    };
+    let last_mismatch = (0..frame.last_index.len())
+        .filter(|&pix| {
+            last_of(&frame.tile_lists, pix, frame.last_index[pix])
+                != last_of(&r.bins.lists, pix, r.raster.last_contributor[pix])
+        })
         .count();
     assert!(
-        last_mismatch <= frame.last_index.len() / 500 + 1,
+        last_mismatch <= frame.last_index.len() / 500 + 1 + edge_pixels,
         "{label}: {last_mismatch} pixels disagree on the last contributor"
     );
-    assert!(
-        max_diff < 1e-3,
-        "{label}: max abs pixel difference {max_diff}"
-    );
     max_diff
+}
+
+/// The number of random scenes a test draws: `default`, or LPMSPLAT_FORWARD_SEEDS for a deeper
+/// run (the same scenes first, then more).
+fn seed_count(default: usize) -> usize {
+    std::env::var("LPMSPLAT_FORWARD_SEEDS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
 }
 
 #[test]
@@ -240,7 +357,7 @@ fn random_scenes_match_the_reference() {
     let settings = RenderSettings::default();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(2024);
     let mut worst = 0.0f64;
-    let seeds = 200;
+    let seeds = seed_count(200);
     for seed in 0..seeds {
         let n = rng.gen_range(1..160);
         let g = scenes::random_gaussians(&mut rng, n);
@@ -278,7 +395,7 @@ fn elongated_splats_pair_with_the_tiles_their_ellipse_reaches() {
     let settings = RenderSettings::default();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(0x7115);
     let (mut pairs, mut rect_pairs) = (0usize, 0u64);
-    for seed in 0..40 {
+    for seed in 0..seed_count(40) {
         let n = rng.gen_range(1..120);
         let mut g = scenes::random_gaussians(&mut rng, n);
         for (s, o) in g.log_scales.iter_mut().zip(&mut g.opacity_logits) {

@@ -970,3 +970,72 @@ fn bad_input_is_an_error_not_a_panic() {
     let err = reference::render(&g, &cam, &Pose::IDENTITY, 0, [0.0; 3], &s).unwrap_err();
     assert!(err.to_string().contains("opacity_logits"), "{err}");
 }
+
+/// `alpha_min_edges` flags exactly the pixels where two footprints of the same splats (here the
+/// reference's and a copy with the opacity nudged by 1 %) disagree on the alpha_min test,
+/// plus those within its band, and none in smooth mode.
+#[test]
+fn alpha_min_edges_flag_the_pixels_whose_blend_decision_can_flip() {
+    let mut rng = Pcg64::seed_from_u64(0xed6e);
+    let settings = RenderSettings::default();
+    let (mut flagged, mut flips) = (0usize, 0usize);
+    for _ in 0..20 {
+        let n = rng.gen_range(1..40);
+        let g = random_gaussians(&mut rng, n);
+        let (cam, pose) = random_view(&mut rng, 48, 40);
+        let r = reference::render(&g, &cam, &pose, 0, [0.0; 3], &settings).unwrap();
+        let nudged: Vec<reference::Footprint> = r
+            .projected
+            .iter()
+            .map(|p| reference::Footprint {
+                opacity: p.opacity * (1.0 + 1e-2),
+                ..reference::Footprint::of(p)
+            })
+            .collect();
+        let band = 1e-6;
+        let edges =
+            reference::alpha_min_edges(&r.projected, &nudged, &r.bins, &cam, &settings, band);
+        for j in 0..cam.height {
+            for i in 0..cam.width {
+                let (px, py) = (i as f64 + 0.5, j as f64 + 0.5);
+                let list = &r.bins.lists[r.bins.tile_of_pixel(i, j)];
+                let expect = list
+                    .iter()
+                    .filter(|&&k| {
+                        let a =
+                            reference::Footprint::of(&r.projected[k as usize]).raw_alpha(px, py);
+                        let b = nudged[k as usize].raw_alpha(px, py);
+                        let lo = settings.alpha_min * (1.0 - band);
+                        let hi = settings.alpha_min * (1.0 + band);
+                        (a >= settings.alpha_min) != (b >= settings.alpha_min)
+                            || (lo..=hi).contains(&a)
+                            || (lo..=hi).contains(&b)
+                    })
+                    .count() as u32;
+                let pix = (j * cam.width + i) as usize;
+                assert_eq!(edges[pix], expect, "pixel ({i}, {j})");
+                flagged += (edges[pix] > 0) as usize;
+                flips += list
+                    .iter()
+                    .filter(|&&k| {
+                        let a =
+                            reference::Footprint::of(&r.projected[k as usize]).raw_alpha(px, py);
+                        let b = nudged[k as usize].raw_alpha(px, py);
+                        (a >= settings.alpha_min) != (b >= settings.alpha_min)
+                    })
+                    .count();
+            }
+        }
+        let smooth = RenderSettings {
+            smooth: true,
+            ..settings
+        };
+        let none = reference::alpha_min_edges(&r.projected, &nudged, &r.bins, &cam, &smooth, band);
+        assert!(none.iter().all(|&e| e == 0));
+    }
+    assert!(
+        flips > 0 && flagged > 0,
+        "the scenes never put a splat at the edge"
+    );
+    eprintln!("{flagged} pixels flagged, {flips} flipped decisions");
+}

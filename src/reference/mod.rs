@@ -91,7 +91,10 @@ use crate::scene::{PinholeCamera, Pose};
 
 pub use backward::{backward, Gradients, ParamGrads, ProjectedGrads};
 pub use project::{preprocess, Projected};
-pub use raster::{bin_gaussians, rasterize, sample_splat, RasterOutput, SplatSample, TileBins};
+pub use raster::{
+    alpha_min_edges, bin_gaussians, rasterize, sample_splat, Footprint, RasterOutput, SplatSample,
+    TileBins,
+};
 
 /// Below this squared norm a rotation quaternion is read as the identity (no NaN from 0/0).
 pub const QUAT_NORM2_MIN: f64 = 1e-24;

@@ -212,3 +212,73 @@ pub fn rasterize(
     }
     Ok(out)
 }
+
+/// A splat's footprint as another renderer computed it: 2D mean, conic and opacity (for
+/// [`alpha_min_edges`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Footprint {
+    pub mean2d: [f64; 2],
+    pub conic: [f64; 3],
+    pub opacity: f64,
+}
+
+impl Footprint {
+    pub fn of(p: &Projected) -> Self {
+        Footprint {
+            mean2d: p.mean2d,
+            conic: p.conic,
+            opacity: p.opacity,
+        }
+    }
+
+    /// `opacity·exp(power)` at the pixel centre (px, py), before any clamp or threshold
+    /// (power above 0, possible only by rounding, counts as 0).
+    pub fn raw_alpha(&self, px: f64, py: f64) -> f64 {
+        let d = [self.mean2d[0] - px, self.mean2d[1] - py];
+        let [a, b, c] = self.conic;
+        let power = -0.5 * (a * d[0] * d[0] + c * d[1] * d[1]) - b * d[0] * d[1];
+        self.opacity * power.min(0.0).exp()
+    }
+}
+
+/// Per pixel, how many splats of its tile list may be blended by one renderer and skipped by
+/// the other at the `alpha_min` test: those whose raw alpha there, evaluated from this
+/// reference's footprint and from `other`'s (another renderer's projection of the same
+/// splats, e.g. a GPU's in f32; index for index), reaches into `alpha_min·(1 ± band)` or
+/// straddles it (`band` covers the other renderer's own per-pixel rounding). Each such
+/// decision changes the pixel by up to alpha_min of its transmittance, so comparisons bound
+/// those pixels by their count instead of the exact tolerance. 0 everywhere in smooth mode
+/// (no alpha_min test).
+pub fn alpha_min_edges(
+    projected: &[Projected],
+    other: &[Footprint],
+    bins: &TileBins,
+    camera: &PinholeCamera,
+    settings: &RenderSettings,
+    band: f64,
+) -> Vec<u32> {
+    let n = camera.width as usize * camera.height as usize;
+    let mut edges = vec![0u32; n];
+    if settings.smooth {
+        return edges;
+    }
+    let (lo, hi) = (
+        settings.alpha_min * (1.0 - band),
+        settings.alpha_min * (1.0 + band),
+    );
+    for j in 0..camera.height {
+        for i in 0..camera.width {
+            let (px, py) = (i as f64 + 0.5, j as f64 + 0.5);
+            let list = &bins.lists[bins.tile_of_pixel(i, j)];
+            edges[j as usize * camera.width as usize + i as usize] =
+                list.iter()
+                    .filter(|&&g| {
+                        let a = Footprint::of(&projected[g as usize]).raw_alpha(px, py);
+                        let b = other[g as usize].raw_alpha(px, py);
+                        a.min(b) <= hi && a.max(b) >= lo
+                    })
+                    .count() as u32;
+        }
+    }
+    edges
+}
