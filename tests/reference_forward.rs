@@ -999,31 +999,28 @@ fn alpha_min_edges_flag_the_pixels_whose_blend_decision_can_flip() {
             for i in 0..cam.width {
                 let (px, py) = (i as f64 + 0.5, j as f64 + 0.5);
                 let list = &r.bins.lists[r.bins.tile_of_pixel(i, j)];
-                let expect = list
+                // Each splat's raw alpha in both footprints.
+                let alphas: Vec<(f64, f64)> = list
                     .iter()
-                    .filter(|&&k| {
-                        let a =
-                            reference::Footprint::of(&r.projected[k as usize]).raw_alpha(px, py);
-                        let b = nudged[k as usize].raw_alpha(px, py);
-                        let lo = settings.alpha_min * (1.0 - band);
-                        let hi = settings.alpha_min * (1.0 + band);
-                        (a >= settings.alpha_min) != (b >= settings.alpha_min)
-                            || (lo..=hi).contains(&a)
-                            || (lo..=hi).contains(&b)
+                    .map(|&k| {
+                        let exact = reference::Footprint::of(&r.projected[k as usize]);
+                        (
+                            exact.raw_alpha(px, py),
+                            nudged[k as usize].raw_alpha(px, py),
+                        )
                     })
+                    .collect();
+                let min = settings.alpha_min;
+                let in_band = |a: f64| (min * (1.0 - band)..=min * (1.0 + band)).contains(&a);
+                let flipped = alphas.iter().filter(|(a, b)| (*a >= min) != (*b >= min));
+                let expect = alphas
+                    .iter()
+                    .filter(|(a, b)| (*a >= min) != (*b >= min) || in_band(*a) || in_band(*b))
                     .count() as u32;
                 let pix = (j * cam.width + i) as usize;
                 assert_eq!(edges[pix], expect, "pixel ({i}, {j})");
                 flagged += (edges[pix] > 0) as usize;
-                flips += list
-                    .iter()
-                    .filter(|&&k| {
-                        let a =
-                            reference::Footprint::of(&r.projected[k as usize]).raw_alpha(px, py);
-                        let b = nudged[k as usize].raw_alpha(px, py);
-                        (a >= settings.alpha_min) != (b >= settings.alpha_min)
-                    })
-                    .count();
+                flips += flipped.count();
             }
         }
         let smooth = RenderSettings {
