@@ -344,10 +344,12 @@ fn compare(
 /// The number of random scenes a test draws: `default`, or LPMSPLAT_FORWARD_SEEDS for a deeper
 /// run (the same scenes first, then more).
 fn seed_count(default: usize) -> usize {
-    std::env::var("LPMSPLAT_FORWARD_SEEDS")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
+    match std::env::var("LPMSPLAT_FORWARD_SEEDS") {
+        Ok(v) => v.trim().parse().unwrap_or_else(|_| {
+            panic!("LPMSPLAT_FORWARD_SEEDS={v:?} is not a count. Fix: a whole number, e.g. 3000")
+        }),
+        Err(_) => default,
+    }
 }
 
 #[test]
