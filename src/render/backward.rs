@@ -116,14 +116,38 @@ pub(crate) fn backward_workgroup(
     pixels: u32,
     what: &str,
 ) -> Result<u32> {
-    let wg = WG / pixels.max(1);
+    let layouts = pixel_layouts(info);
     ensure!(
-        matches!(pixels, 1 | 2 | 4 | 8 | 16) && wg.is_multiple_of(info.subgroup_size.max(1)),
-        "{what}: {pixels} pixels per invocation gives {wg} invocations per tile, not a multiple \
-         of the subgroup size {}; use 1, 2, 4, 8 or 16 with whole subgroups",
-        info.subgroup_size
+        layouts.contains(&pixels),
+        "{what}: {pixels} pixels per invocation gives {} invocations per tile, not a whole number \
+         of subgroups of {}; this device takes {}",
+        WG / pixels.max(1),
+        info.subgroup_size,
+        listed(&layouts)
     );
-    Ok(wg)
+    Ok(WG / pixels)
+}
+
+/// The pixels-per-invocation layouts of the rasterizer backwards that `info`'s device can run:
+/// 1, 2, 4, 8 or 16 pixels, leaving whole subgroups in a tile's `WG` pixels (all five at
+/// lavapipe's 8, up to 8 at NVIDIA's 32, up to 4 at AMD's 64).
+pub fn pixel_layouts(info: &crate::gpu::DeviceInfo) -> Vec<u32> {
+    [1, 2, 4, 8, 16]
+        .into_iter()
+        .filter(|p| (WG / p).is_multiple_of(info.subgroup_size.max(1)))
+        .collect()
+}
+
+/// "1, 2, 4 or 8".
+fn listed(values: &[u32]) -> String {
+    match values {
+        [] => "none".into(),
+        [one] => one.to_string(),
+        [init @ .., last] => {
+            let init: Vec<String> = init.iter().map(u32::to_string).collect();
+            format!("{} or {last}", init.join(", "))
+        }
+    }
 }
 
 /// How the rasterizer backward adds gradients into global memory.
@@ -252,8 +276,9 @@ impl Backward {
         )
     }
 
-    /// As [`Backward::with_atomics`], with `pixels` (1, 2, 4, 8 or 16) pixels per invocation of the
-    /// rasterizer backward instead of the device's default (benchmarks compare them).
+    /// As [`Backward::with_atomics`], with `pixels` (one of [`pixel_layouts`]) pixels per
+    /// invocation of the rasterizer backward instead of the device's default (benchmarks compare
+    /// them).
     pub fn with_pixels(
         ctx: &Arc<GpuContext>,
         capacity: usize,

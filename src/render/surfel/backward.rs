@@ -101,9 +101,10 @@ impl SurfelBackward {
         Self::with_pixels(ctx, capacity, compare_swap, pixels)
     }
 
-    /// As [`SurfelBackward::new`] with `pixels` (1, 2, 4, 8 or 16) pixels per invocation of the
-    /// rasterizer backward instead of the device's default: tests run the GPU layout (1, sums
-    /// through shared memory) on a CPU driver this way.
+    /// As [`SurfelBackward::new`] with `pixels` (one of
+    /// [`crate::render::backward::pixel_layouts`]) pixels per invocation of the rasterizer
+    /// backward instead of the device's default: tests run the GPU layout (1, sums through
+    /// shared memory) on a CPU driver this way.
     pub fn with_pixels(
         ctx: &Arc<GpuContext>,
         capacity: usize,
