@@ -224,8 +224,14 @@ pub struct LossTerms {
     pub total: f64,
 }
 
+/// Where render and ground truth agree to within this, L1's subgradient is 0 (a tie): the
+/// ground truth's composite over the background is rounded differently by each device, so an
+/// exact match on one reads as ±1 ulp on another (glsl/train/loss_common.glsl, `L1_TIE`).
+pub const L1_TIE: f64 = 1e-6_f32 as f64;
+
 /// Reference loss `(1 − w)·L1 + w·(1 − SSIM)` of `render` against `gt` and its gradient with
-/// respect to `render` (interleaved like the image). The L1 subgradient at render == gt is 0.
+/// respect to `render` (interleaved like the image). The L1 subgradient is 0 within [`L1_TIE`]
+/// of render == gt.
 pub fn loss_terms_and_grad(
     render: &[f32],
     gt: &[f32],
@@ -258,13 +264,7 @@ pub fn loss_terms_and_grad(
         for i in 0..w * h {
             let d = x[i] - y[i];
             l1_sum += d.abs();
-            let sign = if d > 0.0 {
-                1.0
-            } else if d < 0.0 {
-                -1.0
-            } else {
-                0.0
-            };
+            let sign = if d.abs() <= L1_TIE { 0.0 } else { d.signum() };
             let d_ssim = bm[i] + 2.0 * x[i] * bxx[i] + y[i] * bxy[i];
             grad[i * 3 + c] = ((1.0 - ssim_weight) * sign - ssim_weight * d_ssim) / n;
         }

@@ -4,7 +4,7 @@
 // derivative maps per channel, then
 //   N·dSSIM/dx = G*dS/dμx + 2x·G*dS/dE[x²] + y·G*dS/dE[xy]
 //   dL/dx      = ((1 − w)·sign(x − y) − w·N·dSSIM/dx) / N
-// written over the whole gradient image. Invocation = one column segment of SEG pixels.
+// with sign 0 inside the tie band |x − y| ≤ L1_TIE (loss_common.glsl), written over the whole gradient image. Invocation = one column segment of SEG pixels.
 layout(constant_id = 0) const uint WG_SIZE = 32;
 layout(local_size_x_id = 0) in;
 #include "loss_common.glsl"
@@ -51,7 +51,7 @@ void main() {
             vec3 x = load_render(pix);
             vec3 y = load_gt(pix);
             vec3 d_ssim = acc[0][o] + 2.0 * x * acc[1][o] + y * acc[2][o];
-            vec3 g = ((1.0 - ssim_weight) * sign(x - y) - ssim_weight * d_ssim) * inv_n;
+            vec3 g = ((1.0 - ssim_weight) * l1_sign(x - y) - ssim_weight * d_ssim) * inv_n;
             grad[pix * 3u] = g.r;
             grad[pix * 3u + 1u] = g.g;
             grad[pix * 3u + 2u] = g.b;
