@@ -21,7 +21,8 @@
 #            (quality only: they share the GPU), 30k iterations (ITERATIONS=N for fewer),
 #            LPM_FLAGS=... added to the LPM run, each process's GPU memory logged
 #   serial30k train the packed scene at full size to 30k (ITERATIONS) with LPM, then without, alone
-#            with --timestamps and its GPU memory logged (~12 min: detach it over two calls)
+#            with --timestamps and its GPU memory logged (Truck on an H100: 396 s a run, so
+#            both need ~13 min, detached over two calls; RUNS=adc or RUNS=lpm runs one)
 #   train30k train the packed scene at full size with LPM, 30k iterations, --timestamps
 set -uo pipefail
 cd "$(dirname "$0")/../.."
@@ -176,7 +177,7 @@ for s in "$@"; do
             nvidia-smi --query-compute-apps=pid,used_memory --format=csv,noheader -l 5 \
                 >"$res/gpu-mem.log" 2>&1 &
             smi=$!
-            for run in lpm adc; do
+            for run in ${RUNS:-lpm adc}; do
                 flags=
                 [ "$run" = lpm ] && flags=--lpm
                 # shellcheck disable=SC2086
