@@ -1100,6 +1100,74 @@ fn a_repeated_train_flag_takes_its_last_value() {
     assert_eq!(config["iterations"], 2);
 }
 
+/// `--raster-pixels`: the rasterizers' layouts train the same model (each pixel's arithmetic is
+/// the same; only the backward's sums add in another order), the run records the layout, and a
+/// layout the device cannot run is refused naming the flag and this device's choices, before
+/// anything of an earlier run in the output folder is touched.
+#[test]
+fn raster_pixels_layouts_train_alike_and_bad_ones_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let train = |out: &Path, extra: &[&str]| {
+        run_ok(
+            lpmsplat()
+                .arg("train")
+                .arg(data("lego_small"))
+                .args([
+                    "--init-points",
+                    "300",
+                    "--sh-degree",
+                    "1",
+                    "--iterations",
+                    "60",
+                ])
+                .args(["--densify-from", "20", "--densify-interval", "20", "-o"])
+                .arg(out)
+                .args(extra),
+        );
+        let m: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
+        m
+    };
+    let default = train(&dir.path().join("default"), &[]);
+    assert!(default["raster_pixels"].is_null());
+    for p in ["1", "4"] {
+        let m = train(&dir.path().join(p), &["--raster-pixels", p]);
+        assert_eq!(m["raster_pixels"].to_string(), p);
+        let (a, b) = (
+            m["psnr"].as_f64().unwrap(),
+            default["psnr"].as_f64().unwrap(),
+        );
+        assert!(
+            (a - b).abs() < 0.05,
+            "{p} pixels an invocation: {a} dB against {b}"
+        );
+        let (n, n0) = (
+            m["gaussians"].as_f64().unwrap(),
+            default["gaussians"].as_f64().unwrap(),
+        );
+        assert!(
+            (n - n0).abs() <= 0.02 * n0,
+            "{p} pixels: {n} Gaussians against {n0}"
+        );
+    }
+    let kept = std::fs::read(dir.path().join("1").join("metrics.json")).unwrap();
+    let err = run_err(
+        lpmsplat()
+            .arg("train")
+            .arg(data("lego_small"))
+            .args(["--iterations", "2", "--raster-pixels", "3", "-o"])
+            .arg(dir.path().join("1")),
+    );
+    assert!(
+        err.contains("--raster-pixels") && err.contains("this device takes 1, 2"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read(dir.path().join("1").join("metrics.json")).unwrap(),
+        kept
+    );
+}
+
 /// `--densify-abs-grad` (Mip-Splatting's official densification): the run records it, its
 /// statistic densifies more Gaussians than the paper's rule on the same run, and it resumes
 /// from a checkpoint that carries the absolute-gradient sums; models with another statistic

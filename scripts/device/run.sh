@@ -23,6 +23,8 @@
 #   serial30k train the packed scene at full size to 30k (ITERATIONS) with LPM, then without, alone
 #            with --timestamps and its GPU memory logged (Truck on an H100: 396 s a run, so
 #            both need ~13 min, detached over two calls; RUNS=adc or RUNS=lpm runs one)
+#   layouts  train the packed scene at full size with each --raster-pixels layout (LAYOUTS,
+#            default "1 2 4 8"), ITERATIONS (default 5000) each, --timestamps, alternated twice
 #   train30k train the packed scene at full size with LPM, 30k iterations, --timestamps
 set -uo pipefail
 cd "$(dirname "$0")/../.."
@@ -188,12 +190,26 @@ for s in "$@"; do
             kill "$smi" 2>/dev/null
         }
         ;;
+    layouts)
+        # The rasterizers' pixels per invocation (train --raster-pixels) on the packed scene at
+        # full size, each layout alone with --timestamps, ITERATIONS (default 5000) each, the
+        # layouts alternated twice: which of the backward's two ways to sum (shared memory at 1
+        # pixel, subgroup butterflies and atomics at 2 to 8) is faster on this GPU.
+        need_scene layouts &&
+            for r in 1 2; do
+                for p in ${LAYOUTS:-1 2 4 8}; do
+                    step "layout-$p-$r" 200 "$bin" train "$scene" -r 1 \
+                        --iterations "${ITERATIONS:-5000}" --timestamps --raster-pixels "$p" \
+                        -o "$work/layout-$p-$r"
+                done
+            done
+        ;;
     train30k)
         need_scene train30k &&
             step train30k 900 "$bin" train "$scene" -r 1 --iterations 30000 --lpm --eval-every 5000 \
                 --timestamps -o "$work/train30k"
         ;;
-    *) echo "$s: unknown step (info tests demo fps fpspair trade7k trade30k ablate7k pair30k serial30k train30k)" >>"$summary" ;;
+    *) echo "$s: unknown step (info tests demo fps fpspair trade7k trade30k ablate7k pair30k serial30k layouts train30k)" >>"$summary" ;;
     esac
     collect
 done
@@ -206,5 +222,5 @@ cat "$summary"
 head -n 8 "$res/vulkan-setup.txt"
 for f in "$res"/*.log; do
     echo "== $(basename "$f")"
-    grep -E "test result|FAILED|panicked|it/s|PSNR|FPS|Gaussians|error|Error|subgroup|device" "$f" | tail -n 12
+    grep -E "test result|FAILED|panicked|it/s|PSNR|FPS|Gaussians|error|Error|subgroup|device|rasterize" "$f" | tail -n 12
 done

@@ -77,6 +77,11 @@ pub struct TrainArgs {
     /// Collect per-stage GPU timestamps and report their shares.
     #[arg(long)]
     pub timestamps: bool,
+    /// Pixels per invocation of the tile rasterizers, forward and backward (default: 1 on GPUs,
+    /// 8 on CPU drivers). A tuning knob for comparing layouts with --timestamps: 1, 2, 4 or 8
+    /// where the device's subgroups allow it (the refusal names this device's choices).
+    #[arg(long, value_name = "N")]
+    pub raster_pixels: Option<u32>,
     /// Write OUT/checkpoint.bin every N iterations (0 = only at the end and on Ctrl-C).
     #[arg(long, default_value_t = 0)]
     pub checkpoint_every: u32,
@@ -414,6 +419,7 @@ impl TrainArgs {
             background: background_from(self.background.as_deref(), scene)?,
             ssim_weight: self.ssim_weight,
             timestamps: self.timestamps,
+            raster_pixels: self.raster_pixels,
             ..TrainConfig::default()
         };
         c.lr.position_init = self.lr_position;
@@ -1042,6 +1048,9 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         "device": ctx.info.name,
         "gpu_memory_mib": ctx.memory_in_use().1 as f64 / (1u64 << 20) as f64,
         "device_buffers_peak_mib": ctx.memory.peak() as f64 / (1u64 << 20) as f64,
+        // The rasterizers' pixels per invocation when --raster-pixels set them (null: the
+        // device's default).
+        "raster_pixels": config.raster_pixels,
         "stages": if config.timestamps { stage_shares(&stages) } else { serde_json::Value::Null },
         "lpm": trainer.strategy_as::<LpmStrategy>().map(|l| {
             let mut j = lpm_summary(&l.totals, train_s, config.iterations);

@@ -116,12 +116,26 @@ pub(crate) fn backward_workgroup(
     pixels: u32,
     what: &str,
 ) -> Result<u32> {
-    let layouts = pixel_layouts(info);
+    raster_workgroup(info, pixels, 16, what)
+}
+
+/// As [`backward_workgroup`] for a rasterizer that takes at most `max_pixels` pixels an
+/// invocation (the 3DGS forward: 8).
+pub(crate) fn raster_workgroup(
+    info: &crate::gpu::DeviceInfo,
+    pixels: u32,
+    max_pixels: u32,
+    what: &str,
+) -> Result<u32> {
+    let layouts: Vec<u32> = pixel_layouts(info)
+        .into_iter()
+        .filter(|&p| p <= max_pixels)
+        .collect();
     ensure!(
         layouts.contains(&pixels),
-        "{what}: {pixels} pixels per invocation gives {} invocations per tile, not a whole number \
-         of subgroups of {}; this device takes {}",
-        WG / pixels.max(1),
+        "{what}: {pixels} pixels per invocation is not a layout it runs here (a power of two up \
+         to {max_pixels} that leaves the tile's {WG} pixels in whole subgroups of {}); this \
+         device takes {}",
         info.subgroup_size,
         listed(&layouts)
     );

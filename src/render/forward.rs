@@ -340,14 +340,7 @@ impl Renderer {
     /// The rasterizer with `pixels` (1, 2, 4 or 8) pixels per invocation instead of the device's
     /// default: tests run the GPU layout (1) on a CPU driver this way.
     pub fn with_raster_pixels(mut self, pixels: u32) -> anyhow::Result<Self> {
-        let wg = WG / pixels.max(1);
-        anyhow::ensure!(
-            matches!(pixels, 1 | 2 | 4 | 8)
-                && wg.is_multiple_of(self.ctx.info.subgroup_size.max(1)),
-            "renderer: {pixels} pixels per invocation gives {wg} invocations per tile, not a \
-             multiple of the subgroup size {}; use 1, 2, 4 or 8 with whole subgroups",
-            self.ctx.info.subgroup_size
-        );
+        super::backward::raster_workgroup(&self.ctx.info, pixels, 8, "renderer")?;
         self.raster = Self::raster_pipeline(&self.ctx, pixels, 0)?;
         self.raster_pixels = pixels;
         self.raster_features = None;

@@ -56,6 +56,10 @@ pub struct TrainConfig {
     /// Views per optimizer step: the scheduled view and `batch_views − 1` other training views
     /// of its time, their gradients averaged (`train::batch`; SpacetimeGaussians: 2).
     pub batch_views: u32,
+    /// Pixels per invocation of the tile rasterizers, forward and backward (`None`: the
+    /// device's default, 1 on GPUs and 8 on CPU drivers); one of
+    /// [`crate::render::backward::pixel_layouts`]. A tuning knob: benchmarks compare layouts.
+    pub raster_pixels: Option<u32>,
 }
 
 impl Default for TrainConfig {
@@ -74,6 +78,7 @@ impl Default for TrainConfig {
             surfels: None,
             spacetime: None,
             batch_views: 1,
+            raster_pixels: None,
         }
     }
 }

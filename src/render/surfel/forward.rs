@@ -101,15 +101,11 @@ impl SurfelRenderer {
     /// The same renderer with `pixels` pixels per rasterizer invocation (1, 2, 4, 8 or 16, with
     /// whole subgroups; the default follows the device): tests cover every layout on any device.
     pub fn with_raster_pixels(mut self, pixels: u32) -> anyhow::Result<Self> {
-        let wg = WG / pixels.max(1);
+        crate::render::backward::raster_workgroup(&self.ctx.info, pixels, 16, "surfel renderer")?;
         anyhow::ensure!(
-            matches!(pixels, 1 | 2 | 4 | 8 | 16)
-                && wg.is_multiple_of(self.ctx.info.subgroup_size.max(1))
-                && (pixels == 1 || self.ctx.info.subgroup_shuffle),
-            "surfel renderer: {pixels} pixels per invocation gives {wg} invocations per tile, \
-             not a multiple of the subgroup size {} (or needs subgroup shuffles); use 1, 2, 4, \
-             8 or 16 with whole subgroups",
-            self.ctx.info.subgroup_size
+            pixels == 1 || self.ctx.info.subgroup_shuffle,
+            "surfel renderer: {pixels} pixels per invocation needs subgroup shuffles, which this \
+             device lacks; use 1"
         );
         self.raster = Self::raster_pipeline(&self.ctx, pixels)?;
         Ok(self)

@@ -5,11 +5,11 @@
 
 use std::sync::Arc;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 
 use super::{FrameArgs, GradArgs, ModelPasses};
 use crate::gpu::{BufferKind, GpuBuffer, GpuContext, Recorder, TimestampPool};
-use crate::render::backward::{Backward, BackwardArgs, FeatureGrads};
+use crate::render::backward::{AtomicMode, Backward, BackwardArgs, FeatureGrads};
 use crate::render::filter3d::SmoothingFilter;
 use crate::render::forward::{Capacity, FeatureChannels, FrameSettings, Renderer};
 use crate::render::layout::{CameraGpu, ProjectedBoundsGpu, RenderConstants};
@@ -46,7 +46,7 @@ impl GaussianPasses {
         capacity: usize,
         frame: Capacity,
     ) -> Result<Self> {
-        let renderer = Renderer::new(
+        let mut renderer = Renderer::new(
             ctx,
             Capacity {
                 gaussians: capacity,
@@ -55,7 +55,14 @@ impl GaussianPasses {
             },
         )?;
         let counts = config.density.statistic.needs_pixel_counts();
-        let mut backward = Backward::new(ctx, capacity)?;
+        let mut backward = match config.raster_pixels {
+            Some(p) => {
+                let why = || format!("raster_pixels {p} (train --raster-pixels)");
+                renderer = renderer.with_raster_pixels(p).with_context(why)?;
+                Backward::with_pixels(ctx, capacity, AtomicMode::Auto, p).with_context(why)?
+            }
+            None => Backward::new(ctx, capacity)?,
+        };
         if counts {
             backward = backward.with_pixel_counts(ctx)?;
         }

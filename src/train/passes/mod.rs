@@ -224,7 +224,12 @@ pub fn for_config(
         )?));
     }
     Ok(match &config.surfels {
-        Some(_) => Box::new(surfels::SurfelPasses::new(ctx, capacity, frame)?),
+        Some(_) => Box::new(surfels::SurfelPasses::new(
+            ctx,
+            capacity,
+            frame,
+            config.raster_pixels,
+        )?),
         None => Box::new(gaussians::GaussianPasses::new(
             ctx,
             config,

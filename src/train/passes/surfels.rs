@@ -14,7 +14,7 @@
 
 use std::sync::Arc;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 
 use super::{FrameArgs, GradArgs, ModelPasses};
 use crate::gpu::{BufferKind, GpuBuffer, GpuContext, Recorder, TimestampPool};
@@ -46,8 +46,14 @@ pub struct SurfelPasses {
 }
 
 impl SurfelPasses {
-    pub fn new(ctx: &Arc<GpuContext>, capacity: usize, frame: Capacity) -> Result<Self> {
-        let renderer = SurfelRenderer::new(
+    /// `raster_pixels`: [`TrainConfig::raster_pixels`].
+    pub fn new(
+        ctx: &Arc<GpuContext>,
+        capacity: usize,
+        frame: Capacity,
+        raster_pixels: Option<u32>,
+    ) -> Result<Self> {
+        let mut renderer = SurfelRenderer::new(
             ctx,
             Capacity {
                 gaussians: capacity,
@@ -55,10 +61,18 @@ impl SurfelPasses {
                 ..frame
             },
         )?;
+        let backward = match raster_pixels {
+            Some(p) => {
+                let why = || format!("raster_pixels {p} (train --raster-pixels)");
+                renderer = renderer.with_raster_pixels(p).with_context(why)?;
+                SurfelBackward::with_pixels(ctx, capacity, false, p).with_context(why)?
+            }
+            None => SurfelBackward::new(ctx, capacity, false)?,
+        };
         Ok(Self {
             ctx: ctx.clone(),
             renderer,
-            backward: SurfelBackward::new(ctx, capacity, false)?,
+            backward,
             regularisers: SurfelRegularisers::new(ctx, frame.pixels)?,
             dl_dmaps: GpuBuffer::new(
                 ctx,
