@@ -207,7 +207,10 @@ const uint PART_MAX = 64u;
 // needed (each masked assignment is a blend on CPU drivers). The mean and conic gradients are
 // linear in q = gauss · dL/dalpha (dL/dpower = opacity · q): the pixels sum q times dx, dy,
 // dx², dx·dy, dy², and the splat's constants multiply the sums once.
-void visit(vec4 mo, vec3 conic, vec3 rgb, float f[EXTRA_N], uint e, vec2 ndc, bool smooth_mode,
+//
+// Returns whether any of the invocation's pixels took part: when none did, every sum is an
+// exact zero.
+bool visit(vec4 mo, vec3 conic, vec3 rgb, float f[EXTRA_N], uint e, vec2 ndc, bool smooth_mode,
            out float part[PART_MAX]) {
     vec3 g_rgb = vec3(0.0);
     float g_q = 0.0;  // Σ q: dL/d(opacity)
@@ -272,6 +275,7 @@ void visit(vec4 mo, vec3 conic, vec3 rgb, float f[EXTRA_N], uint e, vec2 ndc, bo
     if (COUNT_PIXELS != 0u) part[GRAD2D_STRIDE] = n_pixels;
     if (ABS_GRAD != 0u) part[ACC_ABS] = mo.z * dot(s_abs, ndc);
     [[unroll]] for (uint c = 0u; c < EXTRA; c++) part[ACC_EXTRA + c] = g_feat[c];
+    return n_pixels > 0.0;
 }
 
 // Adds v, the subgroup's sum of slot `slot` for Gaussian g, to its output (zeros add nothing).
@@ -427,9 +431,17 @@ void main() {
                 uint e = max_last - 1u - (done + j);
                 float f[EXTRA_N];
                 [[unroll]] for (uint c = 0u; c < EXTRA; c++) f[c] = s_feat[j * EXTRA + c];
-                visit(s_mean_opacity[j], s_conic[j].xyz, s_rgb[j].xyz, f, e, ndc, smooth_mode,
-                      part);
-                [[unroll]] for (uint c = 0u; c < ACC_STRIDE; c++) part[c] = subgroupAdd(part[c]);
+                bool hit = visit(s_mean_opacity[j], s_conic[j].xyz, s_rgb[j].xyz, f, e, ndc,
+                                 smooth_mode, part);
+                // The box test lists splats that may still miss every pixel of the subgroup
+                // (past their last contributors, or under alpha_min there): their sums are
+                // zeros without the ACC_STRIDE reductions (five shuffles each at a subgroup of
+                // 32), as gsplat skips a warp's reduction when no lane is valid. Only here: in
+                // the butterfly path above the vote measured slower on lavapipe (Truck -r 4,
+                // rasterize backward 76 / 86 ms → 95 / 89 ms, 2026-11-27).
+                if (subgroupAny(hit)) {
+                    [[unroll]] for (uint c = 0u; c < ACC_STRIDE; c++) part[c] = subgroupAdd(part[c]);
+                }
                 if (subgroupElect()) {
                     uint a = (j * NUM_SG + gl_SubgroupID) * ACC_STRIDE;
                     [[unroll]] for (uint c = 0u; c < ACC_STRIDE; c++) s_acc[a + c] = part[c];

@@ -195,8 +195,13 @@ for s in "$@"; do
         # full size, each layout alone with --timestamps, ITERATIONS (default 5000) each, the
         # layouts alternated twice: which of the backward's two ways to sum (shared memory at 1
         # pixel, subgroup butterflies and atomics at 2 to 8) is faster on this GPU.
+        # With a packed baseline (pack.sh with BASE=REV), its default layout runs first in each
+        # round: the side-by-side ratio of a rasterizer change.
         need_scene layouts &&
             for r in 1 2; do
+                [ -x "$work/base/lpmsplat" ] &&
+                    step "layout-base-$r" 200 "$work/base/lpmsplat" train "$scene" -r 1 \
+                        --iterations "${ITERATIONS:-5000}" --timestamps -o "$work/layout-base-$r"
                 for p in ${LAYOUTS:-1 2 4 8}; do
                     step "layout-$p-$r" 200 "$bin" train "$scene" -r 1 \
                         --iterations "${ITERATIONS:-5000}" --timestamps --raster-pixels "$p" \
