@@ -1112,15 +1112,9 @@ fn raster_pixels_layouts_train_alike_and_bad_ones_are_refused() {
             lpmsplat()
                 .arg("train")
                 .arg(data("lego_small"))
-                .args([
-                    "--init-points",
-                    "300",
-                    "--sh-degree",
-                    "1",
-                    "--iterations",
-                    "60",
-                ])
-                .args(["--densify-from", "20", "--densify-interval", "20", "-o"])
+                // A short run that densifies twice, so the layouts' gradients steer it.
+                .args("--init-points 300 --sh-degree 1 --iterations 60".split(' '))
+                .args("--densify-from 20 --densify-interval 20 -o".split(' '))
                 .arg(out)
                 .args(extra),
         );
