@@ -740,6 +740,60 @@ fn the_region_cone_leaves_the_occluder_alone() {
     ctx.check_validation().unwrap();
 }
 
+/// `max_zone_radius`: zones wider than that many scene extents are dropped before anything acts
+/// on them, and counted. Just under the step's widest zone drops that one only; a radius below
+/// every zone leaves LPM nothing to do (no point added, no opacity reset); bad values are
+/// refused naming the flag.
+#[test]
+fn zones_wider_than_the_largest_radius_are_dropped_and_counted() {
+    let ctx = GpuContext::new(&GpuOptions::for_tests()).unwrap();
+    let scene = scene();
+    let gt = ground_truth(&ctx, &scene);
+    let init = initial_model();
+    let step = |max: Option<f64>| {
+        let c = LpmConfig {
+            max_zone_radius: max,
+            ..lpm_config()
+        };
+        c.validate().unwrap();
+        let mut t = Trainer::new(&ctx, &scene, &gt, &init, config(1e9, 1)).unwrap();
+        t.set_strategy(Box::new(
+            LpmStrategy::new(&ctx, &scene, &gt, correspondences(&scene), c).unwrap(),
+        ));
+        let r = t.step().unwrap();
+        let rep = lpm_report(&r).expect("LPM ran at iteration 1");
+        assert_eq!(lpm_of(&t).unwrap().totals.wide, rep.wide as u64);
+        (rep, t.model().unwrap().len())
+    };
+    let (all, _) = step(None);
+    assert!(all.zones >= 2 && all.wide == 0, "{all:?}");
+    assert!(all.radius_max > all.radius_mean, "{all:?}");
+
+    let (fewer, _) = step(Some(all.radius_max * 0.999));
+    assert!(fewer.wide >= 1, "{fewer:?}");
+    assert_eq!(fewer.zones + fewer.wide, all.zones, "{fewer:?}");
+    assert!(fewer.radius_max <= all.radius_max * 0.999, "{fewer:?}");
+
+    let (none, len) = step(Some(all.radius_mean * 1e-6));
+    assert_eq!((none.zones, none.wide), (0, all.zones), "{none:?}");
+    assert_eq!(
+        (none.added, none.reset, none.lowered),
+        (0, 0, 0),
+        "{none:?}"
+    );
+    assert_eq!(len, init.len());
+
+    for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+        let c = LpmConfig {
+            max_zone_radius: Some(bad),
+            ..LpmConfig::default()
+        };
+        let e = c.validate().unwrap_err().to_string();
+        assert!(e.contains("--lpm-max-zone-radius"), "{bad}: {e}");
+    }
+    ctx.check_validation().unwrap();
+}
+
 /// LPM's opacity reset follows its own interval: on an iteration without a density step it
 /// runs alone (zones, membership, reset), and a density step off that interval does not reset.
 #[test]

@@ -25,6 +25,8 @@
 #            both need ~13 min, detached over two calls; RUNS=adc or RUNS=lpm runs one)
 #   layouts  train the packed scene at full size with each --raster-pixels layout (LAYOUTS,
 #            default "1 2 4 8"), ITERATIONS (default 5000) each, --timestamps, alternated twice
+#   local7k  bench trade on the packed scene at full size, 7k of the 30k calendar: ADC, ADC+LPM
+#            and ADC+LPM without zones wider than the scene (lpm-local-zones), seed SEED (0)
 #   train30k train the packed scene at full size with LPM, 30k iterations, --timestamps
 set -uo pipefail
 cd "$(dirname "$0")/../.."
@@ -209,12 +211,20 @@ for s in "$@"; do
                 done
             done
         ;;
+    local7k)
+        # LPM with and without the zones wider than the scene (bench trade's lpm-local-zones,
+        # `--lpm-max-zone-radius 1`) beside ADC, 7k of the 30k calendar, interleaved.
+        need_scene local7k &&
+            step local7k 900 "$bin" bench trade "$scene" -r 1 --iterations 7000 --calendar 30000 \
+                --runs adc,lpm,lpm-local-zones --seed "${SEED:-0}" --eval-at 3500 --fps-frames 5 \
+                -o "$work/local7k"
+        ;;
     train30k)
         need_scene train30k &&
             step train30k 900 "$bin" train "$scene" -r 1 --iterations 30000 --lpm --eval-every 5000 \
                 --timestamps -o "$work/train30k"
         ;;
-    *) echo "$s: unknown step (info tests demo fps fpspair trade7k trade30k ablate7k pair30k serial30k layouts train30k)" >>"$summary" ;;
+    *) echo "$s: unknown step (info tests demo fps fpspair trade7k trade30k ablate7k pair30k serial30k layouts local7k train30k)" >>"$summary" ;;
     esac
     collect
 done

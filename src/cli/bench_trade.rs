@@ -92,7 +92,8 @@ pub struct TradeArgs {
     /// lpm-overlap-neighbours (our rules with the neighbour views sharing the most tracks),
     /// lpm-error-blocks (our rules with only the matches on a region's own error blocks speaking
     /// for it), lpm-bounding-cone (our rules with the in-front cone to the zone's bounding
-    /// sphere, the default before 2026-11-26) (aliases: adc-1e-4, lpm). Default: the first five.
+    /// sphere, the default before 2026-11-26), lpm-local-zones (our rules without the zones
+    /// wider than the scene extent) (aliases: adc-1e-4, lpm). Default: the first five.
     #[arg(long, value_delimiter = ',')]
     pub runs: Vec<String>,
     /// Run the variants one after another instead of interleaving their iterations. Interleaving
@@ -160,7 +161,7 @@ pub struct TradeRow {
     pub model_events: Vec<serde_json::Value>,
 }
 
-pub const RUNS: [(&str, [u8; 3]); 13] = [
+pub const RUNS: [(&str, [u8; 3]); 14] = [
     ("adc", [40, 40, 40]),
     ("adc-threshold-1e-4", [200, 120, 0]),
     ("adc+lpm", [220, 30, 30]),
@@ -186,6 +187,9 @@ pub const RUNS: [(&str, [u8; 3]); 13] = [
     // Our rules with the in-front cone to the zone's bounding sphere
     // (`train --lpm --lpm-cone bounding`; the default until the region cone measured better).
     ("lpm-bounding-cone", [40, 60, 160]),
+    // Our rules without the zones wider than the scene
+    // (`train --lpm --lpm-max-zone-radius 1`).
+    ("lpm-local-zones", [160, 200, 60]),
 ];
 
 pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
@@ -543,6 +547,9 @@ fn run_lpm_config(name: &str, cfg: &TrainConfig, args: &TradeArgs) -> Option<Lpm
     }
     if name == "lpm-bounding-cone" {
         c.cone = ConeRadius::Bounding;
+    }
+    if name == "lpm-local-zones" {
+        c.max_zone_radius = Some(1.0);
     }
     if let Some(p) = args.lpm_prune {
         c.prune = p;

@@ -270,6 +270,11 @@ pub struct LpmArgs {
     /// smallest-half-extent (the authors': a ball of the box's smallest half-extent).
     #[arg(long, value_parser = ["bounding", "smallest-half-extent", "region"])]
     pub lpm_cone: Option<String>,
+    /// Drop zones whose radius exceeds this many scene extents (default: keep every zone). A
+    /// region spanning near and far surfaces can triangulate to a zone wider than the scene,
+    /// which then lowers the threshold and resets opacities over most of the model.
+    #[arg(long, value_name = "EXTENTS")]
+    pub lpm_max_zone_radius: Option<f64>,
     /// Dump PNGs of every LPM step (error map, kept blocks, paired regions, zones) here.
     #[arg(long)]
     pub lpm_debug: Option<PathBuf>,
@@ -334,6 +339,7 @@ impl LpmArgs {
         if let Some(k) = &self.lpm_cone {
             c.cone = ConeRadius::parse(k)?;
         }
+        c.max_zone_radius = self.lpm_max_zone_radius;
         c.validate()?;
         Ok(Some(c))
     }
@@ -1116,21 +1122,29 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     if let Some(l) = trainer.strategy_as::<LpmStrategy>() {
         let t = &l.totals;
         println!(
-            "  LPM: {} steps ({} with zones), {} error regions, {} paired, {} zones, {} densified \
-             by the lowered threshold, {} extra prunes, {} opacity resets, {} added; {:.2} s = \
-             {:.2} % of training ({:.3} ms/it)",
+            "  LPM: {} steps ({} with zones), {} error regions, {} paired, {} zones{}, {} \
+             densified by the lowered threshold, {} extra prunes, {} opacity resets, {} added; \
+             {:.2} s = {:.2} % of training ({:.3} ms/it); zone radius mean {:.3} / largest {:.3} \
+             scene extents",
             t.steps,
             t.steps_with_zones,
             t.regions,
             t.paired,
             t.zones,
+            if t.wide > 0 {
+                format!(" (and {} wider than the largest radius, dropped)", t.wide)
+            } else {
+                String::new()
+            },
             t.lowered,
             t.pruned,
             t.reset,
             t.added,
             t.seconds,
             100.0 * t.seconds / train_s.max(1e-12),
-            1e3 * t.seconds / config.iterations as f64
+            1e3 * t.seconds / config.iterations as f64,
+            t.radius_mean,
+            t.radius_max
         );
     }
     println!("wrote {}", args.out.display());
@@ -1160,7 +1174,8 @@ pub fn lpm_summary(
         "paired": t.paired, "zones": t.zones,
         "lowered": t.lowered, "pruned_extra": t.pruned, "opacity_reset": t.reset,
         "added": t.added, "inside": t.inside, "radius_mean_rel": t.radius_mean,
-        "radius_max_rel": t.radius_max, "skipped_adc": t.skipped_adc, "seconds": t.seconds,
+        "radius_max_rel": t.radius_max, "wide_dropped": t.wide, "skipped_adc": t.skipped_adc,
+        "seconds": t.seconds,
         "share_of_training": t.seconds / train_seconds.max(1e-12),
         "ms_per_iteration": 1e3 * t.seconds / iterations.max(1) as f64,
     })

@@ -90,6 +90,12 @@ pub struct LpmConfig {
     /// Which matched keypoints speak for an error region (default: all in its box, as the
     /// paper and the authors; or only those on its own error blocks).
     pub region_keypoints: RegionKeypoints,
+    /// Drop zones whose radius exceeds this many scene extents (`None`: keep every zone). On
+    /// Truck at full size (H100, 2026-11-27) 24 of 144 steps had a zone wider than the scene
+    /// (up to 8.3 extents: keypoints of a region spanning near and far surfaces), and those
+    /// steps made 84 % of the run's opacity resets and 81 % of its lowered-threshold
+    /// densifications: a zone that holds most of the model is global, not localized.
+    pub max_zone_radius: Option<f64>,
 }
 
 /// Density-aware pruning (LPM.md step 8).
@@ -158,6 +164,7 @@ impl Default for LpmConfig {
             cone: ConeRadius::Region,
             skip_adc_without_zone: false,
             region_keypoints: RegionKeypoints::Box,
+            max_zone_radius: None,
         }
     }
 }
@@ -233,6 +240,13 @@ impl LpmConfig {
              than 85 % of its pixels are error pixels)",
             self.regions.keep_fraction
         );
+        if let Some(r) = self.max_zone_radius {
+            anyhow::ensure!(
+                r > 0.0 && r.is_finite(),
+                "LPM largest zone radius {r} (--lpm-max-zone-radius) must be a positive number \
+                 of scene extents (1 drops the zones wider than the scene)"
+            );
+        }
         self.reset_settings.top_basis_points()?;
         self.reset_settings.reset_logit()?;
         Ok(())
@@ -261,6 +275,7 @@ impl LpmConfig {
             "neighbour_angle_deg": self.matching.neighbours.max_angle_deg,
             "neighbours": self.matching.neighbours.choice.name(),
             "region_keypoints": self.region_keypoints.name(),
+            "max_zone_radius": self.max_zone_radius,
         })
     }
 }
@@ -280,6 +295,9 @@ impl LpmConfig {
             if self.region_keypoints == RegionKeypoints::Box {
                 o.remove("region_keypoints");
             }
+            if self.max_zone_radius.is_none() {
+                o.remove("max_zone_radius");
+            }
         }
         j
     }
@@ -296,9 +314,12 @@ pub struct LpmStepReport {
     pub zones: usize,
     /// The error-region block side used at this step (pixels).
     pub block: u32,
-    /// Zone radii relative to the scene extent (bounding radius / extent): mean and largest.
+    /// Zone radii relative to the scene extent (bounding radius / extent): mean and largest,
+    /// over the zones kept.
     pub radius_mean: f64,
     pub radius_max: f64,
+    /// Zones dropped as wider than `max_zone_radius` scene extents.
+    pub wide: usize,
     /// Gaussian centres inside zones, summed over the zones (before densification).
     pub inside: u64,
     /// Gaussians densified only because of the lowered threshold.
@@ -321,7 +342,7 @@ impl LpmStepReport {
             "iteration": self.iteration, "view": self.view, "reference": self.reference,
             "regions": self.regions, "paired": self.paired, "zones": self.zones,
             "block": self.block, "radius_mean_rel": self.radius_mean,
-            "radius_max_rel": self.radius_max, "inside": self.inside,
+            "radius_max_rel": self.radius_max, "wide_dropped": self.wide, "inside": self.inside,
             "lowered": self.lowered, "pruned_extra": self.pruned, "opacity_reset": self.reset,
             "added": self.added, "skipped_adc": self.skipped_adc, "reset_only": self.reset_only,
             "seconds": self.seconds,
@@ -357,6 +378,8 @@ pub struct LpmTotals {
     /// Mean over all zones of their radius relative to the scene extent.
     pub radius_mean: f64,
     pub radius_max: f64,
+    /// Zones dropped as wider than `max_zone_radius`.
+    pub wide: u64,
     /// Density steps whose ADC was skipped (no zone).
     pub skipped_adc: u32,
     pub seconds: f64,
@@ -377,6 +400,7 @@ impl LpmTotals {
         self.regions += r.regions as u64;
         self.paired += r.paired as u64;
         self.zones += r.zones as u64;
+        self.wide += r.wide as u64;
         self.lowered += r.lowered as u64;
         self.pruned += r.pruned as u64;
         self.reset += r.reset as u64;
@@ -634,11 +658,18 @@ impl LpmStrategy {
             _ => Default::default(),
         };
         report.paired = step.pairing.paired;
-        let records: Vec<ZoneRecord> = step
+        let finite: Vec<ZoneRecord> = step
             .records
             .into_iter()
             .filter(|z| z.radius.is_finite() && z.center.iter().all(|c| c.is_finite()))
             .collect();
+        let found = finite.len();
+        let widest = self.config.max_zone_radius.map(|r| r * extent);
+        let records: Vec<ZoneRecord> = finite
+            .into_iter()
+            .filter(|z| widest.is_none_or(|w| z.radius as f64 <= w))
+            .collect();
+        report.wide = found - records.len();
         report.zones = records.len();
         if !records.is_empty() {
             let rel: Vec<f64> = records
