@@ -891,9 +891,10 @@ fn default_rules_add_a_point_in_the_hole() {
     ctx.check_validation().unwrap();
 }
 
-/// A checkpoint written before the neighbour choice and the region-matches rule existed holds
-/// neither; a run with their defaults (the rules those builds always used) must resume it, and a
-/// run with the other value must not. `config.json` always names both.
+/// A checkpoint written before the neighbour choice, the region-matches rule and the largest
+/// zone radius existed holds none of them; a run with their defaults (the rules those builds
+/// always used) must resume it, and a run with another value must not. `config.json` always
+/// names all three.
 #[test]
 fn checkpoint_settings_leave_out_new_rules_at_their_old_values() {
     use lpmsplat::lpm::pairing::RegionKeypoints;
@@ -910,10 +911,18 @@ fn checkpoint_settings_leave_out_new_rules_at_their_old_values() {
         ..LpmConfig::default()
     };
     assert_eq!(blocks.checkpoint_json()["region_keypoints"], "error-blocks");
+    assert!(ck.get("max_zone_radius").is_none());
+    assert!(plain.to_json()["max_zone_radius"].is_null());
+    let local = LpmConfig {
+        max_zone_radius: Some(1.0),
+        ..LpmConfig::default()
+    };
+    assert_eq!(local.checkpoint_json()["max_zone_radius"], 1.0);
     // Everything else is the same object.
     let mut full = plain.to_json();
     let o = full.as_object_mut().unwrap();
     o.remove("neighbours");
     o.remove("region_keypoints");
+    o.remove("max_zone_radius");
     assert_eq!(full, ck);
 }
