@@ -741,9 +741,9 @@ fn the_region_cone_leaves_the_occluder_alone() {
 }
 
 /// `max_zone_radius`: zones wider than that many scene extents are dropped before anything acts
-/// on them, and counted. Just under the step's widest zone drops that one only; a radius below
-/// every zone leaves LPM nothing to do (no point added, no opacity reset); bad values are
-/// refused naming the flag.
+/// on them, and counted. Just under the step's widest zone drops that one (and any as wide); a
+/// radius below every zone leaves LPM nothing to do (no point added, no opacity reset); bad
+/// values are refused naming the flag.
 #[test]
 fn zones_wider_than_the_largest_radius_are_dropped_and_counted() {
     let ctx = GpuContext::new(&GpuOptions::for_tests()).unwrap();
