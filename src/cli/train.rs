@@ -77,9 +77,10 @@ pub struct TrainArgs {
     /// Collect per-stage GPU timestamps and report their shares.
     #[arg(long)]
     pub timestamps: bool,
-    /// Pixels per invocation of the tile rasterizers, forward and backward (default: 1 on GPUs,
-    /// 8 on CPU drivers). A tuning knob for comparing layouts with --timestamps: 1, 2, 4 or 8
-    /// where the device's subgroups allow it (the refusal names this device's choices).
+    /// Pixels per invocation of the tile rasterizers, forward and backward (default: 1 on GPUs;
+    /// on CPU drivers 8, and 16 for the 2DGS backward). A tuning knob for comparing layouts with
+    /// --timestamps: 1, 2, 4 or 8 (2DGS also 16) where the device's subgroups allow it (the
+    /// refusal names this device's choices).
     #[arg(long, value_name = "N")]
     pub raster_pixels: Option<u32>,
     /// Write OUT/checkpoint.bin every N iterations (0 = only at the end and on Ctrl-C).

@@ -57,7 +57,7 @@ pub struct TrainConfig {
     /// of its time, their gradients averaged (`train::batch`; SpacetimeGaussians: 2).
     pub batch_views: u32,
     /// Pixels per invocation of the tile rasterizers, forward and backward (`None`: the
-    /// device's default, 1 on GPUs and 8 on CPU drivers); one of
+    /// device's defaults, 1 on GPUs; on CPU drivers 8, and 16 for the 2DGS backward); one of
     /// [`crate::render::backward::pixel_layouts`]. A tuning knob: benchmarks compare layouts.
     pub raster_pixels: Option<u32>,
 }
