@@ -13,6 +13,7 @@ use lpmsplat::lpm::membership::{
     apply_opacity_reset, membership, OpacityResetSettings, ZoneTest, FLAG_INSIDE, FLAG_IN_BALL,
     FLAG_IN_FRONT,
 };
+use lpmsplat::lpm::record::ZONE_SLAB;
 use lpmsplat::lpm::regions::{block_mask, error_map, quantile, BlockMask};
 use lpmsplat::lpm::{ConeRadius, RegionSettings, Zone, ZoneRecord};
 use rand::{Rng, SeedableRng};
@@ -90,6 +91,21 @@ fn random_zones(rng: &mut Pcg64, n: usize) -> Vec<ZoneRecord> {
                 ConeRadius::Bounding
             };
             zones.push(ZoneRecord::with_cone(&z, cam, [0.2; 3], cone));
+        } else if rng.gen_bool(0.25) {
+            // A slab: the view's cone through its region cut to a band of distances; a band
+            // deeper than the camera's distance reaches the apex.
+            let half_depth = if rng.gen_bool(0.15) {
+                dist * 1.2
+            } else {
+                rng.gen_range(0.02..1.0)
+            };
+            let z = Zone::Slab {
+                apex: cam,
+                center: c,
+                tan_half_angle: rng.gen_range(0.01..0.4),
+                half_depth,
+            };
+            zones.push(ZoneRecord::with_cone(&z, cam, [0.4; 3], ConeRadius::Region));
         } else if rng.gen_bool(0.3) {
             // The view's cone through its error region (`ConeRadius::Region`): narrower than
             // the bounding sphere, while "in front" still ends at the sphere's near side.
@@ -141,7 +157,7 @@ fn random_positions(rng: &mut Pcg64, zones: &[ZoneRecord], n: usize) -> Vec<f32>
 /// The sqrt-free f32 tests implement LPM.md's definition: check against acos/atan in f64 where
 /// the point is not within rounding distance of a boundary.
 fn check_against_f64_definition(positions: &[f32], zones: &[ZoneRecord]) -> (usize, usize) {
-    let (mut checked, mut front) = (0, 0);
+    let (mut checked, mut front, mut slab_checked) = (0, 0, 0);
     for z in zones {
         let t = ZoneTest::new(z);
         let c = f32s(z.center.map(|x| x as f64)).map(|x| x as f64);
@@ -180,6 +196,17 @@ fn check_against_f64_definition(positions: &[f32], zones: &[ZoneRecord]) -> (usi
                     "in ball: {z:?} {x:?}"
                 );
             }
+            if z.shape == ZONE_SLAB
+                && (angle - half).abs() > 1e-3
+                && ((vl - h).abs() - f).abs() > 1e-4
+            {
+                assert_eq!(
+                    t.contains([p[0], p[1], p[2]]),
+                    angle <= half && (vl - h).abs() <= f,
+                    "inside slab: {z:?} {x:?}"
+                );
+                slab_checked += 1;
+            }
             if z.shape == 0 {
                 let r = z.radius as f64;
                 if (d - r).abs() > 1e-5 {
@@ -191,6 +218,9 @@ fn check_against_f64_definition(positions: &[f32], zones: &[ZoneRecord]) -> (usi
                 }
             }
         }
+    }
+    if zones.iter().any(|z| z.shape == ZONE_SLAB) {
+        assert!(slab_checked > 0, "no slab point was checked");
     }
     (checked, front)
 }

@@ -1527,3 +1527,156 @@ fn added_surfels_face_the_camera_that_asked_for_them() {
         }
     }
 }
+
+/// `--lpm-zone slab`: a region whose matches lie on two surfaces at different depths (a near
+/// disc and one 2 units behind it). The triangulated sphere must be as wide as the two are
+/// deep; the slab is V's cone through the region cut to the depths the matches span: it holds
+/// both discs, not what lies beside the region's line of sight at those depths, and what lies
+/// on that line nearer than the band is in front of it. The f32 test the GPU mirrors agrees
+/// with the f64 definition, and the bounding sphere holds the slab.
+#[test]
+fn slab_zone_holds_what_is_drawn_over_the_region_at_the_matches_depths() {
+    use lpmsplat::lpm::membership::ZoneTest;
+    use lpmsplat::lpm::record::ZONE_SLAB;
+    let cams = small_baseline(10.0);
+    let cv = |v: usize| CameraView {
+        camera: &cams[v].0,
+        pose: &cams[v].1,
+    };
+    // Two discs of radius 0.1 facing the cameras: one around the origin, one 2 units farther (+y).
+    let mut rng = Pcg64::seed_from_u64(5);
+    let mut disc = |y: f64| -> Vec<DVec3> {
+        (0..20)
+            .map(|_| {
+                let (r, a): (f64, f64) = (0.1 * rng.gen::<f64>().sqrt(), rng.gen_range(0.0..6.3));
+                DVec3::new(r * a.cos(), y, r * a.sin())
+            })
+            .collect()
+    };
+    let (near_pts, far_pts) = (disc(0.0), disc(2.0));
+    let matches: Vec<([f64; 2], [f64; 2])> = near_pts
+        .iter()
+        .chain(&far_pts)
+        .map(|p| {
+            let m = [0, 1].map(|v| project(&cams[v].0, &cams[v].1, *p).unwrap());
+            (m[0], m[1])
+        })
+        .collect();
+    let xy_v: Vec<[f32; 2]> = matches
+        .iter()
+        .map(|m| [m.0[0] as f32, m.0[1] as f32])
+        .collect();
+    let xy_r: Vec<[f32; 2]> = matches
+        .iter()
+        .map(|m| [m.1[0] as f32, m.1[1] as f32])
+        .collect();
+    let (lo, hi) = xy_v
+        .iter()
+        .fold(([f32::MAX; 2], [f32::MIN; 2]), |(lo, hi), p| {
+            (
+                [lo[0].min(p[0]), lo[1].min(p[1])],
+                [hi[0].max(p[0]), hi[1].max(p[1])],
+            )
+        });
+    let region = Region {
+        x0: lo[0].floor() as u32 - 2,
+        y0: lo[1].floor() as u32 - 2,
+        x1: hi[0].ceil() as u32 + 2,
+        y1: hi[1].ceil() as u32 + 2,
+    };
+    let (pairs, _) = pair_regions(&[region], &xy_v, &xy_r);
+    assert_eq!(pairs[0].matched.len(), 40);
+    let s = ZoneSettings {
+        geometry: ZoneGeometry::Slab,
+        ..ZoneSettings::default()
+    };
+    let out = zone_for_pair(cv(0), cv(1), &pairs[0], &xy_v, &xy_r, &s);
+    assert_eq!((out.points, out.rejected), (40, 0), "{out:?}");
+    let Some(
+        slab @ Zone::Slab {
+            apex,
+            center,
+            tan_half_angle,
+            half_depth,
+        },
+    ) = out.zone
+    else {
+        panic!("not a slab: {out:?}")
+    };
+    let o = DVec3::from(cams[0].1.center());
+    assert!(DVec3::from(apex).distance(o) < 1e-12);
+    // The band spans the matches' distances from V's centre, grown by the margin.
+    let dist = |p: DVec3| p.distance(o);
+    // (The matches are f32 pixels: the triangulated points are within a few 1e-4 of the true.)
+    let d_near = near_pts.iter().copied().map(dist).fold(f64::MAX, f64::min);
+    let d_far = far_pts.iter().copied().map(dist).fold(0.0, f64::max);
+    let d = DVec3::from(center).distance(o);
+    assert!(
+        (d - 0.5 * (d_near + d_far)).abs() < 2e-3,
+        "{d} vs {d_near}..{d_far}"
+    );
+    let want = 0.5 * (d_far - d_near) * (1.0 + s.margin);
+    assert!((half_depth - want).abs() < 2e-3, "{half_depth} vs {want}");
+    // The region's cone: the same half-angle as the in-front cone of the region.
+    let b = &pairs[0].in_view;
+    let t = lpmsplat::lpm::record::region_tan_half_angle(&cams[0].0, b);
+    assert_eq!(tan_half_angle, t);
+
+    let triangulated = zone_for_pair(
+        cv(0),
+        cv(1),
+        &pairs[0],
+        &xy_v,
+        &xy_r,
+        &ZoneSettings::default(),
+    );
+    let Some(Zone::Sphere(sphere)) = triangulated.zone else {
+        panic!()
+    };
+    let rec = ZoneRecord::with_cone(&slab, o.to_array(), [0.0; 3], ConeRadius::Region);
+    assert_eq!(rec.shape, ZONE_SLAB);
+    let test = ZoneTest::new(&rec);
+    let f = |p: DVec3| p.as_vec3().to_array();
+    // Both discs are inside the slab.
+    for &p in near_pts.iter().chain(&far_pts) {
+        assert!(
+            slab.contains(p.to_array(), 0.0) && test.contains(f(p)),
+            "{p}"
+        );
+    }
+    // Beside the line of sight at the middle depth: inside the sphere, not the slab.
+    let axis = (DVec3::from(center) - o).normalize();
+    let side = axis.cross(DVec3::Z).normalize();
+    let beside = DVec3::from(center) + 0.4 * side;
+    assert!(sphere.contains(beside.to_array(), 0.0));
+    assert!(!slab.contains(beside.to_array(), 0.0) && !test.contains(f(beside)));
+    // On the line of sight, half a unit nearer than the band: in front, not inside.
+    let before = o + (d - half_depth - 0.5) * axis;
+    assert!(test.in_front(f(before)) && !test.contains(f(before)));
+    assert!(!test.in_front(f(DVec3::from(center))));
+
+    // Random points: the f32 test agrees with the f64 definition away from the boundary, and
+    // every point of the slab lies in its bounding sphere.
+    let bound = slab.bounding_sphere();
+    assert!((rec.radius as f64 - bound.radius).abs() < 1e-5 * bound.radius);
+    let mut rng = Pcg64::seed_from_u64(6);
+    let mut inside = 0;
+    for _ in 0..20_000 {
+        let p = o
+            + axis * rng.gen_range(0.0..2.0 * d)
+            + random_unit(&mut rng) * rng.gen_range(0.0..1.5);
+        let v = p - o;
+        let beyond = v.angle_between(axis) - tan_half_angle.atan();
+        let band = (v.length() - d).abs() - half_depth;
+        let want = beyond <= 0.0 && band <= 0.0;
+        if beyond.abs() > 1e-4 && band.abs() > 1e-4 {
+            assert_eq!(test.contains(f(p)), want, "{p}");
+            assert_eq!(slab.contains(p.to_array(), 0.0), want, "{p}");
+        }
+        if want {
+            inside += 1;
+            assert!(bound.contains(p.to_array(), 1e-9), "{p} outside {bound:?}");
+        }
+    }
+    assert!(inside > 100, "{inside}");
+}

@@ -4,14 +4,16 @@ struct Zone {
     vec3 center;
     float radius;         // sphere radius; for a box, its circumscribed radius
     vec3 camera_center;   // apex of the "in front" cone
-    uint shape;           // ZONE_SPHERE or ZONE_BOX
+    uint shape;           // ZONE_SPHERE, ZONE_BOX or ZONE_SLAB
     vec3 color;
-    float front_radius;   // "in front" ends at the near side of the ball of this radius
+    float front_radius;   // "in front" ends at the near side of the ball of this radius;
+                          // a slab spans |x − camera_center| within this of |center − camera_center|
     vec3 half_extents;    // box only
     float cone_radius;    // base radius of the in-front cone, radius of the FLAG_IN_BALL ball
 };
 const uint ZONE_SPHERE = 0u;
 const uint ZONE_BOX = 1u;
+const uint ZONE_SLAB = 2u;  // the in-front cone cut to a band of distances from its apex
 
 // Bits of the per-Gaussian membership flags (src/lpm/membership.rs has the same constants).
 const uint FLAG_INSIDE = 1u;

@@ -9,7 +9,8 @@
 // least one zone, bit 2 (FLAG_IN_BALL) within the cone radius of a zone's centre; the other
 // bits are 0.
 //
-// Inside: sphere |x − c|² ≤ r², box |x_k − c_k| ≤ h_k on each axis (boundary included).
+// Inside: sphere |x − c|² ≤ r², box |x_k − c_k| ≤ h_k on each axis, slab: inside the in-front
+// cone below and |a| − f ≤ |v| ≤ |a| + f (boundary included everywhere).
 // In front (LPM.md step 7), with apex o = camera_center, v = x − o, a = c − o, the cone's
 // radius r = the zone's cone_radius at the centre (its bounding radius, the authors' smallest
 // box half-extent, or the view's cone through its error region) and f = its front_radius (where
@@ -19,6 +20,8 @@
 //   angle:    D ≥ 0 and D²(A + R) ≥ A² V       (cos² of the angle ≥ cos² of atan(r/h) = A/(A+R))
 //   distance: A > F:  W = A − V − F ≥ 0 and 4 F V ≤ W²   (|v| + f ≤ h squared twice)
 //             A ≤ F:  V ≤ A
+//   slab, far face  |v| ≤ |a| + f:  U = V − A − F ≤ 0 or U² ≤ 4AF
+//   slab, near face |v| ≥ |a| − f:  A ≤ F, or W ≤ 0, or 4FV ≥ W²
 // The angle is undefined at the apex (V = 0) and for a zone centred on its camera (A = 0): such
 // points are not in front. Every operation is an IEEE add, sub or mul marked `precise` (no fused
 // multiply-add, no reordering), so src/lpm/membership.rs reproduces each flag bit for bit. Terms
@@ -46,8 +49,36 @@ shared vec4 s_axis[ZONE_BATCH];    // a = c − o, w: cone radius²
 shared uint s_shape[ZONE_BATCH];
 shared uint s_inside[ZONE_BATCH];
 
+// The in-front test's cone and a band of distances from its apex (the slab's inside).
+bool inside_slab(vec3 x, uint j) {
+    vec4 o = s_apex[j];
+    vec3 a = s_axis[j].xyz;
+    float A = o.w;
+    float R = s_axis[j].w;
+    precise float vx = x.x - o.x;
+    precise float vy = x.y - o.y;
+    precise float vz = x.z - o.z;
+    precise float V = vx * vx + vy * vy + vz * vz;
+    precise float D = vx * a.x + vy * a.y + vz * a.z;
+    if (!(V > 0.0 && A > 0.0 && D >= 0.0)) return false;
+    precise float cone_l = (D * D) * (A + R);
+    precise float cone_r = (A * A) * V;
+    if (!(cone_l >= cone_r)) return false;
+    float F = s_half[j].w;
+    precise float U = (V - A) - F;
+    precise float far_l = U * U;
+    precise float far_r = (4.0 * A) * F;
+    if (!(U <= 0.0 || far_l <= far_r)) return false;
+    if (A <= F) return true;
+    precise float W = (A - V) - F;
+    precise float near_l = (4.0 * F) * V;
+    precise float near_r = W * W;
+    return W <= 0.0 || near_l >= near_r;
+}
+
 bool inside_zone(vec3 x, uint j) {
     vec4 s = s_sphere[j];
+    if (s_shape[j] == ZONE_SLAB) return inside_slab(x, j);
     if (s_shape[j] == ZONE_BOX) {
         vec3 h = s_half[j].xyz;
         precise vec3 d = abs(x - s.xyz);

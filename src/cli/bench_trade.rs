@@ -93,7 +93,8 @@ pub struct TradeArgs {
     /// lpm-error-blocks (our rules with only the matches on a region's own error blocks speaking
     /// for it), lpm-bounding-cone (our rules with the in-front cone to the zone's bounding
     /// sphere, the default before 2026-11-26), lpm-local-zones (our rules without the zones
-    /// wider than the scene extent) (aliases: adc-1e-4, lpm). Default: the first five.
+    /// wider than the scene extent), lpm-slab (our rules with the zone cut to the view's cone
+    /// through the region and the depths of its matches) (aliases: adc-1e-4, lpm). Default: the first five.
     #[arg(long, value_delimiter = ',')]
     pub runs: Vec<String>,
     /// Run the variants one after another instead of interleaving their iterations. Interleaving
@@ -161,7 +162,7 @@ pub struct TradeRow {
     pub model_events: Vec<serde_json::Value>,
 }
 
-pub const RUNS: [(&str, [u8; 3]); 14] = [
+pub const RUNS: [(&str, [u8; 3]); 15] = [
     ("adc", [40, 40, 40]),
     ("adc-threshold-1e-4", [200, 120, 0]),
     ("adc+lpm", [220, 30, 30]),
@@ -190,6 +191,9 @@ pub const RUNS: [(&str, [u8; 3]); 14] = [
     // Our rules without the zones wider than the scene
     // (`train --lpm --lpm-max-zone-radius 1`).
     ("lpm-local-zones", [160, 200, 60]),
+    // Our rules with the zone cut to the region's cone and the matches' depths
+    // (`train --lpm --lpm-zone slab`).
+    ("lpm-slab", [200, 80, 200]),
 ];
 
 pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
@@ -550,6 +554,9 @@ fn run_lpm_config(name: &str, cfg: &TrainConfig, args: &TradeArgs) -> Option<Lpm
     }
     if name == "lpm-local-zones" {
         c.max_zone_radius = Some(1.0);
+    }
+    if name == "lpm-slab" {
+        c.zones.geometry = ZoneGeometry::Slab;
     }
     if let Some(p) = args.lpm_prune {
         c.prune = p;

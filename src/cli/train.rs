@@ -262,8 +262,10 @@ pub struct LpmArgs {
     #[arg(long, value_parser = ["error-blocks", "box"])]
     pub lpm_region_keypoints: Option<String>,
     /// Zone geometry: triangulated (ours: the enclosing sphere of the triangulated matches),
-    /// sphere (the paper: the cone intersection's enclosing sphere), ray-pairs, authors-box.
-    #[arg(long, value_parser = ["triangulated", "sphere", "ray-pairs", "authors-box"])]
+    /// slab (the view's cone through the region, cut to the distances the triangulated matches
+    /// span: only what is drawn over the region), sphere (the paper: the cone intersection's
+    /// enclosing sphere), ray-pairs, authors-box.
+    #[arg(long, value_parser = ["triangulated", "slab", "sphere", "ray-pairs", "authors-box"])]
     pub lpm_zone: Option<String>,
     /// The cone whose Gaussians count as in front of a zone (the opacity reset's candidates):
     /// region (default under ours: the view's cone through its error region, capped at the
@@ -350,12 +352,13 @@ impl LpmArgs {
 pub fn parse_zone(name: &str) -> anyhow::Result<ZoneGeometry> {
     Ok(match name {
         "triangulated" => ZoneGeometry::Triangulated,
+        "slab" => ZoneGeometry::Slab,
         "sphere" => ZoneGeometry::Sphere,
         "ray-pairs" => ZoneGeometry::SphereRayPairs,
         "authors-box" => ZoneGeometry::AuthorsBox,
         other => anyhow::bail!(
-            "LPM zone geometry {other:?} is unknown. Fix: choose triangulated, sphere, ray-pairs \
-             or authors-box"
+            "LPM zone geometry {other:?} is unknown. Fix: choose triangulated, slab, sphere, \
+             ray-pairs or authors-box"
         ),
     })
 }

@@ -9,7 +9,7 @@
 //! * The opacity threshold is an order statistic, selected exactly on both sides, and compared in
 //!   the total order of [`float_key`].
 
-use super::record::{ZoneRecord, ZONE_BOX};
+use super::record::{ZoneRecord, ZONE_BOX, ZONE_SLAB};
 
 /// Bit 0 of a Gaussian's membership flags: its centre is inside at least one zone.
 pub const FLAG_INSIDE: u32 = 1;
@@ -21,7 +21,9 @@ pub const FLAG_IN_BALL: u32 = 4;
 
 /// One zone prepared for the tests, with the shader's per-zone precomputation.
 ///
-/// Inside: sphere `|x − c|² ≤ r²`, box `|x_k − c_k| ≤ h_k` per axis. In ball: `|x − c|² ≤ ρ²`
+/// Inside: sphere `|x − c|² ≤ r²`, box `|x_k − c_k| ≤ h_k` per axis, slab: inside the in-front
+/// cone below and `|a| − f ≤ |v| ≤ |a| + f` (far face: `U = V − A − F ≤ 0 ∨ U² ≤ 4AF`; near
+/// face: `A ≤ F ∨ W ≤ 0 ∨ 4FV ≥ W²`). In ball: `|x − c|² ≤ ρ²`
 /// with ρ the zone's `cone_radius`. In front (the cone from the zone's `camera_center` o to the
 /// ball (c, r = ρ), ending at the near side of the ball (c, f) with f the `front_radius`): with
 /// v = x − o, a = c − o, V = v·v, A = a·a, D = v·a, R = r², F = f²: `D ≥ 0`,
@@ -35,6 +37,7 @@ pub struct ZoneTest {
     r2: f32,
     half: [f32; 3],
     is_box: bool,
+    is_slab: bool,
     apex: [f32; 3],
     axis: [f32; 3],
     a2: f32,
@@ -54,6 +57,7 @@ impl ZoneTest {
             r2: z.radius * z.radius,
             half: z.half_extents,
             is_box: z.shape == ZONE_BOX,
+            is_slab: z.shape == ZONE_SLAB,
             apex: o,
             axis,
             a2: axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2],
@@ -70,11 +74,40 @@ impl ZoneTest {
 
     pub fn contains(&self, x: [f32; 3]) -> bool {
         let c = self.center;
+        if self.is_slab {
+            return self.in_slab(x);
+        }
         if self.is_box {
             return (0..3).all(|k| (x[k] - c[k]).abs() <= self.half[k]);
         }
         let (dx, dy, dz) = (x[0] - c[0], x[1] - c[1], x[2] - c[2]);
         dx * dx + dy * dy + dz * dz <= self.r2
+    }
+
+    /// The in-front cone cut to the band of distances from the apex (a slab's inside).
+    fn in_slab(&self, x: [f32; 3]) -> bool {
+        let o = self.apex;
+        let a = self.axis;
+        let (big_a, big_r, big_f) = (self.a2, self.c2, self.f2);
+        let (vx, vy, vz) = (x[0] - o[0], x[1] - o[1], x[2] - o[2]);
+        let v = vx * vx + vy * vy + vz * vz;
+        let d = vx * a[0] + vy * a[1] + vz * a[2];
+        if !(v > 0.0 && big_a > 0.0 && d >= 0.0) {
+            return false;
+        }
+        #[allow(clippy::neg_cmp_op_on_partial_ord)]
+        if !((d * d) * (big_a + big_r) >= (big_a * big_a) * v) {
+            return false;
+        }
+        let u = (v - big_a) - big_f;
+        if !(u <= 0.0 || u * u <= (4.0 * big_a) * big_f) {
+            return false;
+        }
+        if big_a <= big_f {
+            return true;
+        }
+        let w = (big_a - v) - big_f;
+        w <= 0.0 || (4.0 * big_f) * v >= w * w
     }
 
     pub fn in_front(&self, x: [f32; 3]) -> bool {

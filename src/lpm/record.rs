@@ -2,13 +2,16 @@
 
 use super::pairing::{pair_regions_on, PairingStats, PixelBox};
 use super::regions::{BlockOwners, Region};
-use super::zones::{circle_samples, zone_for_pair, CameraView, Zone, ZoneSettings};
-use crate::scene::{Image, PinholeCamera, View};
-use glam::DVec3;
+pub use super::zones::region_tan_half_angle;
+use super::zones::{zone_for_pair, CameraView, Zone, ZoneSettings};
+use crate::scene::{Image, View};
 
 /// Shape code in [`ZoneRecord::shape`].
 pub const ZONE_SPHERE: u32 = 0;
 pub const ZONE_BOX: u32 = 1;
+/// A cone from `camera_center` through the ball (`center`, `cone_radius`), cut to the distances
+/// from the apex within `front_radius` of the centre's ([`Zone::Slab`]).
+pub const ZONE_SLAB: u32 = 2;
 
 /// One error zone as the membership shaders read it. 64 bytes, std430-compatible:
 ///
@@ -17,7 +20,8 @@ pub const ZONE_BOX: u32 = 1;
 ///     vec3  center;        //  0
 ///     float radius;        // 12  sphere radius; for a box, its circumscribed radius
 ///     vec3  camera_center; // 16  centre of the view the zone was seen from (the "in front" cone apex)
-///     uint  shape;         // 28  0 = sphere, 1 = axis-aligned box (centre ± half_extents)
+///     uint  shape;         // 28  0 = sphere, 1 = axis-aligned box (centre ± half_extents),
+///                          //     2 = slab (the in-front cone cut to |x − o| ∈ |c − o| ± front_radius)
 ///     vec3  color;         // 32  mean ground-truth colour of R_e, linear [0, 1]
 ///     float front_radius;  // 44  "in front" ends at the near side of the ball of this radius
 ///     vec3  half_extents;  // 48  box only (zero for spheres)
@@ -86,8 +90,29 @@ impl ZoneRecord {
     ) -> ZoneRecord {
         let f = |v: [f64; 3]| [v[0] as f32, v[1] as f32, v[2] as f32];
         let s = zone.bounding_sphere();
+        if let Zone::Slab {
+            apex,
+            center,
+            tan_half_angle,
+            half_depth,
+        } = *zone
+        {
+            // A slab's cone is its own (the region's), whatever `cone` says: in front of it
+            // is the same cone nearer than the band.
+            let d = glam::DVec3::from(center).distance(glam::DVec3::from(apex));
+            return ZoneRecord {
+                center: f(center),
+                radius: s.radius as f32,
+                camera_center: f(apex),
+                shape: ZONE_SLAB,
+                color,
+                front_radius: half_depth as f32,
+                half_extents: [0.0; 3],
+                cone_radius: (d * tan_half_angle) as f32,
+            };
+        }
         let (shape, half) = match *zone {
-            Zone::Sphere(_) => (ZONE_SPHERE, [0.0; 3]),
+            Zone::Sphere(_) | Zone::Slab { .. } => (ZONE_SPHERE, [0.0; 3]),
             Zone::Box { min, max } => (
                 ZONE_BOX,
                 [
@@ -129,26 +154,6 @@ impl ZoneRecord {
         }
         self
     }
-}
-
-/// The tangent of the largest angle between the ray through the centre of `b` and the rays
-/// through its circumcircle (16 points on it), in `camera`: the half-angle of the view's cone
-/// through the region.
-pub fn region_tan_half_angle(camera: &PinholeCamera, b: &PixelBox) -> f64 {
-    let ray = |[u, v]: [f64; 2]| {
-        DVec3::new(
-            (u - camera.cx) / camera.fx,
-            (v - camera.cy) / camera.fy,
-            1.0,
-        )
-    };
-    let samples = circle_samples(b, 16);
-    let d0 = ray(samples[0]);
-    let largest = samples[1..]
-        .iter()
-        .map(|&p| d0.angle_between(ray(p)))
-        .fold(0.0f64, f64::max);
-    largest.tan()
 }
 
 /// The colour of a point added at a zone's centre (LPM.md): the ground truth at the centre of
@@ -255,7 +260,7 @@ pub fn zones_for_step(
             Some(z) => {
                 let mut record =
                     ZoneRecord::with_cone(&z, apex, center_color(gt, &p.in_view, background), cone);
-                if cone == ConeRadius::Region {
+                if cone == ConeRadius::Region && !matches!(z, Zone::Slab { .. }) {
                     record = record.narrow_cone(region_tan_half_angle(&view.camera, &p.in_view));
                 }
                 out.records.push(record);

@@ -6,7 +6,7 @@
 //! `(fx x + (cx − cu) z)² + (fy y + (cy − cv) z)² ≤ ρ² z²` — a quadric cone, exact also for
 //! fx ≠ fy and for off-centre regions (where the 3D cone is oblique, not circular).
 //!
-//! Four geometries:
+//! Five geometries:
 //!
 //! * [`ZoneGeometry::Triangulated`] (default, ours): the zone is bounded by the surface the
 //!   region explains. Every matched keypoint pair inside the region pair is triangulated (the
@@ -20,6 +20,14 @@
 //!   whose enclosing sphere covers much of the scene (measured: one region on lund_door at
 //!   162×242 lowered the threshold of 6,285 Gaussians with `Sphere`, 5 with `AuthorsBox`). The
 //!   matches say where the surface *is*, so this zone stays as local as the region.
+//! * [`ZoneGeometry::Slab`] (ours, 2026-11-27): V's cone through the region's circumcircle, cut
+//!   to the band of distances from V's centre that the same kept triangulated points span (grown
+//!   by `margin`, at least `min_radius_px` pixels of V deep). The sphere above must be as wide as
+//!   the points are deep: a region of the far background whose matches spread from 16 to 30
+//!   units away (Truck at `-r 4`, scene extent 5.3) gave a sphere of radius 8, holding Gaussians
+//!   far outside the region's pixels, and at full size such zones made 84 % of LPM's resets.
+//!   The slab holds only what is drawn over the region, at the depths the matches found; "in
+//!   front" is the same cone nearer than the band.
 //! * [`ZoneGeometry::Sphere`] (the paper read literally): the zone is the minimum enclosing sphere of
 //!   the intersection of the two cones. The intersection is convex and its extreme points lie on
 //!   both cone surfaces, so we sample `circle_rays` rays on each cone's surface (plus its axis
@@ -52,6 +60,7 @@ use glam::DVec3;
 pub enum ZoneGeometry {
     #[default]
     Triangulated,
+    Slab,
     Sphere,
     SphereRayPairs,
     AuthorsBox,
@@ -94,7 +103,18 @@ impl Default for ZoneSettings {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Zone {
     Sphere(Sphere),
-    Box { min: [f64; 3], max: [f64; 3] },
+    Box {
+        min: [f64; 3],
+        max: [f64; 3],
+    },
+    /// [`ZoneGeometry::Slab`]: the points x with angle(x − apex, center − apex) ≤
+    /// atan(`tan_half_angle`) and | |x − apex| − |center − apex| | ≤ `half_depth`.
+    Slab {
+        apex: [f64; 3],
+        center: [f64; 3],
+        tan_half_angle: f64,
+        half_depth: f64,
+    },
 }
 
 impl Zone {
@@ -109,12 +129,51 @@ impl Zone {
                     radius: 0.5 * a.distance(b),
                 }
             }
+            Zone::Slab {
+                apex,
+                center,
+                tan_half_angle,
+                half_depth,
+            } => {
+                // The farthest slab point from the centre lies on the cone's surface (angle θ)
+                // at the nearest or the farthest distance s from the apex: |x − c|² =
+                // s² − 2ds·cos θ + d², convex in s.
+                let d = DVec3::from(center).distance(DVec3::from(apex));
+                let cos = 1.0 / (1.0 + tan_half_angle * tan_half_angle).sqrt();
+                let at = |s: f64| (s * s - 2.0 * d * s * cos + d * d).max(0.0);
+                let r2 = at((d - half_depth).max(0.0)).max(at(d + half_depth));
+                Sphere {
+                    center,
+                    radius: r2.sqrt(),
+                }
+            }
         }
     }
     pub fn contains(&self, p: [f64; 3], tol: f64) -> bool {
         match *self {
             Zone::Sphere(s) => s.contains(p, tol),
             Zone::Box { min, max } => (0..3).all(|i| p[i] >= min[i] - tol && p[i] <= max[i] + tol),
+            Zone::Slab {
+                apex,
+                center,
+                tan_half_angle,
+                half_depth,
+            } => {
+                let (o, a) = (DVec3::from(apex), DVec3::from(center) - DVec3::from(apex));
+                let v = DVec3::from(p) - o;
+                let (d, s) = (a.length(), v.length());
+                if s <= tol {
+                    return d <= half_depth + tol;
+                }
+                // Distance from the cone's surface, by the angle, and from the band's faces.
+                let beyond = (v.angle_between(a) - tan_half_angle.atan()).max(0.0);
+                let off_cone = if beyond >= std::f64::consts::FRAC_PI_2 {
+                    s
+                } else {
+                    s * beyond.sin()
+                };
+                off_cone <= tol && (s - d).abs() <= half_depth + tol
+            }
         }
     }
 }
@@ -151,6 +210,26 @@ impl CameraView<'_> {
     }
 }
 
+/// The tangent of the largest angle between the ray through the centre of `b` and the rays
+/// through its circumcircle (16 points on it), in `camera`: the half-angle of the view's cone
+/// through the region.
+pub fn region_tan_half_angle(camera: &PinholeCamera, b: &PixelBox) -> f64 {
+    let ray = |[u, v]: [f64; 2]| {
+        DVec3::new(
+            (u - camera.cx) / camera.fx,
+            (v - camera.cy) / camera.fy,
+            1.0,
+        )
+    };
+    let samples = circle_samples(b, 16);
+    let d0 = ray(samples[0]);
+    let largest = samples[1..]
+        .iter()
+        .map(|&p| d0.angle_between(ray(p)))
+        .fold(0.0f64, f64::max);
+    largest.tan()
+}
+
 /// Pixel positions: the circle's centre, then `n` points on the circle.
 pub(crate) fn circle_samples(b: &PixelBox, n: usize) -> Vec<[f64; 2]> {
     let [cu, cv] = b.center();
@@ -174,7 +253,7 @@ pub fn zone_for_pair(
     xy_ref: &[[f32; 2]],
     s: &ZoneSettings,
 ) -> ZoneOutcome {
-    if s.geometry != ZoneGeometry::Triangulated {
+    if !matches!(s.geometry, ZoneGeometry::Triangulated | ZoneGeometry::Slab) {
         return zone_from_boxes(v, &pair.in_view, r, &pair.in_reference, s);
     }
     let pts: Vec<([f64; 2], [f64; 2])> = pair
@@ -185,12 +264,15 @@ pub fn zone_for_pair(
             Some(([a[0] as f64, a[1] as f64], [b[0] as f64, b[1] as f64]))
         })
         .collect();
-    triangulated_zone(v, r, &pts, s)
+    match s.geometry {
+        ZoneGeometry::Slab => slab_zone(v, r, &pair.in_view, &pts, s),
+        _ => triangulated_zone(v, r, &pts, s),
+    }
 }
 
 /// The zone of one region pair from its boxes alone: `box_v` (R_e) in view `v`, `box_r` (R_e')
-/// in view `r`. `Triangulated` needs the matches themselves ([`zone_for_pair`]); given boxes
-/// only it finds no zone.
+/// in view `r`. `Triangulated` and `Slab` need the matches themselves ([`zone_for_pair`]);
+/// given boxes only they find no zone.
 pub fn zone_from_boxes(
     v: CameraView,
     box_v: &PixelBox,
@@ -199,7 +281,7 @@ pub fn zone_from_boxes(
     s: &ZoneSettings,
 ) -> ZoneOutcome {
     match s.geometry {
-        ZoneGeometry::Triangulated => ZoneOutcome {
+        ZoneGeometry::Triangulated | ZoneGeometry::Slab => ZoneOutcome {
             zone: None,
             points: 0,
             rejected: 0,
@@ -435,14 +517,18 @@ fn authors_box_zone(
     }
 }
 
-/// [`ZoneGeometry::Triangulated`] from the matched pixel pairs (`(in v, in r)`), see the module
-/// documentation.
-pub fn triangulated_zone(
+/// The triangulated matches of a region pair with the mismatches dropped (shared by
+/// [`ZoneGeometry::Triangulated`] and [`ZoneGeometry::Slab`]): each pair's midpoint of the two
+/// rays' common perpendicular, kept when both ray parameters are positive, the rays are not
+/// near-parallel and the point is finite; then the points farther from the coordinate-wise
+/// median than `outlier_factor` times the median distance to it are dropped. Returns the points
+/// and the number rejected.
+fn triangulated_points(
     v: CameraView,
     r: CameraView,
     matches: &[([f64; 2], [f64; 2])],
     s: &ZoneSettings,
-) -> ZoneOutcome {
+) -> (Vec<DVec3>, usize) {
     let sin_min = s.min_ray_angle_deg.to_radians().sin();
     let (ov, or) = (v.center(), r.center());
     let mut points: Vec<DVec3> = Vec::with_capacity(matches.len());
@@ -461,14 +547,8 @@ pub fn triangulated_zone(
             _ => rejected += 1,
         }
     }
-    let none = |rejected| ZoneOutcome {
-        zone: None,
-        points: 0,
-        rejected,
-        unbounded_rays: 0,
-    };
     if points.is_empty() {
-        return none(rejected);
+        return (points, rejected);
     }
     // Robust centre: the coordinate-wise median; drop points much farther than the typical one.
     let median = |mut xs: Vec<f64>| {
@@ -486,18 +566,96 @@ pub fn triangulated_zone(
         points.retain(|p| p.distance(m) <= s.outlier_factor * typical);
         rejected += before - points.len();
     }
+    (points, rejected)
+}
+
+/// `min_radius_px` pixels of `v` at the depth of `p` (z in V's camera frame; 0 behind it).
+fn radius_floor(v: CameraView, p: DVec3, s: &ZoneSettings) -> f64 {
+    let depth = (rotation(v.pose) * p + DVec3::from(v.pose.translation)).z;
+    let focal = v.camera.fx.max(v.camera.fy);
+    if depth > 0.0 && focal > 0.0 {
+        s.min_radius_px * depth / focal
+    } else {
+        0.0
+    }
+}
+
+/// [`ZoneGeometry::Slab`] from the region's box in V (`region`) and the matched pixel pairs
+/// (`(in v, in r)`): V's cone through the region's circumcircle, cut to the band of distances
+/// from V's centre that the kept triangulated points span, each side grown by `margin` of the
+/// band's half-width and the half-width floored at `min_radius_px` pixels of V at the band's
+/// middle. The zone's centre is on the ray through the box's centre, at the band's middle.
+pub fn slab_zone(
+    v: CameraView,
+    r: CameraView,
+    region: &PixelBox,
+    matches: &[([f64; 2], [f64; 2])],
+    s: &ZoneSettings,
+) -> ZoneOutcome {
+    let (points, rejected) = triangulated_points(v, r, matches, s);
+    let none = |rejected| ZoneOutcome {
+        zone: None,
+        points: 0,
+        rejected,
+        unbounded_rays: 0,
+    };
+    let o = v.center();
+    let [cu, cv] = region.center();
+    let axis = v.ray(cu, cv).normalize();
+    let dist: Vec<f64> = points.iter().map(|p| p.distance(o)).collect();
+    let (near, far) = dist.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), &d| {
+        (lo.min(d), hi.max(d))
+    });
+    if points.is_empty() || !(far > 0.0 && far.is_finite() && axis.is_finite()) {
+        return none(rejected);
+    }
+    let middle = 0.5 * (near + far);
+    let center = o + middle * axis;
+    // The band stops short of the apex: what lies between the camera and the band is what is in
+    // front of the zone, and a band reaching the camera would leave nothing there.
+    let half_depth = (0.5 * (far - near) * (1.0 + s.margin))
+        .max(radius_floor(v, center, s))
+        .min(middle * (1.0 - 1e-6));
+    let tan_half_angle = region_tan_half_angle(v.camera, region);
+    if !(half_depth > 0.0 && half_depth.is_finite() && tan_half_angle.is_finite()) {
+        return none(rejected);
+    }
+    ZoneOutcome {
+        zone: Some(Zone::Slab {
+            apex: o.to_array(),
+            center: center.to_array(),
+            tan_half_angle,
+            half_depth,
+        }),
+        points: points.len(),
+        rejected,
+        unbounded_rays: 0,
+    }
+}
+
+/// [`ZoneGeometry::Triangulated`] from the matched pixel pairs (`(in v, in r)`), see the module
+/// documentation.
+pub fn triangulated_zone(
+    v: CameraView,
+    r: CameraView,
+    matches: &[([f64; 2], [f64; 2])],
+    s: &ZoneSettings,
+) -> ZoneOutcome {
+    let (points, rejected) = triangulated_points(v, r, matches, s);
+    let none = |rejected| ZoneOutcome {
+        zone: None,
+        points: 0,
+        rejected,
+        unbounded_rays: 0,
+    };
+    if points.is_empty() {
+        return none(rejected);
+    }
     let kept: Vec<[f64; 3]> = points.iter().map(|p| p.to_array()).collect();
     let Some(mut sphere) = minimum_enclosing_sphere(&kept) else {
         return none(rejected);
     };
-    // The floor: `min_radius_px` pixels of V at the centre's depth (z in V's camera frame).
-    let depth = (rotation(v.pose) * DVec3::from(sphere.center) + DVec3::from(v.pose.translation)).z;
-    let focal = v.camera.fx.max(v.camera.fy);
-    let floor = if depth > 0.0 && focal > 0.0 {
-        s.min_radius_px * depth / focal
-    } else {
-        0.0
-    };
+    let floor = radius_floor(v, DVec3::from(sphere.center), s);
     sphere.radius = (sphere.radius * (1.0 + s.margin)).max(floor);
     if !(sphere.radius > 0.0 && sphere.radius.is_finite()) {
         return none(rejected);
