@@ -25,8 +25,9 @@
 #            both need ~13 min, detached over two calls; RUNS=adc or RUNS=lpm runs one)
 #   layouts  train the packed scene at full size with each --raster-pixels layout (LAYOUTS,
 #            default "1 2 4 8"), ITERATIONS (default 5000) each, --timestamps, alternated twice
-#   local7k  bench trade on the packed scene at full size, 7k of the 30k calendar: ADC, ADC+LPM
-#            and ADC+LPM without zones wider than the scene (lpm-local-zones), seed SEED (0)
+#   local7k  bench trade on the packed scene at full size, 7k of the 30k calendar: ADC, ADC+LPM,
+#            ADC+LPM without zones wider than the scene (lpm-local-zones) and with slab zones
+#            (lpm-slab), seed SEED (0); TRADE_RUNS replaces the list
 #   train30k train the packed scene at full size with LPM, 30k iterations, --timestamps
 set -uo pipefail
 cd "$(dirname "$0")/../.."
@@ -213,10 +214,11 @@ for s in "$@"; do
         ;;
     local7k)
         # LPM with and without the zones wider than the scene (bench trade's lpm-local-zones,
-        # `--lpm-max-zone-radius 1`) beside ADC, 7k of the 30k calendar, interleaved.
+        # `--lpm-max-zone-radius 1`) and with slab zones (`--lpm-zone slab`) beside ADC, 7k of
+        # the 30k calendar, interleaved.
         need_scene local7k &&
             step local7k 900 "$bin" bench trade "$scene" -r 1 --iterations 7000 --calendar 30000 \
-                --runs adc,lpm,lpm-local-zones --seed "${SEED:-0}" --eval-at 3500 --fps-frames 5 \
+                --runs "${TRADE_RUNS:-adc,lpm,lpm-local-zones,lpm-slab}" --seed "${SEED:-0}" --eval-at 3500 --fps-frames 5 \
                 -o "$work/local7k"
         ;;
     train30k)
