@@ -1198,6 +1198,12 @@ mod tests {
         same.prune = default.prune;
         assert_eq!(same, default, "only the pruning differs");
         assert_eq!(ours.zones.geometry, ZoneGeometry::Triangulated);
+        // lpm-slab: our rules but for the zone's shape.
+        let slab = run_lpm_config("lpm-slab", &cfg, &plain.trade).unwrap();
+        assert_eq!(slab.zones.geometry, ZoneGeometry::Slab);
+        let mut same = slab.clone();
+        same.zones.geometry = ZoneGeometry::Triangulated;
+        assert_eq!(same, default, "only the zone geometry differs");
     }
 
     #[test]

@@ -1184,3 +1184,23 @@ pub fn lpm_summary(
         "ms_per_iteration": 1e3 * t.seconds / iterations.max(1) as f64,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_zone_geometry_has_its_command_line_name() {
+        for (name, g) in [
+            ("triangulated", ZoneGeometry::Triangulated),
+            ("slab", ZoneGeometry::Slab),
+            ("sphere", ZoneGeometry::Sphere),
+            ("ray-pairs", ZoneGeometry::SphereRayPairs),
+            ("authors-box", ZoneGeometry::AuthorsBox),
+        ] {
+            assert_eq!(parse_zone(name).unwrap(), g);
+        }
+        let e = parse_zone("cone").unwrap_err().to_string();
+        assert!(e.contains("\"cone\"") && e.contains("slab"), "{e}");
+    }
+}
