@@ -1213,6 +1213,12 @@ fn small_baseline(sep_deg: f64) -> [(PinholeCamera, Pose); 2] {
     })
 }
 
+/// The two sides of f64 matches as the f32 pixel lists the pairing reads.
+fn f32_pixels(matches: &[([f64; 2], [f64; 2])]) -> (Vec<[f32; 2]>, Vec<[f32; 2]>) {
+    let f = |p: [f64; 2]| [p[0] as f32, p[1] as f32];
+    matches.iter().map(|&(v, r)| (f(v), f(r))).unzip()
+}
+
 /// Matches of points on a disc of radius `rho` in the plane y = 0 around the origin.
 fn disc_matches(
     cams: &[(PinholeCamera, Pose); 2],
@@ -1254,14 +1260,7 @@ fn triangulated_zone_stays_on_the_surface_where_the_cone_zone_spans_the_depth() 
     );
 
     // The same matches through the pair's boxes: the cone intersection's sphere.
-    let xy_v: Vec<[f32; 2]> = matches
-        .iter()
-        .map(|m| [m.0[0] as f32, m.0[1] as f32])
-        .collect();
-    let xy_r: Vec<[f32; 2]> = matches
-        .iter()
-        .map(|m| [m.1[0] as f32, m.1[1] as f32])
-        .collect();
+    let (xy_v, xy_r) = f32_pixels(&matches);
     let region = Region {
         x0: 0,
         y0: 0,
@@ -1562,14 +1561,7 @@ fn slab_zone_holds_what_is_drawn_over_the_region_at_the_matches_depths() {
             (m[0], m[1])
         })
         .collect();
-    let xy_v: Vec<[f32; 2]> = matches
-        .iter()
-        .map(|m| [m.0[0] as f32, m.0[1] as f32])
-        .collect();
-    let xy_r: Vec<[f32; 2]> = matches
-        .iter()
-        .map(|m| [m.1[0] as f32, m.1[1] as f32])
-        .collect();
+    let (xy_v, xy_r) = f32_pixels(&matches);
     let (lo, hi) = xy_v
         .iter()
         .fold(([f32::MAX; 2], [f32::MIN; 2]), |(lo, hi), p| {

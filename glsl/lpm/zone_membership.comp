@@ -49,8 +49,8 @@ shared vec4 s_axis[ZONE_BATCH];    // a = c − o, w: cone radius²
 shared uint s_shape[ZONE_BATCH];
 shared uint s_inside[ZONE_BATCH];
 
-// The in-front test's cone and a band of distances from its apex (the slab's inside).
-bool inside_slab(vec3 x, uint j) {
+// Whether x is inside zone j's in-front cone (angle test above); V = |x − o|² when it is.
+bool in_cone(vec3 x, uint j, out float V) {
     vec4 o = s_apex[j];
     vec3 a = s_axis[j].xyz;
     float A = o.w;
@@ -58,12 +58,20 @@ bool inside_slab(vec3 x, uint j) {
     precise float vx = x.x - o.x;
     precise float vy = x.y - o.y;
     precise float vz = x.z - o.z;
-    precise float V = vx * vx + vy * vy + vz * vz;
+    precise float v2 = vx * vx + vy * vy + vz * vz;
+    V = v2;
     precise float D = vx * a.x + vy * a.y + vz * a.z;
-    if (!(V > 0.0 && A > 0.0 && D >= 0.0)) return false;
+    if (!(v2 > 0.0 && A > 0.0 && D >= 0.0)) return false;
     precise float cone_l = (D * D) * (A + R);
-    precise float cone_r = (A * A) * V;
-    if (!(cone_l >= cone_r)) return false;
+    precise float cone_r = (A * A) * v2;
+    return cone_l >= cone_r;
+}
+
+// The in-front cone cut to a band of distances from its apex (a slab's inside).
+bool inside_slab(vec3 x, uint j) {
+    float V;
+    if (!in_cone(x, j, V)) return false;
+    float A = s_apex[j].w;
     float F = s_half[j].w;
     precise float U = (V - A) - F;
     precise float far_l = U * U;
@@ -101,19 +109,9 @@ bool in_ball(vec3 x, uint j) {
 }
 
 bool in_front(vec3 x, uint j) {
-    vec4 o = s_apex[j];
-    vec3 a = s_axis[j].xyz;
-    float A = o.w;
-    float R = s_axis[j].w;
-    precise float vx = x.x - o.x;
-    precise float vy = x.y - o.y;
-    precise float vz = x.z - o.z;
-    precise float V = vx * vx + vy * vy + vz * vz;
-    precise float D = vx * a.x + vy * a.y + vz * a.z;
-    if (!(V > 0.0 && A > 0.0 && D >= 0.0)) return false;
-    precise float cone_l = (D * D) * (A + R);
-    precise float cone_r = (A * A) * V;
-    if (!(cone_l >= cone_r)) return false;
+    float V;
+    if (!in_cone(x, j, V)) return false;
+    float A = s_apex[j].w;
     float F = s_half[j].w;
     if (A > F) {
         precise float W = (A - V) - F;

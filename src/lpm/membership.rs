@@ -84,21 +84,33 @@ impl ZoneTest {
         dx * dx + dy * dy + dz * dz <= self.r2
     }
 
-    /// The in-front cone cut to the band of distances from the apex (a slab's inside).
-    fn in_slab(&self, x: [f32; 3]) -> bool {
+    /// `V = |x − o|²` when x is inside the cone from the apex o through the ball (c, cone
+    /// radius): `D ≥ 0` and `D²(A + R) ≥ A²V`; `None` outside it, at the apex and for a zone
+    /// centred on its apex.
+    fn in_cone(&self, x: [f32; 3]) -> Option<f32> {
         let o = self.apex;
         let a = self.axis;
-        let (big_a, big_r, big_f) = (self.a2, self.c2, self.f2);
+        let (big_a, big_r) = (self.a2, self.c2);
         let (vx, vy, vz) = (x[0] - o[0], x[1] - o[1], x[2] - o[2]);
         let v = vx * vx + vy * vy + vz * vz;
         let d = vx * a[0] + vy * a[1] + vz * a[2];
         if !(v > 0.0 && big_a > 0.0 && d >= 0.0) {
-            return false;
+            return None;
         }
+        // Negated like the shader, so a NaN (overflow of inf·0) gives "outside" on both sides.
         #[allow(clippy::neg_cmp_op_on_partial_ord)]
         if !((d * d) * (big_a + big_r) >= (big_a * big_a) * v) {
-            return false;
+            return None;
         }
+        Some(v)
+    }
+
+    /// The in-front cone cut to the band of distances from the apex (a slab's inside).
+    fn in_slab(&self, x: [f32; 3]) -> bool {
+        let Some(v) = self.in_cone(x) else {
+            return false;
+        };
+        let (big_a, big_f) = (self.a2, self.f2);
         let u = (v - big_a) - big_f;
         if !(u <= 0.0 || u * u <= (4.0 * big_a) * big_f) {
             return false;
@@ -111,20 +123,10 @@ impl ZoneTest {
     }
 
     pub fn in_front(&self, x: [f32; 3]) -> bool {
-        let o = self.apex;
-        let a = self.axis;
-        let (big_a, big_r) = (self.a2, self.c2);
-        let (vx, vy, vz) = (x[0] - o[0], x[1] - o[1], x[2] - o[2]);
-        let v = vx * vx + vy * vy + vz * vz;
-        let d = vx * a[0] + vy * a[1] + vz * a[2];
-        if !(v > 0.0 && big_a > 0.0 && d >= 0.0) {
+        let Some(v) = self.in_cone(x) else {
             return false;
-        }
-        // Negated like the shader, so a NaN (overflow of inf·0) gives "not in front" on both sides.
-        #[allow(clippy::neg_cmp_op_on_partial_ord)]
-        if !((d * d) * (big_a + big_r) >= (big_a * big_a) * v) {
-            return false;
-        }
+        };
+        let big_a = self.a2;
         let big_f = self.f2;
         if big_a > big_f {
             let w = (big_a - v) - big_f;

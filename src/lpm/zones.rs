@@ -191,6 +191,18 @@ pub struct ZoneOutcome {
     pub unbounded_rays: usize,
 }
 
+impl ZoneOutcome {
+    /// No zone, `rejected` candidate points.
+    fn none(rejected: usize) -> ZoneOutcome {
+        ZoneOutcome {
+            zone: None,
+            points: 0,
+            rejected,
+            unbounded_rays: 0,
+        }
+    }
+}
+
 /// A camera with its pose, as the zone code sees it.
 #[derive(Debug, Clone, Copy)]
 pub struct CameraView<'a> {
@@ -281,12 +293,7 @@ pub fn zone_from_boxes(
     s: &ZoneSettings,
 ) -> ZoneOutcome {
     match s.geometry {
-        ZoneGeometry::Triangulated | ZoneGeometry::Slab => ZoneOutcome {
-            zone: None,
-            points: 0,
-            rejected: 0,
-            unbounded_rays: 0,
-        },
+        ZoneGeometry::Triangulated | ZoneGeometry::Slab => ZoneOutcome::none(0),
         ZoneGeometry::Sphere => cone_clip_zone(v, box_v, r, box_r, s),
         ZoneGeometry::SphereRayPairs => ray_pair_zone(v, box_v, r, box_r, s),
         ZoneGeometry::AuthorsBox => authors_box_zone(v, box_v, r, box_r),
@@ -593,12 +600,6 @@ pub fn slab_zone(
     s: &ZoneSettings,
 ) -> ZoneOutcome {
     let (points, rejected) = triangulated_points(v, r, matches, s);
-    let none = |rejected| ZoneOutcome {
-        zone: None,
-        points: 0,
-        rejected,
-        unbounded_rays: 0,
-    };
     let o = v.center();
     let [cu, cv] = region.center();
     let axis = v.ray(cu, cv).normalize();
@@ -607,7 +608,7 @@ pub fn slab_zone(
         (lo.min(d), hi.max(d))
     });
     if points.is_empty() || !(far > 0.0 && far.is_finite() && axis.is_finite()) {
-        return none(rejected);
+        return ZoneOutcome::none(rejected);
     }
     let middle = 0.5 * (near + far);
     let center = o + middle * axis;
@@ -618,7 +619,7 @@ pub fn slab_zone(
         .min(middle * (1.0 - 1e-6));
     let tan_half_angle = region_tan_half_angle(v.camera, region);
     if !(half_depth > 0.0 && half_depth.is_finite() && tan_half_angle.is_finite()) {
-        return none(rejected);
+        return ZoneOutcome::none(rejected);
     }
     ZoneOutcome {
         zone: Some(Zone::Slab {
@@ -642,23 +643,17 @@ pub fn triangulated_zone(
     s: &ZoneSettings,
 ) -> ZoneOutcome {
     let (points, rejected) = triangulated_points(v, r, matches, s);
-    let none = |rejected| ZoneOutcome {
-        zone: None,
-        points: 0,
-        rejected,
-        unbounded_rays: 0,
-    };
     if points.is_empty() {
-        return none(rejected);
+        return ZoneOutcome::none(rejected);
     }
     let kept: Vec<[f64; 3]> = points.iter().map(|p| p.to_array()).collect();
     let Some(mut sphere) = minimum_enclosing_sphere(&kept) else {
-        return none(rejected);
+        return ZoneOutcome::none(rejected);
     };
     let floor = radius_floor(v, DVec3::from(sphere.center), s);
     sphere.radius = (sphere.radius * (1.0 + s.margin)).max(floor);
     if !(sphere.radius > 0.0 && sphere.radius.is_finite()) {
-        return none(rejected);
+        return ZoneOutcome::none(rejected);
     }
     ZoneOutcome {
         zone: Some(Zone::Sphere(sphere)),
