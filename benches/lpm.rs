@@ -5,14 +5,16 @@
 //! read back.
 //!
 //! `LPMSPLAT_BENCH_SIZES` (Gaussians, default 100000,1000000,10000000),
-//! `LPMSPLAT_BENCH_ZONES` (default 16,256), `LPMSPLAT_BENCH_FRAMES` (timed runs per case, median
-//! reported; default 3). Positions are 12 bytes a Gaussian, so 10M fit the 128 MiB
+//! `LPMSPLAT_BENCH_ZONES` (default 16,256), `LPMSPLAT_BENCH_SHAPES` (sphere, slab or both, the
+//! default), `LPMSPLAT_BENCH_FRAMES` (timed runs per case, median reported; default 3). Positions are 12 bytes a Gaussian, so 10M fit the 128 MiB
 //! storage-binding limit of lavapipe with room to spare.
 
 use lpmsplat::gpu::{BufferKind, GpuBuffer, GpuContext, GpuOptions, Recorder, TimestampPool};
+use lpmsplat::lpm::enclosing_sphere::Sphere;
 use lpmsplat::lpm::gpu::LpmGpu;
 use lpmsplat::lpm::membership::OpacityResetSettings;
-use lpmsplat::lpm::record::{ZoneRecord, ZONE_SPHERE};
+use lpmsplat::lpm::record::ZoneRecord;
+use lpmsplat::lpm::{ConeRadius, Zone};
 use rand::{Rng, SeedableRng};
 
 fn env_list<T: std::str::FromStr>(name: &str, default: &str) -> Vec<T> {
@@ -23,29 +25,34 @@ fn env_list<T: std::str::FromStr>(name: &str, default: &str) -> Vec<T> {
         .collect()
 }
 
-/// Zones as a training step makes them: spheres scattered through the scene's unit cube, seen
-/// from cameras on a sphere of radius 3 around it.
-fn random_zones(rng: &mut impl Rng, count: usize) -> Vec<ZoneRecord> {
+/// Zones as a training step makes them: spheres (`--lpm-zone triangulated`) or slabs
+/// (`--lpm-zone slab`: the camera's cone through a region of tangent 0.02–0.1, cut to a band
+/// of half-depth 0.02–0.2) scattered through the scene's unit cube, seen from cameras on a
+/// sphere of radius 3 around it.
+fn random_zones(rng: &mut impl Rng, count: usize, slab: bool) -> Vec<ZoneRecord> {
     (0..count)
         .map(|_| {
-            let theta = rng.gen_range(0.0..std::f32::consts::TAU);
-            let z: f32 = rng.gen_range(-1.0..1.0);
+            let theta = rng.gen_range(0.0..std::f64::consts::TAU);
+            let z: f64 = rng.gen_range(-1.0..1.0);
             let r = (1.0 - z * z).sqrt();
             let radius = rng.gen_range(0.02..0.2);
-            ZoneRecord {
-                center: [
-                    rng.gen_range(-1.0..1.0),
-                    rng.gen_range(-1.0..1.0),
-                    rng.gen_range(-1.0..1.0),
-                ],
-                radius,
-                camera_center: [3.0 * r * theta.cos(), 3.0 * r * theta.sin(), 3.0 * z],
-                shape: ZONE_SPHERE,
-                color: [0.5; 3],
-                front_radius: radius,
-                half_extents: [0.0; 3],
-                cone_radius: radius,
-            }
+            let center = [
+                rng.gen_range(-1.0..1.0),
+                rng.gen_range(-1.0..1.0),
+                rng.gen_range(-1.0..1.0),
+            ];
+            let camera = [3.0 * r * theta.cos(), 3.0 * r * theta.sin(), 3.0 * z];
+            let zone = if slab {
+                Zone::Slab {
+                    apex: camera,
+                    center,
+                    tan_half_angle: rng.gen_range(0.02..0.1),
+                    half_depth: radius,
+                }
+            } else {
+                Zone::Sphere(Sphere { center, radius })
+            };
+            ZoneRecord::with_cone(&zone, camera, [0.5; 3], ConeRadius::Bounding)
         })
         .collect()
 }
@@ -59,6 +66,7 @@ fn main() -> anyhow::Result<()> {
     println!("{}", ctx.info.summary());
     let sizes: Vec<usize> = env_list("LPMSPLAT_BENCH_SIZES", "100000,1000000,10000000");
     let zone_counts: Vec<usize> = env_list("LPMSPLAT_BENCH_ZONES", "16,256");
+    let shapes: Vec<String> = env_list("LPMSPLAT_BENCH_SHAPES", "sphere,slab");
     let frames: usize = std::env::var("LPMSPLAT_BENCH_FRAMES")
         .ok()
         .and_then(|s| s.parse().ok())
@@ -66,8 +74,15 @@ fn main() -> anyhow::Result<()> {
         .max(1);
     let lpm = LpmGpu::new(&ctx, 1)?;
     println!(
-        "{:>10} {:>6} {:>14} {:>11} {:>14} {:>11} {:>10}",
-        "gaussians", "zones", "membership ms", "ns/G", "ns/(G·zone)", "reset ms", "inside %"
+        "{:>10} {:>6} {:>6} {:>14} {:>11} {:>14} {:>11} {:>10}",
+        "gaussians",
+        "shape",
+        "zones",
+        "membership ms",
+        "ns/G",
+        "ns/(G·zone)",
+        "reset ms",
+        "inside %"
     );
     for &n in &sizes {
         let mut rng = rand_pcg::Pcg64::seed_from_u64(n as u64);
@@ -77,8 +92,11 @@ fn main() -> anyhow::Result<()> {
         drop(positions);
         let opacity = GpuBuffer::from_slice(&ctx, "opacity logits", &logits)?;
         let flags = GpuBuffer::<u32>::new(&ctx, "flags", n, BufferKind::DeviceLocal)?;
-        for &z in &zone_counts {
-            let zones = random_zones(&mut rng, z);
+        for (shape, &z) in shapes
+            .iter()
+            .flat_map(|s| zone_counts.iter().map(move |z| (s, z)))
+        {
+            let zones = random_zones(&mut rng, z, shape == "slab");
             let zbuf = GpuBuffer::from_slice(&ctx, "zones", &zones)?;
             let counts = GpuBuffer::<u32>::new(&ctx, "zone counts", z, BufferKind::DeviceLocal)?;
             let mut pool = TimestampPool::new(&ctx, 8)?;
@@ -121,8 +139,9 @@ fn main() -> anyhow::Result<()> {
             let (m, r) = (median(|x| x.0), median(|x| x.1));
             let inside: u64 = flags.read()?.iter().map(|&f| (f & 1) as u64).sum();
             println!(
-                "{:>10} {:>6} {:>14.2} {:>11.2} {:>14.4} {:>11.2} {:>10.2}",
+                "{:>10} {:>6} {:>6} {:>14.2} {:>11.2} {:>14.4} {:>11.2} {:>10.2}",
                 n,
+                shape,
                 z,
                 m,
                 m * 1e6 / n as f64,
