@@ -97,8 +97,8 @@ impl ZoneRecord {
             half_depth,
         } = *zone
         {
-            // A slab's cone is its own (the region's), whatever `cone` says: in front of it
-            // is the same cone nearer than the band.
+            // A slab's cone is its own (the region's), whatever `cone` says, and so is its apex
+            // (`camera_center` is not read): in front of it is the same cone nearer than the band.
             let d = glam::DVec3::from(center).distance(glam::DVec3::from(apex));
             return ZoneRecord {
                 center: f(center),
@@ -112,6 +112,7 @@ impl ZoneRecord {
             };
         }
         let (shape, half) = match *zone {
+            // (A slab returned above.)
             Zone::Sphere(_) | Zone::Slab { .. } => (ZONE_SPHERE, [0.0; 3]),
             Zone::Box { min, max } => (
                 ZONE_BOX,
