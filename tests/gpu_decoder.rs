@@ -123,6 +123,7 @@ fn feature_channels_and_raw_colour_match_the_reference_forward_and_backward() {
             features: Some(FeatureChannels {
                 values: &feats,
                 channels: FEATURE_CHANNELS as u32,
+                decoded_by: None,
             }),
         };
         renderer
@@ -543,4 +544,163 @@ fn time_features_match_the_reference_forward_and_backward() {
         got_s[3 * n..].iter().all(|v| v.is_nan()),
         "written past count"
     );
+}
+
+/// The rasterizer's fused epilogue (frames that are displayed: `render`, `eval`, `bench fps`):
+/// the decoded RGB of each pixel straight from the blend equals the f64 reference's decoder
+/// applied to its blended base colour (over a background) and features, and the separate
+/// decoder pass's output on the same frame, in every pixels-per-invocation layout the device
+/// runs.
+#[test]
+fn fused_decoder_epilogue_matches_the_reference_and_the_decoder_pass() {
+    let ctx = ctx();
+    let settings = RenderSettings::default();
+    let mut constants = RenderConstants::from_settings(&settings);
+    constants.flags |= RenderConstants::RAW_COLOUR;
+    let layouts: Vec<u32> = if ctx.info.subgroup_shuffle {
+        vec![1, 2, 4, 8]
+    } else {
+        vec![1]
+    };
+    for (seed, n, w, h) in [(21u64, 90usize, 41u32, 23u32), (22, 40, 16, 16)] {
+        let (g, features, camera, pose) = scene(seed, n, w, h);
+        let background = [0.3, -0.2, 0.7];
+        let out = reference::render(&g, &camera, &pose, 0, background, &settings).unwrap();
+        let mut projected = out.projected.clone();
+        for (p, sh) in projected.iter_mut().zip(&g.sh) {
+            p.rgb = sh[0];
+            p.rgb_clamped = [false; 3];
+        }
+        let raster = rasterize(&projected, &out.bins, &camera, background, &settings).unwrap();
+        let feature_image = decoder::rasterize_features(
+            &projected,
+            &out.bins,
+            &camera,
+            &features,
+            FEATURE_CHANNELS,
+            &settings,
+        )
+        .unwrap();
+        let px = (w * h) as usize;
+        let feats: Vec<[f64; 6]> = (0..px)
+            .map(|p| std::array::from_fn(|c| feature_image[p * FEATURE_CHANNELS + c]))
+            .collect();
+        let mut rng = Pcg64::seed_from_u64(seed ^ 0xDEC);
+        let (weights, _, _) = decoder_inputs(&mut rng, 0);
+        let want = decoder::decode_image(&weights, &raster.image, &feats, &camera, &pose);
+        let want: Vec<f64> = want.iter().flatten().copied().collect();
+
+        let params = g.to_params(0);
+        let splats = GpuSplats::upload(&ctx, &params, n).unwrap();
+        let cam = CameraGpu::new(&camera, &pose);
+        let mut decoy = cam;
+        decoy.r0[3] += 1.0;
+        let cameras = GpuBuffer::from_slice(&ctx, "cameras", &[decoy, cam]).unwrap();
+        let f32s = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<_>>();
+        let feat_buf = GpuBuffer::from_slice(&ctx, "features", &f32s(&features)).unwrap();
+        let w_buf = GpuBuffer::from_slice(&ctx, "weights", &f32s(&weights)).unwrap();
+        let capacity = Capacity {
+            gaussians: n,
+            intersections: 1 << 14,
+            pixels: px,
+            tiles: cam.tile_count() as usize,
+        };
+        let frame = |decoded_by| FrameSettings {
+            sh_degree: 0,
+            background: background.map(|v| v as f32),
+            constants,
+            filter3d: None,
+            features: Some(FeatureChannels {
+                values: &feat_buf,
+                channels: FEATURE_CHANNELS as u32,
+                decoded_by,
+            }),
+        };
+        for &pixels in &layouts {
+            let label = format!("seed {seed}, {w}×{h}, {pixels} pixels an invocation");
+            let mut renderer = Renderer::new(&ctx, capacity)
+                .unwrap()
+                .with_raster_pixels(pixels)
+                .unwrap();
+            // The separate pass: base and feature images, then the decoder.
+            renderer
+                .render_blocking(&splats, &cameras, 1, &cam, &frame(None))
+                .unwrap();
+            let mut dec = Decoder::with_pixels_per_invocation(&ctx, pixels).unwrap();
+            dec.reserve(px).unwrap();
+            let mut rec = Recorder::new(&ctx).unwrap();
+            rec.begin().unwrap();
+            dec.record_forward(
+                &mut rec,
+                &DecoderFrame {
+                    cameras: &cameras,
+                    camera_index: 1,
+                    camera: &cam,
+                    base: &renderer.frame.image,
+                    features: renderer.feature_image().unwrap(),
+                    weights: &w_buf,
+                },
+            )
+            .unwrap();
+            rec.barrier();
+            rec.submit_and_wait().unwrap();
+            let separate = dec.image().read_range(0, 3 * px).unwrap();
+
+            // Fused, into a poisoned image.
+            renderer
+                .frame
+                .image
+                .upload(&vec![f32::NAN; renderer.frame.image.len()])
+                .unwrap();
+            renderer
+                .render_blocking(&splats, &cameras, 1, &cam, &frame(Some(&w_buf)))
+                .unwrap();
+            assert!(
+                renderer.feature_image().is_none(),
+                "{label}: a decoded frame keeps no feature image"
+            );
+            let fused = renderer.read_image().unwrap();
+            compare(&format!("{label} fused"), &fused, &want, 1e-4, 1e-5);
+            compare(
+                &format!("{label} decoder pass"),
+                &separate,
+                &want,
+                1e-4,
+                1e-5,
+            );
+            for (i, (a, b)) in fused.iter().zip(&separate).enumerate() {
+                assert!(
+                    (a - b).abs() <= 2e-6,
+                    "{label}: fused {a} against the decoder pass {b} at {i}"
+                );
+            }
+        }
+    }
+
+    // The epilogue decodes SpacetimeGaussians' 6 channels with its 90 weights, nothing else.
+    let (g, features, camera, pose) = scene(23, 10, 16, 16);
+    let splats = GpuSplats::upload(&ctx, &g.to_params(0), 10).unwrap();
+    let cam = CameraGpu::new(&camera, &pose);
+    let cameras = GpuBuffer::from_slice(&ctx, "cameras", &[cam]).unwrap();
+    let f32s: Vec<f32> = features.iter().map(|&x| x as f32).collect();
+    let feat_buf = GpuBuffer::from_slice(&ctx, "features", &f32s).unwrap();
+    let short = GpuBuffer::from_slice(&ctx, "weights", &vec![0.1f32; WEIGHTS - 1]).unwrap();
+    let full = GpuBuffer::from_slice(&ctx, "weights", &vec![0.1f32; WEIGHTS]).unwrap();
+    let mut renderer = Renderer::for_camera(&ctx, 10, &cam).unwrap();
+    for (channels, weights) in [(FEATURE_CHANNELS as u32, &short), (3, &full)] {
+        let frame = FrameSettings {
+            features: Some(FeatureChannels {
+                values: &feat_buf,
+                channels,
+                decoded_by: Some(weights),
+            }),
+            ..FrameSettings::plain(0, [0.0; 3])
+        };
+        let e = renderer
+            .render_blocking(&splats, &cameras, 0, &cam, &frame)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("decoder"), "{e}");
+    }
+    ctx.check_validation().unwrap();
 }

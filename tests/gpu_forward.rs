@@ -852,6 +852,7 @@ fn feature_channels_match_the_reference_in_every_layout() {
                     features: Some(FeatureChannels {
                         values: &feature_buf,
                         channels: channels as u32,
+                        decoded_by: None,
                     }),
                     ..FrameSettings::plain(1, [0.3, 0.6, 0.9])
                 };

@@ -7,6 +7,11 @@
 // (binding 7, `features[g·EXTRA + c]`), blended with the same weights as the colour over a zero
 // background into `feature_image[pix·EXTRA + c]` (binding 8). The blend weights depend on the
 // geometry only, so the extra channels are the colour blend applied to other values.
+// DECODE = 1 (with EXTRA = 6; frames that are displayed, not trained on): the epilogue runs the
+// full model's decoder (decoder.glsl) on each pixel's blended base colour and features and
+// writes the decoded RGB to `image` instead of writing the two images for a separate decoder
+// pass, as the official code's test-time rasterizer does: the 6 channels a pixel never
+// leave registers, which saves writing and reading them back (24 bytes a pixel each way).
 //
 // Why several pixels per invocation: on a CPU driver (lavapipe) a subgroup is one SIMD loop
 // iteration and `if` only masks lanes, so the shared loads and the loop overhead per splat are
@@ -26,6 +31,7 @@ layout(constant_id = 0) const uint WG_SIZE = 256;  // must be 256 / PIXELS
 layout(constant_id = 1) const uint SUBGROUP_SIZE = 32;  // must divide WG_SIZE
 layout(constant_id = 2) const uint PIXELS = 1;     // 1, 2, 4 or 8
 layout(constant_id = 3) const uint EXTRA = 0;      // feature channels beyond the colour
+layout(constant_id = 4) const uint DECODE = 0;     // 1: decode in the epilogue (EXTRA = 6)
 // Array sizes (an array cannot be empty; EXTRA = 0 never reads them).
 const uint EXTRA_N = EXTRA > 0u ? EXTRA : 1u;
 layout(local_size_x_id = 0) in;
@@ -33,6 +39,7 @@ layout(local_size_x_id = 0) in;
 #include "projected.glsl"
 #include "splat_reach.glsl"
 #include "subgroup_pixels.glsl"
+#include "decoder.glsl"
 layout(std430, set = 0, binding = 0) readonly buffer Splats { ProjectedSplat splats[]; };
 layout(std430, set = 0, binding = 1) readonly buffer Ids { uint sorted_ids[]; };
 layout(std430, set = 0, binding = 2) readonly buffer Ranges { uvec2 ranges[]; };
@@ -42,11 +49,13 @@ layout(std430, set = 0, binding = 5) writeonly buffer FinalT { float final_t[]; 
 layout(std430, set = 0, binding = 6) writeonly buffer LastIndex { uint last_index[]; };
 layout(std430, set = 0, binding = 7) readonly buffer Features { float features[]; };
 layout(std430, set = 0, binding = 8) writeonly buffer FeatureImage { float feature_image[]; };
+layout(std430, set = 0, binding = 9) readonly buffer DecoderWeights { float dec_w[]; };
 layout(push_constant) uniform Push {
     RenderConstants rc;
     uint camera_index;
     float bg_r, bg_g, bg_b;
 };
+#include "decoder_forward.glsl"
 
 
 shared vec4 s_mean_opacity[WG_SIZE];  // mean x, mean y, opacity, unused
@@ -205,15 +214,34 @@ void main() {
         }
         barrier();
     }
+    vec3 out_rgb[PIXELS];
+    [[unroll]] for (uint k = 0u; k < PIXELS; k++) out_rgb[k] = color[k] + T[k] * vec3(bg_r, bg_g, bg_b);
+    if (DECODE != 0u) {
+        // Pixels past the image are decoded too (uniform work) and not written.
+        float x[PIXELS][DEC_INPUTS];
+        [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
+            uint q = tile_pixel(li, k);
+            uint px = (tile % tiles_x) * 16u + q % 16u, py = (tile / tiles_x) * 16u + q / 16u;
+            // EXTRA = DEC_FEATURES here (the host builds DECODE only so); min() keeps the index
+            // inside feat[][EXTRA_N] for the specialisations that never run this branch.
+            [[unroll]] for (uint c = 0u; c < DEC_FEATURES; c++) x[k][c] = feat[k][min(c, EXTRA_N - 1u)];
+            decoder_view_inputs(x[k], cam, px, py);
+        }
+        vec3 base[PIXELS];
+        [[unroll]] for (uint k = 0u; k < PIXELS; k++) base[k] = out_rgb[k];
+        decode_pixels(x, base, out_rgb);
+    }
     [[unroll]] for (uint k = 0u; k < PIXELS; k++) {
         uint q = tile_pixel(li, k);
         uint px = (tile % tiles_x) * 16u + q % 16u, py = (tile / tiles_x) * 16u + q / 16u;
         if (px < cam.size.x && py < cam.size.y) {
             uint pix = py * cam.size.x + px;
-            image[3u * pix] = color[k].r + T[k] * bg_r;
-            image[3u * pix + 1u] = color[k].g + T[k] * bg_g;
-            image[3u * pix + 2u] = color[k].b + T[k] * bg_b;
-            [[unroll]] for (uint c = 0u; c < EXTRA; c++) feature_image[EXTRA * pix + c] = feat[k][c];
+            image[3u * pix] = out_rgb[k].r;
+            image[3u * pix + 1u] = out_rgb[k].g;
+            image[3u * pix + 2u] = out_rgb[k].b;
+            if (DECODE == 0u) {
+                [[unroll]] for (uint c = 0u; c < EXTRA; c++) feature_image[EXTRA * pix + c] = feat[k][c];
+            }
             final_t[pix] = T[k];
             last_index[pix] = last[k];
         }

@@ -15,6 +15,7 @@
 #extension GL_KHR_shader_subgroup_basic : require
 #extension GL_KHR_shader_subgroup_arithmetic : require
 #extension GL_EXT_control_flow_attributes : require
+#include "camera.glsl"
 #include "decoder.glsl"
 
 layout(constant_id = 0) const uint WG_SIZE = 256;
@@ -50,12 +51,8 @@ void main() {
         float x[PIXELS][DEC_INPUTS];
         for (uint p = 0u; p < PIXELS; p++) {
             uint pix = min(first + p, n - 1u);
-            vec3 dir = pixel_ray(cam, pix % cam.size.x, pix / cam.size.x);
-            for (uint c = 0u; c < 6u; c++) x[p][c] = feature_image[6u * pix + c];
-            for (uint c = 0u; c < 3u; c++) {
-                x[p][6u + c] = cam.center[c];
-                x[p][9u + c] = dir[c];
-            }
+            for (uint c = 0u; c < DEC_FEATURES; c++) x[p][c] = feature_image[DEC_FEATURES * pix + c];
+            decoder_view_inputs(x[p], cam, pix % cam.size.x, pix / cam.size.x);
         }
         float pre[PIXELS][DEC_HIDDEN];
         float h[PIXELS][DEC_HIDDEN];

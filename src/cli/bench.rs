@@ -174,7 +174,7 @@ fn fps_one(
         ),
         _ => None,
     };
-    let mut temporal = if args.model.is_spacetime() {
+    let temporal = if args.model.is_spacetime() {
         Some(TimedModel::new(ctx, &model, decoder.as_deref())?)
     } else {
         None
@@ -184,9 +184,6 @@ fn fps_one(
         rec.begin()?;
         timed.record(&mut rec, &model, args.time)?;
         rec.submit_and_wait()?;
-    }
-    if let Some(t) = temporal.as_mut() {
-        t.reserve_pixels((cam.width() * cam.height()) as usize)?;
     }
     let still = temporal;
     let splats = still.as_ref().map_or(&model, |t| &t.instant);
@@ -219,12 +216,6 @@ fn fps_one(
             &settings,
             Some(&mut pool),
         )?;
-        if let Some(t) = &still {
-            t.record_decode(&mut rec, &renderer, &cameras, 0, &cam)?;
-            if t.full() {
-                rec.timestamp(&mut pool, "decode");
-            }
-        }
         rec.submit_and_wait()?;
         let ms = t0.elapsed().as_secs_f64() * 1e3;
         if k >= args.warmup {

@@ -704,17 +704,13 @@ fn fps_of(
     let model_gpu = GpuSplats::upload(ctx, model, model.len().max(1))?;
     // A video model: each frame is the temporal step at the view's time, then the render (and
     // the full model's decoder).
-    let mut timed = match scene.times_of(&scene.test[..1]) {
+    let timed = match scene.times_of(&scene.test[..1]) {
         Some(t) if !model.extra.is_empty() => {
             let timed = TimedModel::new(ctx, &model_gpu, decoder)?;
             Some((timed, t[0]))
         }
         _ => None,
     };
-    if let Some((t, _)) = timed.as_mut() {
-        t.reserve_pixels((cam.width() * cam.height()) as usize)?;
-    }
-    let timed = timed;
     let splats = timed.as_ref().map_or(&model_gpu, |t| &t.0.instant);
     let cameras = GpuBuffer::from_slice(ctx, "cameras", &[cam])?;
     let settings = match &timed {
@@ -730,12 +726,6 @@ fn fps_of(
             rec.submit_and_wait()?;
         }
         r.render_blocking(splats, &cameras, 0, &cam, &settings)?;
-        if let Some((timed, _)) = timed.as_ref().filter(|t| t.0.full()) {
-            let mut rec = Recorder::new(ctx)?;
-            rec.begin()?;
-            timed.record_decode(&mut rec, r, &cameras, 0, &cam)?;
-            rec.submit_and_wait()?;
-        }
         Ok(())
     };
     frame(&mut r)?;

@@ -146,6 +146,11 @@ impl FrameSettings<'_> {
 pub struct FeatureChannels<'a> {
     pub values: &'a GpuBuffer<f32>,
     pub channels: u32,
+    /// SpacetimeGaussians' decoder weights ([`crate::reference::decoder::WEIGHTS`] floats;
+    /// the channels must then be its [`crate::reference::decoder::FEATURE_CHANNELS`]): the
+    /// rasterizer decodes each pixel in its epilogue and [`FrameBuffers::image`] is the decoded
+    /// RGB; no feature image is written (frames that are displayed, not trained on).
+    pub decoded_by: Option<&'a GpuBuffer<f32>>,
 }
 
 /// Capacities the renderer's buffers are sized for.
@@ -215,8 +220,9 @@ pub struct Renderer {
     raster: ComputePipeline,
     /// Pixels per invocation of `raster` and `raster_features`.
     raster_pixels: u32,
-    /// The rasterizer with feature channels (built on first use, per channel count).
-    raster_features: Option<(u32, ComputePipeline)>,
+    /// The rasterizer with feature channels (built on first use, per channel count and
+    /// whether it decodes).
+    raster_features: Option<((u32, bool), ComputePipeline)>,
     /// The last frame's feature channels, `[pix·channels + c]` (when it had some).
     feature_image: Option<GpuBuffer<f32>>,
     depth_sort: RadixSort,
@@ -322,7 +328,7 @@ impl Renderer {
             ranges: pipe("render/tile_ranges", shaders::RENDER_TILE_RANGES, 3, 0)?,
             // Same pixels-per-invocation choice as the backward (CPU drivers: 8).
             raster_pixels: default_pixels_per_invocation(&ctx.info),
-            raster: Self::raster_pipeline(ctx, default_pixels_per_invocation(&ctx.info), 0)?,
+            raster: Self::raster_pipeline(ctx, default_pixels_per_invocation(&ctx.info), 0, false)?,
             raster_features: None,
             feature_image: None,
             depth_sort: RadixSort::dropping(ctx, capacity.gaussians as u64)?,
@@ -341,17 +347,19 @@ impl Renderer {
     /// default: tests run the GPU layout (1) on a CPU driver this way.
     pub fn with_raster_pixels(mut self, pixels: u32) -> anyhow::Result<Self> {
         super::backward::raster_workgroup(&self.ctx.info, pixels, 8, "renderer")?;
-        self.raster = Self::raster_pipeline(&self.ctx, pixels, 0)?;
+        self.raster = Self::raster_pipeline(&self.ctx, pixels, 0, false)?;
         self.raster_pixels = pixels;
         self.raster_features = None;
         Ok(self)
     }
 
-    /// The rasterizer with `extra` feature channels (0: colour only).
+    /// The rasterizer with `extra` feature channels (0: colour only), decoding them in its
+    /// epilogue with `decode`.
     fn raster_pipeline(
         ctx: &Arc<GpuContext>,
         pixels: u32,
         extra: u32,
+        decode: bool,
     ) -> anyhow::Result<ComputePipeline> {
         // A device without subgroup shuffles gets SPIR-V that does not declare them.
         let (name, spirv) = if ctx.info.subgroup_shuffle {
@@ -363,14 +371,15 @@ impl Renderer {
             ctx,
             name,
             spirv,
-            9,
+            10,
             std::mem::size_of::<RasterPush>() as u32,
             WG / pixels,
-            &[pixels, extra],
+            &[pixels, extra, decode as u32],
         )
     }
 
-    /// The last frame's feature channels (`[pix·channels + c]`), when it rendered some.
+    /// The last frame's feature channels (`[pix·channels + c]`), when it rendered some and did
+    /// not decode them.
     pub fn feature_image(&self) -> Option<&GpuBuffer<f32>> {
         self.feature_image.as_ref()
     }
@@ -533,12 +542,27 @@ impl Renderer {
                 splats.count,
                 fc.channels
             );
-            if self.raster_features.as_ref().map(|r| r.0) != Some(fc.channels) {
-                let pipe = Self::raster_pipeline(&ctx, self.raster_pixels, fc.channels)?;
-                self.raster_features = Some((fc.channels, pipe));
+            let decode = fc.decoded_by.is_some();
+            if let Some(w) = fc.decoded_by {
+                use crate::reference::decoder::{FEATURE_CHANNELS, WEIGHTS};
+                anyhow::ensure!(
+                    fc.channels as usize == FEATURE_CHANNELS && w.len() >= WEIGHTS,
+                    "renderer: the decoder takes {FEATURE_CHANNELS} feature channels and \
+                     {WEIGHTS} weights, not {} and {}",
+                    fc.channels,
+                    w.len()
+                );
+            }
+            let key = (fc.channels, decode);
+            if self.raster_features.as_ref().map(|r| r.0) != Some(key) {
+                let pipe = Self::raster_pipeline(&ctx, self.raster_pixels, fc.channels, decode)?;
+                self.raster_features = Some((key, pipe));
             }
             let need = self.capacity.pixels.max(1) * fc.channels as usize;
-            if self.feature_image.as_ref().is_none_or(|b| b.len() < need) {
+            if decode {
+                // A decoded frame writes no feature image: none is kept.
+                self.feature_image = None;
+            } else if self.feature_image.as_ref().is_none_or(|b| b.len() < need) {
                 self.feature_image = None;
                 self.feature_image = Some(GpuBuffer::new(
                     &ctx,
@@ -550,13 +574,23 @@ impl Renderer {
         }
         let f = &self.frame;
         let (_, ids) = self.sorted_pairs();
-        let (raster, features, feature_image) = match settings.features {
+        let (raster, features, feature_image, weights) = match settings.features {
             Some(fc) => (
                 &self.raster_features.as_ref().expect("built above").1,
                 fc.values,
-                self.feature_image.as_ref().expect("allocated above"),
+                match fc.decoded_by {
+                    // Bound, never written.
+                    Some(_) => &self.no_filter,
+                    None => self.feature_image.as_ref().expect("allocated above"),
+                },
+                fc.decoded_by.unwrap_or(&self.no_filter),
             ),
-            None => (&self.raster, &self.no_filter, &self.no_filter),
+            None => (
+                &self.raster,
+                &self.no_filter,
+                &self.no_filter,
+                &self.no_filter,
+            ),
         };
         rec.dispatch(
             raster,
@@ -570,6 +604,7 @@ impl Renderer {
                 &f.last_index,
                 features,
                 feature_image,
+                weights,
             ],
             &RasterPush {
                 rc: settings.constants,

@@ -341,19 +341,18 @@ impl TemporalStep {
 /// A video model drawn at any time as still Gaussians, as a player does: each displayed time,
 /// the temporal step writes the model at that time into `instant`, which any 3DGS renderer
 /// draws (`bench fps`, `bench trade`'s FPS, `render`, `eval`). Scales and colour are copied
-/// once. The full model ([`TimedModel::full`]) also writes its feature channels at that time
-/// and turns the rendered base and feature images into RGB with its decoder.
+/// once. The full model ([`TimedModel::full`]) also writes its feature channels at that time,
+/// and the rasterizer decodes each pixel in its epilogue (the frame's image is the RGB).
 pub struct TimedModel {
     step: TemporalStep,
     pub instant: GpuSplats,
     full: Option<FullDecoding>,
 }
 
-/// The full model's per-time features and its decoder.
+/// The full model's per-time features and its decoder's weights.
 struct FullDecoding {
     features: super::decoder::TimeFeatures,
     instant_features: GpuBuffer<f32>,
-    decoder: super::decoder::Decoder,
     weights: GpuBuffer<f32>,
 }
 
@@ -384,7 +383,6 @@ impl TimedModel {
                         FEATURE_CHANNELS * n.max(1),
                         crate::gpu::BufferKind::DeviceLocal,
                     )?,
-                    decoder: super::decoder::Decoder::new(ctx)?,
                     weights: GpuBuffer::from_slice(ctx, "decoder weights", w)?,
                 })
             }
@@ -400,11 +398,6 @@ impl TimedModel {
             instant,
             full,
         })
-    }
-
-    /// Whether this is the full model (feature channels and a decoder).
-    pub fn full(&self) -> bool {
-        self.full.is_some()
     }
 
     /// Records `model` at time `t` into `self.instant` (and the full model's features), then a
@@ -442,7 +435,8 @@ impl TimedModel {
     }
 
     /// The frame settings that draw `self.instant`: the full model's raw base colour and
-    /// feature channels over black, else 3DGS's with `background`.
+    /// feature channels over black, decoded into RGB by the rasterizer, else 3DGS's with
+    /// `background`.
     pub fn settings(&self, background: [f32; 3]) -> super::forward::FrameSettings<'_> {
         let mut constants = RenderConstants::default().with_near(SPACETIME_NEAR);
         let (background, features) = match &self.full {
@@ -451,6 +445,7 @@ impl TimedModel {
                 let channels = super::forward::FeatureChannels {
                     values: &f.instant_features,
                     channels: crate::reference::decoder::FEATURE_CHANNELS as u32,
+                    decoded_by: Some(&f.weights),
                 };
                 ([0.0; 3], Some(channels))
             }
@@ -462,55 +457,6 @@ impl TimedModel {
             constants,
             filter3d: None,
             features,
-        }
-    }
-
-    /// Makes room for frames of `pixels` (the full model's decoder buffers; between
-    /// submissions).
-    pub fn reserve_pixels(&mut self, pixels: usize) -> anyhow::Result<()> {
-        match self.full.as_mut() {
-            Some(f) => f.decoder.reserve(pixels),
-            None => Ok(()),
-        }
-    }
-
-    /// After `renderer` recorded a frame with [`TimedModel::settings`]: the full model's
-    /// decoder (a barrier after); nothing for the lite model. The RGB is then
-    /// [`TimedModel::image`]. [`TimedModel::reserve_pixels`] first.
-    pub fn record_decode(
-        &self,
-        rec: &mut Recorder,
-        renderer: &super::forward::Renderer,
-        cameras: &GpuBuffer<super::layout::CameraGpu>,
-        index: u32,
-        camera: &super::layout::CameraGpu,
-    ) -> anyhow::Result<()> {
-        let Some(f) = self.full.as_ref() else {
-            return Ok(());
-        };
-        let features = renderer
-            .feature_image()
-            .ok_or_else(|| anyhow::anyhow!("decoder: the frame has no feature image"))?;
-        f.decoder.record_forward(
-            rec,
-            &super::decoder::DecoderFrame {
-                cameras,
-                camera_index: index,
-                camera,
-                base: &renderer.frame.image,
-                features,
-                weights: &f.weights,
-            },
-        )?;
-        rec.barrier();
-        Ok(())
-    }
-
-    /// The frame's RGB: the decoder's for the full model, else the renderer's.
-    pub fn image<'a>(&'a self, renderer: &'a super::forward::Renderer) -> &'a GpuBuffer<f32> {
-        match &self.full {
-            Some(f) => f.decoder.image(),
-            None => &renderer.frame.image,
         }
     }
 }

@@ -205,7 +205,6 @@ impl ViewRenderer for SpacetimeView {
             self.timed = Some((n, timed));
         }
         let (_, timed) = self.timed.as_mut().expect("made above");
-        timed.reserve_pixels((camera.width() * camera.height()) as usize)?;
         self.renderer.fit_camera(camera)?;
         let mut rec = crate::gpu::Recorder::new(&self.ctx)?;
         rec.begin()?;
@@ -218,15 +217,7 @@ impl ViewRenderer for SpacetimeView {
             camera,
             &timed.settings(background),
         )?;
-        if !timed.full() {
-            return self.renderer.read_image();
-        }
-        let mut rec = crate::gpu::Recorder::new(&self.ctx)?;
-        rec.begin()?;
-        timed.record_decode(&mut rec, &self.renderer, cameras, index, camera)?;
-        rec.submit_and_wait()?;
-        let pixels = (camera.width() * camera.height()) as usize;
-        timed.image(&self.renderer).read_range(0, 3 * pixels)
+        self.renderer.read_image()
     }
 
     fn geometry(&self, _: &CameraGpu) -> Result<Option<GeometryMaps>> {

@@ -146,6 +146,8 @@ impl FullModel {
         FeatureChannels {
             values: &self.instant_features,
             channels: FEATURE_CHANNELS as u32,
+            // Training keeps the base and feature images for the backward (decode.comp).
+            decoded_by: None,
         }
     }
 }
