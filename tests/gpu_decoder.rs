@@ -562,7 +562,7 @@ fn fused_decoder_epilogue_matches_the_reference_and_the_decoder_pass() {
     } else {
         vec![1]
     };
-    for (seed, n, w, h) in [(21u64, 90usize, 41u32, 23u32), (22, 40, 16, 16)] {
+    for (seed, n, w, h) in [(21u64, 3000usize, 61u32, 40u32), (22, 40, 16, 16)] {
         let (g, features, camera, pose) = scene(seed, n, w, h);
         let background = [0.3, -0.2, 0.7];
         let out = reference::render(&g, &camera, &pose, 0, background, &settings).unwrap();
