@@ -58,6 +58,54 @@ fn scene(seed: u64, n: usize, w: u32, h: u32) -> (RefGaussians, Vec<f64>, Pinhol
     (g, features, camera, pose)
 }
 
+/// The reference frame of the full model's rasterizer: the 3DGS preprocess and bins with the
+/// colour replaced by the raw DC values (`out.projected`), blended over `background`
+/// (`out.raster`), and the feature image (`[pix·FEATURE_CHANNELS + c]`).
+fn raw_reference_frame(
+    g: &RefGaussians,
+    features: &[f64],
+    camera: &PinholeCamera,
+    pose: &Pose,
+    background: [f64; 3],
+    settings: &RenderSettings,
+) -> (reference::RenderOutput, Vec<f64>) {
+    let mut out = reference::render(g, camera, pose, 0, background, settings).unwrap();
+    for (p, sh) in out.projected.iter_mut().zip(&g.sh) {
+        p.rgb = sh[0];
+        p.rgb_clamped = [false; 3];
+    }
+    out.raster = rasterize(&out.projected, &out.bins, camera, background, settings).unwrap();
+    let feature_image = decoder::rasterize_features(
+        &out.projected,
+        &out.bins,
+        camera,
+        features,
+        FEATURE_CHANNELS,
+        settings,
+    )
+    .unwrap();
+    (out, feature_image)
+}
+
+/// The scene on the GPU: its splats, the camera (index 1, behind a decoy at 0) and the
+/// feature channels.
+fn upload_frame(
+    ctx: &Arc<GpuContext>,
+    g: &RefGaussians,
+    features: &[f64],
+    camera: &PinholeCamera,
+    pose: &Pose,
+) -> (GpuSplats, CameraGpu, GpuBuffer<CameraGpu>, GpuBuffer<f32>) {
+    let splats = GpuSplats::upload(ctx, &g.to_params(0), g.len()).unwrap();
+    let cam = CameraGpu::new(camera, pose);
+    let mut decoy = cam;
+    decoy.r0[3] += 1.0;
+    let cameras = GpuBuffer::from_slice(ctx, "cameras", &[decoy, cam]).unwrap();
+    let f32s: Vec<f32> = features.iter().map(|&x| x as f32).collect();
+    let feats = GpuBuffer::from_slice(ctx, "features", &f32s).unwrap();
+    (splats, cam, cameras, feats)
+}
+
 #[test]
 fn feature_channels_and_raw_colour_match_the_reference_forward_and_backward() {
     let ctx = ctx();
@@ -74,32 +122,12 @@ fn feature_channels_and_raw_colour_match_the_reference_forward_and_backward() {
         let background = [0.2, 0.5, 0.9];
 
         // Reference: the 3DGS preprocess and bins, the colour replaced by the raw DC values.
-        let out = reference::render(&g, &camera, &pose, 0, background, &settings).unwrap();
-        let mut projected = out.projected.clone();
-        for (p, sh) in projected.iter_mut().zip(&g.sh) {
-            p.rgb = sh[0];
-            p.rgb_clamped = [false; 3];
-        }
-        let raster = rasterize(&projected, &out.bins, &camera, background, &settings).unwrap();
-        let feature_image = decoder::rasterize_features(
-            &projected,
-            &out.bins,
-            &camera,
-            &features,
-            FEATURE_CHANNELS,
-            &settings,
-        )
-        .unwrap();
+        let (out, feature_image) =
+            raw_reference_frame(&g, &features, &camera, &pose, background, &settings);
+        let (projected, raster) = (&out.projected, &out.raster);
 
         // GPU forward (camera 1 behind a decoy).
-        let params = g.to_params(0);
-        let splats = GpuSplats::upload(&ctx, &params, n).unwrap();
-        let cam = CameraGpu::new(&camera, &pose);
-        let mut decoy = cam;
-        decoy.r0[3] += 1.0;
-        let cameras = GpuBuffer::from_slice(&ctx, "cameras", &[decoy, cam]).unwrap();
-        let f32s = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<_>>();
-        let feats = GpuBuffer::from_slice(&ctx, "features", &f32s(&features)).unwrap();
+        let (splats, cam, cameras, feats) = upload_frame(&ctx, &g, &features, &camera, &pose);
         let mut renderer = Renderer::new(
             &ctx,
             Capacity {
@@ -155,13 +183,13 @@ fn feature_channels_and_raw_colour_match_the_reference_forward_and_backward() {
             .map(|_| rng.gen_range(-1.0..1.0f32) as f64)
             .collect();
         let colour = rasterize_backward(
-            &projected, &out.bins, &raster, background, &settings, &dl_image,
+            projected, &out.bins, raster, background, &settings, &dl_image,
         )
         .unwrap();
         let (geometry, want_feature_grads) = decoder::rasterize_features_backward(
-            &projected,
+            projected,
             &out.bins,
-            &raster,
+            raster,
             &features,
             FEATURE_CHANNELS,
             &settings,
@@ -181,7 +209,7 @@ fn feature_channels_and_raw_colour_match_the_reference_forward_and_backward() {
             total.opacity[i] = colour.opacity[i] + geometry.opacity[i];
         }
         let params_want =
-            preprocess_backward(&g, &projected, &camera, &pose, 0, &settings, &total).unwrap();
+            preprocess_backward(&g, projected, &camera, &pose, 0, &settings, &total).unwrap();
 
         let dl_buf = GpuBuffer::from_slice(
             &ctx,
@@ -193,7 +221,12 @@ fn feature_channels_and_raw_colour_match_the_reference_forward_and_backward() {
                 .collect::<Vec<_>>(),
         )
         .unwrap();
-        let dl_feat_buf = GpuBuffer::from_slice(&ctx, "dl_dfeatures", &f32s(&dl_features)).unwrap();
+        let dl_feat_buf = GpuBuffer::from_slice(
+            &ctx,
+            "dl_dfeatures",
+            &dl_features.iter().map(|&x| x as f32).collect::<Vec<_>>(),
+        )
+        .unwrap();
         let feature_grads = GpuBuffer::<f32>::new(
             &ctx,
             "feature grads",
@@ -565,22 +598,9 @@ fn fused_decoder_epilogue_matches_the_reference_and_the_decoder_pass() {
     for (seed, n, w, h) in [(21u64, 3000usize, 61u32, 40u32), (22, 40, 16, 16)] {
         let (g, features, camera, pose) = scene(seed, n, w, h);
         let background = [0.3, -0.2, 0.7];
-        let out = reference::render(&g, &camera, &pose, 0, background, &settings).unwrap();
-        let mut projected = out.projected.clone();
-        for (p, sh) in projected.iter_mut().zip(&g.sh) {
-            p.rgb = sh[0];
-            p.rgb_clamped = [false; 3];
-        }
-        let raster = rasterize(&projected, &out.bins, &camera, background, &settings).unwrap();
-        let feature_image = decoder::rasterize_features(
-            &projected,
-            &out.bins,
-            &camera,
-            &features,
-            FEATURE_CHANNELS,
-            &settings,
-        )
-        .unwrap();
+        let (out, feature_image) =
+            raw_reference_frame(&g, &features, &camera, &pose, background, &settings);
+        let raster = &out.raster;
         let px = (w * h) as usize;
         let feats: Vec<[f64; 6]> = (0..px)
             .map(|p| std::array::from_fn(|c| feature_image[p * FEATURE_CHANNELS + c]))
@@ -590,15 +610,9 @@ fn fused_decoder_epilogue_matches_the_reference_and_the_decoder_pass() {
         let want = decoder::decode_image(&weights, &raster.image, &feats, &camera, &pose);
         let want: Vec<f64> = want.iter().flatten().copied().collect();
 
-        let params = g.to_params(0);
-        let splats = GpuSplats::upload(&ctx, &params, n).unwrap();
-        let cam = CameraGpu::new(&camera, &pose);
-        let mut decoy = cam;
-        decoy.r0[3] += 1.0;
-        let cameras = GpuBuffer::from_slice(&ctx, "cameras", &[decoy, cam]).unwrap();
-        let f32s = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<_>>();
-        let feat_buf = GpuBuffer::from_slice(&ctx, "features", &f32s(&features)).unwrap();
-        let w_buf = GpuBuffer::from_slice(&ctx, "weights", &f32s(&weights)).unwrap();
+        let (splats, cam, cameras, feat_buf) = upload_frame(&ctx, &g, &features, &camera, &pose);
+        let f32s: Vec<f32> = weights.iter().map(|&x| x as f32).collect();
+        let w_buf = GpuBuffer::from_slice(&ctx, "weights", &f32s).unwrap();
         let capacity = Capacity {
             gaussians: n,
             intersections: 1 << 14,
