@@ -8,6 +8,7 @@ use lpmsplat::splats::gpu::{grown_capacity, GpuSplats};
 use lpmsplat::splats::{ExtraGroup, ExtraValues, GaussianParams};
 use lpmsplat::train::adam::SplatState;
 use lpmsplat::train::density::abs_quantile::abs_grad_threshold;
+use lpmsplat::train::density::budget::{self, BudgetCut};
 use lpmsplat::train::density::reference::{self, HostState, HostStats};
 use lpmsplat::train::density::rng::fold_seed;
 use lpmsplat::train::density::{
@@ -436,6 +437,137 @@ fn random_steps_match_the_host_reference_and_grow_past_the_capacity() {
         host = gpu;
     }
     assert!(grew >= 1, "the test must exercise growth");
+    ctx.check_validation().unwrap();
+}
+
+/// The Gaussian budget (`DensityConfig::max_gaussians`): the GPU's scores are the reference's
+/// bit for bit, the decisions after `record_decide` are the reference's with the host's cut
+/// applied (the kernel's tie rule included: half the Gaussians share one statistic, where the
+/// cut falls), the step ends at the cap, and every dropped addition scores no higher than
+/// every kept one; a cap the step does not reach changes nothing.
+#[test]
+fn a_gaussian_budget_keeps_the_additions_furthest_over_their_threshold() {
+    let ctx = ctx();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(91);
+    let (n, degree, extent) = (3_000usize, 1u32, 3.0f32);
+    for step in 0..4u32 {
+        let params = random_params(&mut rng, n, degree, extent);
+        let m = random_moments(&mut rng, n, degree, false);
+        let v = random_moments(&mut rng, n, degree, true);
+        let host = HostState { params, m, v };
+        let mut stats = random_stats(&mut rng, n);
+        for i in 0..n {
+            if rng.gen_bool(0.5) {
+                stats.grad_accum[i] = 5e-4;
+                stats.denom[i] = 1.0;
+            }
+        }
+        let mut cfg = DensityConfig {
+            seed: 7,
+            abs_grad: step == 2,
+            ..Default::default()
+        };
+        let args = DensifyArgs {
+            extent: extent as f64,
+            prune_large: step % 2 == 1,
+            iteration: 700 + step,
+            phase: DensifyPhase::Both,
+        };
+        let scale: Option<Vec<f32>> = (step == 1).then(|| {
+            (0..n)
+                .map(|_| if rng.gen_bool(0.3) { 0.5 } else { 1.0 })
+                .collect()
+        });
+        let t = Thresholds::new(&cfg, &args).unwrap();
+        let q = cfg.abs_grad.then(|| {
+            abs_grad_threshold(
+                &stats.grad_accum,
+                &stats.denom,
+                &stats.abs_accum,
+                t.grad_threshold,
+            )
+        });
+        let free = reference::decide_with_abs(&t, &stats, &host.params, scale.as_deref(), q);
+        let natural = budget::after_count(&free);
+        // Step 3: a cap above what the step reaches.
+        let cap = if step == 3 {
+            natural + 10
+        } else {
+            n + (natural - n) / 3
+        };
+        cfg.max_gaussians = Some(cap);
+        let label = format!("step {step} (cap {cap}, {natural} without it)");
+
+        let mut state = upload_state(&ctx, &host, n);
+        let mut dc = DensityControl::new(&ctx, n, cfg).unwrap();
+        upload_stats(&dc, &stats);
+        let scale_buf = scale
+            .as_ref()
+            .map(|s| GpuBuffer::from_slice(&ctx, "threshold scale", s).unwrap());
+        let mut rec = Recorder::new(&ctx).unwrap();
+        rec.begin().unwrap();
+        dc.record_decide(&mut rec, &state, &args, scale_buf.as_ref())
+            .unwrap();
+        rec.submit_and_wait().unwrap();
+        rec.begin().unwrap();
+
+        let scores = reference::scores(&t, &stats, scale.as_deref(), q);
+        assert_eq!(
+            bits(&dc.scores().read_range(0, n).unwrap()),
+            bits(&scores),
+            "{label}: scores"
+        );
+        let cut = budget::budget_cut(&free, &scores, cap);
+        assert_eq!(dc.last_budget, cut, "{label}");
+        let mut want = free.clone();
+        if let Some(c) = &cut {
+            budget::apply_cut(&mut want, &scores, c);
+        }
+        let got = dc.decisions().read_range(0, n).unwrap();
+        if let Some(i) = (0..n).find(|&i| got[i] != want[i]) {
+            panic!(
+                "{label}: decision {i} is {} on the GPU, {} by the reference (score {}, cut {cut:?})",
+                got[i], want[i], scores[i]
+            );
+        }
+        let out = dc.apply(&mut rec, &mut state, &args).unwrap();
+        assert_eq!(out.after, budget::after_count(&want), "{label}");
+        match cut {
+            None => {
+                assert_eq!(step, 3, "{label}: the cap must bind");
+                assert_eq!(got, free);
+                assert_eq!(out.budget_dropped, 0);
+            }
+            Some(BudgetCut { dropped, after, .. }) => {
+                assert!(after <= cap && out.after == after, "{label}: {out:?}");
+                // One addition fewer dropped would not fit (a split pruned anyway saves 2).
+                assert!(
+                    after + 2 > cap,
+                    "{label}: dropped more than needed ({after})"
+                );
+                assert_eq!(out.budget_dropped, dropped);
+                let adds = |d: &[u32], i: usize| budget::adds(d[i]);
+                let kept_min = (0..n)
+                    .filter(|&i| adds(&got, i))
+                    .map(|i| scores[i])
+                    .fold(f32::INFINITY, f32::min);
+                let dropped_max = (0..n)
+                    .filter(|&i| adds(&free, i) && !adds(&got, i))
+                    .map(|i| scores[i])
+                    .fold(0.0, f32::max);
+                assert_eq!(
+                    (0..n).filter(|&i| adds(&free, i) && !adds(&got, i)).count(),
+                    dropped
+                );
+                assert!(dropped > 0 && dropped_max <= kept_min, "{label}");
+                if step == 0 {
+                    // The shared statistic is where this cut falls: the tie rule decided.
+                    assert_eq!(dropped_max, kept_min, "{label}: the cut is not on the tie");
+                }
+            }
+        }
+        eprintln!("{label}: {out:?}");
+    }
     ctx.check_validation().unwrap();
 }
 

@@ -926,3 +926,29 @@ fn checkpoint_settings_leave_out_new_rules_at_their_old_values() {
     o.remove("max_zone_radius");
     assert_eq!(full, ck);
 }
+
+/// Under a Gaussian budget the point additions stop at the cap: with the cap at the model's
+/// size the same step as `one_lpm_step_fills_the_hole_and_resets_the_occluder_adc_does_neither`
+/// adds nothing (it still resets the occluder), and one more Gaussian of room takes one.
+#[test]
+fn lpm_point_additions_stop_at_the_gaussian_budget() {
+    let ctx = GpuContext::new(&GpuOptions::for_tests()).unwrap();
+    let scene = scene();
+    let gt = ground_truth(&ctx, &scene);
+    let init = initial_model();
+    let n0 = init.len();
+    for room in [0usize, 1] {
+        let mut cfg = config(1e9, 1);
+        cfg.density.max_gaussians = Some(n0 + room);
+        let mut t = Trainer::new(&ctx, &scene, &gt, &init, cfg).unwrap();
+        t.set_strategy(Box::new(
+            LpmStrategy::new(&ctx, &scene, &gt, correspondences(&scene), lpm_config()).unwrap(),
+        ));
+        let r = t.step().unwrap();
+        let rep = lpm_report(&r).expect("LPM ran at iteration 1");
+        assert!(rep.zones >= 2 && rep.reset >= 1, "{rep:?}");
+        assert_eq!(rep.added as usize, room, "room for {room}: {rep:?}");
+        assert_eq!(t.model().unwrap().len(), n0 + room);
+    }
+    ctx.check_validation().unwrap();
+}

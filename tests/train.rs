@@ -1359,3 +1359,65 @@ fn init_triangulate_on_a_scene_with_points_says_the_points_win() {
         "{err}"
     );
 }
+
+/// `--max-gaussians`: the run ends at the cap it would have passed (the metrics say how many
+/// additions were dropped), the cap is a setting of the run (config.json), and a count that
+/// is not one is refused naming the flag and the fix before anything is written.
+#[test]
+fn cli_gaussian_budget_caps_the_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = data("lund_door_small");
+    let train = |out: &Path, extra: &[&str]| {
+        lpmsplat()
+            .arg("train")
+            .arg(&scene)
+            .args(["-r", "2", "--sh-degree", "0"])
+            .args(["--iterations", "60", "--densify-from", "20"])
+            .args(["--densify-interval", "20", "-o"])
+            .arg(out)
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let metrics = |out: &Path| -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap()
+    };
+    let free = dir.path().join("free");
+    let o = train(&free, &[]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let natural = metrics(&free)["gaussians"].as_u64().unwrap();
+    assert!(metrics(&free)["max_gaussians"].is_null());
+    // Iteration 10, before the first density step.
+    let initial = metrics(&free)["history"][0]["gaussians"].as_u64().unwrap();
+    assert!(
+        natural > initial + 100,
+        "the run must densify: {initial} → {natural}"
+    );
+    let cap = initial + (natural - initial) / 2;
+    let capped = dir.path().join("capped");
+    let o = train(&capped, &["--max-gaussians", &cap.to_string()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let m = metrics(&capped);
+    let got = m["gaussians"].as_u64().unwrap();
+    assert!(
+        got <= cap && got + 2 >= cap,
+        "{got} Gaussians under a cap of {cap}"
+    );
+    assert_eq!(m["max_gaussians"]["cap"], cap);
+    assert!(m["max_gaussians"]["dropped_additions"].as_u64().unwrap() > 0);
+    let config: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(capped.join("config.json")).unwrap()).unwrap();
+    assert_eq!(config["density"]["max_gaussians"], cap);
+    assert!(String::from_utf8_lossy(&o.stdout).contains("Gaussian budget"));
+
+    let bad = dir.path().join("bad");
+    for v in ["0", "-5", "lots"] {
+        let o = train(&bad, &[&format!("--max-gaussians={v}")]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            !o.status.success() && err.contains("--max-gaussians") && err.contains("Fix:"),
+            "{v}: {err}"
+        );
+        assert!(!bad.exists(), "{v}: nothing is written");
+    }
+}

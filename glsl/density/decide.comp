@@ -9,6 +9,9 @@
 // split children have scale / 1.6), so a new Gaussian that would be pruned at once is never
 // emitted. Scale and opacity tests compare in the log / logit domain against thresholds formed
 // on the host (monotone, so equivalent up to the threshold's rounding).
+// scores[i]: how far a candidate is over the threshold it crossed (statistic / threshold, the
+// larger of the gradient's and the absolute gradient's ratio; +∞ over a threshold ≤ 0), 0 for
+// the others; the Gaussian budget ranks additions by it (src/train/density/budget.rs).
 layout(local_size_x_id = 0) in;
 #include "decisions.glsl"
 layout(std430, set = 0, binding = 0) readonly buffer Accum { float grad_accum[]; };
@@ -19,6 +22,7 @@ layout(std430, set = 0, binding = 4) readonly buffer Opacity { float opacity_log
 layout(std430, set = 0, binding = 5) readonly buffer ThresholdScale { float threshold_scale[]; };
 layout(std430, set = 0, binding = 6) writeonly buffer Decisions { uint decisions[]; };
 layout(std430, set = 0, binding = 7) readonly buffer AbsAccum { float abs_accum[]; };
+layout(std430, set = 0, binding = 8) writeonly buffer Scores { float scores[]; };
 layout(push_constant) uniform Push {
     uint count;
     uint flags;  // 1: prune large (world size); 2: use threshold_scale; 4: absolute-gradient test
@@ -33,6 +37,7 @@ layout(push_constant) uniform Push {
 
 void main() {
     uint i = linear_index();
+    float INF = uintBitsToFloat(0x7F800000u);
     if (i >= count) return;
     float dn = denom[i];
     precise float stat = dn > 0.0 ? grad_accum[i] / dn : 0.0;
@@ -41,6 +46,10 @@ void main() {
     precise float abs_stat = dn > 0.0 ? abs_accum[i] / dn : 0.0;
     bool by_abs = (flags & 4u) != 0u && abs_stat >= abs_threshold;
     bool densify = stat >= thr || by_abs;
+    bool by_grad = stat >= thr;
+    precise float grad_ratio = by_grad ? (thr > 0.0 ? stat / thr : INF) : 0.0;
+    precise float abs_ratio = by_abs ? (abs_threshold > 0.0 ? abs_stat / abs_threshold : INF) : 0.0;
+    scores[i] = max(grad_ratio, abs_ratio);
     float ls = max(max(log_scales[3u * i], log_scales[3u * i + 1u]), log_scales[3u * i + 2u]);
     bool clone = densify && ls <= log_clone_max;
     bool split = densify && ls > log_clone_max;

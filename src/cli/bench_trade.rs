@@ -116,6 +116,10 @@ pub struct TradeArgs {
     /// Mip-Splatting's official densification).
     #[arg(long)]
     pub densify_abs_grad: bool,
+    /// Every run trains under the same cap on the number of Gaussians (as `train
+    /// --max-gaussians`): at the cap the runs compare at one count.
+    #[arg(long, value_name = "N", value_parser = crate::cli::train::parse_max_gaussians)]
+    pub max_gaussians: Option<usize>,
     /// spacetime-*: SpacetimeGaussians' Neural 3D Video culls (as `train --n3dv-culls`; their
     /// 1000-iteration rhythm scaled to the calendar).
     #[arg(long, value_enum, default_value_t = N3dvCulls::Auto)]
@@ -273,6 +277,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
         abs_grad_applies(args.model)?;
         base.density.abs_grad = true;
     }
+    base.density.max_gaussians = args.max_gaussians;
     if let Some(g) = base.spacetime.as_mut().and_then(|s| s.guided.as_mut()) {
         // SpacetimeGaussians' guided sampling on the same calendar (official 1600 and 100).
         g.from = scale(g.from);

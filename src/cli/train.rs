@@ -155,6 +155,12 @@ pub struct TrainArgs {
     /// papers' rule). 3dgs, mip-splatting and the spacetime models.
     #[arg(long)]
     pub densify_abs_grad: bool,
+    /// At most N Gaussians: a density step that would end with more keeps the clones and splits
+    /// whose statistic is furthest over their own threshold (LPM's lowered one inside its
+    /// zones), as many as fit; LPM's and the models' point additions stop at the cap too.
+    /// Default: no cap
+    #[arg(long, value_name = "N", value_parser = parse_max_gaussians)]
+    pub max_gaussians: Option<usize>,
     /// spacetime-lite, spacetime-full: the temporal centre of clones and split children: random (uniform over
     /// the segment, the official rule) or parent.
     #[arg(long, value_parser = ChildTime::parse)]
@@ -514,6 +520,7 @@ impl TrainArgs {
                 g.from = from;
             }
         }
+        c.density.max_gaussians = self.max_gaussians;
         if self.densify_abs_grad {
             anyhow::ensure!(
                 matches!(
@@ -861,6 +868,8 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     let mut eval_points: Vec<EvalPoint> = Vec::new();
     let mut paused_s = 0.0;
     let mut model_events = Vec::new();
+    // Under --max-gaussians: additions the budget dropped, and on how many density steps.
+    let mut budget = (0usize, 0usize);
     for _ in start_iteration..config.iterations {
         let next = trainer.iteration + 1;
         if next == config.iterations || (args.eval_every > 0 && next % args.eval_every == 0) {
@@ -913,6 +922,10 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         }
         if let Some(s) = &r.stages {
             stages.accumulate(s);
+        }
+        if let Some(d) = r.densified.filter(|d| d.budget_dropped > 0) {
+            budget.0 += d.budget_dropped;
+            budget.1 += 1;
         }
         let l = r.loss as f64;
         let ema = ema_loss.map_or(l, |e| 0.9 * e + 0.1 * l);
@@ -1061,6 +1074,9 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         // The rasterizers' pixels per invocation when --raster-pixels set them (null: the
         // device's default).
         "raster_pixels": config.raster_pixels,
+        "max_gaussians": config.density.max_gaussians.map(|cap| serde_json::json!({
+            "cap": cap, "dropped_additions": budget.0, "steps_at_cap": budget.1,
+        })),
         "stages": if config.timestamps { stage_shares(&stages) } else { serde_json::Value::Null },
         "lpm": trainer.strategy_as::<LpmStrategy>().map(|l| {
             let mut j = lpm_summary(&l.totals, train_s, config.iterations);
@@ -1121,6 +1137,12 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
              submission, waits, evaluation and checkpoints)",
             total / trained as f64,
             1e3 * train_s / trained as f64
+        );
+    }
+    if let Some(cap) = config.density.max_gaussians {
+        println!(
+            "  Gaussian budget {cap}: {} clones and splits dropped on {} density steps",
+            budget.0, budget.1
         );
     }
     if let Some(l) = trainer.strategy_as::<LpmStrategy>() {
@@ -1202,5 +1224,15 @@ mod tests {
         }
         let e = parse_zone("cone").unwrap_err().to_string();
         assert!(e.contains("\"cone\"") && e.contains("slab"), "{e}");
+    }
+}
+
+/// `--max-gaussians N`: a positive count.
+pub fn parse_max_gaussians(s: &str) -> Result<usize, String> {
+    match s.trim().parse::<usize>() {
+        Ok(n) if n > 0 => Ok(n),
+        _ => Err(format!(
+            "'{s}' is not a Gaussian count. Fix: give a positive whole number, e.g. 500000"
+        )),
     }
 }

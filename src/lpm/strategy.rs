@@ -940,8 +940,8 @@ impl LpmStrategy {
                     camera_center: z.camera_center,
                 })
                 .collect();
-            append_gaussians(t, &rows)?;
-            p.report.added = rows.len() as u32;
+            // Under a Gaussian budget only the rows that fit are added.
+            p.report.added = append_gaussians(t, &rows)? as u32;
         }
         p.report.seconds = (p.start.elapsed().as_secs_f64() - p.adc_seconds).max(0.0);
         self.totals.add(&p.report);

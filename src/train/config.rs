@@ -183,6 +183,10 @@ impl TrainConfig {
                 });
             }
         }
+        // Only when set, so checkpoints from before the key still resume.
+        if let Some(n) = d.max_gaussians {
+            j["density"]["max_gaussians"] = serde_json::json!(n);
+        }
         // Only when on, so checkpoints from before the key still resume.
         if d.abs_grad {
             j["density"]["abs_grad"] = serde_json::json!(true);

@@ -50,8 +50,10 @@ pub fn new_point_shape(primitive: Primitive, row: &NewGaussian) -> ([f32; 3], [f
 /// Appends `rows` after the current Gaussians (rows `count..count + n`), growing the
 /// state and the density statistics when the capacity is short (the trainer grows its own
 /// buffers after the strategy's call). Their
-/// Adam moments and density statistics are zero. `t.rec` must be begun and empty; it is left so.
-pub fn append_gaussians(t: &mut DensityContext, rows: &[NewGaussian]) -> anyhow::Result<()> {
+/// Adam moments and density statistics are zero. Under a Gaussian budget
+/// (`DensityConfig::max_gaussians`) only the first rows that fit are appended. Returns how many
+/// were. `t.rec` must be begun and empty; it is left so.
+pub fn append_gaussians(t: &mut DensityContext, rows: &[NewGaussian]) -> anyhow::Result<usize> {
     append_with_extras(t, rows, None)
 }
 
@@ -61,12 +63,19 @@ pub fn append_with_extras(
     t: &mut DensityContext,
     rows: &[NewGaussian],
     extras: Option<&[Vec<f32>]>,
-) -> anyhow::Result<()> {
+) -> anyhow::Result<usize> {
+    let n = t.state.count();
+    let room = t
+        .density
+        .config
+        .max_gaussians
+        .map_or(rows.len(), |cap| cap.saturating_sub(n));
+    let all = rows.len();
+    let rows = &rows[..all.min(room)];
     if rows.is_empty() {
-        return Ok(());
+        return Ok(0);
     }
     let ctx = t.ctx.clone();
-    let n = t.state.count();
     let new = n + rows.len();
     if new > t.state.capacity() {
         let cap = grown_capacity(new);
@@ -94,7 +103,7 @@ pub fn append_with_extras(
             x.len() == strides.len() - fixed
                 && x.iter()
                     .zip(&strides[fixed..])
-                    .all(|(e, &s)| e.len() == s * rows.len()),
+                    .all(|(e, &s)| e.len() == s * all),
             "adding Gaussians: extra values given for {} groups, not one column per extra group \
              and row",
             x.len()
@@ -128,8 +137,8 @@ pub fn append_with_extras(
         }
     }
     if let Some(x) = extras {
-        for (d, e) in data[fixed..].iter_mut().zip(x) {
-            d.extend(e);
+        for ((d, e), &s) in data[fixed..].iter_mut().zip(x).zip(&strides[fixed..]) {
+            d.extend(&e[..s * m]);
         }
     }
     let staging: Vec<Option<GpuBuffer<f32>>> = data
@@ -166,5 +175,5 @@ pub fn append_with_extras(
     t.rec.submit_and_wait()?;
     t.rec.begin()?;
     t.state.set_count(new);
-    Ok(())
+    Ok(m)
 }

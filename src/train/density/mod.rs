@@ -45,6 +45,7 @@
 
 pub mod abs_quantile;
 pub mod append;
+pub mod budget;
 pub mod reference;
 pub mod rng;
 
@@ -145,6 +146,9 @@ pub struct DensityConfig {
     /// reaches the `(1 − ratio)` quantile of all of them is densified as well. Gradient
     /// statistic only; needs the backward's absolute gradients.
     pub abs_grad: bool,
+    /// At most this many Gaussians after a density step ([`budget`]): the additions that
+    /// exceed their threshold the most are kept, as many as fit. `None`: no cap.
+    pub max_gaussians: Option<usize>,
 }
 
 impl Default for DensityConfig {
@@ -160,6 +164,7 @@ impl Default for DensityConfig {
             seed: 0,
             statistic: Statistic::Gradient,
             abs_grad: false,
+            max_gaussians: None,
         }
     }
 }
@@ -302,6 +307,8 @@ pub struct DensifyOutcome {
     /// The strategy left the model and its statistics untouched on this density iteration (the
     /// authors' LPM skips ADC when it finds no zone): the iteration's optimizer step still runs.
     pub skipped: bool,
+    /// Clones and splits the Gaussian budget dropped ([`DensityConfig::max_gaussians`]).
+    pub budget_dropped: usize,
 }
 
 impl DensifyOutcome {
@@ -316,6 +323,7 @@ impl DensifyOutcome {
             grew: false,
             capacity,
             skipped: true,
+            budget_dropped: 0,
         }
     }
 }
@@ -377,6 +385,14 @@ struct DecidePush {
     screen_max: f32,
     /// The absolute-gradient quantile (with flag 4).
     abs_threshold: f32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct BudgetPush {
+    count: u32,
+    cut_score: f32,
+    cut_index: u32,
 }
 
 #[repr(C)]
@@ -451,6 +467,7 @@ pub struct DensityControl {
     pub config: DensityConfig,
     accumulate: ComputePipeline,
     decide: ComputePipeline,
+    budget: ComputePipeline,
     prune_box: ComputePipeline,
     expand: ComputePipeline,
     scatter: ComputePipeline,
@@ -458,6 +475,8 @@ pub struct DensityControl {
     reset: ComputePipeline,
     stats: DensityStats,
     decisions: GpuBuffer<u32>,
+    /// Each Gaussian's score of the last decision (`decide.comp`; the budget's ranking).
+    scores: GpuBuffer<f32>,
     /// Slot counts, scanned in place into destinations (3 × scratch capacity).
     slots: GpuBuffer<u32>,
     scan: PrefixScan,
@@ -472,6 +491,9 @@ pub struct DensityControl {
     decided: Option<usize>,
     /// The absolute-gradient quantile of the last decision (with `config.abs_grad`).
     pub last_abs_threshold: Option<f32>,
+    /// What the Gaussian budget dropped at the last decision (`None`: the step fitted, or no
+    /// cap).
+    pub last_budget: Option<budget::BudgetCut>,
     /// Where each group is scattered before it is copied back (`record_move_in_place`).
     move_scratch: [GpuBuffer<f32>; 2],
 }
@@ -501,8 +523,14 @@ impl DensityControl {
             decide: pipe(
                 "density/decide",
                 shaders::DENSITY_DECIDE,
-                8,
+                9,
                 size_of::<DecidePush>(),
+            )?,
+            budget: pipe(
+                "density/budget",
+                shaders::DENSITY_BUDGET,
+                2,
+                size_of::<BudgetPush>(),
             )?,
             prune_box: pipe(
                 "density/prune_outside_box",
@@ -536,6 +564,7 @@ impl DensityControl {
             )?,
             stats: DensityStats::zeroed(ctx, capacity)?,
             decisions: GpuBuffer::new(ctx, "density decisions", capacity, BufferKind::DeviceLocal)?,
+            scores: GpuBuffer::new(ctx, "density scores", capacity, BufferKind::DeviceLocal)?,
             slots: GpuBuffer::new(ctx, "density slots", 3 * capacity, BufferKind::DeviceLocal)?,
             scan: PrefixScan::new(ctx, 3 * capacity as u64)?,
             counts: GpuBuffer::from_slice(ctx, "density counts", &[0u32; 4])?,
@@ -544,6 +573,7 @@ impl DensityControl {
             scratch_capacity: capacity,
             decided: None,
             last_abs_threshold: None,
+            last_budget: None,
             move_scratch: [
                 GpuBuffer::new(ctx, "density move scratch", 1, BufferKind::DeviceLocal)?,
                 GpuBuffer::new(ctx, "density move scratch", 1, BufferKind::DeviceLocal)?,
@@ -559,6 +589,12 @@ impl DensityControl {
     /// Kernels recorded between `record_decide` and `apply` may modify them (the LPM hook).
     pub fn decisions(&self) -> &GpuBuffer<u32> {
         &self.decisions
+    }
+
+    /// Each Gaussian's score of the last `record_decide` (first `count` entries; the budget's
+    /// ranking, [`budget`]).
+    pub fn scores(&self) -> &GpuBuffer<f32> {
+        &self.scores
     }
 
     /// Grows the statistics to `capacity` Gaussians, keeping their values (for callers that
@@ -586,6 +622,7 @@ impl DensityControl {
         let ctx = &self.ctx;
         self.decisions =
             GpuBuffer::new(ctx, "density decisions", capacity, BufferKind::DeviceLocal)?;
+        self.scores = GpuBuffer::new(ctx, "density scores", capacity, BufferKind::DeviceLocal)?;
         self.slots = GpuBuffer::new(ctx, "density slots", 3 * capacity, BufferKind::DeviceLocal)?;
         self.scan = PrefixScan::new(ctx, 3 * capacity as u64)?;
         self.scratch_capacity = capacity;
@@ -760,11 +797,50 @@ impl DensityControl {
                 threshold_scale.unwrap_or(&self.dummy),
                 &self.decisions,
                 &self.stats.abs_accum,
+                &self.scores,
             ],
             &push,
             self.ctx.groups_1d(count as u64, WG),
         );
         rec.barrier();
+        self.last_budget = None;
+        if let Some(cap) = self.config.max_gaussians {
+            self.record_budget(rec, count, cap)?;
+        }
+        Ok(())
+    }
+
+    /// The Gaussian budget after `decide` (see [`budget`]): submits what `rec` holds, reads
+    /// the decisions back (and the scores, when the step would end above `cap`) and records
+    /// the pass that drops the additions below the cut. Leaves `rec` begun.
+    fn record_budget(
+        &mut self,
+        rec: &mut Recorder,
+        count: usize,
+        cap: usize,
+    ) -> anyhow::Result<()> {
+        rec.submit_and_wait()?;
+        rec.begin()?;
+        let decisions = self.decisions.read_range(0, count)?;
+        if budget::after_count(&decisions) <= cap {
+            return Ok(());
+        }
+        let scores = self.scores.read_range(0, count)?;
+        let Some(cut) = budget::budget_cut(&decisions, &scores, cap) else {
+            return Ok(());
+        };
+        rec.dispatch(
+            &self.budget,
+            &[&self.decisions, &self.scores],
+            &BudgetPush {
+                count: count as u32,
+                cut_score: cut.score,
+                cut_index: cut.index,
+            },
+            self.ctx.groups_1d(count as u64, WG),
+        );
+        rec.barrier();
+        self.last_budget = Some(cut);
         Ok(())
     }
 
@@ -838,6 +914,7 @@ impl DensityControl {
                 grew: false,
                 capacity: state.capacity(),
                 skipped: false,
+                budget_dropped: 0,
             });
         }
 
@@ -904,6 +981,7 @@ impl DensityControl {
             grew,
             capacity,
             skipped: false,
+            budget_dropped: self.last_budget.map_or(0, |c| c.dropped),
         })
     }
 

@@ -148,6 +148,41 @@ pub fn decide_with_abs(
         .collect()
 }
 
+/// Every Gaussian's score as `decide.comp` writes it (the same f32 operations): a candidate's
+/// statistic over the threshold it crossed (the larger ratio when both tests pass; +∞ over a
+/// threshold ≤ 0), 0 for the others ([`super::budget`] ranks additions by it).
+pub fn scores(
+    t: &Thresholds,
+    stats: &HostStats,
+    threshold_scale: Option<&[f32]>,
+    abs_threshold: Option<f32>,
+) -> Vec<f32> {
+    let ratio = |pass: bool, v: f32, thr: f32| match (pass, thr > 0.0) {
+        (false, _) => 0.0,
+        (true, true) => v / thr,
+        (true, false) => f32::INFINITY,
+    };
+    (0..stats.denom.len())
+        .map(|i| {
+            let dn = stats.denom[i];
+            let stat = if dn > 0.0 {
+                stats.grad_accum[i] / dn
+            } else {
+                0.0
+            };
+            let thr = match threshold_scale {
+                Some(s) => t.grad_threshold * s[i],
+                None => t.grad_threshold,
+            };
+            let abs_stat = super::abs_quantile::average(stats.abs_accum[i], dn);
+            let by_abs = abs_threshold.is_some_and(|q| abs_stat >= q);
+            let grad = ratio(stat >= thr, stat, thr);
+            let abs = ratio(by_abs, abs_stat, abs_threshold.unwrap_or(f32::INFINITY));
+            grad.max(abs)
+        })
+        .collect()
+}
+
 fn keeps(d: u32) -> bool {
     d & (DECIDE_REMOVE | DECIDE_SPLIT) == 0
 }

@@ -455,9 +455,10 @@ impl GuidedSampler {
             *c = rng.gen::<f32>();
         }
         t.rec.begin()?;
-        append_with_extras(t, &rows, Some(&extras))?;
+        // Under a Gaussian budget only the rows that fit are added.
+        let added = append_with_extras(t, &rows, Some(&extras))?;
         t.rec.submit_and_wait()?;
-        Ok((seeds.len(), m))
+        Ok((seeds.len(), added))
     }
 }
 
