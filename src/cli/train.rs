@@ -1207,6 +1207,16 @@ pub fn lpm_summary(
     })
 }
 
+/// `--max-gaussians N`: a positive count.
+pub fn parse_max_gaussians(s: &str) -> Result<usize, String> {
+    match s.trim().parse::<usize>() {
+        Ok(n) if n > 0 => Ok(n),
+        _ => Err(format!(
+            "'{s}' is not a Gaussian count. Fix: give a positive whole number, e.g. 500000"
+        )),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1224,15 +1234,5 @@ mod tests {
         }
         let e = parse_zone("cone").unwrap_err().to_string();
         assert!(e.contains("\"cone\"") && e.contains("slab"), "{e}");
-    }
-}
-
-/// `--max-gaussians N`: a positive count.
-pub fn parse_max_gaussians(s: &str) -> Result<usize, String> {
-    match s.trim().parse::<usize>() {
-        Ok(n) if n > 0 => Ok(n),
-        _ => Err(format!(
-            "'{s}' is not a Gaussian count. Fix: give a positive whole number, e.g. 500000"
-        )),
     }
 }
