@@ -439,7 +439,7 @@ fn spacetime_full_trains_its_decoder_saves_it_and_renders_it_back() {
         (again - psnr).abs() < 1e-3,
         "eval {again} vs training {psnr}"
     );
-    // bench fps times the temporal step, the features, the render and the decoder.
+    // bench fps times the temporal step, the features and the render, which decodes.
     let o = lpmsplat()
         .args([
             "bench",
@@ -467,7 +467,10 @@ fn spacetime_full_trains_its_decoder_saves_it_and_renders_it_back() {
     let f: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("fps.json")).unwrap()).unwrap();
     assert!(f[0]["fps_median"].as_f64().unwrap() > 0.0, "{f}");
-    assert!(f.to_string().contains("decode"), "a decode stage: {f}");
+    assert!(
+        f.to_string().contains("rasterize + decode"),
+        "the rasterizer decodes (its stage says so): {f}"
+    );
 
     // Without its decoder file the saved model is refused, naming the file and the fix.
     std::fs::rename(out.join("point_cloud.decoder.json"), out.join("moved.json")).unwrap();

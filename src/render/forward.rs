@@ -614,7 +614,14 @@ impl Renderer {
             ctx.groups_1d(camera.tile_count() as u64, 1),
         );
         rec.barrier();
-        stamp(rec, timestamps, "rasterize");
+        // A decoding rasterizer's stage holds the decoder too.
+        let decoded = settings.features.is_some_and(|f| f.decoded_by.is_some());
+        let label = if decoded {
+            "rasterize + decode"
+        } else {
+            "rasterize"
+        };
+        stamp(rec, timestamps, label);
         self.finish_frame(rec, camera);
         Ok(())
     }
