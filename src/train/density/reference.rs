@@ -83,6 +83,27 @@ impl HostStats {
     }
 }
 
+/// Gaussian `i`'s averaged statistic (0 when never seen) and its threshold (× its scale), as
+/// `decide.comp` forms them.
+fn statistic_and_threshold(
+    t: &Thresholds,
+    stats: &HostStats,
+    threshold_scale: Option<&[f32]>,
+    i: usize,
+) -> (f32, f32) {
+    let dn = stats.denom[i];
+    let stat = if dn > 0.0 {
+        stats.grad_accum[i] / dn
+    } else {
+        0.0
+    };
+    let thr = match threshold_scale {
+        Some(s) => t.grad_threshold * s[i],
+        None => t.grad_threshold,
+    };
+    (stat, thr)
+}
+
 /// The decision word of every Gaussian (`DECIDE_*` bits), as `decide.comp` computes it.
 pub fn decide(
     t: &Thresholds,
@@ -104,15 +125,7 @@ pub fn decide_with_abs(
     (0..params.len())
         .map(|i| {
             let dn = stats.denom[i];
-            let stat = if dn > 0.0 {
-                stats.grad_accum[i] / dn
-            } else {
-                0.0
-            };
-            let thr = match threshold_scale {
-                Some(s) => t.grad_threshold * s[i],
-                None => t.grad_threshold,
-            };
+            let (stat, thr) = statistic_and_threshold(t, stats, threshold_scale, i);
             let by_abs = abs_threshold
                 .is_some_and(|q| super::abs_quantile::average(stats.abs_accum[i], dn) >= q);
             let densify = stat >= thr || by_abs;
@@ -165,15 +178,7 @@ pub fn scores(
     (0..stats.denom.len())
         .map(|i| {
             let dn = stats.denom[i];
-            let stat = if dn > 0.0 {
-                stats.grad_accum[i] / dn
-            } else {
-                0.0
-            };
-            let thr = match threshold_scale {
-                Some(s) => t.grad_threshold * s[i],
-                None => t.grad_threshold,
-            };
+            let (stat, thr) = statistic_and_threshold(t, stats, threshold_scale, i);
             let abs_stat = super::abs_quantile::average(stats.abs_accum[i], dn);
             let by_abs = abs_threshold.is_some_and(|q| abs_stat >= q);
             let grad = ratio(stat >= thr, stat, thr);
