@@ -28,6 +28,9 @@
 #   local7k  bench trade on the packed scene at full size, 7k of the 30k calendar: ADC, ADC+LPM,
 #            ADC+LPM without zones wider than the scene (lpm-local-zones) and with slab zones
 #            (lpm-slab), seed SEED (0); TRADE_RUNS replaces the list
+#   budget7k bench trade on the packed scene at full size, 7k of the 30k calendar: ADC and ADC+LPM
+#            under one Gaussian budget (--max-gaussians CAP, default 1000000), so they compare
+#            at one count; seed SEED (0)
 #   train30k train the packed scene at full size with LPM, 30k iterations, --timestamps
 set -uo pipefail
 cd "$(dirname "$0")/../.."
@@ -221,12 +224,19 @@ for s in "$@"; do
                 --runs "${TRADE_RUNS:-adc,lpm,lpm-local-zones,lpm-slab}" --seed "${SEED:-0}" --eval-at 3500 --fps-frames 5 \
                 -o "$work/local7k"
         ;;
+    budget7k)
+        # ADC and LPM at one count: both under the same cap, interleaved.
+        need_scene budget7k &&
+            step budget7k 900 "$bin" bench trade "$scene" -r 1 --iterations 7000 --calendar 30000 \
+                --runs adc,lpm --max-gaussians "${CAP:-1000000}" --seed "${SEED:-0}" --eval-at 3500 \
+                --fps-frames 5 -o "$work/budget7k"
+        ;;
     train30k)
         need_scene train30k &&
             step train30k 900 "$bin" train "$scene" -r 1 --iterations 30000 --lpm --eval-every 5000 \
                 --timestamps -o "$work/train30k"
         ;;
-    *) echo "$s: unknown step (info tests demo fps fpspair trade7k trade30k ablate7k pair30k serial30k layouts local7k train30k)" >>"$summary" ;;
+    *) echo "$s: unknown step (info tests demo fps fpspair trade7k trade30k ablate7k pair30k serial30k layouts local7k budget7k train30k)" >>"$summary" ;;
     esac
     collect
 done
