@@ -755,6 +755,7 @@ impl DensityControl {
         }
         self.ensure_scratch(state.capacity().max(count))?;
         self.decided = Some(count);
+        self.last_budget = None;
         if count == 0 {
             return Ok(());
         }
@@ -803,7 +804,6 @@ impl DensityControl {
             self.ctx.groups_1d(count as u64, WG),
         );
         rec.barrier();
-        self.last_budget = None;
         if let Some(cap) = self.config.max_gaussians {
             self.record_budget(rec, count, cap)?;
         }
@@ -864,6 +864,8 @@ impl DensityControl {
         );
         self.ensure_scratch(state.capacity().max(count))?;
         self.decided = Some(count);
+        // No budget on a cull (it only removes).
+        self.last_budget = None;
         if count == 0 {
             return Ok(());
         }
