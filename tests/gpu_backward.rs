@@ -518,6 +518,7 @@ fn check_scene(ctx: &Arc<GpuContext>, label: &str, s: &Scene) {
     // rasterize_backward.glsl). With Pixel-GS's pixel counting and / or the absolute gradient
     // on: the same gradients, and the counts and absolute gradients.
     for (pixels, count_pixels, abs_grad) in [
+        (1, false, false),
         (1, true, false),
         (4, true, true),
         (1, false, true),

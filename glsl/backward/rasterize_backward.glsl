@@ -135,9 +135,10 @@ void atomic_add_feature(uint idx, float v) {
 void atomic_add_abs(uint idx, float v) { FLOAT_ATOMIC_ADD(abs_grad_f, abs_grad_bits, idx, v) }
 
 // Two ways to sum a splat's gradients over the tile (specialisation constant 7, SUBGROUP_ATOMICS):
-// - 0 (GPUs): each subgroup reduces its sums with subgroupAdd into shared memory (s_acc), and
-//   after the batch one invocation per splat adds the subgroups' sums to global memory: one set
-//   of atomics per (tile, splat) pair.
+// - 0 (GPUs): each subgroup sums its partial values into shared memory (s_acc), a few splats
+//   at a time through one transposing butterfly (visit_group; one subgroupAdd a slot without
+//   the shuffles), and after the batch one invocation per splat adds the subgroups' sums to
+//   global memory: one set of atomics per (tile, splat) pair.
 // - 1 (CPU drivers, where a shared-memory access, a reduction or an atomic is a loop over the
 //   subgroup's lanes whatever the number of active lanes): each subgroup reduces its sums with
 //   a transposing butterfly (subgroup_sums.glsl) and adds them to global memory itself, one
@@ -297,6 +298,74 @@ void add_slot(uint g, uint slot, float v) {
 #define SUMS_SLOTS ACC_STRIDE
 #define SUMS_PART_MAX PART_MAX
 #include "subgroup_sums.glsl"
+
+// The shared-sums path (SUBGROUP_ATOMICS = 0, GPUs) sums GROUP consecutive listed splats with
+// one transposing butterfly (subgroup_sums.glsl's TRANSPOSE_LEVEL) over their GROUP · ACC_STRIDE
+// slots, in chunks of SUBGROUP_SIZE: at subgroups of 32 and 9 slots, three splats' 27 slots take
+// 31 shuffles where nine reductions a splat took 45 each (135), and lane l then stores slot l
+// to s_acc with one store instruction instead of three elected lanes storing nine floats each.
+// GROUP fills about 32 slots whatever the subgroup size (at lavapipe's 8 the same three splats
+// in four chunks, so the GPU's grouping is what the tests run there); at least one splat.
+const uint GROUP_TARGET = SUBGROUP_SIZE > 32u ? SUBGROUP_SIZE : 32u;
+const uint GROUP = GROUP_TARGET / ACC_STRIDE > 0u ? GROUP_TARGET / ACC_STRIDE : 1u;
+const uint GROUP_SLOTS = GROUP * ACC_STRIDE;
+const uint GROUP_CHUNKS = (GROUP_SLOTS + SUBGROUP_SIZE - 1u) / SUBGROUP_SIZE;
+
+// The subgroup's sum of slot ch · SUBGROUP_SIZE + l of a group's slots, in lane l (zero past
+// GROUP_SLOTS, and everywhere when `any` is false: every slot is then an exact zero, so the
+// butterfly is skipped as the per-splat path skips its reductions). Call it with the whole
+// subgroup active.
+float group_chunk_sum(float grp[GROUP_SLOTS], uint ch, bool any) {
+    uint lane = gl_SubgroupInvocationID;
+    float v[SUMS_MAX_SUBGROUP];
+    [[unroll]] for (uint i = 0u; i < SUBGROUP_SIZE; i++) {
+        uint slot = ch * SUBGROUP_SIZE + i;
+        v[i] = slot < GROUP_SLOTS ? grp[min(slot, GROUP_SLOTS - 1u)] : 0.0;
+    }
+    if (!any) return 0.0;
+    TRANSPOSE_LEVEL(32u)
+    TRANSPOSE_LEVEL(16u)
+    TRANSPOSE_LEVEL(8u)
+    TRANSPOSE_LEVEL(4u)
+    TRANSPOSE_LEVEL(2u)
+    TRANSPOSE_LEVEL(1u)
+    return v[0];
+}
+
+// Shared sums: visits the listed entries i0 .. i0 + GROUP − 1 of the subgroup's list (those
+// below n_list) and stores the subgroup's sums of each into s_acc, lane l the chunk's slot l
+// (slot c of the group's splat m). Call it with the whole subgroup active (i0 and n_list
+// uniform).
+void visit_group(uint i0, uint n_list, uint list_base, uint done, uint max_last, vec2 ndc,
+                 bool smooth_mode) {
+    float grp[GROUP_SLOTS];
+    bool hit = false;
+    [[unroll]] for (uint m = 0u; m < GROUP; m++) {
+        float part[PART_MAX];
+        if (i0 + m < n_list) {
+            uint j = s_list[list_base + i0 + m];
+            uint e = max_last - 1u - (done + j);
+            float f[EXTRA_N];
+            [[unroll]] for (uint c = 0u; c < EXTRA; c++) f[c] = s_feat[j * EXTRA + c];
+            bool h = visit(s_mean_opacity[j], s_conic[j].xyz, s_rgb[j].xyz, f, e, ndc,
+                           smooth_mode, part);
+            hit = hit || h;
+        } else {
+            [[unroll]] for (uint c = 0u; c < ACC_STRIDE; c++) part[c] = 0.0;
+        }
+        [[unroll]] for (uint c = 0u; c < ACC_STRIDE; c++) grp[m * ACC_STRIDE + c] = part[c];
+    }
+    bool any = subgroupAny(hit);
+    [[unroll]] for (uint ch = 0u; ch < GROUP_CHUNKS; ch++) {
+        float sum = group_chunk_sum(grp, ch, any);
+        uint slot = ch * SUBGROUP_SIZE + gl_SubgroupInvocationID;
+        uint m = slot / ACC_STRIDE;
+        if (slot < GROUP_SLOTS && i0 + m < n_list) {
+            uint j = s_list[list_base + i0 + m];
+            s_acc[(j * NUM_SG + gl_SubgroupID) * ACC_STRIDE + slot % ACC_STRIDE] = sum;
+        }
+    }
+}
 #endif
 
 void main() {
@@ -426,6 +495,11 @@ void main() {
         } else
 #endif
         {
+#if HAS_SHUFFLE
+            for (uint i0 = 0u; i0 < n_list; i0 += GROUP) {
+                visit_group(i0, n_list, list_base, done, max_last, ndc, smooth_mode);
+            }
+#else
             for (uint i = 0u; i < n_list; i++) {
                 uint j = s_list[list_base + i];
                 uint e = max_last - 1u - (done + j);
@@ -436,9 +510,11 @@ void main() {
                 // The box test lists splats that may still miss every pixel of the subgroup
                 // (past their last contributors, or under alpha_min there): their sums are
                 // zeros without the ACC_STRIDE reductions (five shuffles each at a subgroup of
-                // 32), as gsplat skips a warp's reduction when no lane is valid. Only here: in
-                // the butterfly path above the vote measured slower on lavapipe (Truck -r 4,
-                // rasterize backward 76 / 86 ms → 95 / 89 ms, 2026-11-27).
+                // 32), as gsplat skips a warp's reduction when no lane is valid (visit_group
+                // skips its butterfly alike). Not in the per-lane-atomics path above: there the
+                // vote measured slower on lavapipe (Truck -r 4, rasterize backward 76 / 86 ms →
+                // 95 / 89 ms, 2026-11-27), and so did grouping its splats (lund_door -r 8,
+                // 47 / 50 ms → 67 / 61 ms, 2026-11-27).
                 if (subgroupAny(hit)) {
                     [[unroll]] for (uint c = 0u; c < ACC_STRIDE; c++) part[c] = subgroupAdd(part[c]);
                 }
@@ -447,6 +523,7 @@ void main() {
                     [[unroll]] for (uint c = 0u; c < ACC_STRIDE; c++) s_acc[a + c] = part[c];
                 }
             }
+#endif
             barrier();
             // One invocation per splat of the batch: the subgroups' sums, then the atomics.
             for (uint j = li; j < batch; j += WG_SIZE) {
