@@ -5,7 +5,8 @@
 // tile's list back to front from its `last_index`, so all pixels of the workgroup visit the
 // same surfel at the same time: surfels are staged in shared memory a batch at a time. Per
 // surfel an invocation sums its pixels' gradients; with SUBGROUP_ATOMICS = 0 (GPUs) the
-// subgroup sums those (subgroupAdd) into shared memory, and after the batch one invocation per
+// subgroup sums those (a transposing butterfly, or subgroupAdd without shuffles) into shared
+// memory, and after the batch one invocation per
 // surfel adds the subgroups' sums to global memory (18 atomics per (tile, surfel) pair at most;
 // zero sums are not added). With SUBGROUP_ATOMICS = 1 (CPU drivers, several pixels an
 // invocation) each subgroup adds its own sums through the transposing butterfly of
@@ -334,6 +335,29 @@ void main() {
             uint e = max_last - 1u - (done + j);
             float part[GRAD_STRIDE];
             visit(sc, s_h1[j], s_h2[j], s_h3[j], s_n[j], s_rgb[j], e, dm_dz_num, part);
+#if HAS_SHUFFLE
+            // The subgroup's sums through the transposing butterfly of subgroup_sums.glsl, in
+            // chunks of SUBGROUP_SIZE slots: lane l ends with slot l's sum and stores it (one
+            // store instruction). At subgroups of 32 the 18 slots take 31 shuffles, where the
+            // reductions below take 90 (five a slot) and an elected lane stores 18 floats.
+            uint lane = gl_SubgroupInvocationID;
+            uint a = (j * NUM_SG + gl_SubgroupID) * GRAD_STRIDE;
+            [[unroll]] for (uint ch = 0u; ch < (GRAD_STRIDE + SUBGROUP_SIZE - 1u) / SUBGROUP_SIZE; ch++) {
+                float v[SUMS_MAX_SUBGROUP];
+                [[unroll]] for (uint i = 0u; i < SUBGROUP_SIZE; i++) {
+                    uint slot = ch * SUBGROUP_SIZE + i;
+                    v[i] = slot < GRAD_STRIDE ? part[min(slot, GRAD_STRIDE - 1u)] : 0.0;
+                }
+                TRANSPOSE_LEVEL(32u)
+                TRANSPOSE_LEVEL(16u)
+                TRANSPOSE_LEVEL(8u)
+                TRANSPOSE_LEVEL(4u)
+                TRANSPOSE_LEVEL(2u)
+                TRANSPOSE_LEVEL(1u)
+                uint slot = ch * SUBGROUP_SIZE + lane;
+                if (slot < GRAD_STRIDE) s_acc[a + slot] = v[0];
+            }
+#else
             vec3 g_h1 = subgroupAdd(vec3(part[0], part[1], part[2]));
             vec3 g_h2 = subgroupAdd(vec3(part[3], part[4], part[5]));
             vec3 g_h3 = subgroupAdd(vec3(part[6], part[7], part[8]));
@@ -351,6 +375,7 @@ void main() {
                 s_acc[a + 14u] = g_op;
                 s_acc[a + 15u] = g_n.x; s_acc[a + 16u] = g_n.y; s_acc[a + 17u] = g_n.z;
             }
+#endif
         }
         barrier();
         // One invocation per surfel of the batch: the subgroups' sums, then the atomics.
