@@ -24,7 +24,8 @@
 #            with --timestamps and its GPU memory logged (Truck on an H100: 396 s a run, so
 #            both need ~13 min, detached over two calls; RUNS=adc or RUNS=lpm runs one)
 #   layouts  train the packed scene at full size with each --raster-pixels layout (LAYOUTS,
-#            default "1 2 4 8"), ITERATIONS (default 5000) each, --timestamps, alternated twice
+#            default "1 2 4 8"), ITERATIONS (default 5000) each, --timestamps, alternated twice;
+#            TRAIN_FLAGS=... added to every run (e.g. "--model 2dgs")
 #   local7k  bench trade on the packed scene at full size, 7k of the 30k calendar: ADC, ADC+LPM,
 #            ADC+LPM without zones wider than the scene (lpm-local-zones) and with slab zones
 #            (lpm-slab), seed SEED (0); TRADE_RUNS replaces the list
@@ -207,11 +208,12 @@ for s in "$@"; do
             for r in 1 2; do
                 [ -x "$work/base/lpmsplat" ] &&
                     step "layout-base-$r" 200 "$work/base/lpmsplat" train "$scene" -r 1 \
-                        --iterations "${ITERATIONS:-5000}" --timestamps -o "$work/layout-base-$r"
+                        --iterations "${ITERATIONS:-5000}" --timestamps ${TRAIN_FLAGS:-} \
+                        -o "$work/layout-base-$r"
                 for p in ${LAYOUTS:-1 2 4 8}; do
                     step "layout-$p-$r" 200 "$bin" train "$scene" -r 1 \
                         --iterations "${ITERATIONS:-5000}" --timestamps --raster-pixels "$p" \
-                        -o "$work/layout-$p-$r"
+                        ${TRAIN_FLAGS:-} -o "$work/layout-$p-$r"
                 done
             done
         ;;
