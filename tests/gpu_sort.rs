@@ -113,6 +113,15 @@ fn radix_sort_is_stable_and_matches_host_sort() {
         RadixSort::with_items(&ctx, 10, 256).is_err(),
         "65536-key blocks overflow"
     );
+    // GPU-sized blocks are ordered in shared memory before they are written out (where the
+    // device has room: 16.25 KiB), CPU-sized ones are not: both scatters run here.
+    assert!(!RadixSort::reorders(&ctx.info, 64));
+    assert_eq!(
+        RadixSort::reorders(&ctx.info, 8),
+        ctx.info.max_shared_memory >= 16 * 1024 + 256,
+        "{} bytes of shared memory",
+        ctx.info.max_shared_memory
+    );
     for (&(n, bits), k) in [
         (0usize, 32u32),
         (1, 8),

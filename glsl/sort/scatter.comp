@@ -23,8 +23,22 @@ layout(push_constant) uniform Push {
     uint count_index; uint shift; uint digit_mask; uint drop_keys; uint drop_key;
 };
 #include "radix_digit.glsl"
-// [subgroup · RADIX/2 + word]: each subgroup's totals (room for subgroups of size 1).
-shared uint sg_totals[WG_SIZE * (RADIX / 2u)];
+// REORDER = 1 (GPUs, blocks that fit): the block's pairs are first placed in shared memory in
+// their sorted order, and then written out by consecutive invocations to consecutive places of
+// each digit's run, so a subgroup's stores land in one or two runs (coalesced) instead of one
+// place per digit of each of its invocations. CPU drivers sort blocks too large for shared
+// memory, and their stores are per-lane anyway: REORDER = 0 writes each key to its place at once.
+layout(constant_id = 5) const uint REORDER = 0u;
+// One pool of shared memory, used twice: first [subgroup · RADIX/2 + word], each subgroup's
+// totals (room for subgroups of size 1); then, with REORDER, the block's keys [e] and values
+// [BLOCK_KEYS + e] in sorted order (at 8 keys an invocation and 5-bit digits both take 16 KiB).
+const uint TOTALS = WG_SIZE * (RADIX / 2u);
+const uint BLOCK_KEYS = REORDER != 0u ? WG_SIZE * ITEMS : 0u;
+shared uint pool[TOTALS > 2u * BLOCK_KEYS ? TOTALS : 2u * BLOCK_KEYS];
+#define sg_totals pool
+// Per digit, where its run starts in the block's order and in the output.
+shared uint s_local_start[RADIX];
+shared uint s_global_start[RADIX];
 
 void main() {
     uint n = counts[count_index];
@@ -69,12 +83,44 @@ void main() {
             before[d2] += sg_totals[sg * (RADIX / 2u) + d2];
         }
     }
+    // Where each digit's keys of this invocation go: in the output, or (REORDER) in the
+    // block's sorted order, whose digit runs start at the block's exclusive prefix of the
+    // digits' totals (every subgroup's totals summed; 16-bit fields cannot overflow, a block
+    // holds < 65536 keys).
+    uint start[RADIX];
+    uint kept = 0u;
+    if (REORDER != 0u) {
+        uint total[RADIX / 2u];
+        [[unroll]] for (uint d2 = 0u; d2 < RADIX / 2u; d2++) total[d2] = 0u;
+        for (uint sg = 0u; sg < gl_NumSubgroups; sg++) {
+            [[unroll]] for (uint d2 = 0u; d2 < RADIX / 2u; d2++) {
+                total[d2] += sg_totals[sg * (RADIX / 2u) + d2];
+            }
+        }
+        [[unroll]] for (uint d2 = 0u; d2 < RADIX / 2u; d2++) {
+            start[2u * d2] = kept;
+            kept += total[d2] & 0xFFFFu;
+            start[2u * d2 + 1u] = kept;
+            kept += total[d2] >> 16u;
+        }
+        uint li = gl_LocalInvocationIndex;
+        if (li < RADIX) {
+            uint mine = 0u;
+            [[unroll]] for (uint r = 0u; r < RADIX; r++) mine = li == r ? start[r] : mine;
+            s_local_start[li] = mine;
+            s_global_start[li] = hist[li * blocks + block];
+        }
+    } else {
+        [[unroll]] for (uint r = 0u; r < RADIX; r++) start[r] = hist[r * blocks + block];
+    }
     uint offsets[RADIX];
     [[unroll]] for (uint d2 = 0u; d2 < RADIX / 2u; d2++) {
         uint prefix = before[d2] + inclusive[d2] - packed[d2];
-        offsets[2u * d2] = (prefix & 0xFFFFu) + hist[(2u * d2) * blocks + block];
-        offsets[2u * d2 + 1u] = (prefix >> 16u) + hist[(2u * d2 + 1u) * blocks + block];
+        offsets[2u * d2] = (prefix & 0xFFFFu) + start[2u * d2];
+        offsets[2u * d2 + 1u] = (prefix >> 16u) + start[2u * d2 + 1u];
     }
+    // The pool's totals are read: it can take the keys.
+    if (REORDER != 0u) barrier();
     for (uint k = 0u; k < ITEMS; k++) {
         uint i = first + k;
         if (i < n) {
@@ -87,8 +133,25 @@ void main() {
                 dst += mine ? offsets[r] : 0u;
                 offsets[r] += mine ? 1u : 0u;
             }
+            if (REORDER != 0u) {
+                pool[dst] = key;
+                pool[BLOCK_KEYS + dst] = vals_in[i];
+            } else {
+                keys_out[dst] = key;
+                vals_out[dst] = vals_in[i];
+            }
+        }
+    }
+    if (REORDER != 0u) {
+        barrier();
+        // Invocation i writes the block's sorted entries i, i + WG_SIZE, ...: entry e of digit
+        // d's run goes to that run's start in the output + (e − the run's start in the block).
+        for (uint e = gl_LocalInvocationIndex; e < kept; e += WG_SIZE) {
+            uint key = pool[e];
+            uint d = radix_digit(key, shift, digit_mask);
+            uint dst = s_global_start[d] + (e - s_local_start[d]);
             keys_out[dst] = key;
-            vals_out[dst] = vals_in[i];
+            vals_out[dst] = pool[BLOCK_KEYS + e];
         }
     }
 }

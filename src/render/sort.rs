@@ -125,6 +125,7 @@ impl RadixSort {
             "radix sort: {items} keys per invocation makes blocks of 65536 keys or more"
         );
         let capacity = capacity.max(1);
+        let reorder = Self::reorders(&ctx.info, items);
         let pipes = |digit_bits: u32| -> anyhow::Result<[ComputePipeline; 2]> {
             Ok([
                 ComputePipeline::new(
@@ -134,7 +135,7 @@ impl RadixSort {
                     3,
                     std::mem::size_of::<UpPush>() as u32,
                     WG,
-                    &[items, digit_bits, u32::from(drops)],
+                    &[items, digit_bits, u32::from(drops), u32::from(reorder)],
                 )?,
                 ComputePipeline::new(
                     ctx,
@@ -143,7 +144,7 @@ impl RadixSort {
                     6,
                     std::mem::size_of::<ScatterPush>() as u32,
                     WG,
-                    &[items, digit_bits, u32::from(drops)],
+                    &[items, digit_bits, u32::from(drops), u32::from(reorder)],
                 )?,
             ])
         };
@@ -166,6 +167,17 @@ impl RadixSort {
             sizes: DispatchSize::new(ctx, 2)?,
             capacity,
         })
+    }
+
+    /// Whether the scatter of blocks of `WG · items` keys orders each block in shared memory
+    /// before writing it out (see `glsl/sort/scatter.comp`): where a block's keys and values
+    /// fit beside the scatter's other shared arrays, i.e. GPUs' blocks (8 keys an invocation),
+    /// not lavapipe's (64; its stores are per lane anyway, so coalescing gains nothing there).
+    pub fn reorders(info: &crate::gpu::DeviceInfo, items: u32) -> bool {
+        // The block's pairs share their memory with the subgroups' totals (room for subgroups
+        // of one); beside them, the digits' two starts.
+        let pool = (2 * 4 * WG as u64 * items as u64).max(4 * WG as u64 * (MAX_RADIX / 2));
+        items <= GPU_ITEMS && pool + 2 * 4 * MAX_RADIX <= info.max_shared_memory as u64
     }
 
     fn block_of(items: u32) -> u64 {
