@@ -378,13 +378,14 @@ void main() {
 #endif
         }
         barrier();
-        // One invocation per surfel of the batch: the subgroups' sums, then the atomics.
-        for (uint j = li; j < batch; j += WG_SIZE) {
-            for (uint c = 0u; c < GRAD_STRIDE; c++) {
-                float sum = 0.0;
-                for (uint sg = 0u; sg < NUM_SG; sg++) sum += s_acc[(j * NUM_SG + sg) * GRAD_STRIDE + c];
-                add_slot(s_id[j], c, sum);
-            }
+        // One invocation per (surfel, slot) of the batch: the subgroups' sums of the slot, then
+        // its atomic; every invocation takes part, where one invocation per surfel (32 a batch
+        // at 18 slots) left seven eighths of the workgroup idle.
+        for (uint t = li; t < batch * GRAD_STRIDE; t += WG_SIZE) {
+            uint j = t / GRAD_STRIDE, c = t % GRAD_STRIDE;
+            float sum = 0.0;
+            for (uint sg = 0u; sg < NUM_SG; sg++) sum += s_acc[(j * NUM_SG + sg) * GRAD_STRIDE + c];
+            add_slot(s_id[j], c, sum);
         }
     }
 }
