@@ -323,12 +323,7 @@ float group_chunk_sum(float grp[GROUP_SLOTS], uint ch, bool any) {
         v[i] = slot < GROUP_SLOTS ? grp[min(slot, GROUP_SLOTS - 1u)] : 0.0;
     }
     if (!any) return 0.0;
-    TRANSPOSE_LEVEL(32u)
-    TRANSPOSE_LEVEL(16u)
-    TRANSPOSE_LEVEL(8u)
-    TRANSPOSE_LEVEL(4u)
-    TRANSPOSE_LEVEL(2u)
-    TRANSPOSE_LEVEL(1u)
+    TRANSPOSE_ALL
     return v[0];
 }
 

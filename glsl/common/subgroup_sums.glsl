@@ -25,6 +25,11 @@
             v[i] = keep + subgroupShuffleXor(send, (H));                               \
         }                                                                              \
     }
+// The whole butterfly over v[0 .. SUBGROUP_SIZE): lane l ends with the subgroup's sum of slot l
+// in v[0].
+#define TRANSPOSE_ALL                                                                  \
+    TRANSPOSE_LEVEL(32u) TRANSPOSE_LEVEL(16u) TRANSPOSE_LEVEL(8u) TRANSPOSE_LEVEL(4u)  \
+    TRANSPOSE_LEVEL(2u) TRANSPOSE_LEVEL(1u)
 const uint SUMS_MAX_SUBGROUP = 64u;
 const uint SUMS_FULL_CHUNKS = (SUMS_SLOTS) / SUBGROUP_SIZE;
 const uint SUMS_REM = (SUMS_SLOTS) - SUMS_FULL_CHUNKS * SUBGROUP_SIZE;
@@ -51,12 +56,7 @@ void add_sums_transposed(float part[SUMS_PART_MAX], uint g) {
             uint c = chunk * SUBGROUP_SIZE + i;
             v[i] = c < (SUMS_SLOTS) ? part[min(c, (SUMS_PART_MAX) - 1u)] : 0.0;
         }
-        TRANSPOSE_LEVEL(32u)
-        TRANSPOSE_LEVEL(16u)
-        TRANSPOSE_LEVEL(8u)
-        TRANSPOSE_LEVEL(4u)
-        TRANSPOSE_LEVEL(2u)
-        TRANSPOSE_LEVEL(1u)
+        TRANSPOSE_ALL
         uint slot = chunk * SUBGROUP_SIZE + lane;
         if (slot < (SUMS_SLOTS)) add_slot(g, slot, v[0]);
     }

@@ -348,12 +348,7 @@ void main() {
                     uint slot = ch * SUBGROUP_SIZE + i;
                     v[i] = slot < GRAD_STRIDE ? part[min(slot, GRAD_STRIDE - 1u)] : 0.0;
                 }
-                TRANSPOSE_LEVEL(32u)
-                TRANSPOSE_LEVEL(16u)
-                TRANSPOSE_LEVEL(8u)
-                TRANSPOSE_LEVEL(4u)
-                TRANSPOSE_LEVEL(2u)
-                TRANSPOSE_LEVEL(1u)
+                TRANSPOSE_ALL
                 uint slot = ch * SUBGROUP_SIZE + lane;
                 if (slot < GRAD_STRIDE) s_acc[a + slot] = v[0];
             }
