@@ -137,8 +137,8 @@ void atomic_add_abs(uint idx, float v) { FLOAT_ATOMIC_ADD(abs_grad_f, abs_grad_b
 // Two ways to sum a splat's gradients over the tile (specialisation constant 7, SUBGROUP_ATOMICS):
 // - 0 (GPUs): each subgroup sums its partial values into shared memory (s_acc), a few splats
 //   at a time through one transposing butterfly (visit_group; one subgroupAdd a slot without
-//   the shuffles), and after the batch one invocation per splat adds the subgroups' sums to
-//   global memory: one set of atomics per (tile, splat) pair.
+//   the shuffles), and after the batch one invocation per (splat, slot) adds the subgroups'
+//   sums to global memory: one set of atomics per (tile, splat) pair.
 // - 1 (CPU drivers, where a shared-memory access, a reduction or an atomic is a loop over the
 //   subgroup's lanes whatever the number of active lanes): each subgroup reduces its sums with
 //   a transposing butterfly (subgroup_sums.glsl) and adds them to global memory itself, one
@@ -316,13 +316,13 @@ const uint GROUP_CHUNKS = (GROUP_SLOTS + SUBGROUP_SIZE - 1u) / SUBGROUP_SIZE;
 // butterfly is skipped as the per-splat path skips its reductions). Call it with the whole
 // subgroup active.
 float group_chunk_sum(float grp[GROUP_SLOTS], uint ch, bool any) {
+    if (!any) return 0.0;
     uint lane = gl_SubgroupInvocationID;
     float v[SUMS_MAX_SUBGROUP];
     [[unroll]] for (uint i = 0u; i < SUBGROUP_SIZE; i++) {
         uint slot = ch * SUBGROUP_SIZE + i;
         v[i] = slot < GROUP_SLOTS ? grp[min(slot, GROUP_SLOTS - 1u)] : 0.0;
     }
-    if (!any) return 0.0;
     TRANSPOSE_ALL
     return v[0];
 }

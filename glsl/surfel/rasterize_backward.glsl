@@ -6,9 +6,8 @@
 // same surfel at the same time: surfels are staged in shared memory a batch at a time. Per
 // surfel an invocation sums its pixels' gradients; with SUBGROUP_ATOMICS = 0 (GPUs) the
 // subgroup sums those (a transposing butterfly, or subgroupAdd without shuffles) into shared
-// memory, and after the batch one invocation per
-// surfel adds the subgroups' sums to global memory (18 atomics per (tile, surfel) pair at most;
-// zero sums are not added). With SUBGROUP_ATOMICS = 1 (CPU drivers, several pixels an
+// memory, and after the batch one invocation per (surfel, slot) adds the subgroups' sums to
+// global memory (18 atomics per (tile, surfel) pair at most; zero sums are not added). With SUBGROUP_ATOMICS = 1 (CPU drivers, several pixels an
 // invocation) each subgroup adds its own sums through the transposing butterfly of
 // subgroup_sums.glsl, and takes each surfel from the lane that loaded it by shuffles (every
 // shared-memory load, reduction and atomic is a loop over the lanes there; see
