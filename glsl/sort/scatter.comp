@@ -46,23 +46,24 @@ void main() {
     uint block = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
     if (block >= blocks) return;
     uint first = block * WG_SIZE * ITEMS + gl_LocalInvocationIndex * ITEMS;
+    // This invocation's keys: ITEMS but in the last block. The loops below stop there, not at
+    // ITEMS with a masked test: CPU drivers run a masked body at full cost, and a subgroup's
+    // invocations hold consecutive keys, so every subgroup but one skips or runs them whole.
+    uint owned = first < n ? min(ITEMS, n - first) : 0u;
 
     // The per-digit arrays are only ever indexed by unrolled loop counters: a digit selects its
     // slot by comparison. Indexing them by the digit itself would put them in memory (spilled
     // on GPUs, one scalar access per lane on CPU drivers), which cost more than these selects.
     uint packed[RADIX / 2u];
     [[unroll]] for (uint d2 = 0u; d2 < RADIX / 2u; d2++) packed[d2] = 0u;
-    for (uint k = 0u; k < ITEMS; k++) {
-        uint i = first + k;
-        if (i < n) {
-            uint key = keys_in[i];
-            uint d = radix_digit(key, shift, digit_mask);
-            // A dropped key counts for no digit.
-            uint one = DROPS && drop_keys != 0u && key == drop_key ? 0u : 1u;
-            one <<= ((d & 1u) * 16u);
-            [[unroll]] for (uint d2 = 0u; d2 < RADIX / 2u; d2++) {
-                packed[d2] += (d >> 1u) == d2 ? one : 0u;
-            }
+    for (uint k = 0u; k < owned; k++) {
+        uint key = keys_in[first + k];
+        uint d = radix_digit(key, shift, digit_mask);
+        // A dropped key counts for no digit.
+        uint one = DROPS && drop_keys != 0u && key == drop_key ? 0u : 1u;
+        one <<= ((d & 1u) * 16u);
+        [[unroll]] for (uint d2 = 0u; d2 < RADIX / 2u; d2++) {
+            packed[d2] += (d >> 1u) == d2 ? one : 0u;
         }
     }
     uint inclusive[RADIX / 2u];
@@ -121,25 +122,23 @@ void main() {
     }
     // The pool's totals are read: it can take the keys.
     if (REORDER != 0u) barrier();
-    for (uint k = 0u; k < ITEMS; k++) {
+    for (uint k = 0u; k < owned; k++) {
         uint i = first + k;
-        if (i < n) {
-            uint key = keys_in[i];
-            if (DROPS && drop_keys != 0u && key == drop_key) continue;
-            uint d = radix_digit(key, shift, digit_mask);
-            uint dst = 0u;
-            [[unroll]] for (uint r = 0u; r < RADIX; r++) {
-                bool mine = d == r;
-                dst += mine ? offsets[r] : 0u;
-                offsets[r] += mine ? 1u : 0u;
-            }
-            if (REORDER != 0u) {
-                pool[dst] = key;
-                pool[BLOCK_KEYS + dst] = vals_in[i];
-            } else {
-                keys_out[dst] = key;
-                vals_out[dst] = vals_in[i];
-            }
+        uint key = keys_in[i];
+        if (DROPS && drop_keys != 0u && key == drop_key) continue;
+        uint d = radix_digit(key, shift, digit_mask);
+        uint dst = 0u;
+        [[unroll]] for (uint r = 0u; r < RADIX; r++) {
+            bool mine = d == r;
+            dst += mine ? offsets[r] : 0u;
+            offsets[r] += mine ? 1u : 0u;
+        }
+        if (REORDER != 0u) {
+            pool[dst] = key;
+            pool[BLOCK_KEYS + dst] = vals_in[i];
+        } else {
+            keys_out[dst] = key;
+            vals_out[dst] = vals_in[i];
         }
     }
     if (REORDER != 0u) {

@@ -29,7 +29,9 @@ void main() {
     if (gl_LocalInvocationIndex < RADIX) block_hist[gl_LocalInvocationIndex] = 0u;
     barrier();
     uint base = block * WG_SIZE * ITEMS;
-    for (uint k = 0u; k < ITEMS; k++) {
+    // The bound stops at the last key (uniform over the workgroup): CPU drivers run a masked
+    // `if` at full cost, so a block past the end would otherwise cost as much as a full one.
+    for (uint k = 0u; k < ITEMS && base + k * WG_SIZE < n; k++) {
         uint i = base + k * WG_SIZE + gl_LocalInvocationIndex;
         if (i < n) {
             uint key = keys[i];
