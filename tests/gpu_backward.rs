@@ -8,7 +8,7 @@
 mod child_run;
 
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder};
-use lpmsplat::reference::gpu_layout::{
+use lpmsplat::kernel_fixtures::{
     gaussian_params, gpu_forward_fixture, round_gaussians_to_f32, round_view_to_f32,
 };
 use lpmsplat::reference::scenes::{random_gaussians, random_view};

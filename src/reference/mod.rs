@@ -75,7 +75,6 @@
 
 pub mod backward;
 pub mod decoder;
-pub mod gpu_layout;
 pub mod linalg;
 pub mod mip;
 pub mod project;

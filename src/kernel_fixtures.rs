@@ -8,7 +8,7 @@
 
 use bytemuck::Zeroable;
 
-use super::{RefGaussians, RenderOutput};
+use crate::reference::{RefGaussians, RenderOutput};
 use crate::render::layout::{
     CameraGpu, ProjectedGpu, FLAG_CLAMPED_B, FLAG_CLAMPED_G, FLAG_CLAMPED_R,
 };
