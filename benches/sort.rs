@@ -37,8 +37,8 @@ fn main() -> anyhow::Result<()> {
             .map(|_| rng.gen::<u32>() & (u32::MAX >> (32 - bits)))
             .collect();
         let vals: Vec<u32> = (0..n as u32).collect();
-        let items = RadixSort::new(&ctx, 1)?.items();
-        let sorter = RadixSort::with_options(&ctx, n as u64, items, wide, false)?;
+        let shape = RadixSort::device_shape(&ctx);
+        let sorter = RadixSort::with_options(&ctx, n as u64, shape, wide, false)?;
         let kb = GpuBuffer::from_slice(&ctx, "keys", &keys)?;
         let vb = GpuBuffer::from_slice(&ctx, "vals", &vals)?;
         let sk = GpuBuffer::<u32>::new(&ctx, "sk", n, BufferKind::DeviceLocal)?;

@@ -6,7 +6,7 @@ mod child_run;
 
 use lpmsplat::gpu::{BufferKind, GpuBuffer, GpuContext, GpuOptions, Recorder};
 use lpmsplat::render::scan::PrefixScan;
-use lpmsplat::render::sort::{DropKeys, RadixSort, SortedIn};
+use lpmsplat::render::sort::{BlockShape, DropKeys, RadixSort, SortedIn};
 use rand::{Rng, SeedableRng};
 use std::sync::Arc;
 
@@ -100,24 +100,30 @@ fn check_sort_with(
 fn radix_sort_is_stable_and_matches_host_sort() {
     let ctx = ctx();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
-    // Both block sizes (GPUs take 8 keys per invocation, CPU drivers 64), whatever the device,
-    // with 4-bit passes only and with the 5-bit passes that save a pass (13, 29, 31 and 32 bits
-    // use them); the sizes straddle both block lengths (2048 and 16384 keys).
+    // Both block shapes (GPUs: 256 invocations of 8 keys, CPU drivers 64 of 256), whatever the
+    // device, with 4-bit passes only and with the 5-bit passes that save a pass (13, 29, 31 and
+    // 32 bits use them); the sizes straddle both block lengths (2048 and 16384 keys).
+    let (gpu, cpu) = (BlockShape::GPU, BlockShape::CPU);
     let sorters = [
-        RadixSort::with_options(&ctx, 300_000, 8, false, false).unwrap(),
-        RadixSort::with_options(&ctx, 300_000, 64, false, false).unwrap(),
-        RadixSort::with_options(&ctx, 300_000, 8, true, false).unwrap(),
-        RadixSort::with_options(&ctx, 300_000, 64, true, false).unwrap(),
+        RadixSort::with_options(&ctx, 300_000, gpu, false, false).unwrap(),
+        RadixSort::with_options(&ctx, 300_000, cpu, false, false).unwrap(),
+        RadixSort::with_options(&ctx, 300_000, gpu, true, false).unwrap(),
+        RadixSort::with_options(&ctx, 300_000, cpu, true, false).unwrap(),
     ];
+    let shape = |wg, items| BlockShape { wg, items };
     assert!(
-        RadixSort::with_items(&ctx, 10, 256).is_err(),
+        RadixSort::with_shape(&ctx, 10, shape(256, 256)).is_err(),
         "65536-key blocks overflow"
+    );
+    assert!(
+        RadixSort::with_shape(&ctx, 10, shape(16, 64)).is_err(),
+        "fewer invocations than a pass has digits"
     );
     // GPU-sized blocks are ordered in shared memory before they are written out (where the
     // device has room: 16.25 KiB), CPU-sized ones are not: both scatters run here.
-    assert!(!RadixSort::reorders(&ctx.info, 64));
+    assert!(!RadixSort::reorders(&ctx.info, cpu));
     assert_eq!(
-        RadixSort::reorders(&ctx.info, 8),
+        RadixSort::reorders(&ctx.info, gpu),
         ctx.info.max_shared_memory >= 16 * 1024 + 256,
         "{} bytes of shared memory",
         ctx.info.max_shared_memory
@@ -166,8 +172,8 @@ fn radix_sort_drops_the_named_key_in_its_first_pass() {
     let mut rng = rand_pcg::Pcg64::seed_from_u64(9);
     let drop_key = 0x7FFF_FFFF;
     for wide in [false, true] {
-        for items in [8, 64] {
-            let sorter = RadixSort::with_options(&ctx, 100_000, items, wide, true).unwrap();
+        for shape in [BlockShape::GPU, BlockShape::CPU] {
+            let sorter = RadixSort::with_options(&ctx, 100_000, shape, wide, true).unwrap();
             // (n, bits, share dropped): none, all, some; one and several passes; the dropped
             // key's digits collide with kept keys' digits in every pass.
             for (n, bits, share) in [
@@ -231,7 +237,7 @@ fn radix_sort_drops_the_named_key_in_its_first_pass() {
                     .filter(|&(k, _)| k != drop_key)
                     .collect();
                 expect.sort_by_key(|&(k, _)| k & mask);
-                let label = format!("n={n} bits={bits} items={items} wide={wide}");
+                let label = format!("n={n} bits={bits} {shape:?} wide={wide}");
                 let kept = counts.read().unwrap()[2] as usize;
                 assert_eq!(kept, expect.len(), "{label}: kept count");
                 let (ko, vo) = match at {

@@ -10,14 +10,33 @@ use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder};
 use crate::shaders;
 use std::sync::Arc;
 
-const WG: u32 = 256;
-/// Keys per invocation on GPUs: blocks of 2048 keys keep many workgroups in flight.
-const GPU_ITEMS: u32 = 8;
-/// Keys per invocation on CPU drivers. Lavapipe pays a large fixed cost per workgroup and per
-/// invocation (coroutine set-up, the subgroup scans), so bigger blocks sort faster there:
-/// `cargo bench --bench sort`, 262k 45-bit keys (the 64-bit keys of the time), 2 loaded cores:
-/// 8 → 290 ms, 16 → 208, 32 → 157, 64 → 129, 128 → 144.
-const CPU_ITEMS: u32 = 64;
+/// The keys a block (workgroup) sorts: `wg` invocations of `items` keys each.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BlockShape {
+    pub wg: u32,
+    pub items: u32,
+}
+
+impl BlockShape {
+    /// GPUs: 256 invocations of 8 keys; blocks of 2,048 keys keep many workgroups in flight.
+    pub const GPU: Self = Self { wg: 256, items: 8 };
+    /// CPU drivers: 64 invocations of 256 keys. Lavapipe runs a workgroup on one thread and pays
+    /// per block for what every subgroup does whatever its keys (the scatter's subgroup scans,
+    /// each subgroup adding the totals of the subgroups before it, the histogram loads), so big
+    /// blocks with few invocations sort faster there. 256 × 64 (the shape until 2026-11-27)
+    /// against this one, both 16,384 keys, alternated on one machine: training's depth sort
+    /// 12.4 → 5.6 ms at 3,000 Gaussians, 36 → 26 ms at 56k (Truck `-r 4`), and the tile sort
+    /// of a 100k-Gaussian frame at 1352×1014 0.26–0.29 of the rasterize time against 0.35.
+    /// Earlier, at 256 invocations (`cargo bench --bench sort`, 262k 45-bit keys): 8 keys an
+    /// invocation 290 ms, 16 208, 32 157, 64 129, 128 144.
+    pub const CPU: Self = Self { wg: 64, items: 256 };
+
+    /// Keys a block holds.
+    pub fn keys(self) -> u64 {
+        self.wg as u64 * self.items as u64
+    }
+}
+
 /// The narrow digit, and the wide one used only where it saves a pass: a 5-bit scatter keeps
 /// twice the per-invocation counters of a 4-bit one, so it costs more a key.
 const NARROW_BITS: u32 = 4;
@@ -67,8 +86,8 @@ pub enum SortedIn {
 
 /// A radix sorter for up to `capacity` pairs.
 pub struct RadixSort {
-    /// Keys per invocation; a block (workgroup) sorts `WG · items` keys.
-    items: u32,
+    /// The keys a workgroup sorts.
+    shape: BlockShape,
     /// Whether 5-bit passes may be used (see [`RadixSort::pass_widths`]).
     wide: bool,
     /// Whether the kernels can drop keys ([`RadixSort::dropping`]).
@@ -84,48 +103,60 @@ pub struct RadixSort {
 }
 
 impl RadixSort {
-    /// A sorter with the block size suited to the device (see [`CPU_ITEMS`]), 5-bit passes
+    /// A sorter with the block size suited to the device (see [`BlockShape`]), 5-bit passes
     /// where they save a pass.
     pub fn new(ctx: &Arc<GpuContext>, capacity: u64) -> anyhow::Result<Self> {
-        Self::with_options(ctx, capacity, Self::device_items(ctx), true, false)
+        Self::with_options(ctx, capacity, Self::device_shape(ctx), true, false)
     }
 
     /// [`RadixSort::new`] whose sorts may drop keys ([`RadixSort::record_dropping`]).
     pub fn dropping(ctx: &Arc<GpuContext>, capacity: u64) -> anyhow::Result<Self> {
-        Self::with_options(ctx, capacity, Self::device_items(ctx), true, true)
+        Self::with_options(ctx, capacity, Self::device_shape(ctx), true, true)
     }
 
-    fn device_items(ctx: &GpuContext) -> u32 {
+    /// The block shape suited to the device ([`BlockShape::CPU`] on CPU drivers).
+    pub fn device_shape(ctx: &GpuContext) -> BlockShape {
         if ctx.info.device_type.starts_with("CPU") {
-            CPU_ITEMS
+            BlockShape::CPU
         } else {
-            GPU_ITEMS
+            BlockShape::GPU
         }
     }
 
-    /// A sorter whose invocations take `items` keys each, 4-bit passes only (tests cover both
-    /// block sizes on any device).
-    pub fn with_items(ctx: &Arc<GpuContext>, capacity: u64, items: u32) -> anyhow::Result<Self> {
-        Self::with_options(ctx, capacity, items, false, false)
+    /// A sorter with blocks of `shape`, 4-bit passes only (tests cover both shapes on any
+    /// device).
+    pub fn with_shape(
+        ctx: &Arc<GpuContext>,
+        capacity: u64,
+        shape: BlockShape,
+    ) -> anyhow::Result<Self> {
+        Self::with_options(ctx, capacity, shape, false, false)
     }
 
-    /// A sorter whose invocations take `items` keys each; `wide` allows 5-bit passes, `drops`
-    /// sorts that drop keys (the kernels of a sorter that never drops leave the test out: it
-    /// cost the tile sort about a tenth on lavapipe). A block must hold fewer than 65536 keys:
-    /// the scatter packs per-digit counts in 16 bits.
+    /// A sorter with blocks of `shape`; `wide` allows 5-bit passes, `drops` sorts that drop
+    /// keys (the kernels of a sorter that never drops leave the test out: it cost the tile sort
+    /// about a tenth on lavapipe). A block must hold fewer than 65536 keys (the scatter packs
+    /// per-digit counts in 16 bits) and have an invocation per digit of the widest pass.
     pub fn with_options(
         ctx: &Arc<GpuContext>,
         capacity: u64,
-        items: u32,
+        shape: BlockShape,
         wide: bool,
         drops: bool,
     ) -> anyhow::Result<Self> {
         anyhow::ensure!(
-            items >= 1 && (WG as u64) * (items as u64) < 65536,
-            "radix sort: {items} keys per invocation makes blocks of 65536 keys or more"
+            shape.items >= 1 && shape.keys() < 65536,
+            "radix sort: blocks of {} × {} keys: 65536 keys or more",
+            shape.wg,
+            shape.items
+        );
+        anyhow::ensure!(
+            shape.wg as u64 >= MAX_RADIX,
+            "radix sort: blocks of {} invocations: fewer than the {MAX_RADIX} digits of a pass",
+            shape.wg
         );
         let capacity = capacity.max(1);
-        let reorder = Self::reorders(&ctx.info, items);
+        let reorder = Self::reorders(&ctx.info, shape);
         let pipes = |digit_bits: u32| -> anyhow::Result<[ComputePipeline; 2]> {
             Ok([
                 ComputePipeline::new(
@@ -134,8 +165,13 @@ impl RadixSort {
                     shaders::SORT_UPSWEEP,
                     3,
                     std::mem::size_of::<UpPush>() as u32,
-                    WG,
-                    &[items, digit_bits, u32::from(drops), u32::from(reorder)],
+                    shape.wg,
+                    &[
+                        shape.items,
+                        digit_bits,
+                        u32::from(drops),
+                        u32::from(reorder),
+                    ],
                 )?,
                 ComputePipeline::new(
                     ctx,
@@ -143,12 +179,17 @@ impl RadixSort {
                     shaders::SORT_SCATTER,
                     6,
                     std::mem::size_of::<ScatterPush>() as u32,
-                    WG,
-                    &[items, digit_bits, u32::from(drops), u32::from(reorder)],
+                    shape.wg,
+                    &[
+                        shape.items,
+                        digit_bits,
+                        u32::from(drops),
+                        u32::from(reorder),
+                    ],
                 )?,
             ])
         };
-        let hist_len = MAX_RADIX * capacity.div_ceil(Self::block_of(items));
+        let hist_len = MAX_RADIX * capacity.div_ceil(shape.keys());
         let scan = PrefixScan::new(ctx, hist_len)?;
         let hist = GpuBuffer::new(
             ctx,
@@ -157,7 +198,7 @@ impl RadixSort {
             BufferKind::DeviceLocal,
         )?;
         Ok(Self {
-            items,
+            shape,
             wide,
             drops,
             narrow: pipes(NARROW_BITS)?,
@@ -169,24 +210,21 @@ impl RadixSort {
         })
     }
 
-    /// Whether the scatter of blocks of `WG · items` keys orders each block in shared memory
-    /// before writing it out (see `glsl/sort/scatter.comp`): where a block's keys and values
-    /// fit beside the scatter's other shared arrays, i.e. GPUs' blocks (8 keys an invocation),
-    /// not lavapipe's (64; its stores are per lane anyway, so coalescing gains nothing there).
-    pub fn reorders(info: &crate::gpu::DeviceInfo, items: u32) -> bool {
+    /// Whether the scatter of blocks of `shape` orders each block in shared memory before
+    /// writing it out (see `glsl/sort/scatter.comp`): where a block's keys and values fit beside
+    /// the scatter's other shared arrays, i.e. GPUs' blocks (8 keys an invocation), not
+    /// lavapipe's (256; its stores are per lane anyway, so coalescing gains nothing there).
+    pub fn reorders(info: &crate::gpu::DeviceInfo, shape: BlockShape) -> bool {
         // The block's pairs share their memory with the subgroups' totals (room for subgroups
         // of one); beside them, the digits' two starts.
-        let pool = (2 * 4 * WG as u64 * items as u64).max(4 * WG as u64 * (MAX_RADIX / 2));
-        items <= GPU_ITEMS && pool + 2 * 4 * MAX_RADIX <= info.max_shared_memory as u64
+        let pool = (2 * 4 * shape.keys()).max(4 * shape.wg as u64 * (MAX_RADIX / 2));
+        shape.items <= BlockShape::GPU.items
+            && pool + 2 * 4 * MAX_RADIX <= info.max_shared_memory as u64
     }
 
-    fn block_of(items: u32) -> u64 {
-        WG as u64 * items as u64
-    }
-
-    /// Keys per invocation.
-    pub fn items(&self) -> u32 {
-        self.items
+    /// The keys a workgroup sorts.
+    pub fn shape(&self) -> BlockShape {
+        self.shape
     }
 
     pub fn capacity(&self) -> u64 {
@@ -261,7 +299,7 @@ impl RadixSort {
         );
         // As many blocks as there are keys this time, not as the capacity holds.
         self.sizes
-            .record(rec, counts, count_index, Self::block_of(self.items), 0);
+            .record(rec, counts, count_index, self.shape.keys(), 0);
         let mut from_input = true;
         let mut shift = 0;
         for (pass, width) in Self::pass_widths(bits, self.wide).into_iter().enumerate() {
@@ -319,7 +357,7 @@ impl RadixSort {
             if let Some(d) = dropping {
                 // The later passes' group counts, from the kept count.
                 self.sizes
-                    .record(rec, counts, d.kept_index, Self::block_of(self.items), 1);
+                    .record(rec, counts, d.kept_index, self.shape.keys(), 1);
             }
             from_input = !from_input;
             shift += width;
