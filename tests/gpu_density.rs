@@ -441,7 +441,7 @@ fn random_steps_match_the_host_reference_and_grow_past_the_capacity() {
 }
 
 /// The Gaussian budget (`DensityConfig::max_gaussians`): the GPU's scores are the reference's
-/// bit for bit, the decisions after `record_decide` are the reference's with the host's cut
+/// (within the division's ULP allowance; bit for bit on lavapipe), the decisions after `record_decide` are the reference's with the host's cut
 /// applied (the kernel's tie rule included: half the Gaussians share one statistic, where the
 /// cut falls), the step ends at the cap, and every dropped addition scores no higher than
 /// every kept one; a cap the step does not reach changes nothing.
@@ -511,12 +511,19 @@ fn a_gaussian_budget_keeps_the_additions_furthest_over_their_threshold() {
         rec.submit_and_wait().unwrap();
         rec.begin().unwrap();
 
-        let scores = reference::scores(&t, &stats, scale.as_deref(), q);
-        assert_eq!(
-            bits(&dc.scores().read_range(0, n).unwrap()),
-            bits(&scores),
-            "{label}: scores"
-        );
+        // Vulkan lets a GPU's float division be off by 2.5 ULP (an H100's is, by one: lavapipe
+        // and the host divide exactly), and a score is two divisions: within 6 ULP of the
+        // reference, and 0 or +inf exactly where it is. The cut and the decisions follow the
+        // GPU's own scores, which the budget pass ranks.
+        let want_scores = reference::scores(&t, &stats, scale.as_deref(), q);
+        let scores = dc.scores().read_range(0, n).unwrap();
+        for (i, (&g, &w)) in scores.iter().zip(&want_scores).enumerate() {
+            let ulps = (g.to_bits() as i64 - w.to_bits() as i64).abs();
+            assert!(
+                g.is_finite() == w.is_finite() && (g == 0.0) == (w == 0.0) && ulps <= 6,
+                "{label}: score {i} is {g} on the GPU, {w} by the reference ({ulps} ULP)"
+            );
+        }
         let cut = budget::budget_cut(&free, &scores, cap);
         assert_eq!(dc.last_budget, cut, "{label}");
         let mut want = free.clone();
