@@ -21,8 +21,8 @@
 #            (quality only: they share the GPU), 30k iterations (ITERATIONS=N for fewer),
 #            LPM_FLAGS=... added to the LPM run, each process's GPU memory logged
 #   serial30k train the packed scene at full size to 30k (ITERATIONS) with LPM, then without, alone
-#            with --timestamps and its GPU memory logged (Truck on an H100: 396 s a run, so
-#            both need ~13 min, detached over two calls; RUNS=adc or RUNS=lpm runs one)
+#            with --timestamps and its GPU memory logged, seed SEED (0) (Truck on an H100 with
+#            the butterflies: 232 s + 237 s, both in one call; RUNS=adc or RUNS=lpm runs one)
 #   layouts  train the packed scene at full size with each --raster-pixels layout (LAYOUTS,
 #            default "1 2 4 8"), ITERATIONS (default 5000) each, --timestamps, alternated twice;
 #            TRAIN_FLAGS=... added to every run (e.g. "--model 2dgs")
@@ -191,7 +191,7 @@ for s in "$@"; do
                 [ "$run" = lpm ] && flags=--lpm
                 # shellcheck disable=SC2086
                 step "serial30k-$run" 900 "$bin" train "$scene" -r 1 --iterations "${ITERATIONS:-30000}" \
-                    --eval-every 7000 --timestamps $flags -o "$work/serial30k-$run"
+                    --eval-every 7000 --timestamps --seed "${SEED:-0}" $flags -o "$work/serial30k-$run"
                 echo "serial30k-$run ended at $SECONDS s" >>"$res/gpu-mem.log"
             done
             kill "$smi" 2>/dev/null
