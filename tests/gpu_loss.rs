@@ -1,10 +1,13 @@
 //! The GPU training loss (L1 + SSIM, value and gradient) against the f64 reference in
 //! `lpmsplat::metrics`, the reference gradient against finite differences, and the reference
-//! SSIM against a plain direct 2D convolution. Validation layer on, zero errors required.
+//! SSIM against a plain direct 2D convolution, in both kernel layouts (segments for CPU drivers,
+//! 16×16 tiles for GPUs) on any device. Validation layer on, zero errors required.
 
 use lpmsplat::gpu::{BufferKind, GpuBuffer, GpuContext, GpuOptions, Recorder, TimestampPool};
 use lpmsplat::metrics;
-use lpmsplat::train::loss::{Loss, LOSS_SLOT_FLOATS};
+use lpmsplat::train::loss::{Loss, LossLayout, LOSS_SLOT_FLOATS};
+
+const LAYOUTS: [LossLayout; 2] = [LossLayout::Segments, LossLayout::Tiles];
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use std::sync::Arc;
@@ -131,9 +134,19 @@ fn rel(a: f64, b: f64) -> f64 {
 #[test]
 fn gpu_loss_and_gradient_match_f64_reference() {
     let ctx = ctx();
+    for layout in LAYOUTS {
+        loss_matches_reference(&ctx, layout);
+    }
+    ctx.check_validation().unwrap();
+}
+
+fn loss_matches_reference(ctx: &Arc<GpuContext>, layout: LossLayout) {
+    let ctx = ctx.clone();
     let mut rng = Pcg64::seed_from_u64(7);
     // Start small so that ensure_size has to grow the scratch buffers.
-    let mut loss = Loss::new(&ctx, 8, 8).unwrap();
+    let mut loss = Loss::with_layout(&ctx, 8, 8, layout).unwrap();
+    assert_eq!(loss.layout(), layout);
+    // Sizes on both sides of the tiles' 16 pixels and the segments' 16 × 32.
     let sizes = [(1u32, 1u32), (7, 5), (37, 23), (64, 64), (161, 243)];
     let random_bg = [rng.gen(), rng.gen(), rng.gen()];
     let backgrounds = [[0.0f32; 3], [1.0; 3], random_bg];
@@ -150,7 +163,7 @@ fn gpu_loss_and_gradient_match_f64_reference() {
                 metrics::loss_terms_and_grad(&render, &gt, w as usize, h as usize, weight as f64)
                     .unwrap();
             let out = run_gpu(&ctx, &loss, &render, &gt_px, w, h, bg, weight);
-            let what = format!("{w}x{h} bg {bg:?} noise {noise}");
+            let what = format!("{layout:?} {w}x{h} bg {bg:?} noise {noise}");
             let [l1, ssim, total] = out.terms.map(|v| v as f64);
             assert!(rel(l1, terms.l1) < 1e-4, "{what}: L1 {l1} vs {}", terms.l1);
             // SSIM can be near 0 for unrelated images: compare on the scale of the loss.
@@ -177,15 +190,22 @@ fn gpu_loss_and_gradient_match_f64_reference() {
             );
         }
     }
-    ctx.check_validation().unwrap();
 }
 
 #[test]
 fn gpu_loss_is_deterministic_and_zero_gradient_at_the_optimum() {
     let ctx = ctx();
+    for layout in LAYOUTS {
+        deterministic_with_zero_gradient_at_optimum(&ctx, layout);
+    }
+    ctx.check_validation().unwrap();
+}
+
+fn deterministic_with_zero_gradient_at_optimum(ctx: &Arc<GpuContext>, layout: LossLayout) {
+    let ctx = ctx.clone();
     let mut rng = Pcg64::seed_from_u64(8);
     let (w, h) = (45u32, 30u32);
-    let loss = Loss::new(&ctx, w, h).unwrap();
+    let loss = Loss::with_layout(&ctx, w, h, layout).unwrap();
     let gt_px: Vec<u32> = random_gt(&mut rng, (w * h) as usize);
     let bg = [0.3, 0.6, 0.9];
     let gt = composite(&gt_px, bg);
@@ -236,11 +256,10 @@ fn gpu_loss_is_deterministic_and_zero_gradient_at_the_optimum() {
     for (i, g) in off.grad.iter().enumerate().step_by(2) {
         assert!(
             (g * n - 0.8).abs() < 1e-2,
-            "value {i}, 4e-6 above the ground truth: gradient {} / N",
+            "{layout:?}: value {i}, 4e-6 above the ground truth: gradient {} / N",
             g * n
         );
     }
-    ctx.check_validation().unwrap();
 }
 
 #[test]
@@ -282,10 +301,18 @@ fn gpu_loss_refuses_bad_arguments() {
 #[test]
 fn gpu_loss_timing() {
     let ctx = ctx();
+    for layout in LAYOUTS {
+        time_loss(&ctx, layout);
+    }
+    ctx.check_validation().unwrap();
+}
+
+fn time_loss(ctx: &Arc<GpuContext>, layout: LossLayout) {
+    let ctx = ctx.clone();
     let mut rng = Pcg64::seed_from_u64(9);
     let (w, h) = (162u32, 242u32);
     let px = (w * h) as usize;
-    let loss = Loss::new(&ctx, w, h).unwrap();
+    let loss = Loss::with_layout(&ctx, w, h, layout).unwrap();
     let gt_px = random_gt(&mut rng, px);
     let gt_img = composite(&gt_px, [0.0; 3]);
     let render = random_render(&mut rng, &gt_img, 0.1);
@@ -328,9 +355,8 @@ fn gpu_loss_timing() {
         "same loss bits every time"
     );
     eprintln!(
-        "loss {w}x{h}: {wall:.2} ms wall, {gpu:.2} ms GPU, {cpu:.1} ms CPU (all driver threads) per call"
+        "loss {layout:?} {w}x{h}: {wall:.2} ms wall, {gpu:.2} ms GPU, {cpu:.1} ms CPU (all driver threads) per call"
     );
-    ctx.check_validation().unwrap();
 }
 
 /// User + system CPU time of this process in clock ticks (Linux; 0 elsewhere).

@@ -26,6 +26,8 @@
 #   layouts  train the packed scene at full size with each --raster-pixels layout (LAYOUTS,
 #            default "1 2 4 8"), ITERATIONS (default 5000) each, --timestamps, alternated twice;
 #            TRAIN_FLAGS=... added to every run (e.g. "--model 2dgs")
+#   losslayouts train the packed scene at full size with each loss layout (--loss-layout
+#            segments, tiles), ITERATIONS (default 3000) each, --timestamps, alternated twice
 #   local7k  bench trade on the packed scene at full size, 7k of the 30k calendar: ADC, ADC+LPM,
 #            ADC+LPM without zones wider than the scene (lpm-local-zones) and with slab zones
 #            (lpm-slab), seed SEED (0); TRADE_RUNS replaces the list
@@ -217,6 +219,20 @@ for s in "$@"; do
                 done
             done
         ;;
+    losslayouts)
+        # The loss kernels' two layouts (train --loss-layout) on the packed scene at full size,
+        # ITERATIONS (default 3000) each, --timestamps, alternated twice: whether the tiles
+        # (shared memory, one pixel an invocation) beat the segments on this GPU.
+        need_scene losslayouts &&
+            for r in 1 2; do
+                for l in segments tiles; do
+                    # shellcheck disable=SC2086
+                    step "loss-$l-$r" 200 "$bin" train "$scene" -r 1 \
+                        --iterations "${ITERATIONS:-3000}" --timestamps --loss-layout "$l" \
+                        ${TRAIN_FLAGS:-} -o "$work/loss-$l-$r"
+                done
+            done
+        ;;
     local7k)
         # LPM with and without the zones wider than the scene (bench trade's lpm-local-zones,
         # `--lpm-max-zone-radius 1`) and with slab zones (`--lpm-zone slab`) beside ADC, 7k of
@@ -238,7 +254,7 @@ for s in "$@"; do
             step train30k 900 "$bin" train "$scene" -r 1 --iterations 30000 --lpm --eval-every 5000 \
                 --timestamps -o "$work/train30k"
         ;;
-    *) echo "$s: unknown step (info tests demo fps fpspair trade7k trade30k ablate7k pair30k serial30k layouts local7k budget7k train30k)" >>"$summary" ;;
+    *) echo "$s: unknown step (info tests demo fps fpspair trade7k trade30k ablate7k pair30k serial30k layouts losslayouts local7k budget7k train30k)" >>"$summary" ;;
     esac
     collect
 done

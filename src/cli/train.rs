@@ -19,6 +19,7 @@ use lpmsplat::scene::image_source::{TrainImages, ViewImages};
 use lpmsplat::scene::{images, Image, Scene};
 use lpmsplat::splats::{self, read_ply, write_ply, write_splat, GaussianParams};
 use lpmsplat::train::config::ChildTime;
+use lpmsplat::train::loss::LossLayout;
 use lpmsplat::train::nan_check::NonFiniteCheck;
 use lpmsplat::train::passes::surfels::SurfelTraining;
 use lpmsplat::train::trainer::{Background, TrainConfig, Trainer, ViewMetrics};
@@ -83,6 +84,11 @@ pub struct TrainArgs {
     /// refusal names this device's choices).
     #[arg(long, value_name = "N")]
     pub raster_pixels: Option<u32>,
+    /// The loss kernels' layout: segments (the default: row and column segments in registers,
+    /// which suits CPU drivers) or tiles (16×16 blocks in shared memory, one pixel an
+    /// invocation, built for GPUs and not yet timed on one). A tuning knob for --timestamps.
+    #[arg(long, value_name = "LAYOUT", value_parser = LossLayout::parse)]
+    pub loss_layout: Option<LossLayout>,
     /// Write OUT/checkpoint.bin every N iterations (0 = only at the end and on Ctrl-C).
     #[arg(long, default_value_t = 0)]
     pub checkpoint_every: u32,
@@ -436,6 +442,7 @@ impl TrainArgs {
             ssim_weight: self.ssim_weight,
             timestamps: self.timestamps,
             raster_pixels: self.raster_pixels,
+            loss_layout: self.loss_layout,
             ..TrainConfig::default()
         };
         c.lr.position_init = self.lr_position;
@@ -1074,6 +1081,8 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         // The rasterizers' pixels per invocation when --raster-pixels set them (null: the
         // device's default).
         "raster_pixels": config.raster_pixels,
+        // The loss kernels' layout when --loss-layout set it (null: the default, segments).
+        "loss_layout": config.loss_layout.map(|l| l.name()),
         "max_gaussians": config.density.max_gaussians.map(|cap| serde_json::json!({
             "cap": cap, "dropped_additions": budget.0, "steps_at_cap": budget.1,
         })),

@@ -60,6 +60,9 @@ pub struct TrainConfig {
     /// device's defaults, 1 on GPUs; on CPU drivers 8, and 16 for the 2DGS backward); one of
     /// [`crate::render::backward::pixel_layouts`]. A tuning knob: benchmarks compare layouts.
     pub raster_pixels: Option<u32>,
+    /// The loss kernels' layout (`None`: [`crate::train::loss::Loss::new`]'s). A tuning knob
+    /// like `raster_pixels`.
+    pub loss_layout: Option<crate::train::loss::LossLayout>,
 }
 
 impl Default for TrainConfig {
@@ -79,6 +82,7 @@ impl Default for TrainConfig {
             spacetime: None,
             batch_views: 1,
             raster_pixels: None,
+            loss_layout: None,
         }
     }
 }

@@ -6,14 +6,23 @@
 //! and channels. The ground truth is packed RGBA8 (`r` in the low byte) composited over a
 //! background colour: `gt = rgb·a + bg·(1 − a)`.
 //!
-//! Five dispatches; the blurs are separable 11-tap passes in which each invocation produces a
-//! segment of outputs from inputs held in registers (see `glsl/train/loss_common.glsl`):
+//! Two layouts ([`LossLayout`]), the same definition and tests for both:
+//!
+//! *Segments* (CPU drivers): five dispatches; the blurs are separable 11-tap passes in which each
+//! invocation produces a segment of outputs from inputs held in registers (see
+//! `glsl/train/loss_common.glsl`):
 //! 1. `ssim_fwd_h`: horizontal blur of x, y, x², y², xy (15 maps);
 //! 2. `ssim_fwd_v`: vertical blur, SSIM per pixel and its derivatives with respect to the
 //!    blurred moments (9 maps), per-tile sums of |x − y| and SSIM;
 //! 3. `loss_reduce` (one workgroup, fixed order: deterministic) and `ssim_bwd_h` (horizontal blur
 //!    of the 9 maps), independent of each other;
 //! 4. `ssim_bwd_v`: vertical blur and the gradient, written over the whole output.
+//!
+//! *Tiles* (GPUs): three dispatches; a workgroup owns a 16×16 block, one pixel an invocation,
+//! and blurs in shared memory, so neither the 15 moment maps nor the horizontally blurred
+//! derivatives go through global memory and every access is coalesced:
+//! 1. `ssim_fwd_tile`: both blurs, SSIM and its 9 derivative maps, per-block sums;
+//! 2. `loss_reduce` and `ssim_bwd_tile` (both blurs of the 9 maps and the gradient).
 
 use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder};
 use crate::shaders;
@@ -30,6 +39,39 @@ const BLUR_WG: u32 = 32;
 /// `glsl/train/loss_common.glsl`.
 const SEG: u32 = 16;
 const REDUCE_WG: u32 = 256;
+/// Pixels along a side of the tile layout's blocks: must equal `TILE` in
+/// `glsl/train/ssim_fwd_tile.comp` and `ssim_bwd_tile.comp`.
+const TILE: u32 = 16;
+
+/// How the loss kernels share out the image (module documentation).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LossLayout {
+    /// Row and column segments, inputs in registers: suits CPU drivers, where every load is a
+    /// per-lane gather and shared memory a loop over lanes.
+    Segments,
+    /// 16×16 blocks blurred in shared memory, one pixel an invocation: for GPUs (7× slower on
+    /// lavapipe).
+    Tiles,
+}
+
+impl LossLayout {
+    /// The layout's name on the command line (`train --loss-layout`).
+    pub fn name(self) -> &'static str {
+        match self {
+            LossLayout::Segments => "segments",
+            LossLayout::Tiles => "tiles",
+        }
+    }
+
+    /// Parses a layout name ([`LossLayout::name`]).
+    pub fn parse(s: &str) -> std::result::Result<LossLayout, String> {
+        match s {
+            "segments" => Ok(LossLayout::Segments),
+            "tiles" => Ok(LossLayout::Tiles),
+            _ => Err(format!("unknown loss layout '{s}': use segments or tiles")),
+        }
+    }
+}
 
 /// Moment maps per channel after the forward horizontal pass (μx, μy, E[x²], E[y²], E[xy]).
 const FWD_MAPS: usize = 5;
@@ -49,17 +91,20 @@ struct LossPush {
 
 /// The loss kernels and their scratch buffers, sized for images up to `max_width × max_height`.
 pub struct Loss {
+    layout: LossLayout,
+    fwd_tile: ComputePipeline,
+    bwd_tile: ComputePipeline,
     fwd_h: ComputePipeline,
     fwd_v: ComputePipeline,
     bwd_h: ComputePipeline,
     bwd_v: ComputePipeline,
     reduce: ComputePipeline,
     /// Per channel: the 5 forward moment maps, later reused for the 3 horizontally blurred
-    /// backward maps.
-    moments: [GpuBuffer<f32>; 3],
+    /// backward maps (the segment layout only).
+    moments: Option<[GpuBuffer<f32>; 3]>,
     /// Per channel: dS/dμx, dS/dE[x²], dS/dE[xy].
     derivs: [GpuBuffer<f32>; 3],
-    /// Per vertical tile: (sum |x − y|, sum SSIM).
+    /// Per workgroup of the pass that sums: (sum |x − y|, sum SSIM).
     partials: GpuBuffer<f32>,
     max_width: u32,
     max_height: u32,
@@ -75,8 +120,34 @@ fn h_groups(w: u32, h: u32) -> [u32; 3] {
     [h.div_ceil(BLUR_WG), w.div_ceil(SEG), 1]
 }
 
+/// Workgroups of the tile layout: 16×16 blocks.
+fn tile_groups(w: u32, h: u32) -> [u32; 3] {
+    [w.div_ceil(TILE), h.div_ceil(TILE), 1]
+}
+
+/// Workgroups of the pass that writes the partial sums (`ssim_fwd_v` or `ssim_fwd_tile`).
+fn sum_groups(layout: LossLayout, w: u32, h: u32) -> [u32; 3] {
+    match layout {
+        LossLayout::Segments => v_groups(w, h),
+        LossLayout::Tiles => tile_groups(w, h),
+    }
+}
+
 impl Loss {
+    /// The loss in the segment layout, on every device: the tile layout is built for GPUs and
+    /// checked like it, but not yet timed on one (on lavapipe it is 7× slower), so it is chosen
+    /// by hand (`train --loss-layout tiles`) until a GPU measurement says which is faster there.
     pub fn new(ctx: &Arc<GpuContext>, max_width: u32, max_height: u32) -> Result<Self> {
+        Self::with_layout(ctx, max_width, max_height, LossLayout::Segments)
+    }
+
+    /// The loss in `layout` (tests run both on any device).
+    pub fn with_layout(
+        ctx: &Arc<GpuContext>,
+        max_width: u32,
+        max_height: u32,
+        layout: LossLayout,
+    ) -> Result<Self> {
         let pipe = |name: &str, spv: &[u8], buffers: u32, wg: u32| {
             ComputePipeline::new(
                 ctx,
@@ -88,6 +159,18 @@ impl Loss {
                 &[],
             )
         };
+        let fwd_tile = pipe(
+            "train/ssim_fwd_tile",
+            shaders::TRAIN_SSIM_FWD_TILE,
+            6,
+            TILE * TILE,
+        )?;
+        let bwd_tile = pipe(
+            "train/ssim_bwd_tile",
+            shaders::TRAIN_SSIM_BWD_TILE,
+            6,
+            TILE * TILE,
+        )?;
         let fwd_h = pipe("train/ssim_fwd_h", shaders::TRAIN_SSIM_FWD_H, 5, BLUR_WG)?;
         let fwd_v = pipe("train/ssim_fwd_v", shaders::TRAIN_SSIM_FWD_V, 9, BLUR_WG)?;
         let bwd_h = pipe("train/ssim_bwd_h", shaders::TRAIN_SSIM_BWD_H, 6, BLUR_WG)?;
@@ -98,8 +181,11 @@ impl Loss {
             2,
             REDUCE_WG,
         )?;
-        let (moments, derivs, partials) = Self::alloc(ctx, max_width, max_height)?;
+        let (moments, derivs, partials) = Self::alloc(ctx, layout, max_width, max_height)?;
         Ok(Self {
+            layout,
+            fwd_tile,
+            bwd_tile,
             fwd_h,
             fwd_v,
             bwd_h,
@@ -113,12 +199,22 @@ impl Loss {
         })
     }
 
+    /// The layout these kernels run in.
+    pub fn layout(&self) -> LossLayout {
+        self.layout
+    }
+
     #[allow(clippy::type_complexity)]
     fn alloc(
         ctx: &Arc<GpuContext>,
+        layout: LossLayout,
         w: u32,
         h: u32,
-    ) -> Result<([GpuBuffer<f32>; 3], [GpuBuffer<f32>; 3], GpuBuffer<f32>)> {
+    ) -> Result<(
+        Option<[GpuBuffer<f32>; 3]>,
+        [GpuBuffer<f32>; 3],
+        GpuBuffer<f32>,
+    )> {
         let px = w.max(1) as usize * h.max(1) as usize;
         let chan = |what: &str, maps: usize| -> Result<[GpuBuffer<f32>; 3]> {
             let b = |c: &str| {
@@ -131,9 +227,12 @@ impl Loss {
             };
             Ok([b("r")?, b("g")?, b("b")?])
         };
-        let moments = chan("moments", FWD_MAPS)?;
+        let moments = match layout {
+            LossLayout::Segments => Some(chan("moments", FWD_MAPS)?),
+            LossLayout::Tiles => None,
+        };
         let derivs = chan("ssim derivatives", 3)?;
-        let g = v_groups(w.max(1), h.max(1));
+        let g = sum_groups(layout, w.max(1), h.max(1));
         let partials = GpuBuffer::new(
             ctx,
             "loss partial sums",
@@ -156,7 +255,7 @@ impl Loss {
         }
         let w = width.max(self.max_width);
         let h = height.max(self.max_height);
-        let (moments, derivs, partials) = Self::alloc(ctx, w, h)?;
+        let (moments, derivs, partials) = Self::alloc(ctx, self.layout, w, h)?;
         self.moments = moments;
         self.derivs = derivs;
         self.partials = partials;
@@ -234,7 +333,7 @@ impl Loss {
         if !(0.0..=1.0).contains(&ssim_weight) {
             bail!("loss: ssim_weight {ssim_weight} is outside [0, 1]");
         }
-        let vg = v_groups(width, height);
+        let sums = sum_groups(self.layout, width, height);
         let push = LossPush {
             width,
             height,
@@ -243,34 +342,53 @@ impl Loss {
             background,
             ssim_weight,
             inv_n: 1.0 / (3 * px) as f32,
-            partial_count: vg[0] * vg[1],
+            partial_count: sums[0] * sums[1],
         };
-        let [m0, m1, m2] = &self.moments;
         let [d0, d1, d2] = &self.derivs;
         rec.barrier();
-        rec.dispatch(
-            &self.fwd_h,
-            &[image, gt, m0, m1, m2],
-            &push,
-            h_groups(width, height),
-        );
-        rec.barrier();
-        rec.dispatch(
-            &self.fwd_v,
-            &[image, gt, m0, m1, m2, d0, d1, d2, &self.partials],
-            &push,
-            vg,
-        );
-        rec.barrier();
-        rec.dispatch(&self.reduce, &[&self.partials, loss_out], &push, [1, 1, 1]);
-        rec.dispatch(
-            &self.bwd_h,
-            &[d0, d1, d2, m0, m1, m2],
-            &push,
-            h_groups(width, height),
-        );
-        rec.barrier();
-        rec.dispatch(&self.bwd_v, &[image, gt, m0, m1, m2, grad_out], &push, vg);
+        match &self.moments {
+            None => {
+                rec.dispatch(
+                    &self.fwd_tile,
+                    &[image, gt, d0, d1, d2, &self.partials],
+                    &push,
+                    sums,
+                );
+                rec.barrier();
+                rec.dispatch(&self.reduce, &[&self.partials, loss_out], &push, [1, 1, 1]);
+                rec.dispatch(
+                    &self.bwd_tile,
+                    &[image, gt, d0, d1, d2, grad_out],
+                    &push,
+                    sums,
+                );
+            }
+            Some([m0, m1, m2]) => {
+                rec.dispatch(
+                    &self.fwd_h,
+                    &[image, gt, m0, m1, m2],
+                    &push,
+                    h_groups(width, height),
+                );
+                rec.barrier();
+                rec.dispatch(
+                    &self.fwd_v,
+                    &[image, gt, m0, m1, m2, d0, d1, d2, &self.partials],
+                    &push,
+                    sums,
+                );
+                rec.barrier();
+                rec.dispatch(&self.reduce, &[&self.partials, loss_out], &push, [1, 1, 1]);
+                rec.dispatch(
+                    &self.bwd_h,
+                    &[d0, d1, d2, m0, m1, m2],
+                    &push,
+                    h_groups(width, height),
+                );
+                rec.barrier();
+                rec.dispatch(&self.bwd_v, &[image, gt, m0, m1, m2, grad_out], &push, sums);
+            }
+        }
         rec.barrier();
         Ok(())
     }

@@ -273,7 +273,10 @@ impl Trainer {
             view_times: scene.view_times.clone(),
             view_grad_norm,
             passes,
-            loss: Loss::new(ctx, max_w, max_h)?,
+            loss: match config.loss_layout {
+                Some(layout) => Loss::with_layout(ctx, max_w, max_h, layout)?,
+                None => Loss::new(ctx, max_w, max_h)?,
+            },
             adam: Adam::new(ctx)?,
             density: DensityControl::new(ctx, capacity, density)?,
             dl_dimage: GpuBuffer::new(ctx, "dL/dimage", pixels * 3, BufferKind::DeviceLocal)?,
