@@ -3,7 +3,8 @@
 # says how a session uses it) into the git-ignored folders .device/ and .gl/:
 #   .device/bin.tar.xz    the stripped release binary
 #   .device/tests.tar.xz  the stripped test executables whose tests run GPU kernels (gpu_*)
-#   .device/scene.tar.xz  one scene, when given as the first argument (../shared/data/tnt_truck)
+#   .device/scene-NAME.tar.xz  each scene given as an argument (../shared/data/tnt_truck ...),
+#                         one per call (run.sh takes the one carried, or SCENE=NAME)
 #   .gl/libvulkan1_*.deb  the Vulkan loader, which that machine lacks
 #   .device/validation.deb  the Khronos validation layer, which the tests turn on
 #   .device/base.tar.xz   with BASE=REV: the stripped release binary of commit REV, for the
@@ -12,7 +13,7 @@
 # the size of each call of scripts/device/README.md and refuses one that would not fit.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
-scene=${1:-}
+scenes=("$@")
 for d in /.device/ /.gl/; do
     grep -qxF "$d" .git/info/exclude 2>/dev/null || echo "$d" >>.git/info/exclude
 done
@@ -40,11 +41,11 @@ if [ -n "${BASE:-}" ]; then
     strip .device/base/lpmsplat
     tar -cJf .device/base.tar.xz -C .device base && rm -rf .device/base
 fi
-if [ -n "$scene" ]; then
+for scene in "${scenes[@]}"; do
     [ -d "$scene" ] || { echo "no scene folder at $scene" >&2; exit 1; }
     # xz: the JPEGs stay as they are, the COLMAP model halves (Truck: 52 -> 43 MiB).
-    tar -cJf .device/scene.tar.xz -C "$(dirname "$scene")" "$(basename "$scene")"
-fi
+    tar -cJf ".device/scene-$(basename "$scene").tar.xz" -C "$(dirname "$scene")" "$(basename "$scene")"
+done
 o='-oAPT::Architecture=amd64 -oAPT::Architectures=amd64 -oDir::State::Lists=/tmp/amd64'
 mkdir -p .gl /tmp/amd64/partial
 # shellcheck disable=SC2086
@@ -67,5 +68,7 @@ call() {
 }
 call check .gl .device/bin.tar.xz .device/tests.tar.xz .device/validation.deb
 [ -z "${BASE:-}" ] || call fpspair .gl .device/bin.tar.xz .device/base.tar.xz
-[ -z "$scene" ] || call scene .gl .device/bin.tar.xz .device/scene.tar.xz
+for scene in "${scenes[@]}"; do
+    call "scene $(basename "$scene")" .gl .device/bin.tar.xz ".device/scene-$(basename "$scene").tar.xz"
+done
 [ "$fits" = 1 ]

@@ -52,10 +52,24 @@ if [ -z "${VK_DRIVER_FILES:-}" ] && ! ls /usr/share/vulkan/icd.d/nvidia_icd*.jso
     [ -n "$icd" ] && export VK_DRIVER_FILES=$icd
 fi
 for k in bin tests base; do [ -f ".device/$k.tar.xz" ] && tar -xJf ".device/$k.tar.xz" -C "$work"; done
+# The scene: .device/scene-$SCENE.tar.xz, or the only packed one (a warm machine keeps the
+# previous call's, so name it with SCENE=NAME when calls carried different scenes).
 scene=
-if [ -f .device/scene.tar.xz ]; then
-    tar -xJf .device/scene.tar.xz -C "$work"
-    scene=$(tar -tJf .device/scene.tar.xz | head -1 | cut -d/ -f1)
+archive=
+if [ -n "${SCENE:-}" ]; then
+    archive=.device/scene-$SCENE.tar.xz
+    [ -f "$archive" ] || { echo "SCENE=$SCENE: no $archive carried" >&2; exit 1; }
+else
+    packed=(.device/scene-*.tar.xz)
+    if [ "${#packed[@]}" -gt 1 ]; then
+        echo "several scenes here (${packed[*]}): name one with SCENE=NAME" >&2
+        exit 1
+    fi
+    [ -f "${packed[0]}" ] && archive=${packed[0]}
+fi
+if [ -n "$archive" ]; then
+    scene=$(tar -tJf "$archive" | head -1 | cut -d/ -f1)
+    [ -d "$work/$scene" ] || tar -xJf "$archive" -C "$work"
     scene=$work/$scene
 fi
 bin=$work/bin/lpmsplat
@@ -104,7 +118,7 @@ step() {
 
 need_scene() {
     [ -n "$scene" ] && return 0
-    echo "$1: skipped (no .device/scene.tar.xz carried)" >>"$summary"
+    echo "$1: skipped (no .device/scene-NAME.tar.xz carried)" >>"$summary"
     return 1
 }
 
