@@ -169,13 +169,35 @@ struct ChannelSsim {
     d_xy: Vec<f64>,
 }
 
-fn channel_ssim(x: &[f64], y: &[f64], w: usize, h: usize, g: &[f64]) -> ChannelSsim {
+/// The blurred moments μx, μy, E[x²], E[y²], E[xy] of one channel, one map each.
+fn blurred_moments(x: &[f64], y: &[f64], w: usize, h: usize, g: &[f64]) -> [Vec<f64>; 5] {
     let sq = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(p, q)| p * q).collect::<Vec<_>>();
-    let mx = blur(x, w, h, g);
-    let my = blur(y, w, h, g);
-    let exx = blur(&sq(x, x), w, h, g);
-    let eyy = blur(&sq(y, y), w, h, g);
-    let exy = blur(&sq(x, y), w, h, g);
+    [
+        blur(x, w, h, g),
+        blur(y, w, h, g),
+        blur(&sq(x, x), w, h, g),
+        blur(&sq(y, y), w, h, g),
+        blur(&sq(x, y), w, h, g),
+    ]
+}
+
+/// SSIM's factors at pixel `i`: S = A1·A2 / (B1·B2) with σx² = E[x²] − μx² and
+/// σxy = E[xy] − μx·μy; returns (A1, A2, B1, B2).
+fn ssim_factors(m: &[Vec<f64>; 5], i: usize) -> (f64, f64, f64, f64) {
+    let (ux, uy) = (m[0][i], m[1][i]);
+    let sxx = m[2][i] - ux * ux;
+    let syy = m[3][i] - uy * uy;
+    let sxy = m[4][i] - ux * uy;
+    (
+        2.0 * ux * uy + SSIM_C1,
+        2.0 * sxy + SSIM_C2,
+        ux * ux + uy * uy + SSIM_C1,
+        sxx + syy + SSIM_C2,
+    )
+}
+
+fn channel_ssim(x: &[f64], y: &[f64], w: usize, h: usize, g: &[f64]) -> ChannelSsim {
+    let m = blurred_moments(x, y, w, h, g);
     let n = w * h;
     let mut out = ChannelSsim {
         map: vec![0.0; n],
@@ -184,17 +206,10 @@ fn channel_ssim(x: &[f64], y: &[f64], w: usize, h: usize, g: &[f64]) -> ChannelS
         d_xy: vec![0.0; n],
     };
     for i in 0..n {
-        let (ux, uy) = (mx[i], my[i]);
-        let sxx = exx[i] - ux * ux;
-        let syy = eyy[i] - uy * uy;
-        let sxy = exy[i] - ux * uy;
-        let a1 = 2.0 * ux * uy + SSIM_C1;
-        let a2 = 2.0 * sxy + SSIM_C2;
-        let b1 = ux * ux + uy * uy + SSIM_C1;
-        let b2 = sxx + syy + SSIM_C2;
+        let (ux, uy) = (m[0][i], m[1][i]);
+        let (a1, a2, b1, b2) = ssim_factors(&m, i);
         let s = a1 * a2 / (b1 * b2);
         out.map[i] = s;
-        // S = A1·A2 / (B1·B2) with σx² = E[x²] − μx² and σxy = E[xy] − μx·μy.
         out.d_mu[i] = 2.0 * uy * (a2 - a1) / (b1 * b2) - 2.0 * ux * s * (1.0 / b1 - 1.0 / b2);
         out.d_xx[i] = -s / b2;
         out.d_xy[i] = 2.0 * a1 / (b1 * b2);
@@ -237,27 +252,13 @@ pub fn ssim(a: &[f32], b: &[f32], w: usize, h: usize) -> Result<f64> {
 
 /// The per-pixel SSIM of one channel alone ([`channel_ssim`]'s `map`, the same arithmetic).
 fn channel_ssim_map(x: &[f64], y: &[f64], w: usize, h: usize, g: &[f64]) -> Vec<f64> {
-    let sq = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(p, q)| p * q).collect::<Vec<_>>();
-    let mx = blur(x, w, h, g);
-    let my = blur(y, w, h, g);
-    let exx = blur(&sq(x, x), w, h, g);
-    let eyy = blur(&sq(y, y), w, h, g);
-    let exy = blur(&sq(x, y), w, h, g);
+    let m = blurred_moments(x, y, w, h, g);
     (0..w * h)
-        .map(|i| ssim_of_moments(mx[i], my[i], exx[i], eyy[i], exy[i]))
+        .map(|i| {
+            let (a1, a2, b1, b2) = ssim_factors(&m, i);
+            a1 * a2 / (b1 * b2)
+        })
         .collect()
-}
-
-/// SSIM from the blurred moments μx, μy, E[x²], E[y²], E[xy] of one pixel.
-fn ssim_of_moments(ux: f64, uy: f64, exx: f64, eyy: f64, exy: f64) -> f64 {
-    let sxx = exx - ux * ux;
-    let syy = eyy - uy * uy;
-    let sxy = exy - ux * uy;
-    let a1 = 2.0 * ux * uy + SSIM_C1;
-    let a2 = 2.0 * sxy + SSIM_C2;
-    let b1 = ux * ux + uy * uy + SSIM_C1;
-    let b2 = sxx + syy + SSIM_C2;
-    a1 * a2 / (b1 * b2)
 }
 
 /// The terms of the training loss.
