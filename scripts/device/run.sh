@@ -28,6 +28,8 @@
 #            TRAIN_FLAGS=... added to every run (e.g. "--model 2dgs")
 #   losslayouts train the packed scene at full size with each loss layout (--loss-layout
 #            segments, tiles), ITERATIONS (default 3000) each, --timestamps, alternated twice
+#   stgs     SpacetimeGaussians full on the packed video scene (panoptic_basketball) at full
+#            size, ADC vs ADC+LPM, ITERATIONS (12000), then each model's FPS at 1352x1014
 #   local7k  bench trade on the packed scene at full size, 7k of the 30k calendar: ADC, ADC+LPM,
 #            ADC+LPM without zones wider than the scene (lpm-local-zones) and with slab zones
 #            (lpm-slab), seed SEED (0); TRADE_RUNS replaces the list
@@ -251,6 +253,23 @@ for s in "$@"; do
                 done
             done
         ;;
+    stgs)
+        # SpacetimeGaussians (full) on the packed video scene (panoptic_basketball) at full
+        # size: ADC and ADC+LPM interleaved, ITERATIONS (default 12000) with an evaluation at
+        # half, each over the test cameras' 50 frames; then each trained model's FPS at
+        # 1352x1014 at mid-segment (issue 18).
+        need_scene stgs && {
+            n=${ITERATIONS:-12000}
+            step stgs 900 "$bin" bench trade "$scene" -r 1 --model spacetime-full \
+                --iterations "$n" --eval-at $((n / 2)) --runs adc,lpm --init-points 30000 \
+                --seed "${SEED:-0}" --fps-frames 5 -o "$work/stgs"
+            for run in adc adc+lpm; do
+                [ -f "$work/stgs/$run.ply" ] &&
+                    step "fps-stgs-$run" 60 "$bin" bench fps --ply "$work/stgs/$run.ply" \
+                        --model spacetime-full --time 0.5 --json "$res/fps-stgs-$run.json"
+            done
+        }
+        ;;
     local7k)
         # LPM with and without the zones wider than the scene (bench trade's lpm-local-zones,
         # `--lpm-max-zone-radius 1`) and with slab zones (`--lpm-zone slab`) beside ADC, 7k of
@@ -272,7 +291,7 @@ for s in "$@"; do
             step train30k 900 "$bin" train "$scene" -r 1 --iterations 30000 --lpm --eval-every 5000 \
                 --timestamps -o "$work/train30k"
         ;;
-    *) echo "$s: unknown step (info tests demo fps fpspair trade7k trade30k ablate7k pair30k serial30k layouts losslayouts local7k budget7k train30k)" >>"$summary" ;;
+    *) echo "$s: unknown step (info tests demo fps fpspair trade7k trade30k ablate7k pair30k serial30k layouts losslayouts stgs local7k budget7k train30k)" >>"$summary" ;;
     esac
     collect
 done
