@@ -8,7 +8,7 @@
 //!
 //! Two layouts ([`LossLayout`]), the same definition and tests for both:
 //!
-//! *Segments* (CPU drivers): five dispatches; the blurs are separable 11-tap passes in which each
+//! *Segments* (the default on every device; it suits CPU drivers): five dispatches; the blurs are separable 11-tap passes in which each
 //! invocation produces a segment of outputs from inputs held in registers (see
 //! `glsl/train/loss_common.glsl`):
 //! 1. `ssim_fwd_h`: horizontal blur of x, y, x², y², xy (15 maps);
@@ -18,7 +18,7 @@
 //!    of the 9 maps), independent of each other;
 //! 4. `ssim_bwd_v`: vertical blur and the gradient, written over the whole output.
 //!
-//! *Tiles* (GPUs): three dispatches; a workgroup owns a 16×16 block, one pixel an invocation,
+//! *Tiles* (for GPUs; chosen by hand until timed on one, [`Loss::new`]): three dispatches; a workgroup owns a 16×16 block, one pixel an invocation,
 //! and blurs in shared memory, so neither the 15 moment maps nor the horizontally blurred
 //! derivatives go through global memory and every access is coalesced:
 //! 1. `ssim_fwd_tile`: both blurs, SSIM and its 9 derivative maps, per-block sums;
