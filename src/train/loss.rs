@@ -8,9 +8,9 @@
 //!
 //! Two layouts ([`LossLayout`]), the same definition and tests for both:
 //!
-//! *Segments* (the default on every device; it suits CPU drivers): five dispatches; the blurs are separable 11-tap passes in which each
-//! invocation produces a segment of outputs from inputs held in registers (see
-//! `glsl/train/loss_common.glsl`):
+//! *Segments* (the default on every device; it suits CPU drivers): five dispatches; the blurs
+//! are separable 11-tap passes in which each invocation produces a segment of outputs from
+//! inputs held in registers (see `glsl/train/loss_common.glsl`):
 //! 1. `ssim_fwd_h`: horizontal blur of x, y, x², y², xy (15 maps);
 //! 2. `ssim_fwd_v`: vertical blur, SSIM per pixel and its derivatives with respect to the
 //!    blurred moments (9 maps), per-tile sums of |x − y| and SSIM;
@@ -18,9 +18,10 @@
 //!    of the 9 maps), independent of each other;
 //! 4. `ssim_bwd_v`: vertical blur and the gradient, written over the whole output.
 //!
-//! *Tiles* (for GPUs; chosen by hand until timed on one, [`Loss::new`]): three dispatches; a workgroup owns a 16×16 block, one pixel an invocation,
-//! and blurs in shared memory, so neither the 15 moment maps nor the horizontally blurred
-//! derivatives go through global memory and every access is coalesced:
+//! *Tiles* (for GPUs; chosen by hand until timed on one, [`Loss::new`]): three dispatches; a
+//! workgroup owns a 16×16 block, one pixel an invocation, and blurs in shared memory, so neither
+//! the 15 moment maps nor the horizontally blurred derivatives go through global memory and
+//! every access is coalesced:
 //! 1. `ssim_fwd_tile`: both blurs, SSIM and its 9 derivative maps, per-block sums;
 //! 2. `loss_reduce` and `ssim_bwd_tile` (both blurs of the 9 maps and the gradient).
 
