@@ -262,6 +262,54 @@ fn bench_trade_rejects_unknown_or_repeated_runs() {
     }
 }
 
+/// A trained model's FPS from the scene's first test view (`--scene`), as `bench trade` times
+/// its models, or from outside the model; the JSON says which camera it used.
+#[test]
+fn bench_fps_renders_a_ply_from_the_scene_test_view() {
+    let dir = tempfile::tempdir().unwrap();
+    let ply = dir.path().join("model.ply");
+    let model = lpmsplat::render::synthetic::random_scene(2000, 3);
+    lpmsplat::splats::write_ply(&ply, &model).unwrap();
+    let scene = data("lund_door_small");
+    let run = |extra: &[&std::ffi::OsStr]| {
+        let json = dir.path().join("fps.json");
+        let _ = std::fs::remove_file(&json);
+        let (ok, text) = output(
+            lpmsplat()
+                .args(["bench", "fps", "--ply"])
+                .arg(&ply)
+                .args(extra)
+                .args([
+                    "--width", "64", "--height", "48", "--frames", "1", "--warmup", "0",
+                ])
+                .arg("--json")
+                .arg(&json),
+        );
+        let v = ok.then(|| {
+            let v: serde_json::Value =
+                serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+            v[0].clone()
+        });
+        (v, text)
+    };
+    let (from_view, text) = run(&["--scene".as_ref(), scene.as_os_str()]);
+    let from_view = from_view.unwrap_or_else(|| panic!("{text}"));
+    let camera = from_view["camera"].as_str().unwrap();
+    assert!(camera.starts_with("test view "), "{from_view}");
+    assert_eq!(from_view["gaussians"], 2000);
+    let (outside, text) = run(&[]);
+    assert_eq!(
+        outside.unwrap_or_else(|| panic!("{text}"))["camera"],
+        "outside the model"
+    );
+    let missing = dir.path().join("no-such-scene");
+    let (none, text) = run(&["--scene".as_ref(), missing.as_os_str()]);
+    assert!(none.is_none() && text.contains("Fix:"), "{text}");
+    // --scene needs a PLY: a generated scene has its own camera.
+    let (ok, text) = output(lpmsplat().args(["bench", "fps", "--scene"]).arg(&scene));
+    assert!(!ok && text.contains("--ply"), "{text}");
+}
+
 #[test]
 fn bench_fps_reports_each_count_as_json() {
     let dir = tempfile::tempdir().unwrap();

@@ -213,7 +213,7 @@ for s in "$@"; do
                 echo "serial30k-$run ended at $SECONDS s" >>"$res/gpu-mem.log"
                 # The trained model's FPS at 1352x1014 (issue 19 asks for Truck's).
                 [ -f "$work/serial30k-$run/point_cloud.ply" ] &&
-                    step "fps-serial30k-$run" 60 "$bin" bench fps \
+                    step "fps-serial30k-$run" 60 "$bin" bench fps --scene "$scene" \
                         --ply "$work/serial30k-$run/point_cloud.ply" --json "$res/fps-serial30k-$run.json"
             done
             kill "$smi" 2>/dev/null

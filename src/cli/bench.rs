@@ -11,6 +11,7 @@ use lpmsplat::render::forward::{FrameSettings, Renderer};
 use lpmsplat::render::layout::CameraGpu;
 use lpmsplat::render::spacetime::TimedModel;
 use lpmsplat::render::synthetic;
+use lpmsplat::scene::{LoadOptions, PinholeCamera, Pose, Scene};
 use lpmsplat::splats::gpu::GpuSplats;
 use serde::Serialize;
 use std::io::Write;
@@ -38,9 +39,15 @@ pub enum BenchKind {
 
 #[derive(Args, Debug)]
 pub struct FpsArgs {
-    /// Gaussians from this PLY (the camera looks at its centroid from outside its bulk).
+    /// Gaussians from this PLY (the camera looks at its centroid from outside its bulk, or is
+    /// --scene's first test view).
     #[arg(long, conflicts_with = "gaussians")]
     pub ply: Option<PathBuf>,
+    /// With --ply: render from this scene's first test view (its field of view and pose, at
+    /// --width × --height), as `bench trade` times its trained models, instead of the camera
+    /// placed outside the model.
+    #[arg(long, requires = "ply", value_name = "DIR")]
+    pub scene: Option<PathBuf>,
     /// A generated scene of this many Gaussians; several counts may be given, comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "100000")]
     pub gaussians: Vec<usize>,
@@ -78,6 +85,9 @@ pub struct FpsResult {
     pub gaussians: usize,
     pub width: u32,
     pub height: u32,
+    /// Where the camera is: `test view NAME` (--scene), `outside the model` (a PLY alone) or
+    /// `generated` (the generated scene's fixed camera).
+    pub camera: String,
     pub frames: usize,
     /// Gaussians that pair with a tile in the last frame (the rest are culled).
     pub visible: u64,
@@ -149,16 +159,46 @@ fn fps(gpu: &GpuOptions, args: &FpsArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The first test view of the scene at `dir` (the training CLI's default loading), its camera
+/// resized to `width × height`.
+fn test_view_camera(
+    dir: &std::path::Path,
+    width: u32,
+    height: u32,
+) -> anyhow::Result<(PinholeCamera, Pose, String)> {
+    let scene = Scene::load(dir, &LoadOptions::default())
+        .with_context(|| format!("bench fps --scene {}", dir.display()))?;
+    let Some(&first) = scene.test.first() else {
+        anyhow::bail!(
+            "bench fps --scene {}: the scene has no test views. Fix: leave out --scene to place \
+             the camera outside the model",
+            dir.display()
+        );
+    };
+    let v = &scene.views[first];
+    Ok((
+        v.camera.resized(width, height),
+        v.pose,
+        format!("test view {}", v.name),
+    ))
+}
+
 fn fps_one(
     ctx: &std::sync::Arc<GpuContext>,
     source: &str,
     params: &lpmsplat::splats::GaussianParams,
     args: &FpsArgs,
 ) -> anyhow::Result<FpsResult> {
-    let (camera, pose) = if args.ply.is_some() {
-        synthetic::camera_for_model(params, args.width, args.height)
-    } else {
-        synthetic::bench_camera(args.width, args.height)
+    let (camera, pose, placed) = match (&args.scene, &args.ply) {
+        (Some(dir), _) => test_view_camera(dir, args.width, args.height)?,
+        (None, Some(_)) => {
+            let (c, p) = synthetic::camera_for_model(params, args.width, args.height);
+            (c, p, "outside the model".to_string())
+        }
+        (None, None) => {
+            let (c, p) = synthetic::bench_camera(args.width, args.height);
+            (c, p, "generated".to_string())
+        }
     };
     let cam = CameraGpu::new(&camera, &pose);
     let model = GpuSplats::upload(ctx, params, params.len().max(1))?;
@@ -243,6 +283,7 @@ fn fps_one(
         gaussians: params.len(),
         width: args.width,
         height: args.height,
+        camera: placed,
         frames: args.frames,
         visible,
         intersections,
@@ -260,8 +301,8 @@ fn fps_one(
 
 fn print_result(r: &FpsResult) {
     println!(
-        "{} — {} Gaussians at {}×{} on {} ({} visible, {} intersections)",
-        r.source, r.gaussians, r.width, r.height, r.device, r.visible, r.intersections
+        "{} — {} Gaussians at {}×{} on {}, camera: {} ({} visible, {} intersections)",
+        r.source, r.gaussians, r.width, r.height, r.device, r.camera, r.visible, r.intersections
     );
     println!(
         "  {:.2} FPS (median frame {:.2} ms; p10 {:.2}, p90 {:.2}, min {:.2}, max {:.2}; {} frames)",
