@@ -118,6 +118,26 @@ step() {
     echo "$name: rc $rc, $((SECONDS - t0)) s (limit $limit s)" >>"$summary"
 }
 
+# alternate PREFIX FLAG ITERATIONS VALUE...: trains the packed scene at full size once per value
+# of FLAG (PREFIX-VALUE-ROUND.log), ITERATIONS each with --timestamps and TRAIN_FLAGS, the values
+# alternated over two rounds; with a packed baseline (pack.sh with BASE=REV) its default run
+# first in each round (PREFIX-base-ROUND.log): side-by-side ratios on one GPU.
+alternate() {
+    local prefix=$1 flag=$2 its=$3 r v
+    shift 3
+    for r in 1 2; do
+        # shellcheck disable=SC2086
+        [ -x "$work/base/lpmsplat" ] &&
+            step "$prefix-base-$r" 200 "$work/base/lpmsplat" train "$scene" -r 1 \
+                --iterations "$its" --timestamps ${TRAIN_FLAGS:-} -o "$work/$prefix-base-$r"
+        for v in "$@"; do
+            # shellcheck disable=SC2086
+            step "$prefix-$v-$r" 200 "$bin" train "$scene" -r 1 --iterations "$its" \
+                --timestamps "$flag" "$v" ${TRAIN_FLAGS:-} -o "$work/$prefix-$v-$r"
+        done
+    done
+}
+
 need_scene() {
     [ -n "$scene" ] && return 0
     echo "$1: skipped (no .device/scene-NAME.tar.xz carried)" >>"$summary"
@@ -227,31 +247,15 @@ for s in "$@"; do
         # With a packed baseline (pack.sh with BASE=REV), its default layout runs first in each
         # round: the side-by-side ratio of a rasterizer change.
         need_scene layouts &&
-            for r in 1 2; do
-                [ -x "$work/base/lpmsplat" ] &&
-                    step "layout-base-$r" 200 "$work/base/lpmsplat" train "$scene" -r 1 \
-                        --iterations "${ITERATIONS:-5000}" --timestamps ${TRAIN_FLAGS:-} \
-                        -o "$work/layout-base-$r"
-                for p in ${LAYOUTS:-1 2 4 8}; do
-                    step "layout-$p-$r" 200 "$bin" train "$scene" -r 1 \
-                        --iterations "${ITERATIONS:-5000}" --timestamps --raster-pixels "$p" \
-                        ${TRAIN_FLAGS:-} -o "$work/layout-$p-$r"
-                done
-            done
+            # shellcheck disable=SC2086
+            alternate layout --raster-pixels "${ITERATIONS:-5000}" ${LAYOUTS:-1 2 4 8}
         ;;
     losslayouts)
         # The loss kernels' two layouts (train --loss-layout) on the packed scene at full size,
         # ITERATIONS (default 3000) each, --timestamps, alternated twice: whether the tiles
         # (shared memory, one pixel an invocation) beat the segments on this GPU.
         need_scene losslayouts &&
-            for r in 1 2; do
-                for l in segments tiles; do
-                    # shellcheck disable=SC2086
-                    step "loss-$l-$r" 200 "$bin" train "$scene" -r 1 \
-                        --iterations "${ITERATIONS:-3000}" --timestamps --loss-layout "$l" \
-                        ${TRAIN_FLAGS:-} -o "$work/loss-$l-$r"
-                done
-            done
+            alternate loss --loss-layout "${ITERATIONS:-3000}" segments tiles
         ;;
     stgs)
         # SpacetimeGaussians (full) on the packed video scene (panoptic_basketball) at full
