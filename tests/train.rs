@@ -570,6 +570,18 @@ fn cli_train_resume_eval_end_to_end() {
         serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
     assert_eq!(metrics["per_view"].as_array().unwrap().len(), 3);
     assert!(metrics["psnr"].as_f64().unwrap().is_finite());
+    // The wall time includes the intermediate evaluations and checkpoints; their time and the
+    // rate without them are reported beside it.
+    let (wall, paused) = (
+        metrics["train_seconds"].as_f64().unwrap(),
+        metrics["paused_seconds"].as_f64().unwrap(),
+    );
+    assert!(paused > 0.0 && paused < wall, "{wall} {paused}");
+    let unpaused = metrics["iterations_per_second_unpaused"].as_f64().unwrap();
+    assert!(
+        (unpaused * (wall - paused) - 6.0).abs() < 1e-6,
+        "{unpaused}"
+    );
     // The periodic evaluations (2 and 4; 6 is the final one) keep their per-view scores, whose
     // mean is the evaluation's PSNR.
     let evals = metrics["evaluations"].as_array().unwrap();

@@ -1070,6 +1070,10 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         "history": samples,
         "train_seconds": train_s,
         "iterations_per_second": trained as f64 / train_s,
+        // Of train_seconds, the intermediate evaluations (--eval-every) and checkpoints
+        // (--checkpoint-every): the training's own rate is without them.
+        "paused_seconds": paused_s,
+        "iterations_per_second_unpaused": trained as f64 / plot_train_s.max(1e-9),
         "resumed_from": start_iteration,
         "setup_seconds": load_s,
         "dropped_frames": trainer.dropped_frames,
@@ -1122,8 +1126,19 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     write_atomic(&args.out.join("config.json"), |f| {
         Ok(f.write_all(text.as_bytes())?)
     })?;
+    // Intermediate evaluations and checkpoints are in the wall time; say what they took.
+    let unpaused = if paused_s > 0.0 {
+        format!(
+            "; {:.1} s and {:.2} it/s without {:.1} s of intermediate evaluations and checkpoints",
+            plot_train_s,
+            trained as f64 / plot_train_s.max(1e-9),
+            paused_s
+        )
+    } else {
+        String::new()
+    };
     println!(
-        "trained {} iterations in {:.1} s ({:.2} it/s): {} Gaussians, test PSNR {:.3} dB, SSIM {:.4}{}",
+        "trained {} iterations in {:.1} s ({:.2} it/s{unpaused}): {} Gaussians, test PSNR {:.3} dB, SSIM {:.4}{}",
         config.iterations,
         train_s,
         trained as f64 / train_s,
