@@ -93,12 +93,8 @@ struct LossPush {
 /// The loss kernels and their scratch buffers, sized for images up to `max_width × max_height`.
 pub struct Loss {
     layout: LossLayout,
-    fwd_tile: ComputePipeline,
-    bwd_tile: ComputePipeline,
-    fwd_h: ComputePipeline,
-    fwd_v: ComputePipeline,
-    bwd_h: ComputePipeline,
-    bwd_v: ComputePipeline,
+    /// The layout's own kernels (only those are built).
+    kernels: Kernels,
     reduce: ComputePipeline,
     /// Per channel: the 5 forward moment maps, later reused for the 3 horizontally blurred
     /// backward maps (the segment layout only).
@@ -109,6 +105,20 @@ pub struct Loss {
     partials: GpuBuffer<f32>,
     max_width: u32,
     max_height: u32,
+}
+
+/// The passes of one layout.
+enum Kernels {
+    Segments {
+        fwd_h: ComputePipeline,
+        fwd_v: ComputePipeline,
+        bwd_h: ComputePipeline,
+        bwd_v: ComputePipeline,
+    },
+    Tiles {
+        fwd: ComputePipeline,
+        bwd: ComputePipeline,
+    },
 }
 
 /// Workgroups of the vertical passes: columns in x, row segments in y.
@@ -160,22 +170,28 @@ impl Loss {
                 &[],
             )
         };
-        let fwd_tile = pipe(
-            "train/ssim_fwd_tile",
-            shaders::TRAIN_SSIM_FWD_TILE,
-            6,
-            TILE * TILE,
-        )?;
-        let bwd_tile = pipe(
-            "train/ssim_bwd_tile",
-            shaders::TRAIN_SSIM_BWD_TILE,
-            6,
-            TILE * TILE,
-        )?;
-        let fwd_h = pipe("train/ssim_fwd_h", shaders::TRAIN_SSIM_FWD_H, 5, BLUR_WG)?;
-        let fwd_v = pipe("train/ssim_fwd_v", shaders::TRAIN_SSIM_FWD_V, 9, BLUR_WG)?;
-        let bwd_h = pipe("train/ssim_bwd_h", shaders::TRAIN_SSIM_BWD_H, 6, BLUR_WG)?;
-        let bwd_v = pipe("train/ssim_bwd_v", shaders::TRAIN_SSIM_BWD_V, 6, BLUR_WG)?;
+        let kernels = match layout {
+            LossLayout::Tiles => Kernels::Tiles {
+                fwd: pipe(
+                    "train/ssim_fwd_tile",
+                    shaders::TRAIN_SSIM_FWD_TILE,
+                    6,
+                    TILE * TILE,
+                )?,
+                bwd: pipe(
+                    "train/ssim_bwd_tile",
+                    shaders::TRAIN_SSIM_BWD_TILE,
+                    6,
+                    TILE * TILE,
+                )?,
+            },
+            LossLayout::Segments => Kernels::Segments {
+                fwd_h: pipe("train/ssim_fwd_h", shaders::TRAIN_SSIM_FWD_H, 5, BLUR_WG)?,
+                fwd_v: pipe("train/ssim_fwd_v", shaders::TRAIN_SSIM_FWD_V, 9, BLUR_WG)?,
+                bwd_h: pipe("train/ssim_bwd_h", shaders::TRAIN_SSIM_BWD_H, 6, BLUR_WG)?,
+                bwd_v: pipe("train/ssim_bwd_v", shaders::TRAIN_SSIM_BWD_V, 6, BLUR_WG)?,
+            },
+        };
         let reduce = pipe(
             "train/loss_reduce",
             shaders::TRAIN_LOSS_REDUCE,
@@ -185,12 +201,7 @@ impl Loss {
         let (moments, derivs, partials) = Self::alloc(ctx, layout, max_width, max_height)?;
         Ok(Self {
             layout,
-            fwd_tile,
-            bwd_tile,
-            fwd_h,
-            fwd_v,
-            bwd_h,
-            bwd_v,
+            kernels,
             reduce,
             moments,
             derivs,
@@ -347,47 +358,39 @@ impl Loss {
         };
         let [d0, d1, d2] = &self.derivs;
         rec.barrier();
-        match &self.moments {
-            None => {
-                rec.dispatch(
-                    &self.fwd_tile,
-                    &[image, gt, d0, d1, d2, &self.partials],
-                    &push,
-                    sums,
-                );
+        match (&self.kernels, &self.moments) {
+            (Kernels::Tiles { fwd, bwd }, _) => {
+                rec.dispatch(fwd, &[image, gt, d0, d1, d2, &self.partials], &push, sums);
                 rec.barrier();
                 rec.dispatch(&self.reduce, &[&self.partials, loss_out], &push, [1, 1, 1]);
-                rec.dispatch(
-                    &self.bwd_tile,
-                    &[image, gt, d0, d1, d2, grad_out],
-                    &push,
-                    sums,
-                );
+                rec.dispatch(bwd, &[image, gt, d0, d1, d2, grad_out], &push, sums);
             }
-            Some([m0, m1, m2]) => {
-                rec.dispatch(
-                    &self.fwd_h,
-                    &[image, gt, m0, m1, m2],
-                    &push,
-                    h_groups(width, height),
-                );
+            (
+                Kernels::Segments {
+                    fwd_h,
+                    fwd_v,
+                    bwd_h,
+                    bwd_v,
+                },
+                Some([m0, m1, m2]),
+            ) => {
+                let hg = h_groups(width, height);
+                rec.dispatch(fwd_h, &[image, gt, m0, m1, m2], &push, hg);
                 rec.barrier();
                 rec.dispatch(
-                    &self.fwd_v,
+                    fwd_v,
                     &[image, gt, m0, m1, m2, d0, d1, d2, &self.partials],
                     &push,
                     sums,
                 );
                 rec.barrier();
                 rec.dispatch(&self.reduce, &[&self.partials, loss_out], &push, [1, 1, 1]);
-                rec.dispatch(
-                    &self.bwd_h,
-                    &[d0, d1, d2, m0, m1, m2],
-                    &push,
-                    h_groups(width, height),
-                );
+                rec.dispatch(bwd_h, &[d0, d1, d2, m0, m1, m2], &push, hg);
                 rec.barrier();
-                rec.dispatch(&self.bwd_v, &[image, gt, m0, m1, m2, grad_out], &push, sums);
+                rec.dispatch(bwd_v, &[image, gt, m0, m1, m2, grad_out], &push, sums);
+            }
+            (Kernels::Segments { .. }, None) => {
+                bail!("loss: the segment layout's moment maps are missing")
             }
         }
         rec.barrier();
