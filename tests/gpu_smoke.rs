@@ -1,7 +1,8 @@
 //! GPU layer smoke tests, with the validation layer on and its errors required to be zero.
 
 use lpmsplat::gpu::{
-    BufferKind, ComputePipeline, GpuBuffer, GpuContext, GpuOptions, Recorder, TimestampPool,
+    BufferKind, ComputePipeline, GpuBuffer, GpuContext, GpuOptions, HoldFrees, Recorder,
+    TimestampPool,
 };
 use lpmsplat::shaders;
 use rand::{Rng, SeedableRng};
@@ -200,4 +201,62 @@ fn validation_layer_is_active_and_counts_errors() {
         "the validation layer did not report an invalid call"
     );
     assert!(ctx.check_validation().is_err());
+}
+
+/// Work in flight uses a buffer and a pipeline; both are dropped before its fence. Under a
+/// `HoldFrees` guard nothing is destroyed (the memory stays booked) until the last guard goes
+/// after the fence, and the validation layer sees no object destroyed while in use; without a
+/// guard the same drops are caught by it (on lavapipe), so the check can fail.
+#[test]
+fn held_frees_wait_for_the_last_guard() {
+    let run = |guarded: bool| {
+        let ctx = ctx();
+        let before = ctx.memory.in_use();
+        let n = 1 << 20;
+        let buf = GpuBuffer::<u32>::new(&ctx, "held", n, BufferKind::DeviceLocal).unwrap();
+        let booked = ctx.memory.in_use() - before;
+        assert!(booked >= 4 * n as u64);
+        let fill =
+            ComputePipeline::new(&ctx, "fill", shaders::UTIL_FILL_U32, 1, 8, 64, &[]).unwrap();
+        let mut rec = Recorder::new(&ctx).unwrap();
+        for _ in 0..8 {
+            rec.dispatch(
+                &fill,
+                &[&buf],
+                &[n as u32, 7u32],
+                ctx.groups_1d(n as u64, 64),
+            );
+            rec.barrier();
+        }
+        rec.submit().unwrap();
+        let guards = guarded.then(|| (HoldFrees::new(&ctx), HoldFrees::new(&ctx)));
+        if !guarded {
+            // Let the work finish before the unguarded drops, so that they break nothing: the
+            // validation layer still counts it in flight until the fence is seen.
+            std::thread::sleep(std::time::Duration::from_millis(300));
+        }
+        drop(buf);
+        drop(fill);
+        if let Some((a, b)) = guards {
+            assert_eq!(ctx.memory.in_use(), before + booked, "freed under a guard");
+            rec.wait().unwrap();
+            drop(a);
+            assert_eq!(
+                ctx.memory.in_use(),
+                before + booked,
+                "freed before the last guard"
+            );
+            drop(b);
+        } else {
+            rec.wait().unwrap();
+        }
+        assert_eq!(ctx.memory.in_use(), before, "never freed");
+        ctx.check_validation()
+    };
+    run(true).unwrap();
+    let unguarded = run(false);
+    if ctx().info.device_type.starts_with("CPU") {
+        let e = unguarded.expect_err("destroying objects in use went unnoticed");
+        assert!(e.to_string().contains("in use"), "{e}");
+    }
 }

@@ -133,13 +133,15 @@ fn a_budget_below_one_step_is_refused_with_the_size_to_ask_for() {
     ctx.check_validation().unwrap();
 }
 
-/// `iterations` steps of spacetime-lite (two views a step) on the fixture; the final model's
-/// floats and the cache's statistics.
-fn train(
+/// `iterations` steps of spacetime-lite (two views a step) on the fixture, each recording the
+/// next while it runs when `ahead` (`Trainer::step_ahead`); the final model's floats, the
+/// losses and the cache's statistics.
+fn train_with(
     ctx: &Arc<GpuContext>,
     scene: &Scene,
     images: TrainImages,
     iterations: u32,
+    ahead: bool,
 ) -> (Vec<f32>, Vec<f32>, lpmsplat::train::image_cache::CacheStats) {
     let mut cfg = TrainConfig {
         iterations,
@@ -153,12 +155,27 @@ fn train(
         .initialise(random_init(1_500, center, [half; 3], 4, 0).unwrap(), 4);
     let mut t = Trainer::new(ctx, scene, images, &init, cfg).unwrap();
     let mut losses = Vec::new();
-    for _ in 0..iterations {
-        losses.push(t.step().unwrap().l1);
+    let mut prepared = 0;
+    for k in 1..=iterations {
+        losses.push(t.step_ahead(ahead && k < iterations).unwrap().l1);
+        prepared += t.has_prepared() as u32;
     }
+    assert!(
+        !ahead || prepared >= iterations / 2,
+        "only {prepared} of {iterations} steps prepared the next"
+    );
     let m = t.export_model().unwrap();
     let floats: Vec<f32> = m.positions.iter().flatten().copied().collect();
     (floats, losses, t.image_cache_stats())
+}
+
+fn train(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    images: TrainImages,
+    iterations: u32,
+) -> (Vec<f32>, Vec<f32>, lpmsplat::train::image_cache::CacheStats) {
+    train_with(ctx, scene, images, iterations, false)
 }
 
 #[test]
@@ -180,6 +197,19 @@ fn training_through_a_streaming_cache_equals_training_with_every_image_resident(
         TrainImages::streamed(source(&scene), images_bytes(3)),
         n,
     );
+    // Five slots: room for two steps, so each step's uploads are recorded while the one
+    // before runs (through the other half of the staging buffer).
+    let (d, ld, sd) = train_with(
+        &ctx,
+        &scene,
+        TrainImages::streamed(source(&scene), images_bytes(5)),
+        n,
+        true,
+    );
+    assert!(
+        !sd.resident && sd.slots == 5 && sd.uploads >= n as u64,
+        "{sd:?}"
+    );
     assert!(sa.resident && sa.uploads == 0, "{sa:?}");
     assert!(!sc.resident && sc.slots == 3, "{sc:?}");
     assert!(sc.uploads >= n as u64, "{sc:?}");
@@ -195,6 +225,10 @@ fn training_through_a_streaming_cache_equals_training_with_every_image_resident(
         assert!(
             bits(&a) == bits(&c),
             "streamed training differs from resident"
+        );
+        assert!(
+            bits(&a) == bits(&d) && bits(&la) == bits(&ld),
+            "streamed training recorded a step ahead differs from resident"
         );
     } else {
         // A driver that ignores LP_NUM_THREADS (a GPU) adds the backward's float atomics in a
@@ -218,6 +252,11 @@ fn training_through_a_streaming_cache_equals_training_with_every_image_resident(
         assert!(
             got <= wrong / 10.0,
             "streamed training differs by {got}, two swapped images by {wrong}"
+        );
+        let ahead = diff(&a, &d);
+        assert!(
+            ahead <= wrong / 10.0,
+            "streamed training a step ahead differs by {ahead}, two swapped images by {wrong}"
         );
     }
     ctx.check_validation().unwrap();

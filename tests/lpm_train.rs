@@ -519,21 +519,39 @@ fn lpm_run_resumes_bit_identically_and_checks_its_settings() {
         (ck.count, v)
     };
     // Straight: 15 iterations, LPM at every densification (every 5).
-    let straight_run = || {
+    // `ahead`: each step records the next while it runs (`Trainer::step_ahead`), which must
+    // not change the run.
+    let straight_run_with = |ahead: bool, c: LpmConfig| {
         let mut t = Trainer::new(&ctx, &scene, &gt, &init, config(2e-5, 5)).unwrap();
-        attach(&mut t, lpm_config());
-        let mut zones = 0;
-        for _ in 0..15 {
-            zones += lpm_report(&t.step().unwrap()).map_or(0, |r| r.zones);
+        attach(&mut t, c);
+        let (mut zones, mut prepared) = (0, 0);
+        for k in 0..15 {
+            zones += lpm_report(&t.step_ahead(ahead && k < 14).unwrap()).map_or(0, |r| r.zones);
+            prepared += t.has_prepared() as u32;
         }
+        assert!(
+            !ahead || prepared >= 4,
+            "{prepared} steps prepared the next"
+        );
         assert!(
             zones > 0,
             "LPM never made a zone: the test would prove nothing"
         );
         floats(&t)
     };
+    let straight_run = || straight_run_with(false, lpm_config());
     let straight = straight_run();
     let again = straight_run();
+    // LPM's own reset every 3 iterations rather than every one, so that steps between have
+    // nothing for the host to do and prepare the next.
+    let every_third = || LpmConfig {
+        reset_interval: 3,
+        ..lpm_config()
+    };
+    let (plain, ahead) = (
+        straight_run_with(false, every_third()),
+        straight_run_with(true, every_third()),
+    );
     let noise = if straight == again {
         None
     } else {
@@ -547,6 +565,17 @@ fn lpm_run_resumes_bit_identically_and_checks_its_settings() {
         eprintln!("this device's identical LPM runs differ by up to {n:e}: comparing within 4x");
         Some(n)
     };
+    match noise {
+        None => assert!(ahead == plain, "an LPM run a step ahead differs"),
+        Some(n) => {
+            assert_eq!(plain.0, ahead.0, "an LPM run a step ahead differs in size");
+            let d = max_difference(&plain.1, &ahead.1).unwrap();
+            assert!(
+                d <= 4.0 * n,
+                "an LPM run a step ahead differs by {d}, noise {n}"
+            );
+        }
+    }
     // 7 iterations, a checkpoint, a restored trainer, 8 more.
     let mut first = Trainer::new(&ctx, &scene, &gt, &init, config(2e-5, 5)).unwrap();
     attach(&mut first, lpm_config());

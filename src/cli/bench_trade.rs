@@ -388,7 +388,11 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                     t.snapshot_next_step();
                 }
                 let t0 = Instant::now();
-                let report = t.step()?;
+                // The next iteration is recorded while this one runs, unless an evaluation
+                // comes after this one or a snapshot before the next.
+                let prepare =
+                    it < args.iterations && !eval_at.contains(&it) && !eval_at.contains(&(it + 1));
+                let report = t.step_ahead(prepare)?;
                 r.seconds += t0.elapsed().as_secs_f64();
                 r.model_events
                     .extend(report.model_events.iter().map(|e| e.to_json()));

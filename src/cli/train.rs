@@ -884,7 +884,17 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
             // control, as the reference does.
             trainer.snapshot_next_step();
         }
-        let r = match trainer.step() {
+        // Record the iteration after `next` while `next` runs, unless the host has work
+        // between them (an evaluation or checkpoint after `next`, a snapshot before the one
+        // after, the end).
+        let snapshot_after = |k: u32| {
+            k == config.iterations || (args.eval_every > 0 && k.is_multiple_of(args.eval_every))
+        };
+        let prepare = next < config.iterations
+            && !snapshot_after(next)
+            && !snapshot_after(next + 1)
+            && (args.checkpoint_every == 0 || !next.is_multiple_of(args.checkpoint_every));
+        let r = match trainer.step_ahead(prepare) {
             Ok(r) => r,
             Err(e) => {
                 bar.abandon();
@@ -909,6 +919,11 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         }
         if super::interrupt::requested() {
             bar.abandon();
+            // The next iteration may be recorded already: run it, and save after it.
+            let r = match trainer.has_prepared() {
+                true => trainer.step()?,
+                false => r,
+            };
             trainer.save_checkpoint(&scene, &checkpoint_path)?;
             write_ply(&args.out.join("point_cloud.ply"), &trainer.export_model()?)?;
             anyhow::bail!(

@@ -279,11 +279,16 @@ impl<T: Pod> GpuBuffer<T> {
 
 impl<T: Pod> Drop for GpuBuffer<T> {
     fn drop(&mut self) {
-        unsafe { self.ctx.device.destroy_buffer(self.buffer, None) };
-        if let Some(a) = self.allocation.take() {
-            let _ = self.ctx.allocator.lock().map(|mut al| al.free(a));
-        }
-        self.ctx.memory.release(self.booked);
+        // Destroyed now, or when the last `HoldFrees` guard goes (work recorded against the
+        // buffer may still be on the queue).
+        super::held_frees::retire(
+            &self.ctx,
+            super::held_frees::Retired::Buffer {
+                buffer: self.buffer,
+                allocation: self.allocation.take(),
+                booked: self.booked,
+            },
+        );
     }
 }
 

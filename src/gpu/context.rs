@@ -108,6 +108,8 @@ pub struct GpuContext {
     /// Device-local bytes in use and their limit.
     pub memory: DeviceMemory,
     pub info: DeviceInfo,
+    /// Buffers dropped while a [`HoldFrees`](super::HoldFrees) guard lives.
+    pub(crate) held_frees: Mutex<super::held_frees::HeldFrees>,
 }
 
 fn device_type_name(t: vk::PhysicalDeviceType) -> &'static str {
@@ -412,6 +414,7 @@ impl GpuContext {
             allocator: ManuallyDrop::new(Mutex::new(allocator)),
             memory: DeviceMemory::new(memory_limit),
             info,
+            held_frees: Mutex::new(Default::default()),
         }))
     }
 
@@ -632,6 +635,14 @@ impl Drop for GpuContext {
         let _serial = lifecycle_lock();
         unsafe {
             let _ = self.device.device_wait_idle();
+            let held = self
+                .held_frees
+                .get_mut()
+                .map(|h| std::mem::take(&mut h.retired))
+                .unwrap_or_default();
+            for r in held {
+                super::held_frees::destroy(self, r);
+            }
             ManuallyDrop::drop(&mut self.allocator);
             if let Ok(pool) = self.command_pool.lock() {
                 self.device.destroy_command_pool(*pool, None);

@@ -12,6 +12,7 @@
 mod buffer;
 mod commands;
 mod context;
+mod held_frees;
 mod memory;
 mod pipeline;
 mod timestamps;
@@ -20,6 +21,7 @@ mod validation;
 pub use buffer::{BufferKind, GpuBuffer};
 pub use commands::Recorder;
 pub use context::{list_devices, DeviceInfo, GpuContext, GpuOptions};
+pub use held_frees::HoldFrees;
 pub use memory::{out_of_memory, DeviceMemory, OutOfDeviceMemory};
 pub use pipeline::ComputePipeline;
 pub use timestamps::{StageTimes, TimestampPool};

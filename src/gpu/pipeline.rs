@@ -137,12 +137,15 @@ impl ComputePipeline {
 
 impl Drop for ComputePipeline {
     fn drop(&mut self) {
-        unsafe {
-            self.ctx.device.destroy_pipeline(self.pipeline, None);
-            self.ctx.device.destroy_pipeline_layout(self.layout, None);
-            self.ctx
-                .device
-                .destroy_descriptor_set_layout(self.set_layout, None);
-        }
+        // Destroyed now, or when the last `HoldFrees` guard goes (a recorded command buffer
+        // may still be on the queue with it bound).
+        super::held_frees::retire(
+            &self.ctx,
+            super::held_frees::Retired::Pipeline {
+                pipeline: self.pipeline,
+                layout: self.layout,
+                set_layout: self.set_layout,
+            },
+        );
     }
 }

@@ -1033,6 +1033,11 @@ impl DensityStrategy for LpmStrategy {
         self.inner.after_iteration(t, at, reported)
     }
 
+    /// LPM's own work outside densify steps is its reset on its own interval.
+    fn quiet_after(&self, iteration: u32) -> bool {
+        !self.config.resets_at(iteration) && self.inner.quiet_after(iteration)
+    }
+
     fn settings_json(&self) -> serde_json::Value {
         let mut s = serde_json::json!({ "lpm": self.config.checkpoint_json() });
         // A wrapped strategy with settings of its own is part of the run's settings too.

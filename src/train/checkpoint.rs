@@ -524,6 +524,7 @@ fn config_differences(saved: &serde_json::Value, now: &serde_json::Value) -> Vec
 impl Trainer {
     /// The complete training state (waits for nothing: call between iterations).
     pub fn checkpoint(&self, scene: &Scene) -> anyhow::Result<Checkpoint> {
+        self.assert_nothing_prepared("checkpoint");
         let (epoch, next) = self.views.position();
         let stats = self.density.stats();
         let n = self.state.count();

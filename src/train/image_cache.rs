@@ -11,7 +11,7 @@
 //! trainer names the images the step reads (made resident, the least recently used slot giving
 //! way, copied from a host-visible staging buffer inside the step's own command buffer) and the
 //! images of the next steps, which a loader thread decodes while the GPU works. GPU memory is
-//! the budget; host memory is the staging buffer and the few decoded frames waiting for their
+//! the budget; host memory is the staging buffer (two steps' images) and the few decoded frames waiting for their
 //! step, whatever the number of frames.
 
 use std::collections::{HashMap, HashSet};
@@ -87,6 +87,17 @@ impl CacheStats {
 /// host holds one chunk of f32 pixels rather than the whole set.
 const RESIDENT_CHUNK: usize = 32;
 
+/// The cache's slot bookkeeping (see [`ImageCache::book`]).
+pub struct CacheBook {
+    slots: Vec<ImageSlot>,
+    holder: Vec<Option<usize>>,
+    slot_of: Vec<Option<usize>>,
+    last_used: Vec<u64>,
+    tick: u64,
+    staging_half: usize,
+    stats: CacheStats,
+}
+
 pub struct ImageCache {
     source: Arc<dyn ImageSource>,
     buffers: Vec<GpuBuffer<u32>>,
@@ -102,6 +113,10 @@ pub struct ImageCache {
     /// them) and the loader.
     slot_px: usize,
     staging: Option<GpuBuffer<u32>>,
+    /// Which half of the staging buffer the next uploads use: consecutive steps alternate, so
+    /// the host writes one step's images while the previous step's copies may still read the
+    /// other half (the trainer records a step while the previous one runs).
+    staging_half: usize,
     loader: Option<Loader>,
     stats: CacheStats,
 }
@@ -179,6 +194,7 @@ impl ImageCache {
             tick: 0,
             slot_px: 0,
             staging: None,
+            staging_half: 0,
             loader: None,
             stats: CacheStats {
                 images: n,
@@ -220,7 +236,7 @@ impl ImageCache {
         let staging = GpuBuffer::new(
             ctx,
             "ground truth staging",
-            max_px * per_step,
+            2 * max_px * per_step,
             BufferKind::Upload,
         )?;
         let bytes = 4 * (max_px * count) as u64;
@@ -234,6 +250,7 @@ impl ImageCache {
             tick: 0,
             slot_px: max_px,
             staging: Some(staging),
+            staging_half: 0,
             stats: CacheStats {
                 images: sizes.len(),
                 slots: count,
@@ -243,6 +260,38 @@ impl ImageCache {
             },
             slots,
         })
+    }
+
+    /// The slot bookkeeping, to restore if the copies recorded after it are never submitted.
+    pub fn book(&self) -> CacheBook {
+        CacheBook {
+            slots: self.slots.clone(),
+            holder: self.holder.clone(),
+            slot_of: self.slot_of.clone(),
+            last_used: self.last_used.clone(),
+            tick: self.tick,
+            staging_half: self.staging_half,
+            stats: self.stats,
+        }
+    }
+
+    /// Restores the bookkeeping of [`ImageCache::book`] (the uploads recorded since were
+    /// dropped unsubmitted; the images they took from the loader are decoded again).
+    pub fn restore_book(&mut self, b: CacheBook) {
+        self.slots = b.slots;
+        self.holder = b.holder;
+        self.slot_of = b.slot_of;
+        self.last_used = b.last_used;
+        self.tick = b.tick;
+        self.staging_half = b.staging_half;
+        self.stats = b.stats;
+    }
+
+    /// Whether the next step's uploads can be recorded while this step runs: a resident cache
+    /// uploads nothing; a streaming one needs slots for two steps' images, so that the next
+    /// step's evict none of this step's (which its density control still reads).
+    pub fn holds_two_steps(&self, per_step: usize) -> bool {
+        !self.streams() || self.slots.len() >= 2 * per_step
     }
 
     /// Whether images are streamed (the trainer then names the next steps' images).
@@ -269,9 +318,9 @@ impl ImageCache {
 
     /// Makes images `needed` resident for the step being recorded into `rec` (copies and a
     /// barrier recorded first, so record this before the step's kernels), and asks the loader
-    /// for `upcoming`, the images of the next steps. The host writes the staging buffer now:
-    /// the previous submission that read it must have completed (the trainer waits for every
-    /// step).
+    /// for `upcoming`, the images of the next steps. The host writes the staging buffer now,
+    /// into the half the previous call did not use: the submission before the previous one
+    /// must have completed (the trainer records at most one step ahead).
     pub fn prepare(
         &mut self,
         rec: &mut Recorder,
@@ -315,7 +364,8 @@ impl ImageCache {
                 pixels.len()
             );
             let staging = self.staging.as_ref().context("image cache: no staging")?;
-            staging.upload_at(copies * self.slot_px, &pixels)?;
+            let at = (self.staging_half * self.staging_images() + copies) * self.slot_px;
+            staging.upload_at(at, &pixels)?;
             if let Some(old) = self.holder[s] {
                 self.slot_of[old] = None;
             }
@@ -327,7 +377,7 @@ impl ImageCache {
             let slot = *slot;
             rec.copy_region(
                 staging,
-                copies * self.slot_px,
+                at,
                 &self.buffers[slot.buffer],
                 slot.offset_px as usize,
                 pixels.len(),
@@ -337,6 +387,7 @@ impl ImageCache {
         }
         if copies > 0 {
             rec.barrier();
+            self.staging_half ^= 1;
         }
         if let Some(loader) = self.loader.as_mut() {
             let wanted: Vec<usize> = upcoming
@@ -352,10 +403,11 @@ impl ImageCache {
         Ok(())
     }
 
+    /// Images one half of the staging buffer holds (a step's).
     fn staging_images(&self) -> usize {
         self.staging
             .as_ref()
-            .map_or(0, |s| s.len() / self.slot_px.max(1))
+            .map_or(0, |s| s.len() / 2 / self.slot_px.max(1))
     }
 }
 

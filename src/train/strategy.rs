@@ -164,6 +164,14 @@ pub trait DensityStrategy: Any {
         Ok(None)
     }
 
+    /// Whether [`DensityStrategy::after_iteration`] at `iteration`, a step without densify or
+    /// opacity reset, will record no GPU work and change no buffer (host bookkeeping is
+    /// fine): the trainer then records the next iteration while this one runs. `false`, the
+    /// default, is always safe.
+    fn quiet_after(&self, _iteration: u32) -> bool {
+        false
+    }
+
     /// The settings that decide results (saved in checkpoints; a resumed run must match).
     /// `Null` for plain ADC, whose settings are part of the trainer's config.
     fn settings_json(&self) -> serde_json::Value {
@@ -201,6 +209,13 @@ pub trait ModelRule {
         t: &mut DensityContext,
         step: &StepSeen,
     ) -> anyhow::Result<Option<Arc<dyn StrategyEvent>>>;
+    /// Whether [`ModelRule::after_step`] at `iteration`, on a step of `views`, will record no
+    /// GPU work and change no buffer (host bookkeeping is fine), asked before the step has
+    /// run: the trainer then records the next iteration while this one runs. `false`, the
+    /// default, is always safe.
+    fn quiet_after(&self, _iteration: u32, _views: &[usize]) -> bool {
+        false
+    }
     /// Its state, saved in checkpoints so a resumed run goes on where it stopped.
     fn state_json(&self) -> serde_json::Value;
     fn restore_state(&mut self, state: &serde_json::Value) -> anyhow::Result<()>;
@@ -223,6 +238,11 @@ impl DensityStrategy for Adc {
         args: &DensifyArgs,
     ) -> anyhow::Result<DensifyOutcome> {
         t.density.step(t.rec, t.state, args, None)
+    }
+
+    /// ADC works only on densify steps.
+    fn quiet_after(&self, _iteration: u32) -> bool {
+        true
     }
 
     fn as_any(&self) -> &dyn Any {

@@ -7,9 +7,15 @@
 //! Adam skips that iteration; we do the same (and keep one step counter for all groups: at an
 //! opacity reset, which always coincides with a densify step, nothing steps either).
 //!
-//! The host waits for each iteration's fence before recording the next (it reads the loss and
-//! the intersection count from host-visible copies made at the end of the command buffer; no
-//! other readback). When a frame needed more intersections than the buffers hold, the pairs
+//! The host waits for each iteration's fence (it reads the loss and the intersection count
+//! from host-visible copies made at the end of the command buffer; no other readback). With
+//! [`Trainer::step_ahead`] it records the next iteration while the current one runs, wherever
+//! the current one leaves the host nothing to do (no density control, reset or snapshot, no
+//! GPU work of the strategy or the model's rules), so the GPU waits only for the submission,
+//! not for the recording; the next iteration's command buffer starts with a barrier against
+//! everything before it, a buffer its recording replaces is freed only after the current
+//! iteration's fence ([`HoldFrees`]), and a streaming image cache alternates between two
+//! halves of its staging buffer. When a frame needed more intersections than the buffers hold, the pairs
 //! past the capacity (the farthest Gaussians) were dropped for that one iteration; the buffers
 //! then grow to 1.5× the need, and it does not happen again for that view size.
 //!
@@ -29,7 +35,7 @@ use super::adam::{Adam, SplatState};
 use super::batch::{batch_partners, GradBlend};
 use super::data::{scene_cameras, ViewSchedule};
 use super::density::{DensifyArgs, DensifyOutcome, DensityControl};
-use super::image_cache::{CacheStats, ImageCache, ImageSlot};
+use super::image_cache::{CacheBook, CacheStats, ImageCache, ImageSlot};
 use super::loss::{Loss, LOSS_SLOT_FLOATS};
 use super::passes::{self, FrameArgs, GradArgs, ModelPasses};
 use super::schedule::sh_degree_at;
@@ -37,7 +43,9 @@ use super::strategy::{
     Adc, DensityContext, DensityStrategy, IterationView, ModelRule, OpacityFilter, StepSeen,
     StrategyEvent,
 };
-use crate::gpu::{BufferKind, GpuBuffer, GpuContext, Recorder, StageTimes, TimestampPool};
+use crate::gpu::{
+    BufferKind, GpuBuffer, GpuContext, HoldFrees, Recorder, StageTimes, TimestampPool,
+};
 use crate::render::forward::Capacity;
 use crate::render::layout::{CameraGpu, RenderConstants};
 use crate::scene::image_source::{load_range, ImageSource, TrainImages};
@@ -135,6 +143,10 @@ pub struct Trainer {
     pub adam_step: u32,
     pub(super) rec: Recorder,
     pool: TimestampPool,
+    /// The prepared iteration's recorder and timestamps (see [`Trainer::step_ahead`]).
+    rec_ahead: Recorder,
+    pool_ahead: TimestampPool,
+    prepared: Option<Prepared>,
     pub dropped_frames: u32,
     /// Decides clone / split / prune / reset ([`Adc`] unless [`Trainer::set_strategy`]).
     strategy: Box<dyn DensityStrategy>,
@@ -148,6 +160,28 @@ pub struct Trainer {
     snapshot_iteration: Option<u32>,
     /// After a resume: the strategy settings saved in the checkpoint (null: plain ADC).
     pub(super) resumed_strategy: Option<serde_json::Value>,
+}
+
+/// An iteration recorded into a command buffer, with what finishing it needs.
+struct Recorded {
+    iteration: u32,
+    views: Vec<usize>,
+    background: [f32; 3],
+    count: usize,
+}
+
+/// An iteration recorded ahead (not submitted) and what recording it changed on the host.
+struct Prepared {
+    step: Recorded,
+    undo: Undo,
+}
+
+/// The host state a recording advances, as it was before (to drop a prepared iteration).
+struct Undo {
+    views: ViewSchedule,
+    adam_step: u32,
+    images: CacheBook,
+    snapshot_requested: bool,
 }
 
 /// Steps ahead whose images a streaming cache decodes while the GPU works on the current one.
@@ -299,6 +333,9 @@ impl Trainer {
             rec: Recorder::new(ctx)?,
             // About a dozen stamps per view of a step, plus density statistics and Adam.
             pool: TimestampPool::new(ctx, 16 + 16 * config.batch_views.max(1))?,
+            rec_ahead: Recorder::new(ctx)?,
+            pool_ahead: TimestampPool::new(ctx, 16 + 16 * config.batch_views.max(1))?,
+            prepared: None,
             dropped_frames: 0,
             strategy: Box::new(Adc),
             model_rules,
@@ -324,6 +361,7 @@ impl Trainer {
     /// training state itself (and so a checkpoint) is unaffected. Nothing is copied when the
     /// step runs no density control: the model is then already the one to evaluate.
     pub fn snapshot_next_step(&mut self) {
+        self.assert_nothing_prepared("snapshot_next_step");
         self.snapshot_requested = true;
     }
 
@@ -451,22 +489,133 @@ impl Trainer {
         Ok(out)
     }
 
-    /// Runs one training iteration (waits for it). When it fails before the iteration's work
-    /// was submitted (out of device memory while a buffer grows for it, say), the iteration is
-    /// not counted, so a checkpoint saved then resumes with it.
+    /// Runs one training iteration and waits for it. When it fails before the iteration's
+    /// work was submitted (out of device memory while a buffer grows for it, say), the
+    /// iteration is not counted, so a checkpoint saved then resumes with it.
     pub fn step(&mut self) -> anyhow::Result<StepReport> {
-        let before = self.iteration;
+        self.step_ahead(false)
+    }
+
+    /// [`Trainer::step`], and with `prepare_next` the next iteration's command buffer is
+    /// recorded while this one runs on the GPU, so that the next call only submits it and the
+    /// GPU does not wait for the host's recording between iterations. Pass `prepare_next` only
+    /// when the next call on this trainer is `step` or `step_ahead`: in between, reading the
+    /// model (`state`, a non-finite check) is fine, since the prepared iteration is not
+    /// submitted before that call, but evaluating, exporting, checkpointing, snapshotting or
+    /// changing the strategy is refused (a panic: a caller's bug). Nothing is prepared after an
+    /// iteration that leaves work for the host (see [`Trainer::quiet`]), and a prepared
+    /// iteration is dropped and recorded again when the one before it overflowed the
+    /// intersection buffers, so the results are those of `step`.
+    pub fn step_ahead(&mut self, prepare_next: bool) -> anyhow::Result<StepReport> {
         self.step_submitted = false;
-        let r = self.step_once();
-        if r.is_err() && !self.step_submitted {
-            self.iteration = before;
+        let r = self.step_inner(prepare_next);
+        if r.is_err() {
+            // A failed step leaves nothing prepared (its recording may hold what failed).
+            self.discard_prepared();
         }
         r
     }
 
-    fn step_once(&mut self) -> anyhow::Result<StepReport> {
-        self.iteration += 1;
-        let it = self.iteration;
+    fn step_inner(&mut self, prepare_next: bool) -> anyhow::Result<StepReport> {
+        let step = match self.prepared.take() {
+            Some(p) => {
+                // The prepared command buffer is in `rec_ahead`: make it the current one.
+                std::mem::swap(&mut self.rec, &mut self.rec_ahead);
+                std::mem::swap(&mut self.pool, &mut self.pool_ahead);
+                p.step
+            }
+            None => self.record_step()?,
+        };
+        self.rec.submit()?;
+        self.iteration = step.iteration;
+        self.step_submitted = true;
+        if prepare_next && self.quiet(&step) {
+            self.prepare_ahead()?;
+        } else {
+            self.rec.wait()?;
+        }
+        self.finish_step(step)
+    }
+
+    /// Whether the host has nothing to do after `step` that could change how the next
+    /// iteration is recorded: no density control, opacity reset or snapshot, a strategy and model rules with no GPU work due, and (when images stream) room
+    /// in the image cache for two steps' images, so that the next step's uploads evict none of
+    /// this one's.
+    fn quiet(&self, step: &Recorded) -> bool {
+        let it = step.iteration;
+        let schedule = &self.config.schedule;
+        !schedule.densifies(it)
+            && !schedule.resets_opacity(it)
+            && self.snapshot.is_none()
+            && self
+                .images
+                .holds_two_steps(self.config.batch_views.max(1) as usize)
+            && self.strategy.quiet_after(it)
+            && self
+                .model_rules
+                .iter()
+                .all(|r| r.quiet_after(it, &step.views))
+    }
+
+    /// Records the next iteration into `rec_ahead` while the current one (submitted in
+    /// `rec`) runs, then waits for the current one. A recording that fails is undone and left
+    /// to the next step, which records it again (and meets the failure where it belongs).
+    fn prepare_ahead(&mut self) -> anyhow::Result<()> {
+        let undo = Undo {
+            views: self.views.clone(),
+            adam_step: self.adam_step,
+            images: self.images.book(),
+            snapshot_requested: self.snapshot_requested,
+        };
+        std::mem::swap(&mut self.rec, &mut self.rec_ahead);
+        std::mem::swap(&mut self.pool, &mut self.pool_ahead);
+        // A buffer the recording replaces may still be bound in the running iteration.
+        let hold = HoldFrees::new(&self.ctx);
+        let recorded = self.record_step();
+        std::mem::swap(&mut self.rec, &mut self.rec_ahead);
+        std::mem::swap(&mut self.pool, &mut self.pool_ahead);
+        let waited = self.rec.wait();
+        drop(hold);
+        waited?;
+        match recorded {
+            Ok(step) => self.prepared = Some(Prepared { step, undo }),
+            Err(_) => self.undo(undo),
+        }
+        Ok(())
+    }
+
+    /// Drops a prepared iteration (never submitted) and restores what recording it changed.
+    fn discard_prepared(&mut self) {
+        if let Some(p) = self.prepared.take() {
+            self.undo(p.undo);
+        }
+    }
+
+    fn undo(&mut self, undo: Undo) {
+        self.views = undo.views;
+        self.adam_step = undo.adam_step;
+        self.images.restore_book(undo.images);
+        self.snapshot_requested = undo.snapshot_requested;
+    }
+
+    /// Whether an iteration is prepared (see [`Trainer::step_ahead`]).
+    pub fn has_prepared(&self) -> bool {
+        self.prepared.is_some()
+    }
+
+    /// Panics when an iteration is prepared: `what` would change or read what it was recorded
+    /// against (see [`Trainer::step_ahead`]).
+    pub(super) fn assert_nothing_prepared(&self, what: &str) {
+        assert!(
+            self.prepared.is_none(),
+            "Trainer::{what} called while the next iteration is prepared (step_ahead(true)); \
+             step it first"
+        );
+    }
+
+    /// Records iteration `self.iteration + 1` into `self.rec` (idle) with `self.pool`.
+    fn record_step(&mut self) -> anyhow::Result<Recorded> {
+        let it = self.iteration + 1;
         let cfg = self.config.clone();
         let first = self.views.next_view();
         // The step's views: the scheduled one, then its batch partners; the last one's render
@@ -481,7 +630,6 @@ impl Trainer {
                 it,
             ))
             .collect();
-        let view = *views.last().expect("at least the scheduled view");
         let bg = match cfg.background {
             Background::Fixed(c) => c,
             Background::Random => random_background(cfg.seed, it),
@@ -498,6 +646,9 @@ impl Trainer {
         }
 
         self.rec.begin()?;
+        // The previous iteration may still be running when this one is submitted
+        // (`step_ahead`): everything here comes after all of it.
+        self.rec.barrier();
         if cfg.timestamps {
             self.rec.start_timestamps(&mut self.pool);
         }
@@ -629,14 +780,36 @@ impl Trainer {
             &self.loss_host,
             LOSS_SLOT_FLOATS * views.len(),
         );
-        self.rec.submit_and_wait()?;
-        self.step_submitted = true;
+        Ok(Recorded {
+            iteration: it,
+            views,
+            background: bg,
+            count,
+        })
+    }
+
+    /// Reads back the submitted, completed iteration `step` and runs its density control.
+    fn finish_step(&mut self, step: Recorded) -> anyhow::Result<StepReport> {
+        let cfg = self.config.clone();
+        let Recorded {
+            iteration: it,
+            views,
+            background: bg,
+            count,
+        } = step;
+        let view = *views.last().expect("at least the scheduled view");
+        let densifies = cfg.schedule.densifies(it);
         let stages = if cfg.timestamps {
             Some(self.pool.read()?)
         } else {
             None
         };
 
+        if self.prepared.is_some() && self.passes.frame_need()?.is_some() {
+            // The next iteration was recorded against the buffers this frame overflowed: drop
+            // it, so that it is recorded again after they grow, as `step` would have.
+            self.discard_prepared();
+        }
         if self.passes.after_frame()? {
             self.dropped_frames += 1;
         }
@@ -812,6 +985,7 @@ impl Trainer {
 
     /// Replaces the density strategy (before the first step, or after a restore).
     pub fn set_strategy(&mut self, strategy: Box<dyn DensityStrategy>) {
+        self.assert_nothing_prepared("set_strategy");
         self.strategy = strategy;
     }
 
@@ -878,6 +1052,7 @@ impl Trainer {
 
     /// Grows the intersection buffers to at least `n` pairs.
     pub fn reserve_intersections(&mut self, n: usize) -> anyhow::Result<()> {
+        self.assert_nothing_prepared("reserve_intersections");
         self.passes.reserve_intersections(n)
     }
 
@@ -896,6 +1071,7 @@ impl Trainer {
     /// opacity (as the official `create_fused_ply.py`; the 2D filter cannot be folded, so
     /// render it with `--model mip-splatting`); other models as [`Trainer::model`].
     pub fn export_model(&mut self) -> anyhow::Result<GaussianParams> {
+        self.assert_nothing_prepared("export_model");
         let model = self.model()?;
         let params = snapshot_or(
             &self.snapshot,
@@ -909,6 +1085,7 @@ impl Trainer {
 
     /// Renders view `view` of the scene with the current model (RGB interleaved).
     pub fn render_view(&mut self, view: usize, background: [f32; 3]) -> anyhow::Result<Vec<f32>> {
+        self.assert_nothing_prepared("render_view");
         let cam = self.cameras_host[view];
         // Field by field (not `eval_params`): the passes are borrowed mutably below.
         let params = snapshot_or(
@@ -940,6 +1117,7 @@ impl Trainer {
         images: &dyn ImageSource,
         mut each: impl FnMut(usize, &mut ViewMetrics, &[f32], &Image) -> anyhow::Result<()>,
     ) -> anyhow::Result<Vec<ViewMetrics>> {
+        self.assert_nothing_prepared("evaluate");
         anyhow::ensure!(
             images.count() == views.len(),
             "evaluate: {} images for {} views",

@@ -306,13 +306,13 @@ impl ModelPasses for GaussianPasses {
         self.record_backward_with(ctx, rec, g, None, timestamps)
     }
 
-    fn after_frame(&mut self) -> Result<bool> {
-        if self.renderer.last_frame_complete()? {
-            return Ok(false);
-        }
-        let need = self.renderer.last_intersections()? as usize;
-        self.reserve_intersections(need)?;
-        Ok(true)
+    fn frame_need(&self) -> Result<Option<usize>> {
+        let r = &self.renderer;
+        Ok(if r.last_frame_complete()? {
+            None
+        } else {
+            Some(r.last_intersections()? as usize)
+        })
     }
 
     fn intersection_capacity(&self) -> usize {

@@ -467,6 +467,26 @@ impl ModelRule for GuidedSampler {
         "guided_sampling"
     }
 
+    /// Sampling (GPU work) happens only on a step whose last view's camera is among the
+    /// chosen ones and due; choosing them is host-only but done once, counted as work. This
+    /// mirrors the `due` test of `after_step`, asked with the state that step will see.
+    fn quiet_after(&self, iteration: u32, views: &[usize]) -> bool {
+        let s = self.settings;
+        if iteration < s.from {
+            return true;
+        }
+        let Some(chosen) = self.state.chosen.as_ref() else {
+            return false;
+        };
+        let camera = views
+            .last()
+            .and_then(|&v| self.camera_of_view.get(v).copied().flatten());
+        let due = iteration > s.from
+            && iteration - self.state.last > s.gap
+            && camera.is_some_and(|c| chosen.contains(&c));
+        !due
+    }
+
     fn after_step(
         &mut self,
         t: &mut DensityContext,

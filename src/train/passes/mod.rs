@@ -100,9 +100,20 @@ pub trait ModelPasses: Send {
         config: &TrainConfig,
         timestamps: Option<&mut TimestampPool>,
     ) -> Result<()>;
+    /// After the frame's fence: the intersections it needed when it dropped some (more than
+    /// the buffers hold), else `None`.
+    fn frame_need(&self) -> Result<Option<usize>>;
     /// After the frame's fence: when it dropped intersections, grows the buffers and returns
     /// true (the frame is counted as dropped).
-    fn after_frame(&mut self) -> Result<bool>;
+    fn after_frame(&mut self) -> Result<bool> {
+        match self.frame_need()? {
+            Some(need) => {
+                self.reserve_intersections(need)?;
+                Ok(true)
+            }
+            None => Ok(false),
+        }
+    }
     fn intersection_capacity(&self) -> usize;
     fn reserve_intersections(&mut self, n: usize) -> Result<()>;
     /// Density control changed the model (per-Gaussian derived data is stale).

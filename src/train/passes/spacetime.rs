@@ -527,8 +527,8 @@ impl ModelPasses for SpacetimePasses {
         Ok(())
     }
 
-    fn after_frame(&mut self) -> Result<bool> {
-        self.inner.after_frame()
+    fn frame_need(&self) -> Result<Option<usize>> {
+        self.inner.frame_need()
     }
 
     fn intersection_capacity(&self) -> usize {

@@ -181,14 +181,13 @@ impl ModelPasses for SurfelPasses {
         )
     }
 
-    fn after_frame(&mut self) -> Result<bool> {
-        let base = &self.renderer.base;
-        if base.last_frame_complete()? {
-            return Ok(false);
-        }
-        let need = base.last_intersections()? as usize;
-        self.reserve_intersections(need)?;
-        Ok(true)
+    fn frame_need(&self) -> Result<Option<usize>> {
+        let r = &self.renderer.base;
+        Ok(if r.last_frame_complete()? {
+            None
+        } else {
+            Some(r.last_intersections()? as usize)
+        })
     }
 
     fn intersection_capacity(&self) -> usize {

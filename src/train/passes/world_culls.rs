@@ -246,6 +246,15 @@ impl ModelRule for WorldCuller {
         Ok((!culls.is_empty()).then(|| Arc::new(CullEvent { culls }) as Arc<dyn StrategyEvent>))
     }
 
+    /// The culls are GPU work on their schedule; the first step's report of the cull before
+    /// training is host-only, but rare enough to count as work.
+    fn quiet_after(&self, iteration: u32, _views: &[usize]) -> bool {
+        self.state.unreported.is_none()
+            && self.settings.later.is_none_or(|l| {
+                !(iteration >= l.from && iteration % l.every == l.offset) && iteration != l.box_at
+            })
+    }
+
     fn state_json(&self) -> serde_json::Value {
         serde_json::to_value(&self.state).unwrap_or(serde_json::Value::Null)
     }
