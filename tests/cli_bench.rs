@@ -324,6 +324,10 @@ fn bench_fps_reports_each_count_as_json() {
             .arg(&json),
     );
     assert!(ok, "{text}");
+    assert!(
+        text.contains("FPS back to back (two frames in flight"),
+        "{text}"
+    );
     let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
     let rows = v.as_array().unwrap();
     assert_eq!(rows.len(), 2);
@@ -335,6 +339,9 @@ fn bench_fps_reports_each_count_as_json() {
         );
         let ms = r["frame_ms_median"].as_f64().unwrap();
         assert!(ms > 0.0 && (r["fps_median"].as_f64().unwrap() * ms - 1e3).abs() < 1e-6);
+        // Back to back: frames over wall time, the same relation.
+        let piped = r["frame_ms_pipelined"].as_f64().unwrap();
+        assert!(piped > 0.0 && (r["fps_pipelined"].as_f64().unwrap() * piped - 1e3).abs() < 1e-6);
         assert!(r["frame_ms_min"].as_f64().unwrap() <= ms);
         assert!(ms <= r["frame_ms_max"].as_f64().unwrap());
         assert!(r["intersections"].as_u64().unwrap() > 0);

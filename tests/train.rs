@@ -271,6 +271,73 @@ fn resume_continues_exactly() {
     }
 }
 
+/// `train --record-ahead on` (the default) and `off` train the same model, bit for bit under one
+/// lavapipe thread, with an evaluation and a checkpoint in between (where nothing is prepared);
+/// metrics.json says how many iterations were recorded ahead, and the --timestamps table says
+/// so too.
+#[test]
+fn record_ahead_on_and_off_train_the_same_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |name: &str, ahead: &str| {
+        let out = dir.path().join(name);
+        let mut c = lpmsplat();
+        c.env("LP_NUM_THREADS", "1")
+            .arg("train")
+            .arg(data("lego_small"))
+            .args([
+                "--init-points",
+                "300",
+                "--sh-degree",
+                "1",
+                "--densify-from",
+                "2",
+            ])
+            .args([
+                "--densify-interval",
+                "5",
+                "--densify-grad-threshold",
+                "0.000002",
+            ])
+            .args([
+                "--iterations",
+                "16",
+                "--eval-every",
+                "8",
+                "--checkpoint-every",
+                "6",
+            ])
+            .args(["--timestamps", "--record-ahead", ahead, "-o"])
+            .arg(&out);
+        let text = run_ok(&mut c);
+        let m: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap())
+                .unwrap();
+        (checkpoint_floats(&out.join("checkpoint.bin")), m, text)
+    };
+    let (on, m_on, text_on) = run("on", "on");
+    let (off, m_off, text_off) = run("off", "off");
+    let ahead = |m: &serde_json::Value| m["recording"]["ahead"].as_u64().unwrap();
+    assert_eq!(m_on["recording"]["iterations"], 16);
+    assert_eq!(ahead(&m_off), 0, "{}", m_off["recording"]);
+    // Not after a densify step (5, 10, 15), an evaluation (8) or a checkpoint (6, 12), nor
+    // before the snapshot of an evaluation (at 8, 16) or the end.
+    assert!(ahead(&m_on) >= 4, "{}", m_on["recording"]);
+    assert!(text_on.contains("recorded while the one before ran (--record-ahead on)"));
+    assert!(text_off.contains("0 of 16 iterations recorded while the one before ran"));
+    assert_eq!(on.len(), off.len());
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    if bits(&on) == bits(&off) {
+        assert_eq!(m_on["psnr"], m_off["psnr"]);
+    } else {
+        // Only a driver that ignores LP_NUM_THREADS (a GPU's float atomics) may differ.
+        let device = m_on["device"].as_str().unwrap_or_default();
+        assert!(
+            !device.contains("llvmpipe"),
+            "on and off differ on {device}"
+        );
+    }
+}
+
 fn expect_err_contains(r: anyhow::Result<impl Sized>, parts: &[&str]) -> String {
     let msg = match r {
         Ok(_) => panic!("expected an error mentioning {parts:?}"),

@@ -7,6 +7,8 @@
 #   info     the device as the engine sees it
 #   tests    the gpu_* test executables (kernels against the f64 references), validation on
 #   demo     the README's main job, 3DGS then 2DGS (lund_door_small -r 2, 2000 iterations)
+#   ahead    train --record-ahead on against off, alternated twice: the main job, then (with a
+#            packed scene) ITERATIONS (3000) at full size
 #   fps      bench fps at 1352x1014: 100k, 1M and 3M generated Gaussians
 #   fpspair  the same with the packed baseline (pack.sh with BASE=REV) and this build, alternated
 #            twice: the FPS ratio measured side by side on one GPU
@@ -160,6 +162,20 @@ for s in "$@"; do
             --timestamps -o "$work/demo-3dgs"
         step demo-2dgs 180 "$bin" train tests/data/lund_door_small -r 2 --iterations 2000 \
             --model 2dgs --timestamps -o "$work/demo-2dgs"
+        ;;
+    ahead)
+        # Recording each iteration while the previous one runs (train --record-ahead on, the
+        # default) against recording between iterations (off), alternated twice: the README's
+        # main job (lund_door_small -r 2, 2000 iterations, where the host's recording was most
+        # of the H100's 0.29 ms gap an iteration), then, with a packed scene, ITERATIONS
+        # (default 3000) at full size.
+        for r in 1 2; do
+            for v in on off; do
+                step "ahead-demo-$v-$r" 60 "$bin" train tests/data/lund_door_small -r 2 \
+                    --iterations 2000 --timestamps --record-ahead "$v" -o "$work/ahead-demo-$v-$r"
+            done
+        done
+        [ -n "$scene" ] && alternate ahead --record-ahead "${ITERATIONS:-3000}" on off
         ;;
     fps)
         step fps 120 "$bin" bench fps --gaussians 100000,1000000,3000000 --json "$res/fps.json"

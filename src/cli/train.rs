@@ -89,6 +89,12 @@ pub struct TrainArgs {
     /// invocation, built for GPUs and not yet timed on one). A tuning knob for --timestamps.
     #[arg(long, value_name = "LAYOUT", value_parser = LossLayout::parse)]
     pub loss_layout: Option<LossLayout>,
+    /// Record each iteration's command buffer while the previous iteration runs on the GPU
+    /// (on, the default), wherever the previous one leaves the host nothing to do; off records
+    /// every iteration between two (the GPU waits for the host's recording). The results are
+    /// the same; a knob for timing the two side by side.
+    #[arg(long, value_enum, default_value_t = RecordAhead::On)]
+    pub record_ahead: RecordAhead,
     /// Write OUT/checkpoint.bin every N iterations (0 = only at the end and on Ctrl-C).
     #[arg(long, default_value_t = 0)]
     pub checkpoint_every: u32,
@@ -576,6 +582,22 @@ impl TrainArgs {
     }
 }
 
+/// Whether an iteration is recorded while the one before runs (`--record-ahead`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum RecordAhead {
+    On,
+    Off,
+}
+
+impl RecordAhead {
+    pub fn name(self) -> &'static str {
+        match self {
+            RecordAhead::On => "on",
+            RecordAhead::Off => "off",
+        }
+    }
+}
+
 /// Where a scene without SfM points gets its initial points (`--init`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum InitSource {
@@ -890,7 +912,8 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         let snapshot_after = |k: u32| {
             k == config.iterations || (args.eval_every > 0 && k.is_multiple_of(args.eval_every))
         };
-        let prepare = next < config.iterations
+        let prepare = args.record_ahead == RecordAhead::On
+            && next < config.iterations
             && !snapshot_after(next)
             && !snapshot_after(next + 1)
             && (args.checkpoint_every == 0 || !next.is_multiple_of(args.checkpoint_every));
@@ -1092,6 +1115,9 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         "resumed_from": start_iteration,
         "setup_seconds": load_s,
         "dropped_frames": trainer.dropped_frames,
+        // Iterations submitted, how many were recorded while the previous one ran
+        // (--record-ahead), and the host's recording time.
+        "recording": trainer.recording,
         "image_cache": trainer.image_cache_stats(),
         "model_events": model_events,
         "device": ctx.info.name,
@@ -1176,6 +1202,15 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
              submission, waits, evaluation and checkpoints)",
             total / trained as f64,
             1e3 * train_s / trained as f64
+        );
+        let r = trainer.recording;
+        println!(
+            "  host recording {:.3} ms/it; {} of {} iterations recorded while the one before ran \
+             (--record-ahead {})",
+            1e3 * r.seconds / r.iterations.max(1) as f64,
+            r.ahead,
+            r.iterations,
+            args.record_ahead.name()
         );
     }
     if let Some(cap) = config.density.max_gaussians {

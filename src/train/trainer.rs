@@ -147,6 +147,7 @@ pub struct Trainer {
     rec_ahead: Recorder,
     pool_ahead: TimestampPool,
     prepared: Option<Prepared>,
+    pub recording: RecordingStats,
     pub dropped_frames: u32,
     /// Decides clone / split / prune / reset ([`Adc`] unless [`Trainer::set_strategy`]).
     strategy: Box<dyn DensityStrategy>,
@@ -160,6 +161,18 @@ pub struct Trainer {
     snapshot_iteration: Option<u32>,
     /// After a resume: the strategy settings saved in the checkpoint (null: plain ADC).
     pub(super) resumed_strategy: Option<serde_json::Value>,
+}
+
+/// How the iterations were recorded: the host's recording time, and how many iterations were
+/// recorded while the previous one ran (`Trainer::step_ahead`) rather than between them.
+#[derive(Debug, Clone, Copy, Default, serde::Serialize)]
+pub struct RecordingStats {
+    /// Iterations submitted.
+    pub iterations: u32,
+    /// Of those, recorded while the previous iteration ran on the GPU.
+    pub ahead: u32,
+    /// Host time spent recording iterations (prepared ones that were dropped included).
+    pub seconds: f64,
 }
 
 /// An iteration recorded into a command buffer, with what finishing it needs.
@@ -336,6 +349,7 @@ impl Trainer {
             rec_ahead: Recorder::new(ctx)?,
             pool_ahead: TimestampPool::new(ctx, 16 + 16 * config.batch_views.max(1))?,
             prepared: None,
+            recording: RecordingStats::default(),
             dropped_frames: 0,
             strategy: Box::new(Adc),
             model_rules,
@@ -522,11 +536,13 @@ impl Trainer {
                 // The prepared command buffer is in `rec_ahead`: make it the current one.
                 std::mem::swap(&mut self.rec, &mut self.rec_ahead);
                 std::mem::swap(&mut self.pool, &mut self.pool_ahead);
+                self.recording.ahead += 1;
                 p.step
             }
             None => self.record_step()?,
         };
         self.rec.submit()?;
+        self.recording.iterations += 1;
         self.iteration = step.iteration;
         self.step_submitted = true;
         if prepare_next && self.quiet(&step) {
@@ -615,6 +631,13 @@ impl Trainer {
 
     /// Records iteration `self.iteration + 1` into `self.rec` (idle) with `self.pool`.
     fn record_step(&mut self) -> anyhow::Result<Recorded> {
+        let t0 = std::time::Instant::now();
+        let r = self.record_step_timed();
+        self.recording.seconds += t0.elapsed().as_secs_f64();
+        r
+    }
+
+    fn record_step_timed(&mut self) -> anyhow::Result<Recorded> {
         let it = self.iteration + 1;
         let cfg = self.config.clone();
         let first = self.views.next_view();
