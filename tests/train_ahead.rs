@@ -3,7 +3,7 @@
 //! control (where nothing is prepared), an intersection overflow (the first frame always
 //! overflows: the prepared iteration is dropped and recorded again) and the model's own rules;
 //! a prepared iteration is really recorded on quiet iterations; what would change it is refused
-//! while it waits. Scene: `tests/data/lego_small` (100×100, 8 training views). Validation on.
+//! while it waits; a strategy that misjudges its quiet steps changes nothing either. Scene: `tests/data/lego_small` (100×100, 8 training views). Validation on.
 
 mod child_run;
 
@@ -11,6 +11,9 @@ use lpmsplat::gpu::{GpuContext, GpuOptions};
 use lpmsplat::models::BaseModel;
 use lpmsplat::scene::{images, Image, LoadOptions, Scene};
 use lpmsplat::splats::{init::random_init, GaussianParams};
+use lpmsplat::train::density::append::{append_gaussians, NewGaussian};
+use lpmsplat::train::density::{DensifyArgs, DensifyOutcome};
+use lpmsplat::train::strategy::{DensityContext, DensityStrategy, IterationView, StrategyEvent};
 use lpmsplat::train::trainer::{Background, TrainConfig, Trainer};
 use std::path::Path;
 use std::sync::Arc;
@@ -205,5 +208,96 @@ fn a_prepared_iteration_refuses_what_would_change_it_and_steps_on() {
     );
     t.render_view(scene.test[0], [0.0; 3]).unwrap();
     t.checkpoint(&scene).unwrap();
+    ctx.check_validation().unwrap();
+}
+
+/// A strategy that says it has nothing to do after any iteration (`quiet_after`) but adds 1,500
+/// Gaussians after iterations 7 and 12, past the buffers' capacity the first time: the trainer
+/// must notice (the model's size changed, buffers were replaced) and drop the iteration it
+/// prepared against the old ones.
+struct Liar;
+
+impl DensityStrategy for Liar {
+    fn name(&self) -> &'static str {
+        "liar"
+    }
+
+    fn densify(
+        &mut self,
+        t: &mut DensityContext,
+        _at: &IterationView,
+        args: &DensifyArgs,
+    ) -> anyhow::Result<DensifyOutcome> {
+        t.density.step(t.rec, t.state, args, None)
+    }
+
+    fn after_iteration(
+        &mut self,
+        t: &mut DensityContext,
+        at: &IterationView,
+        _reported: bool,
+    ) -> anyhow::Result<Option<Arc<dyn StrategyEvent>>> {
+        if at.iteration == 7 || at.iteration == 12 {
+            let rows: Vec<NewGaussian> = (0..1_500)
+                .map(|k| {
+                    let a = k as f32 * 0.37;
+                    NewGaussian {
+                        position: [0.6 * a.cos(), 0.6 * a.sin(), 0.3 * (k % 7) as f32 - 0.9],
+                        scale: 0.04,
+                        color: [0.8, 0.3, 0.2],
+                        opacity: 0.4,
+                        camera_center: [0.0, 0.0, 4.0],
+                    }
+                })
+                .collect();
+            append_gaussians(t, &rows)?;
+        }
+        Ok(None)
+    }
+
+    fn quiet_after(&self, _iteration: u32) -> bool {
+        true
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
+        self
+    }
+}
+
+#[test]
+fn a_strategy_that_misjudges_its_quiet_steps_changes_nothing() {
+    let name = "a_strategy_that_misjudges_its_quiet_steps_changes_nothing";
+    if child_run::rerun_single_threaded(name) {
+        return;
+    }
+    let ctx = ctx();
+    let scene = lego();
+    let gt = images::load_images(&scene, &scene.train).unwrap();
+    let init = random_init(300, [0.0; 3], [0.9; 3], 4, 0).unwrap();
+    let mut cfg = config(BaseModel::Gaussians3d, 16);
+    cfg.schedule.densify_until = 0;
+    let run = |ahead: bool| {
+        let mut t = Trainer::new(&ctx, &scene, &gt[..], &init, cfg.clone()).unwrap();
+        t.set_strategy(Box::new(Liar));
+        let mut losses = Vec::new();
+        for k in 1..=16 {
+            losses.push(t.step_ahead(ahead && k < 16).unwrap().loss.to_bits());
+        }
+        let m = t.model().unwrap();
+        let floats: Vec<u32> = m.positions.iter().flatten().map(|x| x.to_bits()).collect();
+        (losses, floats, m.len(), t.recording)
+    };
+    let (plain, again, ahead) = (run(false), run(false), run(true));
+    assert_eq!(plain.2, 300 + 3_000, "the liar added nothing");
+    assert_eq!(ahead.2, plain.2);
+    // Prepared after 7 and 12 and dropped: those two steps' successors were recorded again.
+    assert!(ahead.3.ahead >= 8 && ahead.3.ahead <= 13, "{:?}", ahead.3);
+    if plain.1 == again.1 {
+        assert_eq!(plain.0, ahead.0, "the losses differ");
+        assert!(plain.1 == ahead.1, "the models differ");
+    }
     ctx.check_validation().unwrap();
 }

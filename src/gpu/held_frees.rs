@@ -33,6 +33,9 @@ pub(crate) enum Retired {
 pub(crate) struct HeldFrees {
     pub guards: usize,
     pub retired: Vec<Retired>,
+    /// Objects retired under a guard since the context was made (to tell whether any was
+    /// retired while a given guard lived).
+    pub total: u64,
 }
 
 /// Destroys a buffer or pipeline now (no guard alive) or keeps it for the last guard.
@@ -41,6 +44,7 @@ pub(crate) fn retire(ctx: &GpuContext, r: Retired) {
         let mut held = ctx.held_frees.lock().unwrap_or_else(|e| e.into_inner());
         if held.guards > 0 {
             held.retired.push(r);
+            held.total += 1;
             return;
         }
     }
@@ -76,15 +80,29 @@ pub(crate) fn destroy(ctx: &GpuContext, r: Retired) {
 /// the last guard is dropped. Drop it only once the GPU work recorded before it has completed.
 pub struct HoldFrees {
     ctx: Arc<GpuContext>,
+    /// `HeldFrees::total` when the guard was made.
+    start: u64,
 }
 
 impl HoldFrees {
     pub fn new(ctx: &Arc<GpuContext>) -> Self {
-        ctx.held_frees
+        let mut held = ctx.held_frees.lock().unwrap_or_else(|e| e.into_inner());
+        held.guards += 1;
+        Self {
+            ctx: ctx.clone(),
+            start: held.total,
+        }
+    }
+
+    /// Whether any buffer or pipeline was dropped while this guard lived (so a command
+    /// buffer recorded before may name a destroyed object once the guard goes).
+    pub fn retired_any(&self) -> bool {
+        let held = self
+            .ctx
+            .held_frees
             .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .guards += 1;
-        Self { ctx: ctx.clone() }
+            .unwrap_or_else(|e| e.into_inner());
+        held.total > self.start
     }
 }
 

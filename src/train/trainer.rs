@@ -43,7 +43,9 @@ use super::strategy::{
     Adc, DensityContext, DensityStrategy, IterationView, ModelRule, OpacityFilter, StepSeen,
     StrategyEvent,
 };
-use crate::gpu::{BufferKind, GpuBuffer, GpuContext, Recorder, StageTimes, TimestampPool};
+use crate::gpu::{
+    BufferKind, GpuBuffer, GpuContext, HoldFrees, Recorder, StageTimes, TimestampPool,
+};
 use crate::render::forward::Capacity;
 use crate::render::layout::{CameraGpu, RenderConstants};
 use crate::scene::image_source::{load_range, ImageSource, TrainImages};
@@ -718,10 +720,25 @@ impl Trainer {
             view,
             background: bg,
         };
+        // With the next iteration prepared, the strategy and the model's rules said they have
+        // nothing to do here (`Trainer::quiet`). Should one change the model or replace a
+        // buffer all the same, the prepared iteration, recorded against the old ones, is
+        // dropped (and recorded again by the next step); the guard keeps what it names alive
+        // until then.
+        let hold = self.prepared.is_some().then(|| HoldFrees::new(&self.ctx));
+        let shape = (self.state.count(), self.state.capacity());
         // The strategy is taken out while it runs, as it drives the trainer's buffers.
         let mut strategy = std::mem::replace(&mut self.strategy, Box::new(Adc));
         let result = self.run_density_control(strategy.as_mut(), &at, &mut report);
         self.strategy = strategy;
+        if let Some(hold) = hold {
+            if result.is_err()
+                || hold.retired_any()
+                || (self.state.count(), self.state.capacity()) != shape
+            {
+                self.discard_prepared();
+            }
+        }
         result?;
         // Density control runs in its own submissions with count readbacks, so its cost is the
         // host wall time of that part (GPU work, waits and host logic), not a GPU interval.
