@@ -1,9 +1,11 @@
 //! Recording the next iteration while the current one runs (`Trainer::step_ahead`): the same
-//! run as `step`, bit for bit under one lavapipe thread, for every base model, through density
-//! control (where nothing is prepared), an intersection overflow (the first frame always
-//! overflows: the prepared iteration is dropped and recorded again) and the model's own rules;
-//! a prepared iteration is really recorded on quiet iterations; what would change it is refused
-//! while it waits; a strategy that misjudges its quiet steps changes nothing either. Scene: `tests/data/lego_small` (100×100, 8 training views). Validation on.
+//! run as `step`, bit for bit under one lavapipe thread, for every still base model, through
+//! density control (where nothing is prepared) and an intersection overflow (the first frame
+//! overflows: the prepared iteration is dropped and recorded again); a prepared iteration is
+//! really recorded on quiet iterations; what would change it is refused while it waits; a
+//! strategy that misjudges its quiet steps changes nothing either. (LPM and SpacetimeGaussians
+//! through a streaming image cache: `tests/lpm_train.rs`, `tests/image_cache.rs`.) Scene:
+//! `tests/data/lego_small` (100×100, 8 training views). Validation on.
 
 mod child_run;
 

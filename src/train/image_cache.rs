@@ -11,8 +11,8 @@
 //! trainer names the images the step reads (made resident, the least recently used slot giving
 //! way, copied from a host-visible staging buffer inside the step's own command buffer) and the
 //! images of the next steps, which a loader thread decodes while the GPU works. GPU memory is
-//! the budget; host memory is the staging buffer (two steps' images) and the few decoded frames waiting for their
-//! step, whatever the number of frames.
+//! the budget; host memory is the staging buffer (two steps' images) and the few decoded
+//! frames waiting for their step, whatever the number of frames.
 
 use std::collections::{HashMap, HashSet};
 use std::sync::mpsc::{channel, Receiver, Sender};

@@ -7,17 +7,17 @@
 //! Adam skips that iteration; we do the same (and keep one step counter for all groups: at an
 //! opacity reset, which always coincides with a densify step, nothing steps either).
 //!
-//! The host waits for each iteration's fence (it reads the loss and the intersection count
-//! from host-visible copies made at the end of the command buffer; no other readback). With
-//! [`Trainer::step_ahead`] it records the next iteration while the current one runs, wherever
-//! the current one leaves the host nothing to do (no density control, reset or snapshot, no
-//! GPU work of the strategy or the model's rules), so the GPU waits only for the submission,
-//! not for the recording; the next iteration's command buffer starts with a barrier against
-//! everything before it, a buffer its recording replaces is freed only after the current
-//! iteration's fence ([`HoldFrees`]), and a streaming image cache alternates between two
-//! halves of its staging buffer. When a frame needed more intersections than the buffers hold, the pairs
-//! past the capacity (the farthest Gaussians) were dropped for that one iteration; the buffers
-//! then grow to 1.5× the need, and it does not happen again for that view size.
+//! The host waits for each iteration's fence (it reads the loss and the intersection count from
+//! host-visible copies made at the end of the command buffer; no other readback). With
+//! [`Trainer::step_ahead`] it records the next iteration while the current one runs, wherever the
+//! current one leaves the host nothing to do (no density control, reset or snapshot, no GPU work of
+//! the strategy or the model's rules), so the GPU waits only for the submission, not for the
+//! recording; the next iteration's command buffer starts with a barrier against everything before
+//! it, a buffer its recording replaces is freed only after the current iteration's fence
+//! ([`HoldFrees`]), and a streaming image cache alternates between two halves of its staging
+//! buffer. When a frame needed more intersections than the buffers hold, the pairs past the
+//! capacity (the farthest Gaussians) were dropped for that one iteration; the buffers then grow to
+//! 1.5× the need, and it does not happen again for that view size.
 //!
 //! Determinism: the backward pass sums gradients with float atomics, so on a device that runs
 //! workgroups concurrently the order of those sums, and with it the last bits of the gradients,

@@ -85,9 +85,10 @@ impl Trainer {
     }
 
     /// Whether the host has nothing to do after `step` that could change how the next
-    /// iteration is recorded: no density control, opacity reset or snapshot, a strategy and model rules with no GPU work due, and (when images stream) room
-    /// in the image cache for two steps' images, so that the next step's uploads evict none of
-    /// this one's.
+    /// iteration is recorded: no density control, opacity reset or snapshot, a strategy and
+    /// model rules with no GPU work due, and (when images stream) room in the image cache for
+    /// two steps' images, so that the next step's uploads evict none of this one's. Should a
+    /// strategy or rule misjudge, `finish_step` notices the change and drops what was prepared.
     fn quiet(&self, step: &Recorded) -> bool {
         let it = step.iteration;
         let schedule = &self.config.schedule;
