@@ -217,7 +217,7 @@ pub fn triangulate_scene(
         &NeighbourSettings {
             max_angle_deg: 45.0,
             max_neighbours: NEIGHBOURS,
-            // The random pick this initialisation was measured with (README, Panoptic).
+            // The random pick this initialisation was measured with (docs/spacetime.md, Panoptic).
             choice: NeighbourChoice::Random,
             seed,
         },

@@ -407,7 +407,7 @@ fn every_pixel_layout_matches_the_reference() {
 /// the surfels whose reach meets its pixels gives exactly (bit for bit) the frame of full
 /// lists, in every pixel layout. (The failure this guards against was seen on Truck with the
 /// bound taken to 1e-3 of the plane; these scenes do not reproduce it, the training comparison
-/// in the README does.)
+/// in docs/2dgs.md does.)
 #[test]
 fn reach_culled_lists_render_exactly_what_full_lists_render() {
     let ctx = ctx();

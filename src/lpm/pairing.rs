@@ -75,7 +75,7 @@ pub enum RegionKeypoints {
     /// blocks, and its box also covers what lies between them; on Truck at `-r 4` one region of
     /// background trees had a box reaching over the truck's hood, whose keypoints (many,
     /// textured) outnumbered the trees' and put the zone on the hood, where there was no error.
-    /// Not the default: measured (README, *LPM with the current rules*), the zones grew instead
+    /// Not the default: measured (docs/lpm-results.md), the zones grew instead
     /// (0.29 of the scene extent against 0.21), since a region's own blocks often span depths
     /// (trees behind a fence) and one sphere encloses them all, and the gain was smaller.
     ErrorBlocks,

@@ -160,7 +160,7 @@ impl Default for LpmConfig {
             // The cone through the error region: on Truck at full size (H200, seed 0) it led ADC
             // by +0.06 / +0.06 / +0.11 dB at 7k / 14k / 21k, where the bounding cone had been
             // -0.73 / -0.03 at 7k / 15k with twice the resets; at -r 4 it was above the bounding
-            // cone on both seeds measured (README, "LPM at full size").
+            // cone on both seeds measured (docs/gpu.md, "LPM at full size").
             cone: ConeRadius::Region,
             skip_adc_without_zone: false,
             region_keypoints: RegionKeypoints::Box,
