@@ -198,6 +198,20 @@ fn checkpoint_floats(path: &Path) -> Vec<f32> {
         .collect()
 }
 
+/// `train` on lego_small under one lavapipe thread (identical runs are bitwise equal): 300
+/// random initial points at SH degree `sh`, densifying every 5 iterations from 2 with a low
+/// threshold, so a few iterations grow the model.
+fn densifying_lego_run(sh: u32) -> Command {
+    let mut c = lpmsplat();
+    c.env("LP_NUM_THREADS", "1")
+        .arg("train")
+        .arg(data("lego_small"))
+        .args(["--init-points", "300", "--sh-degree", &sh.to_string()])
+        .args(["--densify-from", "2", "--densify-interval", "5"])
+        .args(["--densify-grad-threshold", "0.000002"]);
+    c
+}
+
 /// N iterations straight against N/2, checkpoint, resume, N/2, with densification (a densify
 /// step falls after the resume and uses the statistics the checkpoint carried).
 ///
@@ -213,25 +227,8 @@ fn resume_continues_exactly() {
     let dir = tempfile::tempdir().unwrap();
     let run = |name: &str, iterations: u32, resume: bool| {
         let out = dir.path().join(name);
-        let mut c = lpmsplat();
-        c.env("LP_NUM_THREADS", "1")
-            .arg("train")
-            .arg(data("lego_small"))
-            .args([
-                "--init-points",
-                "300",
-                "--sh-degree",
-                "0",
-                "--densify-from",
-                "2",
-            ])
-            .args([
-                "--densify-interval",
-                "5",
-                "--densify-grad-threshold",
-                "0.000002",
-            ])
-            .args(["--iterations", &iterations.to_string(), "-o"])
+        let mut c = densifying_lego_run(0);
+        c.args(["--iterations", &iterations.to_string(), "-o"])
             .arg(&out);
         if resume {
             c.arg("--resume").arg(out.join("checkpoint.bin"));
@@ -280,34 +277,17 @@ fn record_ahead_on_and_off_train_the_same_model() {
     let dir = tempfile::tempdir().unwrap();
     let run = |name: &str, ahead: &str| {
         let out = dir.path().join(name);
-        let mut c = lpmsplat();
-        c.env("LP_NUM_THREADS", "1")
-            .arg("train")
-            .arg(data("lego_small"))
-            .args([
-                "--init-points",
-                "300",
-                "--sh-degree",
-                "1",
-                "--densify-from",
-                "2",
-            ])
-            .args([
-                "--densify-interval",
-                "5",
-                "--densify-grad-threshold",
-                "0.000002",
-            ])
-            .args([
-                "--iterations",
-                "16",
-                "--eval-every",
-                "8",
-                "--checkpoint-every",
-                "6",
-            ])
-            .args(["--timestamps", "--record-ahead", ahead, "-o"])
-            .arg(&out);
+        let mut c = densifying_lego_run(1);
+        c.args([
+            "--iterations",
+            "16",
+            "--eval-every",
+            "8",
+            "--checkpoint-every",
+            "6",
+        ])
+        .args(["--timestamps", "--record-ahead", ahead, "-o"])
+        .arg(&out);
         let text = run_ok(&mut c);
         let m: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap())
