@@ -12,10 +12,10 @@
 //! leaves almost every region unpaired (measured at `-r 4`: 145 error regions in three steps, 4
 //! paired). The authors match with SuperPoint + LightGlue, which finds some matches in most
 //! pairs; our SfM tracks and classical features are sparser, so the choice matters more here.
-//! Yet measured (docs/lpm-results.md, *Neighbours by overlap*), the overlap choice paired more regions and
-//! made more zones without a better result: Truck `-r 4`, three seeds at 1,200 iterations,
-//! +0.053 dB over ADC against the random pick's +0.074, with 2.5 % more Gaussians. So the random
-//! pick stays the default and overlap is an option.
+//! Yet measured (docs/lpm-results.md, *Neighbours by overlap*), the overlap choice paired more
+//! regions and made more zones without a better result: Truck `-r 4`, three seeds at 1,200
+//! iterations, +0.053 dB over ADC against the random pick's +0.074, with 2.5 % more Gaussians.
+//! So the random pick stays the default and overlap is an option.
 
 use crate::scene::View;
 use glam::DVec3;
