@@ -2,7 +2,10 @@
 //! pixels of hand-made error patterns (patches, the even-pixel skip, the border, patches cut by
 //! a misaligned error), points on the seeds' rays at the jittered depths, the view depth as the
 //! largest median depth of the reference render, and the whole rule through the trainer on the
-//! video fixture (choice, sampling, the new rows, checkpoint state). Validation layer on.
+//! video fixture (choice, sampling, the new rows, checkpoint state, the same run a step ahead).
+//! Validation layer on.
+
+mod child_run;
 
 use std::path::Path;
 use std::sync::Arc;
@@ -201,11 +204,9 @@ fn new_rows_are_official(m: &GaussianParams, added: usize) {
     }
 }
 
-#[test]
-fn the_trainer_chooses_two_cameras_and_adds_their_points() {
-    let ctx = ctx();
-    let scene = fixture();
-    let gt = images::load_images(&scene, &scene.train).unwrap();
+/// SpacetimeGaussians lite on the fixture for 60 iterations, with no density steps and a
+/// guided sampling that starts early, gates every camera and samples twice.
+fn sampling_config() -> TrainConfig {
     let mut cfg = TrainConfig {
         iterations: 60,
         seed: 9,
@@ -227,10 +228,21 @@ fn the_trainer_chooses_two_cameras_and_adds_their_points() {
         patch_fraction: 0.5,
         ..GuidedSamplingSettings::default()
     });
+    cfg
+}
+
+fn sampling_init(scene: &Scene) -> GaussianParams {
     let (center, half) = scene.random_init_box();
-    let init = BaseModel::SpacetimeLite
-        .initialise(random_init(3_000, center, [half; 3], 4, 0).unwrap(), 4);
-    let mut t = Trainer::new(&ctx, &scene, &gt, &init, cfg).unwrap();
+    BaseModel::SpacetimeLite.initialise(random_init(3_000, center, [half; 3], 4, 0).unwrap(), 4)
+}
+
+#[test]
+fn the_trainer_chooses_two_cameras_and_adds_their_points() {
+    let ctx = ctx();
+    let scene = fixture();
+    let gt = images::load_images(&scene, &scene.train).unwrap();
+    let init = sampling_init(&scene);
+    let mut t = Trainer::new(&ctx, &scene, &gt, &init, sampling_config()).unwrap();
     let states = t.model_rule_states();
     assert_eq!(states.len(), 1);
     assert_eq!(states[0].0, "guided_sampling");
@@ -286,6 +298,54 @@ fn the_trainer_chooses_two_cameras_and_adds_their_points() {
     // The state resumes: the checkpoint's sampler has the choice and depths.
     let resumed = Trainer::resume(&ctx, &scene, &gt, t.config.clone(), &ck).unwrap();
     assert_eq!(resumed.model_rule_states()[0].1, saved_state.unwrap());
+    ctx.check_validation().unwrap();
+}
+
+/// The sampler's GPU work falls on steps the trainer asks it about beforehand
+/// (`ModelRule::quiet_after`): training a step ahead (`Trainer::step_ahead`) samples at the same
+/// iterations and ends bit for bit where plain steps end, with most steps prepared ahead.
+#[test]
+fn sampling_a_step_ahead_changes_nothing() {
+    if child_run::rerun_single_threaded("sampling_a_step_ahead_changes_nothing") {
+        return;
+    }
+    let ctx = ctx();
+    let scene = fixture();
+    let gt = images::load_images(&scene, &scene.train).unwrap();
+    let init = sampling_init(&scene);
+    let run = |ahead: bool| {
+        let mut t = Trainer::new(&ctx, &scene, &gt, &init, sampling_config()).unwrap();
+        let mut events = Vec::new();
+        for k in 1..=60 {
+            let r = t.step_ahead(ahead && k < 60).unwrap();
+            events.extend(r.model_events.iter().map(|e| e.to_json().to_string()));
+        }
+        let m = t.model().unwrap();
+        let bits: Vec<u32> = m.positions.iter().flatten().map(|v| v.to_bits()).collect();
+        (events, bits, t.recording)
+    };
+    let (plain, again, ahead) = (run(false), run(false), run(true));
+    assert_eq!(
+        plain.0.len(),
+        3,
+        "a choice and two samplings: {:?}",
+        plain.0
+    );
+    // Every sampling was foreseen: nothing prepared had to be dropped.
+    assert!(ahead.2.ahead >= 40 && ahead.2.dropped == 0, "{:?}", ahead.2);
+    assert_eq!(plain.2.ahead, 0);
+    if plain.1 == again.1 {
+        assert_eq!(plain.0, ahead.0, "the sampler's events differ");
+        assert!(plain.1 == ahead.1, "the models differ");
+    } else {
+        // A driver that ignores LP_NUM_THREADS: the same events at least.
+        assert!(
+            !ctx.info.device_type.starts_with("CPU"),
+            "{}",
+            ctx.info.name
+        );
+        assert_eq!(plain.0.len(), ahead.0.len());
+    }
     ctx.check_validation().unwrap();
 }
 

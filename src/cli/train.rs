@@ -1206,11 +1206,12 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         let r = trainer.recording;
         println!(
             "  host recording {:.3} ms/it; {} of {} iterations recorded while the one before ran \
-             (--record-ahead {})",
+             (--record-ahead {}); {} prepared ones dropped and recorded again",
             1e3 * r.seconds / r.iterations.max(1) as f64,
             r.ahead,
             r.iterations,
-            args.record_ahead.name()
+            args.record_ahead.name(),
+            r.dropped
         );
     }
     if let Some(cap) = config.density.max_gaussians {

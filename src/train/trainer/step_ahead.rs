@@ -15,6 +15,9 @@ pub struct RecordingStats {
     pub iterations: u32,
     /// Of those, recorded while the previous iteration ran on the GPU.
     pub ahead: u32,
+    /// Prepared iterations dropped and recorded again (after a frame overflowed the
+    /// intersection buffers, or a strategy or rule that claimed a quiet step changed the model).
+    pub dropped: u32,
     /// Host time spent recording iterations (prepared ones that were dropped included).
     pub seconds: f64,
 }
@@ -136,6 +139,7 @@ impl Trainer {
     pub(super) fn discard_prepared(&mut self) {
         if let Some(p) = self.prepared.take() {
             self.undo(p.undo);
+            self.recording.dropped += 1;
         }
     }
 
