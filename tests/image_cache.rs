@@ -300,6 +300,28 @@ fn cli_train_streams_within_the_budget_and_says_so() {
     assert_eq!(c["slots"], 4, "{c}");
     assert!(c["uploads"].as_u64().unwrap() >= 6, "{c}");
     assert!(m["psnr"].as_f64().unwrap().is_finite());
+    // Four slots hold two two-view steps: iterations were recorded ahead.
+    assert!(
+        m["recording"]["ahead"].as_u64().unwrap() > 0,
+        "{}",
+        m["recording"]
+    );
+    assert!(!text.contains("fewer than two steps"), "{text}");
+
+    // 0.04 MiB: three slots, one step's two images and one more: it trains, recording each
+    // iteration after the one before, and says what to give instead.
+    let out = dir.path().join("three");
+    let o = cli_train("0.04", &out);
+    let text = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(o.status.success(), "{text}");
+    assert!(
+        text.contains("3 slots hold fewer than two steps' 4 images")
+            && text.contains("--image-cache 0.05 or more"),
+        "{text}"
+    );
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
+    assert_eq!(m["recording"]["ahead"], 0, "{}", m["recording"]);
 
     // Below one two-view step: refused, naming the flag and the size to give, and the
     // output folder's earlier files are left alone.

@@ -871,10 +871,22 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         trainer.check_resumed_strategy(p)?;
     }
     let load_s = t_load.elapsed().as_secs_f64();
-    eprintln!(
-        "training images: {}",
-        trainer.image_cache_stats().describe()
-    );
+    let cache = trainer.image_cache_stats();
+    eprintln!("training images: {}", cache.describe());
+    // Recording a step while the one before runs needs slots for both steps' images.
+    let per_step = config.batch_views.max(1) as usize;
+    if args.record_ahead == RecordAhead::On && !cache.resident && cache.slots < 2 * per_step {
+        let slot = cache.bytes as f64 / cache.slots.max(1) as f64;
+        let need = (2 * per_step) as f64 * slot / (1u64 << 20) as f64;
+        eprintln!(
+            "note: the image cache's {} slots hold fewer than two steps' {} images, so each \
+             iteration is recorded after the one before ends (slower on a GPU). Fix: \
+             --image-cache {:.2} or more",
+            cache.slots,
+            2 * per_step,
+            (need * 100.0).ceil() / 100.0
+        );
+    }
     let start_iteration = trainer.iteration;
     let bar = ProgressBar::new(config.iterations as u64);
     bar.set_position(start_iteration as u64);
