@@ -167,7 +167,9 @@ pub trait DensityStrategy: Any {
     /// Whether [`DensityStrategy::after_iteration`] at `iteration`, a step without densify or
     /// opacity reset, will record no GPU work and change no buffer (host bookkeeping is
     /// fine): the trainer then records the next iteration while this one runs. `false`, the
-    /// default, is always safe.
+    /// default, is always safe. A wrong `true` is caught when the model's size or a buffer
+    /// changes (the prepared iteration is dropped), but the work then sees the model passes'
+    /// per-frame state of the next iteration (a video model's frame time), so answer exactly.
     fn quiet_after(&self, _iteration: u32) -> bool {
         false
     }
@@ -212,7 +214,8 @@ pub trait ModelRule {
     /// Whether [`ModelRule::after_step`] at `iteration`, on a step of `views`, will record no
     /// GPU work and change no buffer (host bookkeeping is fine), asked before the step has
     /// run: the trainer then records the next iteration while this one runs. `false`, the
-    /// default, is always safe.
+    /// default, is always safe; a wrong `true` is caught as for
+    /// [`DensityStrategy::quiet_after`], with the same caveat.
     fn quiet_after(&self, _iteration: u32, _views: &[usize]) -> bool {
         false
     }
