@@ -311,7 +311,7 @@ for s in "$@"; do
             step train30k 900 "$bin" train "$scene" -r 1 --iterations 30000 --lpm --eval-every 5000 \
                 --timestamps -o "$work/train30k"
         ;;
-    *) echo "$s: unknown step (info tests demo fps fpspair trade7k trade30k ablate7k pair30k serial30k layouts losslayouts stgs local7k budget7k train30k)" >>"$summary" ;;
+    *) echo "$s: unknown step (info tests demo ahead fps fpspair trade7k trade30k ablate7k pair30k serial30k layouts losslayouts stgs local7k budget7k train30k)" >>"$summary" ;;
     esac
     collect
 done
@@ -324,5 +324,5 @@ cat "$summary"
 head -n 8 "$res/vulkan-setup.txt"
 for f in "$res"/*.log; do
     echo "== $(basename "$f")"
-    grep -E "test result|FAILED|panicked|it/s|PSNR|FPS|Gaussians|error|Error|subgroup|device|rasterize" "$f" | tail -n 12
+    grep -E "test result|FAILED|panicked|it/s|PSNR|FPS|Gaussians|error|Error|subgroup|device|rasterize|sum to|host recording" "$f" | tail -n 14
 done
