@@ -15,7 +15,9 @@ use lpmsplat::scene::{images, Image, LoadOptions, Scene};
 use lpmsplat::splats::{init::random_init, GaussianParams};
 use lpmsplat::train::density::append::{append_gaussians, NewGaussian};
 use lpmsplat::train::density::{DensifyArgs, DensifyOutcome};
-use lpmsplat::train::strategy::{DensityContext, DensityStrategy, IterationView, StrategyEvent};
+use lpmsplat::train::strategy::{
+    Adc, DensityContext, DensityStrategy, IterationView, StrategyEvent,
+};
 use lpmsplat::train::trainer::{Background, TrainConfig, Trainer};
 use std::path::Path;
 use std::sync::Arc;
@@ -232,10 +234,10 @@ impl DensityStrategy for Liar {
     fn densify(
         &mut self,
         t: &mut DensityContext,
-        _at: &IterationView,
+        at: &IterationView,
         args: &DensifyArgs,
     ) -> anyhow::Result<DensifyOutcome> {
-        t.density.step(t.rec, t.state, args, None)
+        Adc.densify(t, at, args)
     }
 
     fn after_iteration(

@@ -665,7 +665,8 @@ impl Trainer {
 
     /// Reads back the submitted, completed iteration `step` and runs its density control.
     fn finish_step(&mut self, step: Recorded) -> anyhow::Result<StepReport> {
-        let cfg = self.config.clone();
+        // Only these two settings are read here (the recording cloned the whole config).
+        let (schedule, timestamps) = (self.config.schedule, self.config.timestamps);
         let Recorded {
             iteration: it,
             views,
@@ -673,8 +674,8 @@ impl Trainer {
             count,
         } = step;
         let view = *views.last().expect("at least the scheduled view");
-        let densifies = cfg.schedule.densifies(it);
-        let stages = if cfg.timestamps {
+        let densifies = schedule.densifies(it);
+        let stages = if timestamps {
             Some(self.pool.read()?)
         } else {
             None
@@ -743,7 +744,7 @@ impl Trainer {
         // Density control runs in its own submissions with count readbacks, so its cost is the
         // host wall time of that part (GPU work, waits and host logic), not a GPU interval.
         if let Some(st) = report.stages.as_mut() {
-            let ms = if densifies || cfg.schedule.resets_opacity(it) {
+            let ms = if densifies || schedule.resets_opacity(it) {
                 1e3 * control_start.elapsed().as_secs_f64()
             } else {
                 0.0
