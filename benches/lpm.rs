@@ -62,6 +62,7 @@ fn main() -> anyhow::Result<()> {
         validation: false,
         device: std::env::var("LPMSPLAT_DEVICE").ok(),
         memory_limit: None,
+        sort_digit_bits: None,
     })?;
     println!("{}", ctx.info.summary());
     let sizes: Vec<usize> = env_list("LPMSPLAT_BENCH_SIZES", "100000,1000000,10000000");

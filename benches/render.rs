@@ -29,6 +29,7 @@ fn main() -> anyhow::Result<()> {
         validation: false,
         device: std::env::var("LPMSPLAT_DEVICE").ok(),
         memory_limit: None,
+        sort_digit_bits: None,
     })?;
     println!("{}", ctx.info.summary());
     let sizes: Vec<usize> = env_list("LPMSPLAT_BENCH_SIZES", "3000,12000");

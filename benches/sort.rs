@@ -3,7 +3,7 @@
 //! Run: `cargo bench --bench sort`. GPU time is from timestamps (sort only, no transfers).
 
 use lpmsplat::gpu::{BufferKind, GpuBuffer, GpuContext, GpuOptions, Recorder, TimestampPool};
-use lpmsplat::render::sort::RadixSort;
+use lpmsplat::render::sort::{Digits, RadixSort};
 use rand::{Rng, SeedableRng};
 use std::time::Instant;
 
@@ -12,6 +12,7 @@ fn main() -> anyhow::Result<()> {
         validation: false,
         device: std::env::var("LPMSPLAT_DEVICE").ok(),
         memory_limit: None,
+        sort_digit_bits: None,
     })?;
     println!("{}", ctx.info.summary());
     let max: usize = std::env::var("LPMSPLAT_BENCH_MAX")
@@ -20,25 +21,33 @@ fn main() -> anyhow::Result<()> {
         .unwrap_or(4 << 20);
     // The renderer's two sorts at 1352x1014: depths (32 bits) and tile ids (13 bits).
     println!(
-        "{:>10} {:>6} {:>8} {:>12} {:>14} {:>14} {:>8}",
-        "pairs", "bits", "passes", "gpu ms", "gpu Mkeys/s", "host Mkeys/s", "ratio"
+        "{:>10} {:>6} {:>7} {:>8} {:>12} {:>14} {:>14} {:>8}",
+        "pairs", "bits", "digits", "passes", "gpu ms", "gpu Mkeys/s", "host Mkeys/s", "ratio"
     );
     let mut rng = rand_pcg::Pcg64::seed_from_u64(1);
-    for (n, bits, wide) in std::iter::successors(Some(1024usize), |n| Some(n * 4))
+    for (n, bits, digits) in std::iter::successors(Some(1024usize), |n| Some(n * 4))
         .take_while(|&n| n <= max)
         .flat_map(|n| [(n, 32u32), (n, 31), (n, 13)])
-        .flat_map(|(n, bits)| [(n, bits, false), (n, bits, true)])
+        .flat_map(|(n, bits)| [Digits::Narrow, Digits::Wide, Digits::Byte].map(|d| (n, bits, d)))
         // 5-bit digits only where they change the passes.
-        .filter(|&(_, bits, wide)| {
-            !wide || RadixSort::pass_widths(bits, true) != RadixSort::pass_widths(bits, false)
+        .filter(|&(_, bits, digits)| {
+            digits != Digits::Wide
+                || RadixSort::pass_widths(bits, Digits::Wide)
+                    != RadixSort::pass_widths(bits, Digits::Narrow)
         })
     {
         let keys: Vec<u32> = (0..n)
             .map(|_| rng.gen::<u32>() & (u32::MAX >> (32 - bits)))
             .collect();
         let vals: Vec<u32> = (0..n as u32).collect();
-        let shape = RadixSort::device_shape(&ctx);
-        let sorter = RadixSort::with_options(&ctx, n as u64, shape, wide, false)?;
+        let shape = RadixSort::shape_for(&ctx, digits);
+        let sorter = match RadixSort::with_options(&ctx, n as u64, shape, digits, false) {
+            Ok(s) => s,
+            Err(e) => {
+                println!("{n:>10} {bits:>6} {digits:?}: {e}");
+                continue;
+            }
+        };
         let kb = GpuBuffer::from_slice(&ctx, "keys", &keys)?;
         let vb = GpuBuffer::from_slice(&ctx, "vals", &vals)?;
         let sk = GpuBuffer::<u32>::new(&ctx, "sk", n, BufferKind::DeviceLocal)?;
@@ -71,10 +80,11 @@ fn main() -> anyhow::Result<()> {
         host_ms.sort_by(|a, b| a.partial_cmp(b).unwrap());
         let host = host_ms[host_ms.len() / 2];
         println!(
-            "{:>10} {:>6} {:>8} {:>12.3} {:>14.1} {:>14.1} {:>8.2}",
+            "{:>10} {:>6} {:>7} {:>8} {:>12.3} {:>14.1} {:>14.1} {:>8.2}",
             n,
             bits,
-            RadixSort::pass_widths(bits, wide).len(),
+            digits.max_bits(),
+            RadixSort::pass_widths(bits, digits).len(),
             gpu,
             n as f64 / gpu / 1e3,
             n as f64 / host / 1e3,

@@ -897,3 +897,52 @@ fn feature_channels_match_the_reference_in_every_layout() {
     assert!(compared >= 12, "only {compared} frames compared");
     ctx.check_validation().unwrap();
 }
+
+/// The renderer with 8-bit sort digits (`--sort-digits 8`, ballot-ranked passes) against the
+/// default 4/5-bit passes: both sorts are stable, so the frames must be the same bits, tile
+/// lists included, on scenes large enough for several sort blocks (2,048 keys) in both sorts.
+#[test]
+fn byte_digit_sorts_render_the_same_bits() {
+    let settings = RenderSettings::default();
+    let frames = |digits: Option<u32>| {
+        let ctx = GpuContext::new(&GpuOptions {
+            sort_digit_bits: digits,
+            ..GpuOptions::for_tests()
+        })
+        .unwrap();
+        let mut renderer = renderer(&ctx);
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(88);
+        let mut out = Vec::new();
+        for _ in 0..6 {
+            let n = rng.gen_range(2_500..7_000);
+            let g = scenes::random_gaussians(&mut rng, n);
+            let (w, h) = (rng.gen_range(64..200), rng.gen_range(64..200));
+            let (camera, pose) = scenes::random_view(&mut rng, w, h);
+            let (frame, _) = render_gpu(
+                &ctx,
+                &mut renderer,
+                &g,
+                3,
+                &camera,
+                &pose,
+                [0.2, 0.3, 0.4],
+                &settings,
+            );
+            let pairs: usize = frame.tile_lists.iter().map(Vec::len).sum();
+            out.push((frame.image, frame.tile_lists, frame.visible, pairs));
+        }
+        ctx.check_validation().unwrap();
+        (renderer.sort_digits(), out)
+    };
+    let (default_digits, want) = frames(None);
+    let (byte_digits, got) = frames(Some(8));
+    assert_eq!(default_digits, lpmsplat::render::sort::Digits::Wide);
+    assert_eq!(byte_digits, lpmsplat::render::sort::Digits::Byte);
+    for (k, (a, b)) in want.iter().zip(&got).enumerate() {
+        assert!(a.2 > 2_048 && a.3 > 4_096, "scene {k}: {} visible, {} pairs", a.2, a.3);
+        assert_eq!(a.2, b.2, "scene {k}: visible Gaussians");
+        assert_eq!(a.1, b.1, "scene {k}: tile lists");
+        let same = a.0.iter().zip(&b.0).all(|(x, y)| x.to_bits() == y.to_bits());
+        assert!(same, "scene {k}: the images differ");
+    }
+}

@@ -11,6 +11,7 @@ fn no_vulkan_device_is_a_clear_error() {
         validation: false,
         device: None,
         memory_limit: None,
+        sort_digit_bits: None,
     })
     .err()
     .expect("no device must be an error");

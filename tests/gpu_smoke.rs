@@ -135,6 +135,7 @@ fn oversized_buffers_and_unknown_devices_are_clear_errors() {
         validation: true,
         device: Some("no-such-device-xyz".into()),
         memory_limit: None,
+        sort_digit_bits: None,
     })
     .err()
     .expect("must refuse");
@@ -143,6 +144,7 @@ fn oversized_buffers_and_unknown_devices_are_clear_errors() {
         validation: true,
         device: Some("99".into()),
         memory_limit: None,
+        sort_digit_bits: None,
     })
     .err()
     .expect("must refuse");

@@ -6,7 +6,7 @@ mod child_run;
 
 use lpmsplat::gpu::{BufferKind, GpuBuffer, GpuContext, GpuOptions, Recorder};
 use lpmsplat::render::scan::PrefixScan;
-use lpmsplat::render::sort::{BlockShape, DropKeys, RadixSort, SortedIn};
+use lpmsplat::render::sort::{BlockShape, Digits, DropKeys, RadixSort, SortedIn};
 use rand::{Rng, SeedableRng};
 use std::sync::Arc;
 
@@ -102,23 +102,29 @@ fn radix_sort_is_stable_and_matches_host_sort() {
     let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
     // Both block shapes (GPUs: 256 invocations of 8 keys, CPU drivers 64 of 256), whatever the
     // device, with 4-bit passes only and with the 5-bit passes that save a pass (13, 29, 31 and
-    // 32 bits use them); the sizes straddle both block lengths (2048 and 16384 keys).
+    // 32 bits use them), and the ballot-ranked 8-bit passes; the sizes straddle both block
+    // lengths (2048 and 16384 keys).
     let (gpu, cpu) = (BlockShape::GPU, BlockShape::CPU);
+    let (narrow, wide, byte) = (Digits::Narrow, Digits::Wide, Digits::Byte);
     let sorters = [
-        RadixSort::with_options(&ctx, 300_000, gpu, false, false).unwrap(),
-        RadixSort::with_options(&ctx, 300_000, cpu, false, false).unwrap(),
-        RadixSort::with_options(&ctx, 300_000, gpu, true, false).unwrap(),
-        RadixSort::with_options(&ctx, 300_000, cpu, true, false).unwrap(),
+        RadixSort::with_options(&ctx, 300_000, gpu, narrow, false).unwrap(),
+        RadixSort::with_options(&ctx, 300_000, cpu, narrow, false).unwrap(),
+        RadixSort::with_options(&ctx, 300_000, gpu, wide, false).unwrap(),
+        RadixSort::with_options(&ctx, 300_000, cpu, wide, false).unwrap(),
+        RadixSort::with_options(&ctx, 300_000, gpu, byte, false).unwrap(),
     ];
     let shape = |wg, items| BlockShape { wg, items };
     assert!(
         RadixSort::with_shape(&ctx, 10, shape(256, 256)).is_err(),
         "65536-key blocks overflow"
     );
-    assert!(
-        RadixSort::with_shape(&ctx, 10, shape(16, 64)).is_err(),
-        "fewer invocations than a pass has digits"
-    );
+    for (wg, digits) in [(16, wide), (128, byte)] {
+        assert!(
+            RadixSort::with_options(&ctx, 10, shape(wg, 64), digits, false).is_err(),
+            "{wg} invocations: fewer than a {digits:?} pass has digits"
+        );
+    }
+    assert!(RadixSort::with_options(&ctx, 10, shape(16, 64), narrow, false).is_ok());
     // GPU-sized blocks are ordered in shared memory before they are written out (where the
     // device has room: 16.25 KiB), CPU-sized ones are not: both scatters run here.
     assert!(!RadixSort::reorders(&ctx.info, cpu));
@@ -171,88 +177,93 @@ fn radix_sort_drops_the_named_key_in_its_first_pass() {
     let ctx = ctx();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(9);
     let drop_key = 0x7FFF_FFFF;
-    for wide in [false, true] {
-        for shape in [BlockShape::GPU, BlockShape::CPU] {
-            let sorter = RadixSort::with_options(&ctx, 100_000, shape, wide, true).unwrap();
-            // (n, bits, share dropped): none, all, some; one and several passes; the dropped
-            // key's digits collide with kept keys' digits in every pass.
-            for (n, bits, share) in [
-                (0usize, 31u32, 0.5),
-                (1, 31, 1.0),
-                (3_000, 31, 0.0),
-                (3_000, 31, 1.0),
-                (20_001, 31, 0.3),
-                (70_000, 31, 0.9),
-                (50_000, 4, 0.5),
-                (40_000, 32, 0.5),
-            ] {
-                let keys: Vec<u32> = (0..n)
-                    .map(|_| {
-                        if rng.gen_bool(share) {
-                            drop_key
-                        } else if rng.gen_bool(0.3) {
-                            // Equal to the dropped key in the sorted bits or in one digit.
-                            drop_key ^ (1 << rng.gen_range(0..32))
-                        } else {
-                            rng.gen::<u32>() >> rng.gen_range(0..8)
-                        }
-                    })
-                    .collect();
-                let values: Vec<u32> = (0..n as u32).collect();
-                let cap = sorter.capacity() as usize;
-                let dl = BufferKind::DeviceLocal;
-                let bufs: Vec<GpuBuffer<u32>> = (0..4)
-                    .map(|_| GpuBuffer::<u32>::new(&ctx, "sort buffer", cap, dl).unwrap())
-                    .collect();
-                bufs[0].upload(&keys).unwrap();
-                bufs[1].upload(&values).unwrap();
-                let counts = GpuBuffer::from_slice(&ctx, "counts", &[n as u32, 0, POISON]).unwrap();
-                let mut rec = Recorder::new(&ctx).unwrap();
-                rec.fill(&bufs[2], POISON);
-                rec.fill(&bufs[3], POISON);
-                rec.barrier();
-                let drop = Some(DropKeys {
-                    key: drop_key,
-                    kept_index: 2,
-                });
-                let at = sorter.record_dropping(
-                    &mut rec,
-                    [&bufs[0], &bufs[1], &bufs[2], &bufs[3]],
-                    &counts,
-                    0,
-                    1,
-                    bits,
-                    drop,
-                );
-                rec.submit_and_wait().unwrap();
-                let mask = if bits >= 32 {
-                    u32::MAX
-                } else {
-                    (1u32 << bits) - 1
-                };
-                let mut expect: Vec<(u32, u32)> = keys
-                    .iter()
-                    .copied()
-                    .zip(values.iter().copied())
-                    .filter(|&(k, _)| k != drop_key)
-                    .collect();
-                expect.sort_by_key(|&(k, _)| k & mask);
-                let label = format!("n={n} bits={bits} {shape:?} wide={wide}");
-                let kept = counts.read().unwrap()[2] as usize;
-                assert_eq!(kept, expect.len(), "{label}: kept count");
-                let (ko, vo) = match at {
-                    SortedIn::Input => (&bufs[0], &bufs[1]),
-                    SortedIn::Scratch => (&bufs[2], &bufs[3]),
-                };
-                let (ko, vo) = (ko.read().unwrap(), vo.read().unwrap());
-                for (i, e) in expect.iter().enumerate() {
-                    assert_eq!((ko[i], vo[i]), *e, "{label}: position {i}");
-                }
-                // One pass: the output is the scratch, poisoned past the kept keys.
-                if RadixSort::pass_widths(bits, wide).len() == 1 {
-                    assert_eq!(at, SortedIn::Scratch);
-                    assert!(ko[kept..].iter().all(|&k| k == POISON), "{label}: tail");
-                }
+    let digits_and_shapes = [
+        (Digits::Narrow, BlockShape::GPU),
+        (Digits::Narrow, BlockShape::CPU),
+        (Digits::Wide, BlockShape::GPU),
+        (Digits::Wide, BlockShape::CPU),
+        (Digits::Byte, BlockShape::GPU),
+    ];
+    for (digits, shape) in digits_and_shapes {
+        let sorter = RadixSort::with_options(&ctx, 100_000, shape, digits, true).unwrap();
+        // (n, bits, share dropped): none, all, some; one and several passes; the dropped
+        // key's digits collide with kept keys' digits in every pass.
+        for (n, bits, share) in [
+            (0usize, 31u32, 0.5),
+            (1, 31, 1.0),
+            (3_000, 31, 0.0),
+            (3_000, 31, 1.0),
+            (20_001, 31, 0.3),
+            (70_000, 31, 0.9),
+            (50_000, 4, 0.5),
+            (40_000, 32, 0.5),
+        ] {
+            let keys: Vec<u32> = (0..n)
+                .map(|_| {
+                    if rng.gen_bool(share) {
+                        drop_key
+                    } else if rng.gen_bool(0.3) {
+                        // Equal to the dropped key in the sorted bits or in one digit.
+                        drop_key ^ (1 << rng.gen_range(0..32))
+                    } else {
+                        rng.gen::<u32>() >> rng.gen_range(0..8)
+                    }
+                })
+                .collect();
+            let values: Vec<u32> = (0..n as u32).collect();
+            let cap = sorter.capacity() as usize;
+            let dl = BufferKind::DeviceLocal;
+            let bufs: Vec<GpuBuffer<u32>> = (0..4)
+                .map(|_| GpuBuffer::<u32>::new(&ctx, "sort buffer", cap, dl).unwrap())
+                .collect();
+            bufs[0].upload(&keys).unwrap();
+            bufs[1].upload(&values).unwrap();
+            let counts = GpuBuffer::from_slice(&ctx, "counts", &[n as u32, 0, POISON]).unwrap();
+            let mut rec = Recorder::new(&ctx).unwrap();
+            rec.fill(&bufs[2], POISON);
+            rec.fill(&bufs[3], POISON);
+            rec.barrier();
+            let drop = Some(DropKeys {
+                key: drop_key,
+                kept_index: 2,
+            });
+            let at = sorter.record_dropping(
+                &mut rec,
+                [&bufs[0], &bufs[1], &bufs[2], &bufs[3]],
+                &counts,
+                0,
+                1,
+                bits,
+                drop,
+            );
+            rec.submit_and_wait().unwrap();
+            let mask = if bits >= 32 {
+                u32::MAX
+            } else {
+                (1u32 << bits) - 1
+            };
+            let mut expect: Vec<(u32, u32)> = keys
+                .iter()
+                .copied()
+                .zip(values.iter().copied())
+                .filter(|&(k, _)| k != drop_key)
+                .collect();
+            expect.sort_by_key(|&(k, _)| k & mask);
+            let label = format!("n={n} bits={bits} {shape:?} {digits:?}");
+            let kept = counts.read().unwrap()[2] as usize;
+            assert_eq!(kept, expect.len(), "{label}: kept count");
+            let (ko, vo) = match at {
+                SortedIn::Input => (&bufs[0], &bufs[1]),
+                SortedIn::Scratch => (&bufs[2], &bufs[3]),
+            };
+            let (ko, vo) = (ko.read().unwrap(), vo.read().unwrap());
+            for (i, e) in expect.iter().enumerate() {
+                assert_eq!((ko[i], vo[i]), *e, "{label}: position {i}");
+            }
+            // One pass: the output is the scratch, poisoned past the kept keys.
+            if RadixSort::pass_widths(bits, digits).len() == 1 {
+                assert_eq!(at, SortedIn::Scratch);
+                assert!(ko[kept..].iter().all(|&k| k == POISON), "{label}: tail");
             }
         }
     }

@@ -39,6 +39,11 @@ pub struct Cli {
     /// needs more stops with a checkpoint to resume from. Default: the device's own.
     #[arg(long, global = true, value_name = "MIB")]
     pub memory_limit: Option<u64>,
+    /// The radix sorts' digit width: 4 (4-bit passes, 5-bit where that saves one: 7 passes for
+    /// depths, 3 for tile ids) or 8 (passes ranked by subgroup ballots: 4 and 2). Default: 4;
+    /// 8 is for timing on GPUs (docs/gpu.md) and is refused where shared memory is too small.
+    #[arg(long, global = true, value_name = "BITS", value_parser = ["4", "8"])]
+    pub sort_digits: Option<String>,
     #[command(subcommand)]
     pub command: Command,
 }
@@ -115,6 +120,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         validation: cli.validation,
         device: cli.device.clone(),
         memory_limit: cli.memory_limit.map(|m| m.saturating_mul(1 << 20)),
+        sort_digit_bits: cli.sort_digits.as_deref().map(|b| b.parse()).transpose()?,
     };
     match cli.command {
         Command::Info(a) => info::run(&gpu, &a),

@@ -20,6 +20,9 @@ pub struct GpuOptions {
     pub device: Option<String>,
     /// Refuse device-local allocations past this many bytes in all ([`DeviceMemory`]).
     pub memory_limit: Option<u64>,
+    /// The radix sorts' digit width: 4 (4- and 5-bit passes) or 8 (ballot-ranked byte
+    /// passes); `None`: the engine's choice for the device (`render::sort::Digits`).
+    pub sort_digit_bits: Option<u32>,
 }
 
 impl GpuOptions {
@@ -29,6 +32,7 @@ impl GpuOptions {
             validation: true,
             device: std::env::var("LPMSPLAT_DEVICE").ok(),
             memory_limit: None,
+            sort_digit_bits: None,
         }
     }
 }
@@ -110,6 +114,8 @@ pub struct GpuContext {
     pub info: DeviceInfo,
     /// Buffers dropped while a [`HoldFrees`](super::HoldFrees) guard lives.
     pub(crate) held_frees: Mutex<super::held_frees::HeldFrees>,
+    /// [`GpuOptions::sort_digit_bits`].
+    pub sort_digit_bits: Option<u32>,
 }
 
 fn device_type_name(t: vk::PhysicalDeviceType) -> &'static str {
@@ -210,15 +216,21 @@ impl GpuContext {
                 .unwrap_or(false);
         let entry = load_entry()?;
         let _serial = lifecycle_lock();
-        unsafe { Self::create(entry, validation, opts.device.as_deref(), opts.memory_limit) }
+        if let Some(bits) = opts.sort_digit_bits {
+            anyhow::ensure!(
+                bits == 4 || bits == 8,
+                "sort digits {bits}: the radix sorts take 4- or 8-bit digits. Fix: pass 4 or 8"
+            );
+        }
+        unsafe { Self::create(entry, validation, opts) }
     }
 
     unsafe fn create(
         entry: ash::Entry,
         validation: bool,
-        choose: Option<&str>,
-        memory_limit: Option<u64>,
+        opts: &GpuOptions,
     ) -> anyhow::Result<Arc<GpuContext>> {
+        let (choose, memory_limit) = (opts.device.as_deref(), opts.memory_limit);
         let app_name = CString::new("lpmsplat").unwrap();
         let app = vk::ApplicationInfo::default()
             .application_name(&app_name)
@@ -415,6 +427,7 @@ impl GpuContext {
             memory: DeviceMemory::new(memory_limit),
             info,
             held_frees: Mutex::new(Default::default()),
+            sort_digit_bits: opts.sort_digit_bits,
         }))
     }
 

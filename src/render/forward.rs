@@ -783,6 +783,11 @@ impl Renderer {
         }
     }
 
+    /// The digits of the renderer's two radix sorts ([`super::sort::Digits::for_device`]).
+    pub fn sort_digits(&self) -> super::sort::Digits {
+        self.tile_sort.digits()
+    }
+
     /// The Gaussian index of every intersection, tile-major, front to back within a tile (the
     /// contract's `sorted_ids`) of the last recorded frame.
     pub fn sorted_ids(&self) -> &GpuBuffer<u32> {

@@ -1,8 +1,8 @@
 //! Key–value GPU radix sort: u32 keys, u32 values, 4 or 5 bits a pass (as few passes as the
-//! bits in use need, the narrow digit wherever it does not cost a pass). Each pass is
-//! reduce-then-scan: per-block digit histograms, one exclusive scan of all histograms, then a
-//! stable scatter. No decoupled look-back: Vulkan gives no forward-progress guarantee between
-//! workgroups.
+//! bits in use need, the narrow digit wherever it does not cost a pass), or 8 bits a pass ranked
+//! by subgroup ballots ([`Digits::Byte`]). Each pass is reduce-then-scan: per-block digit
+//! histograms, one exclusive scan of all histograms, then a stable scatter. No decoupled
+//! look-back: Vulkan gives no forward-progress guarantee between workgroups.
 
 use super::dispatch_size::DispatchSize;
 use super::scan::PrefixScan;
@@ -42,8 +42,47 @@ impl BlockShape {
 /// twice the per-invocation counters of a 4-bit one, so it costs more a key.
 const NARROW_BITS: u32 = 4;
 const WIDE_BITS: u32 = 5;
-/// Histogram entries a block at the widest digit.
-const MAX_RADIX: u64 = 1 << WIDE_BITS;
+/// The ballot-ranked scatter's digit.
+const BYTE_BITS: u32 = 8;
+
+/// The digit widths a sorter uses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Digits {
+    /// 4-bit passes only.
+    Narrow,
+    /// 4-bit passes, widened to 5 bits where that saves a pass (13 bits: 5 + 4 + 4).
+    Wide,
+    /// 8-bit passes (the last one masked to the bits left), ranked by subgroup ballots
+    /// (`glsl/sort/scatter_ranked.comp`): 31-bit depths in 4 passes instead of 7, 13-bit tile
+    /// ids in 2 instead of 3, each pass with 8 ballots a key and a histogram of 256 digits a
+    /// block. For GPUs; not the default until timed on one (`--sort-digits 8` to try it).
+    Byte,
+}
+
+impl Digits {
+    /// The widest digit's bits.
+    pub fn max_bits(self) -> u32 {
+        match self {
+            Digits::Narrow => NARROW_BITS,
+            Digits::Wide => WIDE_BITS,
+            Digits::Byte => BYTE_BITS,
+        }
+    }
+
+    /// Histogram entries a block at the widest digit.
+    fn max_radix(self) -> u64 {
+        1 << self.max_bits()
+    }
+
+    /// The digits chosen for a device: `--sort-digits` ([`GpuContext::sort_digit_bits`]) when
+    /// given (4: [`Digits::Wide`], 8: [`Digits::Byte`]), else [`Digits::Wide`].
+    pub fn for_device(ctx: &GpuContext) -> Self {
+        match ctx.sort_digit_bits {
+            Some(8) => Digits::Byte,
+            _ => Digits::Wide,
+        }
+    }
+}
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
@@ -89,13 +128,12 @@ pub enum SortedIn {
 pub struct RadixSort {
     /// The keys a workgroup sorts.
     shape: BlockShape,
-    /// Whether 5-bit passes may be used (see [`RadixSort::pass_widths`]).
-    wide: bool,
+    /// The digit widths of the passes ([`RadixSort::pass_widths`]).
+    digits: Digits,
     /// Whether the kernels can drop keys ([`RadixSort::dropping`]).
     drops: bool,
-    /// The upsweep and scatter pipelines for 4-bit and 5-bit digits.
-    narrow: [ComputePipeline; 2],
-    wide_pipes: [ComputePipeline; 2],
+    /// The upsweep and scatter pipelines of each digit width the sorter uses.
+    pipes: Vec<(u32, [ComputePipeline; 2])>,
     scan: PrefixScan,
     hist: GpuBuffer<u32>,
     /// The passes' group counts, from the count on the GPU (not the capacity).
@@ -104,23 +142,35 @@ pub struct RadixSort {
 }
 
 impl RadixSort {
-    /// A sorter with the block size suited to the device (see [`BlockShape`]), 5-bit passes
-    /// where they save a pass.
+    /// A sorter with the digits and block size suited to the device ([`Digits::for_device`],
+    /// [`RadixSort::device_shape`]).
     pub fn new(ctx: &Arc<GpuContext>, capacity: u64) -> anyhow::Result<Self> {
-        Self::with_options(ctx, capacity, Self::device_shape(ctx), true, false)
+        let digits = Digits::for_device(ctx);
+        Self::with_options(ctx, capacity, Self::shape_for(ctx, digits), digits, false)
     }
 
     /// [`RadixSort::new`] whose sorts may drop keys ([`RadixSort::record_dropping`]).
     pub fn dropping(ctx: &Arc<GpuContext>, capacity: u64) -> anyhow::Result<Self> {
-        Self::with_options(ctx, capacity, Self::device_shape(ctx), true, true)
+        let digits = Digits::for_device(ctx);
+        Self::with_options(ctx, capacity, Self::shape_for(ctx, digits), digits, true)
     }
 
-    /// The block shape suited to the device ([`BlockShape::CPU`] on CPU drivers).
+    /// The block shape suited to the device for 4- and 5-bit digits ([`BlockShape::CPU`] on
+    /// CPU drivers).
     pub fn device_shape(ctx: &GpuContext) -> BlockShape {
         if ctx.info.device_type.starts_with("CPU") {
             BlockShape::CPU
         } else {
             BlockShape::GPU
+        }
+    }
+
+    /// The block shape for `digits` on the device: byte digits always take [`BlockShape::GPU`]
+    /// (their block is ordered in shared memory, which CPU drivers' big blocks do not fit).
+    pub fn shape_for(ctx: &GpuContext, digits: Digits) -> BlockShape {
+        match digits {
+            Digits::Byte => BlockShape::GPU,
+            _ => Self::device_shape(ctx),
         }
     }
 
@@ -131,18 +181,27 @@ impl RadixSort {
         capacity: u64,
         shape: BlockShape,
     ) -> anyhow::Result<Self> {
-        Self::with_options(ctx, capacity, shape, false, false)
+        Self::with_options(ctx, capacity, shape, Digits::Narrow, false)
     }
 
-    /// A sorter with blocks of `shape`; `wide` allows 5-bit passes, `drops` sorts that drop
-    /// keys (the kernels of a sorter that never drops leave the test out: it cost the tile sort
-    /// about a tenth on lavapipe). A block must hold fewer than 65536 keys (the scatter packs
-    /// per-digit counts in 16 bits) and have an invocation per digit of the widest pass.
+    /// Shared memory the ballot-ranked scatter of blocks of `shape` takes on the device, in
+    /// bytes (`glsl/sort/scatter_ranked.comp`: the larger of the per-subgroup counters and the
+    /// block's pairs, the digits' two starts, the workgroup scan's sums).
+    pub fn ranked_shared_bytes(info: &crate::gpu::DeviceInfo, shape: BlockShape) -> u64 {
+        let subgroups = (shape.wg / info.min_subgroup_size.max(1)).max(1) as u64;
+        let counters = (1u64 << BYTE_BITS) / 2 * subgroups;
+        4 * counters.max(2 * shape.keys()) + 2 * 4 * (1 << BYTE_BITS) + 4 * shape.wg as u64 + 4
+    }
+
+    /// A sorter with blocks of `shape` and `digits`; `drops` sorts that drop keys (the kernels
+    /// of a sorter that never drops leave the test out: it cost the tile sort about a tenth on
+    /// lavapipe). A block must hold fewer than 65536 keys (the scatters pack per-digit counts
+    /// in 16 bits) and have an invocation per digit of the widest pass.
     pub fn with_options(
         ctx: &Arc<GpuContext>,
         capacity: u64,
         shape: BlockShape,
-        wide: bool,
+        digits: Digits,
         drops: bool,
     ) -> anyhow::Result<Self> {
         anyhow::ensure!(
@@ -151,46 +210,70 @@ impl RadixSort {
             shape.wg,
             shape.items
         );
+        let max_radix = digits.max_radix();
         anyhow::ensure!(
-            shape.wg as u64 >= MAX_RADIX,
-            "radix sort: blocks of {} invocations: fewer than the {MAX_RADIX} digits of a pass",
+            shape.wg as u64 >= max_radix,
+            "radix sort: blocks of {} invocations: fewer than the {max_radix} digits of a pass",
             shape.wg
         );
+        if digits == Digits::Byte {
+            let need = Self::ranked_shared_bytes(&ctx.info, shape);
+            anyhow::ensure!(
+                need <= ctx.info.max_shared_memory as u64,
+                "radix sort: 8-bit digits in blocks of {} × {} keys need {need} bytes of shared \
+                 memory; this device has {}. Fix: sort with 4-bit digits (--sort-digits 4)",
+                shape.wg,
+                shape.items,
+                ctx.info.max_shared_memory
+            );
+        }
         let capacity = capacity.max(1);
         let reorder = Self::reorders(&ctx.info, shape);
-        let pipes = |digit_bits: u32| -> anyhow::Result<[ComputePipeline; 2]> {
-            Ok([
-                ComputePipeline::new(
-                    ctx,
-                    "sort/upsweep",
-                    shaders::SORT_UPSWEEP,
-                    3,
-                    std::mem::size_of::<UpPush>() as u32,
-                    shape.wg,
-                    &[
-                        shape.items,
-                        digit_bits,
-                        u32::from(drops),
-                        u32::from(reorder),
-                    ],
-                )?,
-                ComputePipeline::new(
-                    ctx,
-                    "sort/scatter",
-                    shaders::SORT_SCATTER,
-                    6,
-                    std::mem::size_of::<ScatterPush>() as u32,
-                    shape.wg,
-                    &[
-                        shape.items,
-                        digit_bits,
-                        u32::from(drops),
-                        u32::from(reorder),
-                    ],
-                )?,
-            ])
+        let pipes = |digit_bits: u32| -> anyhow::Result<(u32, [ComputePipeline; 2])> {
+            let (scatter_name, scatter_spirv, last) = if digit_bits == BYTE_BITS {
+                (
+                    "sort/scatter_ranked",
+                    shaders::SORT_SCATTER_RANKED,
+                    ctx.info.min_subgroup_size.max(1),
+                )
+            } else {
+                ("sort/scatter", shaders::SORT_SCATTER, u32::from(reorder))
+            };
+            let constants = [shape.items, digit_bits, u32::from(drops), last];
+            Ok((
+                digit_bits,
+                [
+                    ComputePipeline::new(
+                        ctx,
+                        "sort/upsweep",
+                        shaders::SORT_UPSWEEP,
+                        3,
+                        std::mem::size_of::<UpPush>() as u32,
+                        shape.wg,
+                        &constants,
+                    )?,
+                    ComputePipeline::new(
+                        ctx,
+                        scatter_name,
+                        scatter_spirv,
+                        6,
+                        std::mem::size_of::<ScatterPush>() as u32,
+                        shape.wg,
+                        &constants,
+                    )?,
+                ],
+            ))
         };
-        let hist_len = MAX_RADIX * capacity.div_ceil(shape.keys());
+        let widths: &[u32] = match digits {
+            Digits::Narrow => &[NARROW_BITS],
+            Digits::Wide => &[NARROW_BITS, WIDE_BITS],
+            Digits::Byte => &[BYTE_BITS],
+        };
+        let pipes = widths
+            .iter()
+            .map(|&w| pipes(w))
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        let hist_len = max_radix * capacity.div_ceil(shape.keys());
         let scan = PrefixScan::new(ctx, hist_len)?;
         let hist = GpuBuffer::new(
             ctx,
@@ -200,10 +283,9 @@ impl RadixSort {
         )?;
         Ok(Self {
             shape,
-            wide,
+            digits,
             drops,
-            narrow: pipes(NARROW_BITS)?,
-            wide_pipes: pipes(WIDE_BITS)?,
+            pipes,
             scan,
             hist,
             sizes: DispatchSize::new(ctx, 2)?,
@@ -218,9 +300,10 @@ impl RadixSort {
     pub fn reorders(info: &crate::gpu::DeviceInfo, shape: BlockShape) -> bool {
         // The block's pairs share their memory with the subgroups' totals (room for subgroups
         // of one); beside them, the digits' two starts.
-        let pool = (2 * 4 * shape.keys()).max(4 * shape.wg as u64 * (MAX_RADIX / 2));
+        let radix = 1u64 << WIDE_BITS;
+        let pool = (2 * 4 * shape.keys()).max(4 * shape.wg as u64 * (radix / 2));
         shape.items <= BlockShape::GPU.items
-            && pool + 2 * 4 * MAX_RADIX <= info.max_shared_memory as u64
+            && pool + 2 * 4 * radix <= info.max_shared_memory as u64
     }
 
     /// The keys a workgroup sorts.
@@ -232,12 +315,22 @@ impl RadixSort {
         self.capacity
     }
 
+    /// The digits this sorter uses.
+    pub fn digits(&self) -> Digits {
+        self.digits
+    }
+
     /// The digit width of each pass for keys using the low `bits` bits, low digits first: as
-    /// many 4-bit passes as the bits need, unless 5-bit digits (when `wide`) need fewer passes;
-    /// then only as many passes are widened as that takes (13 bits: 5, 4, 4; 32 bits: four
-    /// 5-bit and three 4-bit passes). The last pass may hold fewer bits than its width.
-    pub fn pass_widths(bits: u32, wide: bool) -> Vec<u32> {
+    /// many 4-bit passes as the bits need, unless 5-bit digits ([`Digits::Wide`]) need fewer
+    /// passes; then only as many passes are widened as that takes (13 bits: 5, 4, 4; 32 bits:
+    /// four 5-bit and three 4-bit passes). [`Digits::Byte`]: 8-bit passes. The last pass may
+    /// hold fewer bits than its width.
+    pub fn pass_widths(bits: u32, digits: Digits) -> Vec<u32> {
         let bits = bits.min(32);
+        if digits == Digits::Byte {
+            return vec![BYTE_BITS; bits.div_ceil(BYTE_BITS) as usize];
+        }
+        let wide = digits == Digits::Wide;
         let narrow = bits.div_ceil(NARROW_BITS);
         let fewest = bits.div_ceil(WIDE_BITS);
         if !wide || fewest == narrow {
@@ -251,7 +344,7 @@ impl RadixSort {
 
     /// Number of passes this sorter makes for keys using the low `bits` bits.
     pub fn passes(&self, bits: u32) -> u32 {
-        Self::pass_widths(bits, self.wide).len() as u32
+        Self::pass_widths(bits, self.digits).len() as u32
     }
 
     /// Records a stable sort of the first `counts[count_index]` pairs of (`keys`, `values`) by
@@ -303,7 +396,7 @@ impl RadixSort {
             .record(rec, counts, count_index, self.shape.keys(), 0);
         let mut from_input = true;
         let mut shift = 0;
-        for (pass, width) in Self::pass_widths(bits, self.wide).into_iter().enumerate() {
+        for (pass, width) in Self::pass_widths(bits, self.digits).into_iter().enumerate() {
             // The first pass drops; the later ones sort what it kept.
             let dropping = drop.filter(|_| pass == 0);
             let count_index = match drop {
@@ -313,11 +406,12 @@ impl RadixSort {
             let (args, at) = self.sizes.args(u32::from(drop.is_some() && pass > 0));
             // The last pass takes only the bits left.
             let digit_mask = (1u32 << width.min(bits.min(32) - shift)) - 1;
-            let [upsweep, scatter] = if width == WIDE_BITS {
-                &self.wide_pipes
-            } else {
-                &self.narrow
-            };
+            let [upsweep, scatter] = &self
+                .pipes
+                .iter()
+                .find(|(w, _)| *w == width)
+                .expect("a pipeline for every pass width")
+                .1;
             let (ki, vi, ko, vo) = if from_input {
                 (keys, values, scratch_keys, scratch_values)
             } else {
@@ -374,36 +468,46 @@ impl RadixSort {
 
 #[cfg(test)]
 mod tests {
-    use super::RadixSort;
+    use super::{Digits, RadixSort};
 
     #[test]
     fn pass_widths_cover_the_bits_in_the_fewest_passes() {
         for bits in 0..=40u32 {
-            for wide in [false, true] {
-                let widths = RadixSort::pass_widths(bits, wide);
+            for digits in [Digits::Narrow, Digits::Wide, Digits::Byte] {
+                let widths = RadixSort::pass_widths(bits, digits);
                 let covered: u32 = widths.iter().sum();
                 let want = bits.min(32);
+                let widest = digits.max_bits();
                 // Every bit is sorted, and no pass could be dropped.
-                assert!(covered >= want, "{bits} bits, wide {wide}: {widths:?}");
-                assert!(covered < want + 4 || want == 0, "{bits}: {widths:?}");
-                let fewest = want.div_ceil(if wide { 5 } else { 4 });
-                assert_eq!(widths.len() as u32, fewest, "{bits} bits, wide {wide}");
+                assert!(covered >= want, "{bits} bits, {digits:?}: {widths:?}");
+                assert!(covered < want + widest || want == 0, "{bits}: {widths:?}");
+                assert_eq!(
+                    widths.len() as u32,
+                    want.div_ceil(widest),
+                    "{bits} bits, {digits:?}"
+                );
                 // 5-bit digits only when allowed, and only as many as the saved pass needs.
                 let wide_passes = widths.iter().filter(|&&w| w == 5).count() as u32;
-                assert!(wide || wide_passes == 0);
-                assert!(widths.iter().all(|&w| w == 4 || w == 5));
+                assert!(digits == Digits::Wide || wide_passes == 0);
+                match digits {
+                    Digits::Byte => assert!(widths.iter().all(|&w| w == 8)),
+                    _ => assert!(widths.iter().all(|&w| w == 4 || w == 5)),
+                }
                 // Widened passes fill the bits exactly: one fewer would leave a bit unsorted.
                 if wide_passes > 0 {
                     assert_eq!(covered, want, "{bits}: {widths:?}");
                 }
             }
         }
-        assert_eq!(RadixSort::pass_widths(13, true), [5, 4, 4]);
-        assert_eq!(RadixSort::pass_widths(12, true), [4, 4, 4]);
-        assert_eq!(RadixSort::pass_widths(8, true), [4, 4]);
-        assert_eq!(RadixSort::pass_widths(31, true), [5, 5, 5, 4, 4, 4, 4]);
-        assert_eq!(RadixSort::pass_widths(32, true), [5, 5, 5, 5, 4, 4, 4]);
-        assert_eq!(RadixSort::pass_widths(32, false), [4; 8]);
-        assert!(RadixSort::pass_widths(0, true).is_empty());
+        let wide = Digits::Wide;
+        assert_eq!(RadixSort::pass_widths(13, wide), [5, 4, 4]);
+        assert_eq!(RadixSort::pass_widths(12, wide), [4, 4, 4]);
+        assert_eq!(RadixSort::pass_widths(8, wide), [4, 4]);
+        assert_eq!(RadixSort::pass_widths(31, wide), [5, 5, 5, 4, 4, 4, 4]);
+        assert_eq!(RadixSort::pass_widths(32, wide), [5, 5, 5, 5, 4, 4, 4]);
+        assert_eq!(RadixSort::pass_widths(32, Digits::Narrow), [4; 8]);
+        assert_eq!(RadixSort::pass_widths(31, Digits::Byte), [8; 4]);
+        assert_eq!(RadixSort::pass_widths(13, Digits::Byte), [8; 2]);
+        assert!(RadixSort::pass_widths(0, wide).is_empty());
     }
 }
