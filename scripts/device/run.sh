@@ -10,6 +10,9 @@
 #   ahead    train --record-ahead on against off, alternated twice: the main job, then (with a
 #            packed scene) ITERATIONS (3000) at full size
 #   fps      bench fps at 1352x1014: 100k, 1M and 3M generated Gaussians
+#   sortdigits bench fps with --sort-digits 4 against 8 (ballot-ranked byte passes), alternated
+#            twice, then (with a packed scene) training at full size, ITERATIONS (3000), the
+#            same two alternated: whether 8-bit digits should become the GPUs' default
 #   fpspair  the same with the packed baseline (pack.sh with BASE=REV) and this build, alternated
 #            twice: the FPS ratio measured side by side on one GPU
 #   trade7k  bench trade on the packed scene at full size: ADC vs ADC+LPM, 7k of the 30k
@@ -180,6 +183,15 @@ for s in "$@"; do
     fps)
         step fps 120 "$bin" bench fps --gaussians 100000,1000000,3000000 --json "$res/fps.json"
         ;;
+    sortdigits)
+        for r in 1 2; do
+            for v in 4 8; do
+                step "fps-digits$v-$r" 100 "$bin" bench fps --sort-digits "$v" \
+                    --gaussians 100000,1000000,3000000 --json "$res/fps-digits$v-$r.json"
+            done
+        done
+        [ -n "$scene" ] && alternate sortdigits --sort-digits "${ITERATIONS:-3000}" 4 8
+        ;;
     fpspair)
         if [ -x "$work/base/lpmsplat" ]; then
             for r in 1 2; do
@@ -311,7 +323,7 @@ for s in "$@"; do
             step train30k 900 "$bin" train "$scene" -r 1 --iterations 30000 --lpm --eval-every 5000 \
                 --timestamps -o "$work/train30k"
         ;;
-    *) echo "$s: unknown step (info tests demo ahead fps fpspair trade7k trade30k ablate7k pair30k serial30k layouts losslayouts stgs local7k budget7k train30k)" >>"$summary" ;;
+    *) echo "$s: unknown step (info tests demo ahead fps sortdigits fpspair trade7k trade30k ablate7k pair30k serial30k layouts losslayouts stgs local7k budget7k train30k)" >>"$summary" ;;
     esac
     collect
 done
