@@ -939,10 +939,18 @@ fn byte_digit_sorts_render_the_same_bits() {
     assert_eq!(default_digits, lpmsplat::render::sort::Digits::Wide);
     assert_eq!(byte_digits, lpmsplat::render::sort::Digits::Byte);
     for (k, (a, b)) in want.iter().zip(&got).enumerate() {
-        assert!(a.2 > 2_048 && a.3 > 4_096, "scene {k}: {} visible, {} pairs", a.2, a.3);
+        assert!(
+            a.2 > 2_048 && a.3 > 4_096,
+            "scene {k}: {} visible, {} pairs",
+            a.2,
+            a.3
+        );
         assert_eq!(a.2, b.2, "scene {k}: visible Gaussians");
         assert_eq!(a.1, b.1, "scene {k}: tile lists");
-        let same = a.0.iter().zip(&b.0).all(|(x, y)| x.to_bits() == y.to_bits());
+        let same =
+            a.0.iter()
+                .zip(&b.0)
+                .all(|(x, y)| x.to_bits() == y.to_bits());
         assert!(same, "scene {k}: the images differ");
     }
 }

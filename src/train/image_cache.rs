@@ -87,20 +87,11 @@ impl CacheStats {
 /// host holds one chunk of f32 pixels rather than the whole set.
 const RESIDENT_CHUNK: usize = 32;
 
-/// The cache's slot bookkeeping (see [`ImageCache::book`]).
+/// The cache's slot bookkeeping: what recording a step's uploads changes on the host, kept
+/// together so that a step recorded ahead and then dropped can be undone
+/// ([`ImageCache::book`]).
+#[derive(Clone)]
 pub struct CacheBook {
-    slots: Vec<ImageSlot>,
-    holder: Vec<Option<usize>>,
-    slot_of: Vec<Option<usize>>,
-    last_used: Vec<u64>,
-    tick: u64,
-    staging_half: usize,
-    stats: CacheStats,
-}
-
-pub struct ImageCache {
-    source: Arc<dyn ImageSource>,
-    buffers: Vec<GpuBuffer<u32>>,
     /// Each slot's place; width and height are those of the image it holds.
     slots: Vec<ImageSlot>,
     /// Image held by each slot, and the slot of each image.
@@ -109,16 +100,22 @@ pub struct ImageCache {
     /// The `prepare` call that last used each slot (least recently used gives way).
     last_used: Vec<u64>,
     tick: u64,
-    /// Streaming only: pixels of the largest image, the staging buffer (`staging_images` of
-    /// them) and the loader.
-    slot_px: usize,
-    staging: Option<GpuBuffer<u32>>,
     /// Which half of the staging buffer the next uploads use: consecutive steps alternate, so
     /// the host writes one step's images while the previous step's copies may still read the
     /// other half (the trainer records a step while the previous one runs).
     staging_half: usize,
-    loader: Option<Loader>,
     stats: CacheStats,
+}
+
+pub struct ImageCache {
+    source: Arc<dyn ImageSource>,
+    buffers: Vec<GpuBuffer<u32>>,
+    book: CacheBook,
+    /// Streaming only: pixels of the largest image, the staging buffer (`staging_images` of
+    /// them) and the loader.
+    slot_px: usize,
+    staging: Option<GpuBuffer<u32>>,
+    loader: Option<Loader>,
 }
 
 impl ImageCache {
@@ -188,22 +185,24 @@ impl ImageCache {
         Ok(Self {
             source,
             buffers,
-            holder: (0..n).map(Some).collect(),
-            slot_of: (0..n).map(Some).collect(),
-            last_used: vec![0; n],
-            tick: 0,
+            book: CacheBook {
+                holder: (0..n).map(Some).collect(),
+                slot_of: (0..n).map(Some).collect(),
+                last_used: vec![0; n],
+                tick: 0,
+                staging_half: 0,
+                stats: CacheStats {
+                    images: n,
+                    slots: n,
+                    bytes,
+                    resident: true,
+                    ..Default::default()
+                },
+                slots,
+            },
             slot_px: 0,
             staging: None,
-            staging_half: 0,
             loader: None,
-            stats: CacheStats {
-                images: n,
-                slots: n,
-                bytes,
-                resident: true,
-                ..Default::default()
-            },
-            slots,
         })
     }
 
@@ -244,54 +243,42 @@ impl ImageCache {
             loader: Some(Loader::start(source.clone())?),
             source,
             buffers,
-            holder: vec![None; count],
-            slot_of: vec![None; sizes.len()],
-            last_used: vec![0; count],
-            tick: 0,
+            book: CacheBook {
+                holder: vec![None; count],
+                slot_of: vec![None; sizes.len()],
+                last_used: vec![0; count],
+                tick: 0,
+                staging_half: 0,
+                stats: CacheStats {
+                    images: sizes.len(),
+                    slots: count,
+                    bytes,
+                    resident: false,
+                    ..Default::default()
+                },
+                slots,
+            },
             slot_px: max_px,
             staging: Some(staging),
-            staging_half: 0,
-            stats: CacheStats {
-                images: sizes.len(),
-                slots: count,
-                bytes,
-                resident: false,
-                ..Default::default()
-            },
-            slots,
         })
     }
 
     /// The slot bookkeeping, to restore if the copies recorded after it are never submitted.
     pub fn book(&self) -> CacheBook {
-        CacheBook {
-            slots: self.slots.clone(),
-            holder: self.holder.clone(),
-            slot_of: self.slot_of.clone(),
-            last_used: self.last_used.clone(),
-            tick: self.tick,
-            staging_half: self.staging_half,
-            stats: self.stats,
-        }
+        self.book.clone()
     }
 
     /// Restores the bookkeeping of [`ImageCache::book`] (the uploads recorded since were
     /// dropped unsubmitted; the images they took from the loader are decoded again).
     pub fn restore_book(&mut self, b: CacheBook) {
-        self.slots = b.slots;
-        self.holder = b.holder;
-        self.slot_of = b.slot_of;
-        self.last_used = b.last_used;
-        self.tick = b.tick;
-        self.staging_half = b.staging_half;
-        self.stats = b.stats;
+        self.book = b;
     }
 
     /// Whether the next step's uploads can be recorded while this step runs: a resident cache
     /// uploads nothing; a streaming one needs slots for two steps' images, so that the next
     /// step's evict none of this step's (which its density control still reads).
     pub fn holds_two_steps(&self, per_step: usize) -> bool {
-        !self.streams() || self.slots.len() >= 2 * per_step
+        !self.streams() || self.book.slots.len() >= 2 * per_step
     }
 
     /// Whether images are streamed (the trainer then names the next steps' images).
@@ -300,7 +287,7 @@ impl ImageCache {
     }
 
     pub fn stats(&self) -> CacheStats {
-        self.stats
+        self.book.stats
     }
 
     pub fn buffer(&self, slot: &ImageSlot) -> &GpuBuffer<u32> {
@@ -309,11 +296,12 @@ impl ImageCache {
 
     /// Where image `k` is, if it is on the GPU.
     pub fn slot(&self, k: usize) -> Option<ImageSlot> {
-        self.slot_of
+        self.book
+            .slot_of
             .get(k)
             .copied()
             .flatten()
-            .map(|s| self.slots[s])
+            .map(|s| self.book.slots[s])
     }
 
     /// Makes images `needed` resident for the step being recorded into `rec` (copies and a
@@ -327,17 +315,17 @@ impl ImageCache {
         needed: &[usize],
         upcoming: &[usize],
     ) -> anyhow::Result<()> {
-        self.tick += 1;
-        let tick = self.tick;
+        self.book.tick += 1;
+        let tick = self.book.tick;
         let mut copies = 0usize;
         for &k in needed {
             ensure!(
-                k < self.slot_of.len(),
+                k < self.book.slot_of.len(),
                 "image cache: image {k} of {}",
-                self.slot_of.len()
+                self.book.slot_of.len()
             );
-            if let Some(s) = self.slot_of[k] {
-                self.last_used[s] = tick;
+            if let Some(s) = self.book.slot_of[k] {
+                self.book.last_used[s] = tick;
                 continue;
             }
             ensure!(
@@ -345,17 +333,17 @@ impl ImageCache {
                 "image cache: a step reads more images than the {} it was sized for",
                 self.staging_images()
             );
-            let s = (0..self.slots.len())
-                .filter(|&s| self.last_used[s] != tick)
-                .min_by_key(|&s| self.last_used[s])
+            let s = (0..self.book.slots.len())
+                .filter(|&s| self.book.last_used[s] != tick)
+                .min_by_key(|&s| self.book.last_used[s])
                 .context("image cache: no free slot")?;
             let loader = self.loader.as_mut().context("image cache: not streaming")?;
             let t0 = Instant::now();
             let (pixels, was_ready) = loader.take(k)?;
             if !was_ready {
-                self.stats.waited += 1;
+                self.book.stats.waited += 1;
             }
-            self.stats.wait_seconds += t0.elapsed().as_secs_f64();
+            self.book.stats.wait_seconds += t0.elapsed().as_secs_f64();
             let (w, h) = self.source.size(k);
             ensure!(
                 pixels.len() == (w * h) as usize,
@@ -364,15 +352,15 @@ impl ImageCache {
                 pixels.len()
             );
             let staging = self.staging.as_ref().context("image cache: no staging")?;
-            let at = (self.staging_half * self.staging_images() + copies) * self.slot_px;
+            let at = (self.book.staging_half * self.staging_images() + copies) * self.slot_px;
             staging.upload_at(at, &pixels)?;
-            if let Some(old) = self.holder[s] {
-                self.slot_of[old] = None;
+            if let Some(old) = self.book.holder[s] {
+                self.book.slot_of[old] = None;
             }
-            self.holder[s] = Some(k);
-            self.slot_of[k] = Some(s);
-            self.last_used[s] = tick;
-            let slot = &mut self.slots[s];
+            self.book.holder[s] = Some(k);
+            self.book.slot_of[k] = Some(s);
+            self.book.last_used[s] = tick;
+            let slot = &mut self.book.slots[s];
             (slot.width, slot.height) = (w, h);
             let slot = *slot;
             rec.copy_region(
@@ -383,17 +371,17 @@ impl ImageCache {
                 pixels.len(),
             );
             copies += 1;
-            self.stats.uploads += 1;
+            self.book.stats.uploads += 1;
         }
         if copies > 0 {
             rec.barrier();
-            self.staging_half ^= 1;
+            self.book.staging_half ^= 1;
         }
         if let Some(loader) = self.loader.as_mut() {
             let wanted: Vec<usize> = upcoming
                 .iter()
                 .copied()
-                .filter(|&k| k < self.slot_of.len() && self.slot_of[k].is_none())
+                .filter(|&k| k < self.book.slot_of.len() && self.book.slot_of[k].is_none())
                 .collect();
             loader.keep_only(&wanted);
             for k in wanted {
