@@ -39,6 +39,14 @@ pub fn run(gpu: &GpuOptions, args: &InfoArgs) -> anyhow::Result<()> {
             }
             let ctx = GpuContext::new(gpu)?;
             println!("{}", ctx.info.summary());
+            let digits = lpmsplat::render::sort::Digits::for_device(&ctx);
+            let shape = lpmsplat::render::sort::RadixSort::shape_for(&ctx, digits);
+            println!(
+                "  radix sorts: {digits:?} digits ({}-bit at most), blocks of {} × {} keys",
+                digits.max_bits(),
+                shape.wg,
+                shape.items
+            );
             ctx.check_validation()?;
         }
         Err(e) => println!("Vulkan: {e:#}"),

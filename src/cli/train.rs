@@ -1140,6 +1140,8 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         "raster_pixels": config.raster_pixels,
         // The loss kernels' layout when --loss-layout set it (null: the default, segments).
         "loss_layout": config.loss_layout.map(|l| l.name()),
+        // The radix sorts' digit width when --sort-digits set it (null: the default, 4).
+        "sort_digits": ctx.sort_digit_bits,
         "max_gaussians": config.density.max_gaussians.map(|cap| serde_json::json!({
             "cap": cap, "dropped_additions": budget.0, "steps_at_cap": budget.1,
         })),
