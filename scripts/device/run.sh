@@ -11,8 +11,9 @@
 #            packed scene) ITERATIONS (3000) at full size
 #   fps      bench fps at 1352x1014: 100k, 1M and 3M generated Gaussians
 #   sortdigits bench fps with --sort-digits 4 against 8 (ballot-ranked byte passes), alternated
-#            twice, then (with a packed scene) training at full size, ITERATIONS (3000), the
-#            same two alternated: whether 8-bit digits should become the GPUs' default
+#            twice, the main job likewise (where the sorts' fixed cost a pass shows), then (with
+#            a packed scene) training at full size, ITERATIONS (3000), the same two alternated:
+#            whether 8-bit digits should become the GPUs' default
 #   fpspair  the same with the packed baseline (pack.sh with BASE=REV) and this build, alternated
 #            twice: the FPS ratio measured side by side on one GPU
 #   trade7k  bench trade on the packed scene at full size: ADC vs ADC+LPM, 7k of the 30k
@@ -188,6 +189,13 @@ for s in "$@"; do
             for v in 4 8; do
                 step "fps-digits$v-$r" 100 "$bin" bench fps --sort-digits "$v" \
                     --gaussians 100000,1000000,3000000 --json "$res/fps-digits$v-$r.json"
+            done
+        done
+        for r in 1 2; do
+            for v in 4 8; do
+                step "digits-demo$v-$r" 60 "$bin" --sort-digits "$v" train \
+                    tests/data/lund_door_small -r 2 --iterations 2000 --timestamps \
+                    -o "$work/digits-demo$v-$r"
             done
         done
         [ -n "$scene" ] && alternate sortdigits --sort-digits "${ITERATIONS:-3000}" 4 8
