@@ -149,6 +149,14 @@ fn oversized_buffers_and_unknown_devices_are_clear_errors() {
     .err()
     .expect("must refuse");
     assert!(err.to_string().contains("no such device"), "{err}");
+    // The sorts take 4- or 8-bit digits; any other width is refused with the fix.
+    let err = GpuContext::new(&GpuOptions {
+        sort_digit_bits: Some(5),
+        ..GpuOptions::for_tests()
+    })
+    .err()
+    .expect("must refuse");
+    assert!(err.to_string().contains("pass 4 or 8"), "{err}");
     ctx.check_validation().unwrap();
 }
 

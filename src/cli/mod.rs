@@ -41,7 +41,8 @@ pub struct Cli {
     pub memory_limit: Option<u64>,
     /// The radix sorts' digit width: 4 (4-bit passes, 5-bit where that saves one: 7 passes for
     /// depths, 3 for tile ids) or 8 (passes ranked by subgroup ballots: 4 and 2). Default: 4;
-    /// 8 is for timing on GPUs (docs/gpu.md) and is refused where shared memory is too small.
+    /// 8 is for timing on GPUs (`scripts/device/run.sh sortdigits`), slower on lavapipe, and
+    /// refused where shared memory is too small.
     #[arg(long, global = true, value_name = "BITS", value_parser = ["4", "8"])]
     pub sort_digits: Option<String>,
     #[command(subcommand)]
