@@ -1,0 +1,642 @@
+//! `train`'s command line: the flags, their checks, and the training configuration they make.
+
+use crate::cli::image_cache_args::ImageCacheArgs;
+use crate::cli::lpips_scores::LpipsArgs;
+use crate::cli::render::parse_rgb;
+use crate::cli::world_culls_arg::N3dvCulls;
+use crate::cli::SceneArgs;
+use clap::Args;
+use lpmsplat::lpm::pairing::RegionKeypoints;
+use lpmsplat::lpm::strategy::{LpmConfig, PruneMode};
+use lpmsplat::lpm::{ConeRadius, NeighbourChoice, ZoneGeometry};
+use lpmsplat::models::BaseModel;
+use lpmsplat::scene::Scene;
+use lpmsplat::train::config::ChildTime;
+use lpmsplat::train::loss::LossLayout;
+use lpmsplat::train::passes::surfels::SurfelTraining;
+use lpmsplat::train::trainer::{Background, TrainConfig};
+use std::path::PathBuf;
+
+#[derive(Args, Debug)]
+pub struct TrainArgs {
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    #[command(flatten)]
+    pub images: ImageCacheArgs,
+    /// Output folder (created; existing files in it are replaced atomically).
+    #[arg(long, short = 'o')]
+    pub out: PathBuf,
+    #[arg(long, default_value_t = 30_000)]
+    pub iterations: u32,
+    /// Base model: 3dgs, pixel-gs (Pixel-GS's pixel-weighted densification statistic),
+    /// mip-splatting (3D smoothing and 2D Mip filters; the PLY has the 3D filter fused in,
+    /// evaluate it with `eval --model mip-splatting`), 2dgs (surfels with the normal and
+    /// distortion regularisers; see --lambda-normal, --lambda-dist, --depth-ratio),
+    /// spacetime-lite (SpacetimeGaussians on a video scene: motion, rotation and opacity in
+    /// time, RGB colour) or spacetime-full (the same with 9 feature channels and the per-pixel
+    /// decoder, whose weights go to OUT/decoder.json). Combines with --lpm.
+    #[arg(long, default_value = "3dgs", value_parser = BaseModel::parse)]
+    pub model: BaseModel,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Highest SH degree (0–3).
+    #[arg(long, default_value_t = 3)]
+    pub sh_degree: u32,
+    /// Background: black, white, random, or r,g,b. Default: white for NeRF-synthetic, else black.
+    #[arg(long)]
+    pub background: Option<String>,
+    /// Start from this PLY instead of the SfM points / random points.
+    #[arg(long)]
+    pub init_ply: Option<PathBuf>,
+    /// Initial points for scenes without SfM points (the reference uses 100k random ones).
+    #[arg(long, default_value_t = 100_000)]
+    pub init_points: usize,
+    /// Where the initial points of a scene without SfM points come from: `triangulate` (feature
+    /// matches between neighbour views triangulated with the known poses, a video scene's at
+    /// 10 frames over the segment with each point centred at its frame's time, topped up with
+    /// random points to --init-points, as SpacetimeGaussians starts from triangulated points),
+    /// `random` (a box in front of the cameras, as the NeRF-synthetic reference does) or `auto`
+    /// (triangulate video scenes, random points for still ones).
+    #[arg(long, value_enum, default_value_t = InitSource::Auto)]
+    pub init: InitSource,
+    /// Evaluate on the test views every N iterations (0 = only at the end).
+    #[arg(long, default_value_t = 0)]
+    pub eval_every: u32,
+    /// LPIPS in the evaluations (see `eval --lpips-weights`).
+    #[command(flatten)]
+    pub lpips: LpipsArgs,
+    /// Collect per-stage GPU timestamps and report their shares.
+    #[arg(long)]
+    pub timestamps: bool,
+    /// Pixels per invocation of the tile rasterizers, forward and backward (default: 1 on GPUs;
+    /// on CPU drivers 8, and 16 for the 2DGS backward). A tuning knob for comparing layouts with
+    /// --timestamps: 1, 2, 4 or 8 (2DGS also 16) where the device's subgroups allow it (the
+    /// refusal names this device's choices).
+    #[arg(long, value_name = "N")]
+    pub raster_pixels: Option<u32>,
+    /// The loss kernels' layout: segments (the default: row and column segments in registers,
+    /// which suits CPU drivers) or tiles (16×16 blocks in shared memory, one pixel an
+    /// invocation, built for GPUs and not yet timed on one). A tuning knob for --timestamps.
+    #[arg(long, value_name = "LAYOUT", value_parser = LossLayout::parse)]
+    pub loss_layout: Option<LossLayout>,
+    /// Record each iteration's command buffer while the previous iteration runs on the GPU
+    /// (on, the default), wherever the previous one leaves the host nothing to do; off records
+    /// every iteration between two (the GPU waits for the host's recording). The results are
+    /// the same; a knob for timing the two side by side.
+    #[arg(long, value_enum, default_value_t = RecordAhead::On)]
+    pub record_ahead: RecordAhead,
+    /// Write OUT/checkpoint.bin every N iterations (0 = only at the end and on Ctrl-C).
+    #[arg(long, default_value_t = 0)]
+    pub checkpoint_every: u32,
+    /// Continue the run saved in this checkpoint (same scene and flags; --iterations may grow).
+    #[arg(long)]
+    pub resume: Option<PathBuf>,
+    /// Stop at the first NaN or inf in the parameters, naming the iteration, the parameter
+    /// group and the Gaussian; checks every N iterations (N = 1 when given without a value).
+    #[arg(long, num_args = 0..=1, default_missing_value = "1")]
+    pub nan_check: Option<u32>,
+    // Learning rates and density control (reference defaults).
+    #[arg(long, default_value_t = 1.6e-4)]
+    pub lr_position: f64,
+    #[arg(long, default_value_t = 1.6e-6)]
+    pub lr_position_final: f64,
+    #[arg(long, default_value_t = 30_000)]
+    pub lr_position_max_steps: u32,
+    #[arg(long, default_value_t = 2.5e-3)]
+    pub lr_sh_dc: f64,
+    #[arg(long, default_value_t = 2.5e-3 / 20.0)]
+    pub lr_sh_rest: f64,
+    #[arg(long, default_value_t = 0.05)]
+    pub lr_opacity: f64,
+    #[arg(long, default_value_t = 5e-3)]
+    pub lr_scaling: f64,
+    #[arg(long, default_value_t = 1e-3)]
+    pub lr_rotation: f64,
+    #[arg(long, default_value_t = 0.2)]
+    pub ssim_weight: f32,
+    #[arg(long, default_value_t = 2e-4)]
+    pub densify_grad_threshold: f32,
+    #[arg(long, default_value_t = 500)]
+    pub densify_from: u32,
+    /// Densification stops here (default the model's official value: 15000, 9000 for the
+    /// spacetime models).
+    #[arg(long)]
+    pub densify_until: Option<u32>,
+    #[arg(long, default_value_t = 100)]
+    pub densify_interval: u32,
+    #[arg(long, default_value_t = 3000)]
+    pub opacity_reset_interval: u32,
+    #[arg(long, default_value_t = 0.01)]
+    pub percent_dense: f64,
+    /// Prune Gaussians below this opacity. Default: 0.005, or 0.05 for 2dgs (official).
+    #[arg(long)]
+    pub min_opacity: Option<f64>,
+    /// 2dgs: weight of the normal-consistency regulariser (official 0.05), active after
+    /// --normal-from (7000).
+    #[arg(long)]
+    pub lambda_normal: Option<f32>,
+    #[arg(long)]
+    pub normal_from: Option<u32>,
+    /// 2dgs: weight of the depth-distortion regulariser (official code 0; its DTU script
+    /// 1000), active after --dist-from (3000).
+    #[arg(long)]
+    pub lambda_dist: Option<f32>,
+    #[arg(long)]
+    pub dist_from: Option<u32>,
+    /// 2dgs: the surface depth the normal regulariser differentiates: 0 the expected depth
+    /// (official default), 1 the median depth (official DTU and TnT scripts).
+    #[arg(long)]
+    pub depth_ratio: Option<f32>,
+    /// Prune Gaussians whose screen radius exceeds this many pixels (off by default, as the
+    /// reference's test never fires).
+    #[arg(long)]
+    pub screen_size_limit: Option<f32>,
+    /// Also densify by Gaussian Opacity Fields' absolute-gradient test, as Mip-Splatting's
+    /// official code does: a Gaussian whose averaged Σ|per-pixel mean gradient| reaches the
+    /// quantile that selects as many Gaussians as the usual test is densified too (off: the
+    /// papers' rule). 3dgs, mip-splatting and the spacetime models.
+    #[arg(long)]
+    pub densify_abs_grad: bool,
+    /// At most N Gaussians: a density step that would end with more keeps the clones and splits
+    /// whose statistic is furthest over their own threshold (LPM's lowered one inside its
+    /// zones), as many as fit; LPM's and the models' point additions stop at the cap too.
+    /// Default: no cap
+    #[arg(long, value_name = "N", value_parser = parse_max_gaussians)]
+    pub max_gaussians: Option<usize>,
+    /// spacetime-lite, spacetime-full: the temporal centre of clones and split children: random (uniform over
+    /// the segment, the official rule) or parent.
+    #[arg(long, value_parser = ChildTime::parse)]
+    pub child_time: Option<ChildTime>,
+    /// Only the first N densify steps clone and split (without pruning); the later ones only
+    /// prune (SpacetimeGaussians' official rule: 6).
+    #[arg(long)]
+    pub growth_rounds: Option<u32>,
+    /// spacetime-lite, spacetime-full: the official guided error sampling (on) or off.
+    #[arg(long, value_parser = ["on", "off"])]
+    pub guided_sampling: Option<String>,
+    /// spacetime-lite, spacetime-full: the iteration guided sampling starts recording the cameras' SSIM
+    /// (official 1600).
+    #[arg(long)]
+    pub guided_from: Option<u32>,
+    /// spacetime-*: the iteration of the official angular-velocity / rotation split (8001:
+    /// Gaussians that move, are mid-sized and opaque keep an angular velocity and stop learning
+    /// rotation; the others lose it and keep learning rotation), or `off`.
+    #[arg(long)]
+    pub omega_freeze: Option<String>,
+    /// spacetime-*: SpacetimeGaussians' Neural 3D Video culls by world position (remove
+    /// Gaussians with world z < 4.5 before training; `official` also after densification, at
+    /// …500 of every 1000 iterations, and outside the initial points' bounding box 1000
+    /// iterations after it ends). `auto`: as the official config of the scene (the six N3DV
+    /// scenes by folder name), off elsewhere.
+    #[arg(long, value_enum, default_value_t = N3dvCulls::Auto)]
+    pub n3dv_culls: N3dvCulls,
+    /// Views per optimizer step, their gradients averaged: the scheduled view and others of its
+    /// time (another camera of the same frame in a video). Default 2 for the spacetime models (the
+    /// official batch), 1 otherwise.
+    #[arg(long)]
+    pub batch_views: Option<u32>,
+    #[command(flatten)]
+    pub lpm: Box<LpmArgs>,
+}
+
+/// Localized Point Management (LPM.md), fused into the density steps.
+#[derive(Args, Debug, Clone)]
+pub struct LpmArgs {
+    /// Turn LPM on (ADC always runs).
+    #[arg(long)]
+    pub lpm: bool,
+    /// Ablation: no point addition in sparse zones.
+    #[arg(long)]
+    pub lpm_no_add: bool,
+    /// Ablation: no opacity reset of the Gaussians in front of zones.
+    #[arg(long)]
+    pub lpm_no_reset: bool,
+    /// LPM runs every N iterations (a multiple of --densify-interval: it is fused with it).
+    #[arg(long, default_value_t = 100)]
+    pub lpm_interval: u32,
+    /// LPM window: from < iteration < until.
+    #[arg(long, default_value_t = 500)]
+    pub lpm_from: u32,
+    #[arg(long, default_value_t = 15_000)]
+    pub lpm_until: u32,
+    /// Gradient-threshold multiplier inside zones.
+    #[arg(long, default_value_t = 0.5)]
+    pub lpm_threshold_ratio: f32,
+    /// Error pixels: above this quantile of the error map.
+    #[arg(long, default_value_t = 0.4)]
+    pub lpm_error_quantile: f32,
+    /// Error regions are built from square blocks of this many pixels a side. 0 (default):
+    /// follow the image size, 16 px at one megapixel (the paper's block at its resolution)
+    /// scaled with the image diagonal, at least 4 px. At low resolution a 16-pixel block is a
+    /// large part of the image and error rarely fills one.
+    #[arg(long, default_value_t = 0)]
+    pub lpm_block: u32,
+    /// A block is kept when more than this fraction of its pixels are error pixels.
+    #[arg(long, default_value_t = 0.85)]
+    pub lpm_block_fraction: f32,
+    /// Which rules LPM follows: `ours` (local triangulated zones, the paper's point addition,
+    /// the authors' pruning, ADC on every density step) or `authors` (the authors' code
+    /// exactly: box zones, the in-front cone and the reset set on a ball of the box's smallest
+    /// half-extent, the top 70 % reset, pruning OR-ed into ADC's mask, no point addition, no
+    /// ADC on steps without a zone). The flags below override single rules.
+    #[arg(long, default_value = "ours", value_parser = ["ours", "authors"])]
+    pub lpm_rules: String,
+    /// Opacity reset: in-front Gaussians at or above this quantile of the opacities inside zones
+    /// (0.3 = the top 70 %, the authors' k = int(0.7 n); default 0.3 under both rules).
+    #[arg(long)]
+    pub lpm_reset_quantile: Option<f64>,
+    /// LPM's opacity reset runs every N iterations inside its window, also where the density
+    /// step does not (the authors' reset_interval: 100; 200 suggested indoors).
+    #[arg(long, default_value_t = 100)]
+    pub lpm_reset_interval: u32,
+    /// Density-aware pruning: authors (the k-th smallest opacity after densification OR-ed
+    /// into ADC's mask), additive (exactly k more of the faintest untouched Gaussians), off.
+    #[arg(long, value_parser = ["authors", "additive", "off"])]
+    pub lpm_prune: Option<String>,
+    /// Skip ADC on density steps where LPM finds no zone (true under `--lpm-rules authors`).
+    #[arg(long)]
+    pub lpm_skip_adc: Option<bool>,
+    /// Largest optical-axis angle between neighbour views, degrees (90 suggested indoors).
+    #[arg(long, default_value_t = 45.0)]
+    pub lpm_neighbour_angle: f64,
+    /// Which views within the angle become a view's neighbours: random (default; the paper and
+    /// the authors' code: three at random) or overlap (those sharing the most SfM tracks with
+    /// it, else the nearest camera centres).
+    #[arg(long, value_parser = ["overlap", "random"])]
+    pub lpm_neighbours: Option<String>,
+    /// Which matched keypoints speak for an error region: box (default; the paper and the
+    /// authors' code: all inside its bounding box, which also covers what lies between its
+    /// blocks) or error-blocks (only those on the region's own error blocks).
+    #[arg(long, value_parser = ["error-blocks", "box"])]
+    pub lpm_region_keypoints: Option<String>,
+    /// Zone geometry: triangulated (ours: the enclosing sphere of the triangulated matches),
+    /// slab (the view's cone through the region, cut to the distances the triangulated matches
+    /// span: only what is drawn over the region), sphere (the paper: the cone intersection's
+    /// enclosing sphere), ray-pairs, authors-box.
+    #[arg(long, value_parser = ["triangulated", "slab", "sphere", "ray-pairs", "authors-box"])]
+    pub lpm_zone: Option<String>,
+    /// The cone whose Gaussians count as in front of a zone (the opacity reset's candidates):
+    /// region (default under ours: the view's cone through its error region, capped at the
+    /// bounding sphere), bounding (the cone to the zone's bounding sphere, LPM.md step 7), or
+    /// smallest-half-extent (the authors': a ball of the box's smallest half-extent).
+    #[arg(long, value_parser = ["bounding", "smallest-half-extent", "region"])]
+    pub lpm_cone: Option<String>,
+    /// Drop zones whose radius exceeds this many scene extents (default: keep every zone). A
+    /// region spanning near and far surfaces can triangulate to a zone wider than the scene,
+    /// which then lowers the threshold and resets opacities over most of the model.
+    #[arg(long, value_name = "EXTENTS")]
+    pub lpm_max_zone_radius: Option<f64>,
+    /// Dump PNGs of every LPM step (error map, kept blocks, paired regions, zones) here.
+    #[arg(long)]
+    pub lpm_debug: Option<PathBuf>,
+}
+
+impl LpmArgs {
+    /// The LPM configuration, or `None` without `--lpm`.
+    pub fn config(&self, densify_interval: u32, seed: u64) -> anyhow::Result<Option<LpmConfig>> {
+        if !self.lpm {
+            return Ok(None);
+        }
+        anyhow::ensure!(
+            self.lpm_interval > 0
+                && densify_interval > 0
+                && self.lpm_interval.is_multiple_of(densify_interval),
+            "--lpm-interval {} must be a positive multiple of --densify-interval {} (LPM runs \
+             inside the density step)",
+            self.lpm_interval,
+            densify_interval
+        );
+        anyhow::ensure!(
+            self.lpm_neighbour_angle > 0.0 && self.lpm_neighbour_angle <= 180.0,
+            "--lpm-neighbour-angle {}: must be in (0, 180] degrees",
+            self.lpm_neighbour_angle
+        );
+        let mut c = match self.lpm_rules.as_str() {
+            "authors" => LpmConfig::authors(),
+            _ => LpmConfig::default(),
+        };
+        c.interval = self.lpm_interval;
+        c.from = self.lpm_from;
+        c.until = self.lpm_until;
+        c.threshold_ratio = self.lpm_threshold_ratio;
+        c.add_points &= !self.lpm_no_add;
+        c.reset = !self.lpm_no_reset;
+        c.seed = seed;
+        c.debug_dir = self.lpm_debug.clone();
+        c.reset_interval = self.lpm_reset_interval;
+        c.regions.quantile = self.lpm_error_quantile;
+        c.regions.block = self.lpm_block;
+        c.regions.keep_fraction = self.lpm_block_fraction;
+        if let Some(q) = self.lpm_reset_quantile {
+            c.reset_settings.quantile = q;
+        }
+        if let Some(p) = &self.lpm_prune {
+            c.prune = PruneMode::parse(p)?;
+        }
+        if let Some(skip) = self.lpm_skip_adc {
+            c.skip_adc_without_zone = skip;
+        }
+        c.matching.neighbours.max_angle_deg = self.lpm_neighbour_angle;
+        c.matching.neighbours.seed = seed;
+        if let Some(k) = &self.lpm_region_keypoints {
+            c.region_keypoints = RegionKeypoints::parse(k)?;
+        }
+        if let Some(n) = &self.lpm_neighbours {
+            c.matching.neighbours.choice = NeighbourChoice::parse(n)?;
+        }
+        if let Some(z) = &self.lpm_zone {
+            c.zones.geometry = parse_zone(z)?;
+        }
+        if let Some(k) = &self.lpm_cone {
+            c.cone = ConeRadius::parse(k)?;
+        }
+        c.max_zone_radius = self.lpm_max_zone_radius;
+        c.validate()?;
+        Ok(Some(c))
+    }
+}
+
+/// A zone geometry by its command-line name.
+pub fn parse_zone(name: &str) -> anyhow::Result<ZoneGeometry> {
+    Ok(match name {
+        "triangulated" => ZoneGeometry::Triangulated,
+        "slab" => ZoneGeometry::Slab,
+        "sphere" => ZoneGeometry::Sphere,
+        "ray-pairs" => ZoneGeometry::SphereRayPairs,
+        "authors-box" => ZoneGeometry::AuthorsBox,
+        other => anyhow::bail!(
+            "LPM zone geometry {other:?} is unknown. Fix: choose triangulated, slab, sphere, \
+             ray-pairs or authors-box"
+        ),
+    })
+}
+
+pub fn background_from(arg: Option<&str>, scene: &Scene) -> anyhow::Result<Background> {
+    Ok(match arg {
+        None => Background::Fixed(scene.background.unwrap_or([0.0; 3])),
+        Some("black") => Background::Fixed([0.0; 3]),
+        Some("white") => Background::Fixed([1.0; 3]),
+        Some("random") => Background::Random,
+        Some(s) => Background::Fixed(
+            parse_rgb(s)
+                .map_err(|e| anyhow::anyhow!("--background {e}; or use black, white or random"))?,
+        ),
+    })
+}
+
+impl TrainArgs {
+    pub fn config(&self, scene: &Scene) -> anyhow::Result<TrainConfig> {
+        let densify_until = self
+            .densify_until
+            .unwrap_or(self.model.default_densify_until());
+        anyhow::ensure!(
+            self.sh_degree <= 3,
+            "--sh-degree {}: the engine supports 0..=3. Fix: pass 0, 1, 2 or 3",
+            self.sh_degree
+        );
+        anyhow::ensure!(
+            self.iterations > 0,
+            "--iterations 0: nothing to train. Fix: pass at least 1"
+        );
+        anyhow::ensure!(
+            self.densify_from <= densify_until,
+            "--densify-from {} is after --densify-until {}. Fix: make from ≤ until",
+            self.densify_from,
+            densify_until
+        );
+        anyhow::ensure!(
+            (0.0..=1.0).contains(&self.ssim_weight),
+            "--ssim-weight {} must lie in [0, 1]",
+            self.ssim_weight
+        );
+        let mut c = TrainConfig {
+            iterations: self.iterations,
+            seed: self.seed,
+            sh_degree: self.sh_degree,
+            background: background_from(self.background.as_deref(), scene)?,
+            ssim_weight: self.ssim_weight,
+            timestamps: self.timestamps,
+            raster_pixels: self.raster_pixels,
+            loss_layout: self.loss_layout,
+            ..TrainConfig::default()
+        };
+        c.lr.position_init = self.lr_position;
+        c.lr.position_final = self.lr_position_final;
+        c.lr.position_max_steps = self.lr_position_max_steps;
+        c.lr.sh_dc = self.lr_sh_dc;
+        c.lr.sh_rest = self.lr_sh_rest;
+        c.lr.opacity = self.lr_opacity;
+        c.lr.scaling = self.lr_scaling;
+        c.lr.rotation = self.lr_rotation;
+        c.density.grad_threshold = self.densify_grad_threshold;
+        c.density.percent_dense = self.percent_dense;
+        c.density.min_opacity = self.min_opacity.unwrap_or(self.model.default_min_opacity());
+        c.density.screen_size_limit = self.screen_size_limit;
+        c.schedule.densify_from = self.densify_from;
+        c.schedule.densify_until = densify_until;
+        c.schedule.interval = self.densify_interval;
+        c.schedule.opacity_reset_interval = self.opacity_reset_interval;
+        c.schedule.growth_rounds = self.growth_rounds;
+        c.schedule.white_background = c.background == Background::Fixed([1.0; 3]);
+        if self.model == BaseModel::Surfels2d {
+            let mut t = SurfelTraining::default();
+            t.normal_weight = self.lambda_normal.unwrap_or(t.normal_weight);
+            t.normal_from = self.normal_from.unwrap_or(t.normal_from);
+            t.distortion_weight = self.lambda_dist.unwrap_or(t.distortion_weight);
+            t.distortion_from = self.dist_from.unwrap_or(t.distortion_from);
+            t.depth_ratio = self.depth_ratio.unwrap_or(t.depth_ratio);
+            anyhow::ensure!(
+                t.normal_weight >= 0.0 && t.distortion_weight >= 0.0,
+                "--lambda-normal {} and --lambda-dist {} must be ≥ 0",
+                t.normal_weight,
+                t.distortion_weight
+            );
+            anyhow::ensure!(
+                (0.0..=1.0).contains(&t.depth_ratio),
+                "--depth-ratio {} must lie in [0, 1] (0: expected depth, 1: median depth)",
+                t.depth_ratio
+            );
+            c.surfels = Some(t);
+        } else {
+            for (flag, given) in [
+                ("--lambda-normal", self.lambda_normal.is_some()),
+                ("--normal-from", self.normal_from.is_some()),
+                ("--lambda-dist", self.lambda_dist.is_some()),
+                ("--dist-from", self.dist_from.is_some()),
+                ("--depth-ratio", self.depth_ratio.is_some()),
+            ] {
+                anyhow::ensure!(
+                    !given,
+                    "{flag} applies to --model 2dgs only (this run trains {}). Fix: drop the \
+                     flag or pass --model 2dgs",
+                    self.model.name()
+                );
+            }
+        }
+        self.model.configure(&mut c);
+        match (c.spacetime.as_mut(), self.child_time) {
+            (Some(st), Some(ct)) => st.child_time = ct,
+            (None, Some(_)) => anyhow::bail!(
+                "--child-time applies to --model spacetime-lite or spacetime-full only (this run trains {}). Fix: \
+                 drop the flag",
+                self.model.name()
+            ),
+            _ => {}
+        }
+        if self.guided_sampling.is_some() || self.guided_from.is_some() {
+            let Some(st) = c.spacetime.as_mut() else {
+                anyhow::bail!(
+                    "--guided-sampling and --guided-from apply to --model spacetime-full or spacetime-lite only \
+                     (this run trains {}). Fix: drop the flag",
+                    self.model.name()
+                );
+            };
+            if self.guided_sampling.as_deref() == Some("off") {
+                anyhow::ensure!(
+                    self.guided_from.is_none(),
+                    "--guided-from with --guided-sampling off: nothing would sample. Fix: drop \
+                     one of them"
+                );
+                st.guided = None;
+            } else if let (Some(g), Some(from)) = (st.guided.as_mut(), self.guided_from) {
+                g.from = from;
+            }
+        }
+        c.density.max_gaussians = self.max_gaussians;
+        if self.densify_abs_grad {
+            anyhow::ensure!(
+                matches!(
+                    c.density.statistic,
+                    lpmsplat::train::density::Statistic::Gradient
+                ) && c.surfels.is_none(),
+                "--densify-abs-grad applies to the models densified by the mean gradient: 3dgs, \
+                 mip-splatting, spacetime-lite, spacetime-full (this run trains {}, whose \
+                 statistic it would not combine with). Fix: drop the flag",
+                self.model.name()
+            );
+            c.density.abs_grad = true;
+        }
+        if let Some(v) = &self.omega_freeze {
+            let Some(st) = c.spacetime.as_mut() else {
+                anyhow::bail!(
+                    "--omega-freeze applies to the spacetime models only (this run trains {}). \
+                     Fix: drop the flag",
+                    self.model.name()
+                );
+            };
+            st.omega_freeze = match v.as_str() {
+                "off" => None,
+                n => {
+                    let from: u32 = n.parse().map_err(|_| {
+                        anyhow::anyhow!(
+                            "--omega-freeze {n:?} is not an iteration. Fix: give one (official 8001) or off"
+                        )
+                    })?;
+                    Some(lpmsplat::train::config::OmegaFreeze {
+                        from,
+                        ..st.omega_freeze.unwrap_or_default()
+                    })
+                }
+            };
+        }
+        crate::cli::world_culls_arg::apply(self.n3dv_culls, &scene.root, self.model, &mut c, 1000)?;
+        if let Some(b) = self.batch_views {
+            anyhow::ensure!(
+                (1..=16).contains(&b),
+                "--batch-views {b}: choose 1 to 16 views per step"
+            );
+            c.batch_views = b;
+        }
+        Ok(c)
+    }
+}
+
+/// Whether an iteration is recorded while the one before runs (`--record-ahead`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum RecordAhead {
+    On,
+    Off,
+}
+
+impl RecordAhead {
+    pub fn name(self) -> &'static str {
+        match self {
+            RecordAhead::On => "on",
+            RecordAhead::Off => "off",
+        }
+    }
+}
+
+/// Where a scene without SfM points gets its initial points (`--init`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum InitSource {
+    /// Triangulate video scenes, random points for still ones.
+    Auto,
+    Random,
+    Triangulate,
+}
+
+impl InitSource {
+    /// Whether `scene`'s initial points are triangulated (when it has no SfM points).
+    pub fn triangulates(self, scene: &Scene) -> bool {
+        match self {
+            InitSource::Triangulate => true,
+            InitSource::Random => false,
+            InitSource::Auto => scene.view_times.is_some(),
+        }
+    }
+}
+
+/// Flag combinations that cannot work, caught before anything is loaded.
+pub(super) fn check_flags(args: &TrainArgs) -> anyhow::Result<()> {
+    if let Some(r) = &args.resume {
+        anyhow::ensure!(
+            args.init_ply.is_none(),
+            "--resume {} with --init-ply: a resumed run continues from the checkpoint's \
+             Gaussians. Fix: drop --init-ply (or drop --resume to start fresh from the PLY)",
+            r.display()
+        );
+        anyhow::ensure!(
+            r.is_file(),
+            "{}: --resume: no such checkpoint file. Fix: pass the checkpoint.bin a previous run \
+             wrote into its output folder",
+            r.display()
+        );
+    }
+    anyhow::ensure!(
+        args.nan_check != Some(0),
+        "--nan-check 0: the check interval must be at least 1. Fix: pass --nan-check or \
+         --nan-check N with N ≥ 1"
+    );
+    Ok(())
+}
+
+/// `--max-gaussians N`: a positive count.
+pub fn parse_max_gaussians(s: &str) -> Result<usize, String> {
+    match s.trim().parse::<usize>() {
+        Ok(n) if n > 0 => Ok(n),
+        _ => Err(format!(
+            "'{s}' is not a Gaussian count. Fix: give a positive whole number, e.g. 500000"
+        )),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_zone_geometry_has_its_command_line_name() {
+        for (name, g) in [
+            ("triangulated", ZoneGeometry::Triangulated),
+            ("slab", ZoneGeometry::Slab),
+            ("sphere", ZoneGeometry::Sphere),
+            ("ray-pairs", ZoneGeometry::SphereRayPairs),
+            ("authors-box", ZoneGeometry::AuthorsBox),
+        ] {
+            assert_eq!(parse_zone(name).unwrap(), g);
+        }
+        let e = parse_zone("cone").unwrap_err().to_string();
+        assert!(e.contains("\"cone\"") && e.contains("slab"), "{e}");
+    }
+}

@@ -1,0 +1,235 @@
+//! `train`: fits Gaussians to a scene's training views on the GPU and writes the output folder:
+//! `point_cloud.ply` (Inria layout), `renders/test/*.png`, `metrics.json`, `config.json`.
+//! The flags are in `args`, what comes before the first iteration in `setup`, the record kept
+//! while training in `progress`, and what a finished run writes in `outputs`.
+
+mod args;
+mod outputs;
+mod progress;
+mod setup;
+
+pub use args::{background_from, parse_max_gaussians, InitSource, TrainArgs};
+pub use outputs::mean_metrics;
+pub use setup::{build_lpm, initial_model, prepare_output};
+
+use super::lpips_scores;
+use args::{check_flags, RecordAhead};
+use lpmsplat::gpu::{GpuContext, GpuOptions};
+use lpmsplat::scene::image_source::ViewImages;
+use lpmsplat::scene::Scene;
+use lpmsplat::splats::write_ply;
+use lpmsplat::train::nan_check::NonFiniteCheck;
+use lpmsplat::train::trainer::Trainer;
+use outputs::Finished;
+use progress::TrainingLog;
+use setup::{resume_hint, save_after_oom};
+use std::time::Instant;
+
+pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
+    check_flags(args)?;
+    let scene = Scene::load(&args.scene.scene, &args.scene.load_options()?)?;
+    let config = args.config(&scene)?;
+    let lpm_config = args.lpm.config(args.densify_interval, args.seed)?;
+    let lpips = args.lpips.load()?;
+    prepare_output(&args.out)?;
+    let checkpoint_path = args.out.join("checkpoint.bin");
+    let t_load = Instant::now();
+    let train_images = args.images.train_images(&scene)?;
+    let test_images = ViewImages::new(&scene, &scene.test)?;
+    let resumed = match &args.resume {
+        Some(p) => Some(lpmsplat::train::checkpoint::Checkpoint::read(p)?),
+        None => None,
+    };
+    if let (Some(ck), Some(p)) = (&resumed, &args.resume) {
+        anyhow::ensure!(
+            ck.iteration < config.iterations,
+            "{}: iteration: the checkpoint is already at iteration {}, and --iterations is {}. \
+             Fix: pass --iterations above {} to train further",
+            p.display(),
+            ck.iteration,
+            config.iterations,
+            ck.iteration
+        );
+    }
+    let init = match &resumed {
+        Some(ck) => ck.params(),
+        None => initial_model(
+            args.model,
+            &scene,
+            args.init_ply.as_deref(),
+            args.init,
+            args.init_points,
+            args.seed,
+            config.sh_degree,
+        )?,
+    };
+    let ctx = GpuContext::new(gpu)?;
+    // From here on Ctrl-C is polled after each iteration (and saves a checkpoint).
+    super::interrupt::install();
+    eprintln!(
+        "{}: {} training / {} test views at {}×{}, {} initial Gaussians, {} on {}",
+        args.scene.scene.display(),
+        scene.train.len(),
+        scene.test.len(),
+        scene.views[scene.train[0]].camera.width,
+        scene.views[scene.train[0]].camera.height,
+        init.len(),
+        config.background.describe(),
+        ctx.info.name
+    );
+    let trainer = match (&resumed, &args.resume) {
+        (Some(ck), Some(p)) => {
+            Trainer::restore(&ctx, &scene, train_images.clone(), config.clone(), ck, p)
+                .inspect(|t| eprintln!("resuming {} at iteration {}", p.display(), t.iteration))
+        }
+        _ => Trainer::new(&ctx, &scene, train_images.clone(), &init, config.clone()),
+    };
+    let mut trainer = trainer.map_err(|e| match lpmsplat::gpu::out_of_memory(&e) {
+        Some(oom) => anyhow::anyhow!(
+            "setting up the training: {oom}. Fix: a device with more memory or a higher \
+             --memory-limit, or less to hold: a coarser -r, fewer initial Gaussians \
+             (--init-points), --image-cache MIB to stream the training images"
+        ),
+        None => e,
+    })?;
+    let resumed_at = resumed.as_ref().map(|ck| (ck.iteration, init.len()));
+    drop(resumed);
+    let mut nan_check = match args.nan_check {
+        Some(_) => Some(NonFiniteCheck::new(&ctx)?),
+        None => None,
+    };
+    if let Some(c) = lpm_config.clone() {
+        trainer.set_strategy(Box::new(build_lpm(
+            &ctx,
+            &scene,
+            &train_images,
+            c,
+            &args.out,
+        )?));
+    }
+    if let Some(p) = &args.resume {
+        trainer.check_resumed_strategy(p)?;
+    }
+    let load_s = t_load.elapsed().as_secs_f64();
+    let cache = trainer.image_cache_stats();
+    eprintln!("training images: {}", cache.describe());
+    // Recording a step while the one before runs needs slots for both steps' images.
+    let per_step = config.batch_views.max(1) as usize;
+    if args.record_ahead == RecordAhead::On && !cache.resident && cache.slots < 2 * per_step {
+        let slot = cache.bytes as f64 / cache.slots.max(1) as f64;
+        let need = (2 * per_step) as f64 * slot / (1u64 << 20) as f64;
+        eprintln!(
+            "note: the image cache's {} slots hold fewer than two steps' {} images, so each \
+             iteration is recorded after the one before ends (slower on a GPU). Fix: \
+             --image-cache {:.2} or more",
+            cache.slots,
+            2 * per_step,
+            (need * 100.0).ceil() / 100.0
+        );
+    }
+    let start_iteration = trainer.iteration;
+    let mut log = TrainingLog::new(config.iterations, start_iteration);
+    for _ in start_iteration..config.iterations {
+        let next = trainer.iteration + 1;
+        if next == config.iterations || (args.eval_every > 0 && next % args.eval_every == 0) {
+            // Evaluate and export the model as it stands before this iteration's density
+            // control, as the reference does.
+            trainer.snapshot_next_step();
+        }
+        // Record the iteration after `next` while `next` runs, unless the host has work
+        // between them (an evaluation or checkpoint after `next`, a snapshot before the one
+        // after, the end).
+        let snapshot_after = |k: u32| {
+            k == config.iterations || (args.eval_every > 0 && k.is_multiple_of(args.eval_every))
+        };
+        let prepare = args.record_ahead == RecordAhead::On
+            && next < config.iterations
+            && !snapshot_after(next)
+            && !snapshot_after(next + 1)
+            && (args.checkpoint_every == 0 || !next.is_multiple_of(args.checkpoint_every));
+        let r = match trainer.step_ahead(prepare) {
+            Ok(r) => r,
+            Err(e) => {
+                log.abandon();
+                return Err(match lpmsplat::gpu::out_of_memory(&e) {
+                    Some(oom) => save_after_oom(&mut trainer, &scene, args, oom),
+                    None => e,
+                });
+            }
+        };
+        if let (Some(check), Some(every)) = (nan_check.as_mut(), args.nan_check) {
+            if r.iteration % every == 0 || r.iteration == config.iterations {
+                check.check(&trainer.state.params, r.iteration)?;
+            }
+        }
+        if super::interrupt::requested() {
+            log.abandon();
+            // The next iteration may be recorded already: run it, and save after it.
+            let r = match trainer.has_prepared() {
+                true => trainer.step()?,
+                false => r,
+            };
+            trainer.save_checkpoint(&scene, &checkpoint_path)?;
+            write_ply(&args.out.join("point_cloud.ply"), &trainer.export_model()?)?;
+            anyhow::bail!(
+                "interrupted (Ctrl-C) after iteration {}: wrote {} and {}. To continue: {}",
+                r.iteration,
+                checkpoint_path.display(),
+                args.out.join("point_cloud.ply").display(),
+                resume_hint(&checkpoint_path)
+            );
+        }
+        if args.checkpoint_every > 0
+            && r.iteration % args.checkpoint_every == 0
+            && r.iteration < config.iterations
+        {
+            log.paused(|| trainer.save_checkpoint(&scene, &checkpoint_path))?;
+        }
+        log.record(&r);
+        if args.eval_every > 0
+            && r.iteration % args.eval_every == 0
+            && r.iteration < config.iterations
+            && !scene.test.is_empty()
+        {
+            let gaussians = trainer.gaussians();
+            log.evaluation(r.iteration, gaussians, || {
+                let m = trainer.evaluate(&scene, &scene.test, &test_images, |_, m, r, gt| {
+                    lpips_scores::score_view(lpips.as_ref(), m, r, gt)
+                })?;
+                let lp = lpips_scores::mean(&m);
+                Ok((m, lp))
+            })?;
+        }
+    }
+    log.finish();
+    let train_s = log.elapsed_s();
+    let gaussians = outputs::export(&mut trainer, &scene, &args.out)?;
+    let per_view = outputs::evaluate_and_render(
+        &mut trainer,
+        &scene,
+        &test_images,
+        lpips.as_ref(),
+        &args.out,
+    )?;
+    let finished = Finished {
+        args,
+        config: &config,
+        scene: &scene,
+        ctx: &ctx,
+        trainer: &trainer,
+        log: &log,
+        lpm_config: lpm_config.as_ref(),
+        per_view: &per_view,
+        gaussians,
+        train_s,
+        load_s,
+        start_iteration,
+        resumed_at,
+        init_gaussians: init.len(),
+    };
+    finished.write()?;
+    finished.print_summary();
+    println!("wrote {}", args.out.display());
+    ctx.check_validation()?;
+    Ok(())
+}

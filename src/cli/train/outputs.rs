@@ -1,0 +1,350 @@
+//! What a finished training run writes and prints: the exported model, the test renders and
+//! their scores, training.png, metrics.json, config.json and the summary on stdout.
+
+use super::args::TrainArgs;
+use super::progress::TrainingLog;
+use crate::cli::lpips_scores;
+use crate::cli::train_plot::{write_training_plot, EvalPoint};
+use anyhow::Context;
+use lpmsplat::error::write_atomic;
+use lpmsplat::gpu::{GpuContext, StageTimes};
+use lpmsplat::lpips::Lpips;
+use lpmsplat::lpm::strategy::{LpmConfig, LpmStrategy};
+use lpmsplat::scene::image_source::ViewImages;
+use lpmsplat::scene::{images, Image, Scene};
+use lpmsplat::splats::{write_ply, write_splat};
+use lpmsplat::train::trainer::{TrainConfig, Trainer, ViewMetrics};
+use std::io::Write;
+use std::path::Path;
+
+/// Writes the model into `out`: point_cloud.ply, the model's own files beside it, a .splat for
+/// still models, and the checkpoint. Returns the model's Gaussian count.
+pub fn export(trainer: &mut Trainer, scene: &Scene, out: &Path) -> anyhow::Result<usize> {
+    let model = trainer.export_model()?;
+    write_ply(&out.join("point_cloud.ply"), &model)?;
+    for (ext, contents) in trainer.export_files()? {
+        let path = out.join("point_cloud.ply").with_extension(&ext);
+        std::fs::write(&path, contents).with_context(|| format!("writing {}", path.display()))?;
+    }
+    // A .splat holds still Gaussians: a video model's would show it at no time at all.
+    if model.extra.is_empty() {
+        write_splat(&out.join("point_cloud.splat"), &model)?;
+    }
+    trainer.save_checkpoint(scene, &out.join("checkpoint.bin"))?;
+    Ok(model.len())
+}
+
+/// The final evaluation: scores every test view and writes its render into
+/// `out/renders/test` as it is scored.
+pub fn evaluate_and_render(
+    trainer: &mut Trainer,
+    scene: &Scene,
+    test_images: &ViewImages,
+    lpips: Option<&Lpips>,
+    out: &Path,
+) -> anyhow::Result<Vec<ViewMetrics>> {
+    let render_dir = out.join("renders").join("test");
+    std::fs::create_dir_all(&render_dir)
+        .with_context(|| format!("creating {}", render_dir.display()))?;
+    trainer.evaluate(scene, &scene.test, test_images, |k, m, r, gt| {
+        lpips_scores::score_view(lpips, m, r, gt)?;
+        let img = Image {
+            width: gt.width,
+            height: gt.height,
+            rgb: r.to_vec(),
+            alpha: None,
+        };
+        let stem = &scene.views[scene.test[k]].stem;
+        images::save_png(&render_dir.join(format!("{stem}.png")), &img)
+    })
+}
+
+/// A finished run, as its outputs describe it.
+pub struct Finished<'a> {
+    pub args: &'a TrainArgs,
+    pub config: &'a TrainConfig,
+    pub scene: &'a Scene,
+    pub ctx: &'a GpuContext,
+    pub trainer: &'a Trainer,
+    pub log: &'a TrainingLog,
+    pub lpm_config: Option<&'a LpmConfig>,
+    /// The final evaluation's per-view scores.
+    pub per_view: &'a [ViewMetrics],
+    pub gaussians: usize,
+    /// Wall time of the iterations, intermediate evaluations and checkpoints included.
+    pub train_s: f64,
+    /// Loading the scene and setting up the trainer.
+    pub load_s: f64,
+    pub start_iteration: u32,
+    /// A resumed run's checkpoint (iteration, Gaussians).
+    pub resumed_at: Option<(u32, usize)>,
+    /// A fresh run's initial Gaussians.
+    pub init_gaussians: usize,
+}
+
+impl Finished<'_> {
+    /// Iterations this run trained (a resumed run's, not the checkpoint's).
+    fn trained(&self) -> u32 {
+        (self.config.iterations - self.start_iteration).max(1)
+    }
+
+    /// The training's own time: without intermediate evaluations and checkpoints.
+    fn unpaused_s(&self) -> f64 {
+        self.train_s - self.log.paused_s
+    }
+
+    fn psnr_ssim(&self) -> (f64, f64) {
+        mean_metrics(self.per_view)
+    }
+
+    /// training.png: test PSNR, Gaussians and loss against iterations and training time.
+    pub fn write_plot(&self) -> anyhow::Result<()> {
+        let mut points = self.log.eval_points.clone();
+        if !self.per_view.is_empty() {
+            points.push(EvalPoint {
+                iteration: self.config.iterations,
+                seconds: self.unpaused_s(),
+                psnr: self.psnr_ssim().0,
+                gaussians: self.gaussians,
+            });
+        }
+        let run_name = format!(
+            "{}{}",
+            self.args.model.name(),
+            if self.lpm_config.is_some() {
+                " + LPM"
+            } else {
+                ""
+            }
+        );
+        write_training_plot(
+            &self.args.out.join("training.png"),
+            &run_name,
+            &self.log.samples,
+            &points,
+        )
+    }
+
+    pub fn metrics_json(&self) -> serde_json::Value {
+        let (config, log, trainer, ctx) = (self.config, self.log, self.trainer, self.ctx);
+        let (psnr, ssim) = self.psnr_ssim();
+        let trained = self.trained() as f64;
+        serde_json::json!({
+            "scene": self.args.scene.scene.display().to_string(),
+            "iterations": config.iterations,
+            "gaussians": self.gaussians,
+            "test_views": self.scene.test.len(),
+            "psnr": psnr,
+            "ssim": ssim,
+            "lpips": lpips_scores::mean(self.per_view),
+            "per_view": self.per_view,
+            "evaluations": log.evals,
+            "history": log.samples,
+            "train_seconds": self.train_s,
+            "iterations_per_second": trained / self.train_s,
+            // Of train_seconds, the intermediate evaluations (--eval-every) and checkpoints
+            // (--checkpoint-every): the training's own rate is without them.
+            "paused_seconds": log.paused_s,
+            "iterations_per_second_unpaused": trained / self.unpaused_s().max(1e-9),
+            "resumed_from": self.start_iteration,
+            "setup_seconds": self.load_s,
+            "dropped_frames": trainer.dropped_frames,
+            // Iterations submitted, how many were recorded while the previous one ran
+            // (--record-ahead), and the host's recording time.
+            "recording": trainer.recording,
+            "image_cache": trainer.image_cache_stats(),
+            "model_events": log.model_events,
+            "device": ctx.info.name,
+            "gpu_memory_mib": ctx.memory_in_use().1 as f64 / (1u64 << 20) as f64,
+            "device_buffers_peak_mib": ctx.memory.peak() as f64 / (1u64 << 20) as f64,
+            // The rasterizers' pixels per invocation when --raster-pixels set them (null: the
+            // device's default).
+            "raster_pixels": config.raster_pixels,
+            // The loss kernels' layout when --loss-layout set it (null: the default, segments).
+            "loss_layout": config.loss_layout.map(|l| l.name()),
+            // The radix sorts' digit width when --sort-digits set it (null: the default, 4).
+            "sort_digits": ctx.sort_digit_bits,
+            "max_gaussians": config.density.max_gaussians.map(|cap| serde_json::json!({
+                "cap": cap, "dropped_additions": log.budget.0, "steps_at_cap": log.budget.1,
+            })),
+            "stages": if config.timestamps { stage_shares(&log.stages) } else { serde_json::Value::Null },
+            "lpm": trainer.strategy_as::<LpmStrategy>().map(|l| {
+                let mut j = lpm_summary(&l.totals, self.train_s, config.iterations);
+                j["per_step"] = l.steps.iter().map(|r| r.to_json()).collect();
+                j
+            }),
+        })
+    }
+
+    /// Every setting the run used, and where it started from.
+    pub fn config_json(&self) -> serde_json::Value {
+        let args = self.args;
+        let mut cfg = self.config.to_json();
+        cfg["scene"] = serde_json::json!(args.scene.scene.display().to_string());
+        cfg["resolution"] = serde_json::json!(args.scene.resolution);
+        cfg["model"] = serde_json::json!(args.model.name());
+        match (self.resumed_at, &args.resume) {
+            // The checkpoint's model is not the run's initialisation: say where the run resumed.
+            (Some((iteration, gaussians)), Some(p)) => {
+                cfg["resumed_from"] = serde_json::json!({
+                    "checkpoint": p.display().to_string(),
+                    "iteration": iteration,
+                    "gaussians": gaussians,
+                });
+            }
+            _ => {
+                cfg["init_points"] = serde_json::json!(self.init_gaussians);
+                cfg["init"] = serde_json::json!(format!("{:?}", args.init).to_lowercase());
+            }
+        }
+        cfg["lpm"] = self
+            .lpm_config
+            .map_or(serde_json::Value::Null, |c| c.to_json());
+        cfg
+    }
+
+    /// training.png, metrics.json and config.json.
+    pub fn write(&self) -> anyhow::Result<()> {
+        self.write_plot()?;
+        for (name, json) in [
+            ("metrics.json", self.metrics_json()),
+            ("config.json", self.config_json()),
+        ] {
+            let text = serde_json::to_string_pretty(&json)?;
+            write_atomic(&self.args.out.join(name), |f| {
+                Ok(f.write_all(text.as_bytes())?)
+            })?;
+        }
+        Ok(())
+    }
+
+    /// The summary on stdout: time, rate, count and scores; with --timestamps the stages'
+    /// shares and the host's recording; the budget's drops; LPM's totals.
+    pub fn print_summary(&self) {
+        let (config, trainer) = (self.config, self.trainer);
+        let trained = self.trained() as f64;
+        let (psnr, ssim) = self.psnr_ssim();
+        let paused_s = self.log.paused_s;
+        // Intermediate evaluations and checkpoints are in the wall time; say what they took.
+        let unpaused = if paused_s > 0.0 {
+            format!(
+                "; {:.1} s and {:.2} it/s without {:.1} s of intermediate evaluations and checkpoints",
+                self.unpaused_s(),
+                trained / self.unpaused_s().max(1e-9),
+                paused_s
+            )
+        } else {
+            String::new()
+        };
+        println!(
+            "trained {} iterations in {:.1} s ({:.2} it/s{unpaused}): {} Gaussians, test PSNR {:.3} dB, SSIM {:.4}{}",
+            config.iterations,
+            self.train_s,
+            trained / self.train_s,
+            self.gaussians,
+            psnr,
+            ssim,
+            lpips_scores::mean(self.per_view).map_or(String::new(), |d| format!(", LPIPS {d:.4}"))
+        );
+        if config.timestamps {
+            let stages = &self.log.stages;
+            let total = stages.total_ms().max(1e-12);
+            for (n, ms) in &stages.stages {
+                println!(
+                    "  {n:<20} {:>6.1}%  ({:.2} ms/it)",
+                    100.0 * ms / total,
+                    ms / trained
+                );
+            }
+            println!(
+                "  the stages sum to {:.2} ms/it of {:.2} ms/it wall (the rest: host work, \
+                 submission, waits, evaluation and checkpoints)",
+                total / trained,
+                1e3 * self.train_s / trained
+            );
+            let r = trainer.recording;
+            println!(
+                "  host recording {:.3} ms/it; {} of {} iterations recorded while the one before ran \
+                 (--record-ahead {}); {} prepared ones dropped and recorded again",
+                1e3 * r.seconds / r.iterations.max(1) as f64,
+                r.ahead,
+                r.iterations,
+                self.args.record_ahead.name(),
+                r.dropped
+            );
+        }
+        if let Some(cap) = config.density.max_gaussians {
+            println!(
+                "  Gaussian budget {cap}: {} clones and splits dropped on {} density steps",
+                self.log.budget.0, self.log.budget.1
+            );
+        }
+        if let Some(l) = trainer.strategy_as::<LpmStrategy>() {
+            let t = &l.totals;
+            println!(
+                "  LPM: {} steps ({} with zones), {} error regions, {} paired, {} zones{}, {} \
+                 densified by the lowered threshold, {} extra prunes, {} opacity resets, {} added; \
+                 {:.2} s = {:.2} % of training ({:.3} ms/it); zone radius mean {:.3} / largest {:.3} \
+                 scene extents",
+                t.steps,
+                t.steps_with_zones,
+                t.regions,
+                t.paired,
+                t.zones,
+                if t.wide > 0 {
+                    format!(" (and {} wider than the largest radius, dropped)", t.wide)
+                } else {
+                    String::new()
+                },
+                t.lowered,
+                t.pruned,
+                t.reset,
+                t.added,
+                t.seconds,
+                100.0 * t.seconds / self.train_s.max(1e-12),
+                1e3 * t.seconds / config.iterations as f64,
+                t.radius_mean,
+                t.radius_max
+            );
+        }
+    }
+}
+
+fn stage_shares(t: &StageTimes) -> serde_json::Value {
+    let total = t.total_ms().max(1e-12);
+    serde_json::Value::Array(
+        t.stages
+            .iter()
+            .map(|(n, ms)| serde_json::json!({"stage": n, "ms_total": ms, "share": ms / total}))
+            .collect(),
+    )
+}
+
+pub fn mean_metrics(m: &[ViewMetrics]) -> (f64, f64) {
+    if m.is_empty() {
+        return (f64::NAN, f64::NAN);
+    }
+    let n = m.len() as f64;
+    (
+        m.iter().map(|v| v.psnr).sum::<f64>() / n,
+        m.iter().map(|v| v.ssim).sum::<f64>() / n,
+    )
+}
+
+/// LPM totals for `metrics.json`.
+pub fn lpm_summary(
+    t: &lpmsplat::lpm::strategy::LpmTotals,
+    train_seconds: f64,
+    iterations: u32,
+) -> serde_json::Value {
+    serde_json::json!({
+        "steps": t.steps, "steps_with_zones": t.steps_with_zones, "regions": t.regions,
+        "paired": t.paired, "zones": t.zones,
+        "lowered": t.lowered, "pruned_extra": t.pruned, "opacity_reset": t.reset,
+        "added": t.added, "inside": t.inside, "radius_mean_rel": t.radius_mean,
+        "radius_max_rel": t.radius_max, "wide_dropped": t.wide, "skipped_adc": t.skipped_adc,
+        "seconds": t.seconds,
+        "share_of_training": t.seconds / train_seconds.max(1e-12),
+        "ms_per_iteration": 1e3 * t.seconds / iterations.max(1) as f64,
+    })
+}
