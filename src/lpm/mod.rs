@@ -13,6 +13,7 @@
 //! (`crate::train::strategy`), wrapping ADC.
 
 pub mod cache;
+pub mod config;
 pub mod correspondences;
 mod debug_dump;
 pub mod enclosing_sphere;
@@ -24,6 +25,7 @@ pub mod neighbours;
 pub mod pairing;
 pub mod record;
 pub mod regions;
+pub mod report;
 pub mod strategy;
 pub mod zones;
 

@@ -9,7 +9,8 @@ use anyhow::Context;
 use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuContext, StageTimes};
 use lpmsplat::lpips::Lpips;
-use lpmsplat::lpm::strategy::{LpmConfig, LpmStrategy};
+use lpmsplat::lpm::config::LpmConfig;
+use lpmsplat::lpm::strategy::LpmStrategy;
 use lpmsplat::scene::image_source::ViewImages;
 use lpmsplat::scene::{images, Image, Scene};
 use lpmsplat::splats::{write_ply, write_splat};
@@ -333,7 +334,7 @@ pub fn mean_metrics(m: &[ViewMetrics]) -> (f64, f64) {
 
 /// LPM totals for `metrics.json`.
 pub fn lpm_summary(
-    t: &lpmsplat::lpm::strategy::LpmTotals,
+    t: &lpmsplat::lpm::report::LpmTotals,
     train_seconds: f64,
     iterations: u32,
 ) -> serde_json::Value {

@@ -1,0 +1,110 @@
+//! What LPM did: one step's report (metrics.json's per-step telemetry, `bench trade`) and the
+//! run's totals.
+
+use crate::train::strategy::StrategyEvent;
+
+/// What one LPM step did.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct LpmStepReport {
+    pub iteration: u32,
+    pub view: usize,
+    pub reference: Option<usize>,
+    pub regions: usize,
+    pub paired: usize,
+    pub zones: usize,
+    /// The error-region block side used at this step (pixels).
+    pub block: u32,
+    /// Zone radii relative to the scene extent (bounding radius / extent): mean and largest,
+    /// over the zones kept.
+    pub radius_mean: f64,
+    pub radius_max: f64,
+    /// Zones dropped as wider than `max_zone_radius` scene extents.
+    pub wide: usize,
+    /// Gaussian centres inside zones, summed over the zones (before densification).
+    pub inside: u64,
+    /// Gaussians densified only because of the lowered threshold.
+    pub lowered: u32,
+    /// Extra (density-aware) prunes: Gaussians removed by that rule that ADC kept.
+    pub pruned: u32,
+    /// Gaussians whose opacity LPM reset.
+    pub reset: u32,
+    pub added: u32,
+    /// ADC was skipped (no zone, `skip_adc_without_zone`).
+    pub skipped_adc: bool,
+    /// This step ran only the opacity reset (a reset iteration without LPM's density part).
+    pub reset_only: bool,
+    pub seconds: f64,
+}
+
+impl LpmStepReport {
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "iteration": self.iteration, "view": self.view, "reference": self.reference,
+            "regions": self.regions, "paired": self.paired, "zones": self.zones,
+            "block": self.block, "radius_mean_rel": self.radius_mean,
+            "radius_max_rel": self.radius_max, "wide_dropped": self.wide, "inside": self.inside,
+            "lowered": self.lowered, "pruned_extra": self.pruned, "opacity_reset": self.reset,
+            "added": self.added, "skipped_adc": self.skipped_adc, "reset_only": self.reset_only,
+            "seconds": self.seconds,
+        })
+    }
+}
+
+impl StrategyEvent for LpmStepReport {
+    fn to_json(&self) -> serde_json::Value {
+        LpmStepReport::to_json(self)
+    }
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+}
+
+/// Sums over the run.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct LpmTotals {
+    pub steps: u32,
+    pub steps_with_zones: u32,
+    /// Error regions found, and how many of them were paired with a region of the neighbour
+    /// view; each pair makes one zone (so `zones` ≤ `paired` ≤ `regions`).
+    pub regions: u64,
+    pub paired: u64,
+    pub zones: u64,
+    pub lowered: u64,
+    pub pruned: u64,
+    pub reset: u64,
+    pub added: u64,
+    /// Gaussian centres inside zones (summed over steps and zones).
+    pub inside: u64,
+    /// Mean over all zones of their radius relative to the scene extent.
+    pub radius_mean: f64,
+    pub radius_max: f64,
+    /// Zones dropped as wider than `max_zone_radius`.
+    pub wide: u64,
+    /// Density steps whose ADC was skipped (no zone).
+    pub skipped_adc: u32,
+    pub seconds: f64,
+}
+
+impl LpmTotals {
+    pub(crate) fn add(&mut self, r: &LpmStepReport) {
+        self.steps += 1;
+        self.steps_with_zones += (r.zones > 0) as u32;
+        if r.zones > 0 {
+            let before = self.zones as f64;
+            self.radius_mean = (self.radius_mean * before + r.radius_mean * r.zones as f64)
+                / (before + r.zones as f64);
+        }
+        self.radius_max = self.radius_max.max(r.radius_max);
+        self.inside += r.inside;
+        self.skipped_adc += r.skipped_adc as u32;
+        self.regions += r.regions as u64;
+        self.paired += r.paired as u64;
+        self.zones += r.zones as u64;
+        self.wide += r.wide as u64;
+        self.lowered += r.lowered as u64;
+        self.pruned += r.pruned as u64;
+        self.reset += r.reset as u64;
+        self.added += r.added as u64;
+        self.seconds += r.seconds;
+    }
+}
