@@ -98,7 +98,7 @@ impl Lpips {
     }
 
     /// LPIPS distance between two RGB images, `&[f32]` interleaved `[(y*w + x)*3 + c]`, values
-    /// in [0,1] (mapped internally to [-1,1] as lpips does with normalize=True), same size w×h.
+    /// in \[0, 1\] (mapped internally to \[−1, 1\] as lpips does with normalize=True), same size w×h.
     pub fn distance(&self, a: &[f32], b: &[f32], w: usize, h: usize) -> Result<f64> {
         Ok(self.distance_per_tap(a, b, w, h)?.iter().sum())
     }

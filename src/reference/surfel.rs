@@ -104,7 +104,7 @@
 //! `alpha_max` clamp, as in 3DGS, for finite differences of a future backward. The median
 //! depth stays a step function of the parameters.
 //!
-//! # Backward ([`backward`])
+//! # Backward ([`backward()`])
 //! The branch of step 3 (object-space vs low-pass), the alpha clamp, the normal's sign, the
 //! skipped (surfel, pixel) pairs, and the order are all in [`SurfelSample`] and
 //! [`SurfelProjected`]; `M₁`, `M₂`, final `T` and the median contributor per pixel in

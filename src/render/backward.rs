@@ -1,5 +1,5 @@
 //! The GPU backward pass of the renderer: from `dL/d(image)` to the gradients of every Gaussian
-//! parameter, in two kernels that follow [`crate::reference::backward`] step by step.
+//! parameter, in two kernels that follow [`crate::reference::backward()`] step by step.
 //!
 //! 1. `glsl/backward/rasterize_backward.comp`: one 16×16 workgroup per tile; each pixel walks
 //!    its tile list back to front from its `last_index`, recovering the transmittance in front

@@ -8,7 +8,7 @@
 //! break by Gaussian index, as in the CPU reference.
 //!
 //! Pairing: a splat is paired only with the tiles of its rectangle where its ellipse may reach
-//! `alpha_min` at a pixel centre, found per tile row in closed form ([`Pairing`],
+//! `alpha_min` at a pixel centre, found per tile row in closed form (`Pairing`,
 //! glsl/common/tile_rows.glsl); the rest would skip it at every pixel. Elongated and faint
 //! splats have many such tiles: trained scenes at 1352×1014 lose 38–48 % of their pairs, and
 //! the tile sort, the emit and the rasterizers' walks shrink with them.

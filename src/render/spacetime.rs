@@ -25,7 +25,7 @@ pub const GROUPS: [(&str, usize); 4] = [
     ("trbf_scale", 1),
 ];
 
-/// The extra groups as [`ExtraGroup`]s.
+/// The extra groups as [`ExtraGroup`](crate::splats::ExtraGroup)s.
 pub fn extra_groups() -> Vec<crate::splats::ExtraGroup> {
     GROUPS
         .iter()
@@ -341,7 +341,7 @@ impl TemporalStep {
 /// A video model drawn at any time as still Gaussians, as a player does: each displayed time,
 /// the temporal step writes the model at that time into `instant`, which any 3DGS renderer
 /// draws (`bench fps`, `bench trade`'s FPS, `render`, `eval`). Scales and colour are copied
-/// once. The full model ([`TimedModel::full`]) also writes its feature channels at that time,
+/// once. The full model (`TimedModel::full`) also writes its feature channels at that time,
 /// and the rasterizer decodes each pixel in its epilogue (the frame's image is the RGB).
 pub struct TimedModel {
     step: TemporalStep,

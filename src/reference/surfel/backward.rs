@@ -1,7 +1,7 @@
 //! Analytic gradients of the 2DGS forward ([`crate::reference::surfel`]) given the gradients of
 //! a scalar loss with respect to every per-pixel output: colour, accumulated alpha, the
 //! expected-depth numerator `D`, the median depth, the accumulated normal `N` and the
-//! distortion. Two stages, as for 3DGS ([`crate::reference::backward`]) and as the GPU kernels
+//! distortion. Two stages, as for 3DGS ([`crate::reference::backward()`]) and as the GPU kernels
 //! will be split:
 //!
 //! 1. [`rasterize_backward`]: per pixel, back to front over the surfels the forward blended,

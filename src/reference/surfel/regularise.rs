@@ -1,5 +1,5 @@
 //! The 2DGS regularisers (BASE_MODELS.md §1.4) on the reference's per-pixel outputs, with their
-//! gradients as [`SurfelOutputGrads`] for [`super::backward`]:
+//! gradients as [`SurfelOutputGrads`] for [`super::backward()`]:
 //!
 //! - **Normal consistency** `mean_pixels(1 − N · N_surf·alpha)`: `N` is the accumulated
 //!   (unnormalised) rendered normal, `N_surf` the unit normal of the surface-depth map (each

@@ -1,5 +1,5 @@
 //! The surfel backward pass on the GPU, in two kernels that follow
-//! [`crate::reference::surfel::backward`] step by step:
+//! [`crate::reference::surfel::backward()`] step by step:
 //!
 //! 1. `glsl/surfel/rasterize_backward.comp` (or its `_cas` twin on devices without float
 //!    atomics): per tile, every pixel walks its list back to front and accumulates, per

@@ -1,7 +1,7 @@
 //! COLMAP sparse models (`cameras`, `images`, `points3D`) in binary and text form.
 //!
 //! Reading happens in two layers: [`binary`] and [`text`] parse a file into the raw
-//! [`ColmapModel`] (COLMAP's own records, nothing interpreted), and [`load`] checks that model
+//! [`ColmapModel`] (COLMAP's own records, nothing interpreted), and `load` checks that model
 //! against itself and the images on disk and turns it into a [`Scene`]. Both forms go through the
 //! same second layer, which is why a `.bin` and a `.txt` copy of a model give identical scenes.
 

@@ -51,7 +51,7 @@ impl Trainer {
     /// model (`state`, a non-finite check) is fine, since the prepared iteration is not
     /// submitted before that call, but evaluating, exporting, checkpointing, snapshotting or
     /// changing the strategy is refused (a panic: a caller's bug). Nothing is prepared after an
-    /// iteration that leaves work for the host (see [`Trainer::quiet`]), and a prepared
+    /// iteration that leaves work for the host (see `Trainer::quiet`), and a prepared
     /// iteration is dropped and recorded again when the one before it overflowed the
     /// intersection buffers, so the results are those of `step`.
     pub fn step_ahead(&mut self, prepare_next: bool) -> anyhow::Result<StepReport> {
