@@ -18,10 +18,9 @@ use std::io::Write;
 use std::path::PathBuf;
 use std::time::Instant;
 
-#[path = "bench_trade.rs"]
 mod trade;
-#[path = "trade_report.rs"]
 mod trade_report;
+mod trade_summary;
 
 #[derive(Args, Debug)]
 pub struct BenchArgs {

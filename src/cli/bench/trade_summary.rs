@@ -1,0 +1,411 @@
+//! `bench trade`'s summary: each variant at each evaluated iteration over its seeds (mean and
+//! spread, paired with ADC seed by seed), the table printed and written to trade.md, and
+//! trade.png (PSNR against Gaussian count and against training time).
+
+use super::trade::{TradeArgs, TradeRow};
+use lpmsplat::plot::{panels_png, Panel, Series};
+
+/// One variant at one iteration, over its seeds.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Summary {
+    pub run: String,
+    pub iteration: u32,
+    pub colour: [u8; 3],
+    pub seeds: usize,
+    pub psnr: f64,
+    /// Sample standard deviation over the seeds (0 with one seed).
+    pub psnr_sd: f64,
+    /// Mean over the seeds of (this run's PSNR − ADC's PSNR with the same seed); `None` when
+    /// ADC was not run.
+    pub delta_psnr: Option<f64>,
+    /// Standard error of that mean (sd / √seeds; `None` with fewer than two seeds).
+    pub delta_psnr_se: Option<f64>,
+    pub ssim: f64,
+    pub ssim_sd: f64,
+    /// Mean LPIPS (AlexNet, v0.1) over the test views; `None` without --lpips-weights.
+    pub lpips: Option<f64>,
+    pub gaussians: f64,
+    pub train_seconds: f64,
+    /// Mean train seconds over ADC's mean train seconds at the same iteration.
+    pub time_vs_adc: Option<f64>,
+    pub ms_per_iteration: f64,
+    pub lpm_ms_per_iteration: f64,
+    pub lpm_share: f64,
+    pub lpm_zones: f64,
+    pub lpm_lowered: f64,
+    pub lpm_added: f64,
+    pub lpm_reset: f64,
+    /// Extra (density-aware) prunes, and the zones' mean radius relative to the scene extent.
+    pub lpm_pruned: f64,
+    pub lpm_radius: f64,
+    pub fps_1352x1014: f64,
+}
+
+impl Summary {
+    /// The means as a row (for the plot).
+    pub fn as_row(&self) -> TradeRow {
+        TradeRow {
+            run: self.run.clone(),
+            seed: 0,
+            iteration: self.iteration,
+            colour: self.colour,
+            psnr: self.psnr,
+            ssim: self.ssim,
+            lpips: self.lpips,
+            gaussians: self.gaussians.round() as usize,
+            train_seconds: self.train_seconds,
+            ms_per_iteration: self.ms_per_iteration,
+            lpm_ms_per_iteration: self.lpm_ms_per_iteration,
+            lpm_share: self.lpm_share,
+            lpm_zones: self.lpm_zones,
+            lpm_lowered: self.lpm_lowered,
+            lpm_added: self.lpm_added,
+            lpm_reset: self.lpm_reset,
+            lpm_pruned: self.lpm_pruned,
+            lpm_radius: self.lpm_radius,
+            fps_1352x1014: self.fps_1352x1014,
+            view_psnr: None,
+            model_events: Vec::new(),
+        }
+    }
+}
+
+/// Mean and sample standard deviation (0 for fewer than two values).
+fn mean_sd(v: &[f64]) -> (f64, f64) {
+    let n = v.len() as f64;
+    let mean = v.iter().sum::<f64>() / n;
+    if v.len() < 2 {
+        return (mean, 0.0);
+    }
+    let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    (mean, var.sqrt())
+}
+
+/// Groups `rows` by (run, iteration), in the rows' order of first appearance.
+pub fn summarize(rows: &[TradeRow]) -> Vec<Summary> {
+    let mut keys: Vec<(&str, u32)> = Vec::new();
+    for r in rows {
+        if !keys.contains(&(r.run.as_str(), r.iteration)) {
+            keys.push((r.run.as_str(), r.iteration));
+        }
+    }
+    let group = |run: &str, it: u32| -> Vec<&TradeRow> {
+        rows.iter()
+            .filter(|r| r.run == run && r.iteration == it)
+            .collect()
+    };
+    keys.iter()
+        .map(|&(run, it)| {
+            let g = group(run, it);
+            let adc = group("adc", it);
+            let col = |f: &dyn Fn(&TradeRow) -> f64| g.iter().map(|r| f(r)).collect::<Vec<_>>();
+            let (psnr, psnr_sd) = mean_sd(&col(&|r| r.psnr));
+            let (ssim, ssim_sd) = mean_sd(&col(&|r| r.ssim));
+            // Paired differences: the ADC run with the same seed.
+            let diffs: Vec<f64> = g
+                .iter()
+                .filter_map(|r| {
+                    adc.iter()
+                        .find(|a| a.seed == r.seed)
+                        .map(|a| r.psnr - a.psnr)
+                })
+                .collect();
+            let (delta_psnr, delta_psnr_se) = if diffs.is_empty() {
+                (None, None)
+            } else {
+                let (m, sd) = mean_sd(&diffs);
+                (
+                    Some(m),
+                    (diffs.len() > 1).then(|| sd / (diffs.len() as f64).sqrt()),
+                )
+            };
+            let train_seconds = mean_sd(&col(&|r| r.train_seconds)).0;
+            let time_vs_adc = (!adc.is_empty()).then(|| {
+                let a: Vec<f64> = adc.iter().map(|r| r.train_seconds).collect();
+                train_seconds / mean_sd(&a).0.max(1e-12)
+            });
+            Summary {
+                run: run.to_string(),
+                iteration: it,
+                colour: g[0].colour,
+                seeds: g.len(),
+                psnr,
+                psnr_sd,
+                delta_psnr,
+                delta_psnr_se,
+                ssim,
+                ssim_sd,
+                lpips: g
+                    .iter()
+                    .map(|r| r.lpips)
+                    .collect::<Option<Vec<f64>>>()
+                    .map(|v| mean_sd(&v).0),
+                gaussians: mean_sd(&col(&|r| r.gaussians as f64)).0,
+                train_seconds,
+                time_vs_adc,
+                ms_per_iteration: mean_sd(&col(&|r| r.ms_per_iteration)).0,
+                lpm_ms_per_iteration: mean_sd(&col(&|r| r.lpm_ms_per_iteration)).0,
+                lpm_share: mean_sd(&col(&|r| r.lpm_share)).0,
+                lpm_zones: mean_sd(&col(&|r| r.lpm_zones)).0,
+                lpm_lowered: mean_sd(&col(&|r| r.lpm_lowered)).0,
+                lpm_added: mean_sd(&col(&|r| r.lpm_added)).0,
+                lpm_reset: mean_sd(&col(&|r| r.lpm_reset)).0,
+                lpm_pruned: mean_sd(&col(&|r| r.lpm_pruned)).0,
+                lpm_radius: mean_sd(&col(&|r| r.lpm_radius)).0,
+                fps_1352x1014: mean_sd(&col(&|r| r.fps_1352x1014)).0,
+            }
+        })
+        .collect()
+}
+
+pub fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
+    let resolution = args
+        .scene
+        .resolution
+        .map_or("full resolution".to_string(), |r| format!("-r {r}"));
+    let several = rows.iter().any(|r| r.seeds > 1);
+    let mut s = format!(
+        "bench trade: {} {resolution}, base model {}, {} iterations on the calendar of {}, {device}; LPM \
+         error blocks of {} kept above {} error pixels\n\n{} \
+         trade.png plots test PSNR against Gaussians and training seconds (top), and PSNR and \
+         Gaussians against iterations (bottom), one named line per run through its evaluated \
+         iterations; trade.html shows the plot, this table and the runs' renders. LPIPS is \
+         AlexNet v0.1 (n/a without --lpips-weights).{}\n\n\
+         | run | iteration | colour | PSNR | ΔPSNR vs adc | SSIM | LPIPS | Gaussians | train s | time vs adc | ms/it | LPM ms/it (share) | LPM zones · densified · pruned · added · reset · zone radius / extent | FPS 1352×1014 |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+        args.scene.scene.display(),
+        args.model.name(),
+        args.iterations,
+        args.calendar.unwrap_or(args.iterations),
+        if args.lpm_block == 0 {
+            "the image's size (16 px at 1 MP, scaled with the diagonal, at least 4)".to_string()
+        } else {
+            format!("{} px", args.lpm_block)
+        },
+        args.lpm_block_fraction,
+        if args.sequential {
+            "Runs were sequential: compare their times only on an otherwise idle machine."
+        } else {
+            "Runs were interleaved one iteration at a time, so their times saw the same machine load."
+        },
+        if several {
+            format!(
+                " Each row is the mean over {} seeds ({}..{}): PSNR and SSIM ± their standard \
+                 deviation, ΔPSNR ± the standard error of the per-seed differences from ADC, \
+                 the rest means; the plot shows the means.",
+                args.seeds,
+                args.seed,
+                args.seed + args.seeds as u64 - 1
+            )
+        } else {
+            String::new()
+        }
+    );
+    for r in rows {
+        let pm = |sd: f64, digits: usize| {
+            if several {
+                format!(" ± {sd:.digits$}")
+            } else {
+                String::new()
+            }
+        };
+        let dpsnr = match (r.delta_psnr, r.delta_psnr_se) {
+            (Some(d), Some(se)) => format!("{d:+.3} ± {se:.3}"),
+            (Some(d), None) => format!("{d:+.3}"),
+            _ => "n/a".into(),
+        };
+        let dtime = r
+            .time_vs_adc
+            .map_or("n/a".to_string(), |t| format!("{t:.3}×"));
+        let lpm_activity = if r.run.contains("lpm") {
+            format!(
+                "{:.0} · {:.0} · {:.0} · {:.0} · {:.0} · {:.3}",
+                r.lpm_zones, r.lpm_lowered, r.lpm_pruned, r.lpm_added, r.lpm_reset, r.lpm_radius
+            )
+        } else {
+            "—".to_string()
+        };
+        s += &format!(
+            "| {} | {} | #{:02x}{:02x}{:02x} | {:.3}{} | {dpsnr} | {:.4}{} | {} | {:.0} | {:.1} | {dtime} | {:.2} | {:.3} ({:.2} %) | {} | {:.1} |\n",
+            r.run,
+            r.iteration,
+            r.colour[0],
+            r.colour[1],
+            r.colour[2],
+            r.psnr,
+            pm(r.psnr_sd, 3),
+            r.ssim,
+            pm(r.ssim_sd, 4),
+            r.lpips.map_or("n/a".to_string(), |d| format!("{d:.4}")),
+            r.gaussians,
+            r.train_seconds,
+            r.ms_per_iteration,
+            r.lpm_ms_per_iteration,
+            100.0 * r.lpm_share,
+            lpm_activity,
+            r.fps_1352x1014
+        );
+    }
+    s
+}
+
+/// Four panels (2 × 2): PSNR against Gaussians and against training seconds (the trade-off),
+/// then PSNR and Gaussians against iterations (the curves). One line per run through its
+/// evaluated iterations, in the run's colour, named in the legend; a dot per evaluation.
+pub fn plot(rows: &[TradeRow]) -> anyhow::Result<Vec<u8>> {
+    let mut names: Vec<&str> = Vec::new();
+    for r in rows {
+        if !names.contains(&r.run.as_str()) {
+            names.push(&r.run);
+        }
+    }
+    let series = |x: &dyn Fn(&TradeRow) -> f64, y: &dyn Fn(&TradeRow) -> f64| -> Vec<Series> {
+        names
+            .iter()
+            .map(|&n| {
+                let mut own: Vec<&TradeRow> = rows.iter().filter(|r| r.run == n).collect();
+                own.sort_by_key(|r| r.iteration);
+                Series {
+                    name: n.to_string(),
+                    colour: own[0].colour,
+                    points: own.iter().map(|r| (x(r), y(r))).collect(),
+                    markers: true,
+                }
+            })
+            .collect()
+    };
+    let panel = |title: &str, x_label: &str, y_label: &str, series: Vec<Series>| Panel {
+        title: title.into(),
+        x_label: x_label.into(),
+        y_label: y_label.into(),
+        series,
+    };
+    let psnr = |r: &TradeRow| r.psnr;
+    let gaussians = |r: &TradeRow| r.gaussians as f64;
+    let seconds = |r: &TradeRow| r.train_seconds;
+    let iteration = |r: &TradeRow| r.iteration as f64;
+    let panels = [
+        panel(
+            "PSNR against model size",
+            "Gaussians",
+            "test PSNR (dB)",
+            series(&gaussians, &psnr),
+        ),
+        panel(
+            "PSNR against training time",
+            "training seconds",
+            "test PSNR (dB)",
+            series(&seconds, &psnr),
+        ),
+        panel(
+            "PSNR over training",
+            "iteration",
+            "test PSNR (dB)",
+            series(&iteration, &psnr),
+        ),
+        panel(
+            "Gaussians over training",
+            "iteration",
+            "Gaussians",
+            series(&iteration, &gaussians),
+        ),
+    ];
+    panels_png(&panels, 2, 520, 340)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::trade::RUNS;
+    use super::*;
+
+    fn row(run: &str, iteration: u32, psnr: f64, gaussians: usize, secs: f64) -> TradeRow {
+        let colour = RUNS.iter().find(|r| r.0 == run).unwrap().1;
+        TradeRow {
+            run: run.into(),
+            seed: 0,
+            iteration,
+            colour,
+            psnr,
+            ssim: 0.9,
+            lpips: None,
+            gaussians,
+            train_seconds: secs,
+            ms_per_iteration: 1.0,
+            lpm_ms_per_iteration: 0.0,
+            lpm_share: 0.0,
+            lpm_zones: 0.0,
+            lpm_lowered: 0.0,
+            lpm_added: 0.0,
+            lpm_reset: 0.0,
+            lpm_pruned: 0.0,
+            lpm_radius: 0.0,
+            fps_1352x1014: 1.0,
+            view_psnr: None,
+            model_events: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn plot_draws_each_run_in_its_colour() {
+        let rows = [
+            row("adc", 1000, 33.937, 44_467, 487.7),
+            row("adc+lpm", 1000, 34.398, 45_529, 482.7),
+            row("adc", 2000, 35.597, 119_237, 1804.3),
+            row("adc+lpm", 2000, 35.632, 119_566, 1779.6),
+        ];
+        let png = plot(&rows).unwrap();
+        let img = image::load_from_memory(&png).unwrap().to_rgb8();
+        assert_eq!((img.width(), img.height()), (1040, 680));
+        let count = |c: [u8; 3]| img.pixels().filter(|p| p.0 == c).count();
+        // Two dots (~50 px each) per panel, four panels, plus the lines and the legend swatch.
+        for (name, colour) in [RUNS[0], RUNS[2]] {
+            assert!(count(colour) >= 4 * 2 * 40, "{name}: {}", count(colour));
+        }
+        // A run without a finite PSNR draws nothing in the PSNR panels, only in the Gaussians
+        // one (bottom right).
+        let mut bad = rows.to_vec();
+        bad.push(row("lpm-no-add", 2000, f64::NAN, 10, 1.0));
+        let img = image::load_from_memory(&plot(&bad).unwrap())
+            .unwrap()
+            .to_rgb8();
+        let in_psnr_panels = img
+            .enumerate_pixels()
+            .filter(|(x, y, p)| (*y < 340 || *x < 520) && p.0 == RUNS[3].1)
+            .count();
+        assert_eq!(in_psnr_panels, 0);
+        if let Ok(dir) = std::env::var("LPMSPLAT_KEEP_PLOT") {
+            std::fs::write(std::path::Path::new(&dir).join("trade_plot.png"), &png).unwrap();
+        }
+    }
+
+    #[test]
+    fn summary_pairs_each_seed_with_adc() {
+        let mut rows = vec![];
+        for (seed, adc, lpm) in [(0, 30.0, 30.5), (1, 31.0, 31.3), (2, 29.0, 29.7)] {
+            let mut a = row("adc", 100, adc, 1000 + seed as usize, 10.0);
+            a.seed = seed;
+            let mut l = row("adc+lpm", 100, lpm, 1100, 11.0);
+            l.seed = seed;
+            rows.push(a);
+            rows.push(l);
+        }
+        let mut lone = row("lpm-no-add", 100, 28.0, 900, 12.0);
+        lone.seed = 7;
+        rows.push(lone);
+        let s = summarize(&rows);
+        assert_eq!(s.len(), 3);
+        let (adc, lpm, lone) = (&s[0], &s[1], &s[2]);
+        assert_eq!((adc.run.as_str(), adc.seeds), ("adc", 3));
+        assert!((adc.psnr - 30.0).abs() < 1e-12);
+        assert!((adc.psnr_sd - 1.0).abs() < 1e-12);
+        assert!((adc.gaussians - 1001.0).abs() < 1e-12);
+        assert_eq!(adc.delta_psnr, Some(0.0));
+        // Differences 0.5, 0.3, 0.7: mean 0.5, sd 0.2, se 0.2/√3.
+        assert!((lpm.delta_psnr.unwrap() - 0.5).abs() < 1e-9);
+        assert!((lpm.delta_psnr_se.unwrap() - 0.2 / 3f64.sqrt()).abs() < 1e-9);
+        assert!((lpm.time_vs_adc.unwrap() - 1.1).abs() < 1e-12);
+        // No ADC run with its seed: no difference to report.
+        assert_eq!((lone.delta_psnr, lone.delta_psnr_se), (None, None));
+        assert_eq!(lone.psnr_sd, 0.0);
+    }
+}
