@@ -6,7 +6,7 @@
 //! and a note) rather than reporting a stand-in.
 
 use super::lpips_scores::{self, LpipsArgs};
-use super::train::{background_from, mean_metrics};
+use super::train::background_from;
 use super::SceneArgs;
 use anyhow::Context;
 use clap::Args;
@@ -202,7 +202,7 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
         }
     }
     let lpips_mean = lpips_scores::mean(&per_view);
-    let (psnr, ssim) = mean_metrics(&per_view);
+    let (psnr, ssim) = ViewMetrics::means(&per_view);
     let name_w = per_view
         .iter()
         .map(|m| m.view.len())

@@ -112,6 +112,18 @@ impl ViewMetrics {
             lpips: None,
         })
     }
+
+    /// The mean PSNR and SSIM over `views` (NaN for none).
+    pub fn means(views: &[ViewMetrics]) -> (f64, f64) {
+        if views.is_empty() {
+            return (f64::NAN, f64::NAN);
+        }
+        let n = views.len() as f64;
+        (
+            views.iter().map(|v| v.psnr).sum::<f64>() / n,
+            views.iter().map(|v| v.ssim).sum::<f64>() / n,
+        )
+    }
 }
 
 pub struct Trainer {

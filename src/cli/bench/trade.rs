@@ -5,9 +5,9 @@
 //! colour per run, listed in the table).
 
 use super::trade_report;
-use super::trade_summary::{plot, summarize, table, Summary};
+use super::trade_summary::{plot, summarize, table_rows, Summary, TradeRow};
 use crate::cli::lpips_scores::{self, LpipsArgs};
-use crate::cli::train::{background_from, build_lpm, initial_model, mean_metrics, prepare_output};
+use crate::cli::train::{background_from, build_lpm, initial_model, prepare_output};
 use crate::cli::world_culls_arg::N3dvCulls;
 use crate::cli::SceneArgs;
 use anyhow::Context;
@@ -32,7 +32,7 @@ fn parse_prune(s: &str) -> anyhow::Result<PruneMode> {
     PruneMode::parse(s)
 }
 use lpmsplat::models::BaseModel;
-use lpmsplat::train::trainer::{TrainConfig, Trainer};
+use lpmsplat::train::trainer::{TrainConfig, Trainer, ViewMetrics};
 use std::io::Write;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -131,40 +131,6 @@ pub struct TradeArgs {
     pub report_view: Option<String>,
     #[command(flatten)]
     pub lpips: LpipsArgs,
-}
-
-#[derive(Debug, Clone, serde::Serialize)]
-pub struct TradeRow {
-    pub run: String,
-    pub seed: u64,
-    pub iteration: u32,
-    pub colour: [u8; 3],
-    pub psnr: f64,
-    pub ssim: f64,
-    /// Mean LPIPS (AlexNet, v0.1) over the test views; `None` without --lpips-weights.
-    pub lpips: Option<f64>,
-    pub gaussians: usize,
-    pub train_seconds: f64,
-    pub ms_per_iteration: f64,
-    pub lpm_ms_per_iteration: f64,
-    pub lpm_share: f64,
-    /// What LPM did up to this iteration (zeros for ADC runs): zones found, Gaussians densified
-    /// only because of the lowered threshold, Gaussians added at zone centres, opacities reset.
-    pub lpm_zones: f64,
-    pub lpm_lowered: f64,
-    pub lpm_added: f64,
-    pub lpm_reset: f64,
-    /// Extra (density-aware) prunes, and the zones' mean radius relative to the scene extent.
-    pub lpm_pruned: f64,
-    pub lpm_radius: f64,
-    pub fps_1352x1014: f64,
-    /// PSNR on the report's test view (final iteration, first seed only: the rows whose render
-    /// trade.html shows).
-    pub view_psnr: Option<f64>,
-    /// What the base model's own rules did up to this iteration (SpacetimeGaussians' guided
-    /// sampling: its choice and each sampling), as `train`'s `metrics.json` has them.
-    #[serde(skip_serializing_if = "Vec::is_empty")]
-    pub model_events: Vec<serde_json::Value>,
 }
 
 pub const RUNS: [(&str, [u8; 3]); 15] = [
@@ -456,6 +422,53 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The table: what was run, how to read it, and the rows ([`table_rows`]).
+pub fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
+    let resolution = args
+        .scene
+        .resolution
+        .map_or("full resolution".to_string(), |r| format!("-r {r}"));
+    let several = rows.iter().any(|r| r.seeds > 1);
+    let s = format!(
+        "bench trade: {} {resolution}, base model {}, {} iterations on the calendar of {}, {device}; LPM \
+         error blocks of {} kept above {} error pixels\n\n{} \
+         trade.png plots test PSNR against Gaussians and training seconds (top), and PSNR and \
+         Gaussians against iterations (bottom), one named line per run through its evaluated \
+         iterations; trade.html shows the plot, this table and the runs' renders. LPIPS is \
+         AlexNet v0.1 (n/a without --lpips-weights).{}\n\n\
+         | run | iteration | colour | PSNR | ΔPSNR vs adc | SSIM | LPIPS | Gaussians | train s | time vs adc | ms/it | LPM ms/it (share) | LPM zones · densified · pruned · added · reset · zone radius / extent | FPS 1352×1014 |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+        args.scene.scene.display(),
+        args.model.name(),
+        args.iterations,
+        args.calendar.unwrap_or(args.iterations),
+        if args.lpm_block == 0 {
+            "the image's size (16 px at 1 MP, scaled with the diagonal, at least 4)".to_string()
+        } else {
+            format!("{} px", args.lpm_block)
+        },
+        args.lpm_block_fraction,
+        if args.sequential {
+            "Runs were sequential: compare their times only on an otherwise idle machine."
+        } else {
+            "Runs were interleaved one iteration at a time, so their times saw the same machine load."
+        },
+        if several {
+            format!(
+                " Each row is the mean over {} seeds ({}..{}): PSNR and SSIM ± their standard \
+                 deviation, ΔPSNR ± the standard error of the per-seed differences from ADC, \
+                 the rest means; the plot shows the means.",
+                args.seeds,
+                args.seed,
+                args.seed + args.seeds as u64 - 1
+            )
+        } else {
+            String::new()
+        }
+    );
+    s + &table_rows(rows)
+}
+
 /// Writes trade.md, trade.json and trade.png for the rows so far (atomically).
 fn write_outputs(
     rows: &[TradeRow],
@@ -637,7 +650,7 @@ fn evaluate_run(
         Ok(())
     })?;
     let lpips_mean = lpips_scores::mean(&m);
-    let (psnr, ssim) = mean_metrics(&m);
+    let (psnr, ssim) = ViewMetrics::means(&m);
     let view_psnr = report.map(|k| m[k].psnr);
     let model = t.export_model()?;
     let lpm_totals = t

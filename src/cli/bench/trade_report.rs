@@ -2,8 +2,7 @@
 //! table, and for one test view the ground truth beside every run's final render and its error
 //! map (so ADC and LPM are compared by eye, not only by numbers).
 
-use super::trade::TradeRow;
-use super::trade_summary::Summary;
+use super::trade_summary::{Summary, TradeRow};
 use lpmsplat::error::write_atomic;
 use lpmsplat::plot::{captioned_grid, error_map, Tile};
 use lpmsplat::scene::{images, Image, Scene};

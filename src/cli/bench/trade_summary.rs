@@ -2,8 +2,41 @@
 //! spread, paired with ADC seed by seed), the table printed and written to trade.md, and
 //! trade.png (PSNR against Gaussian count and against training time).
 
-use super::trade::{TradeArgs, TradeRow};
 use lpmsplat::plot::{panels_png, Panel, Series};
+
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct TradeRow {
+    pub run: String,
+    pub seed: u64,
+    pub iteration: u32,
+    pub colour: [u8; 3],
+    pub psnr: f64,
+    pub ssim: f64,
+    /// Mean LPIPS (AlexNet, v0.1) over the test views; `None` without --lpips-weights.
+    pub lpips: Option<f64>,
+    pub gaussians: usize,
+    pub train_seconds: f64,
+    pub ms_per_iteration: f64,
+    pub lpm_ms_per_iteration: f64,
+    pub lpm_share: f64,
+    /// What LPM did up to this iteration (zeros for ADC runs): zones found, Gaussians densified
+    /// only because of the lowered threshold, Gaussians added at zone centres, opacities reset.
+    pub lpm_zones: f64,
+    pub lpm_lowered: f64,
+    pub lpm_added: f64,
+    pub lpm_reset: f64,
+    /// Extra (density-aware) prunes, and the zones' mean radius relative to the scene extent.
+    pub lpm_pruned: f64,
+    pub lpm_radius: f64,
+    pub fps_1352x1014: f64,
+    /// PSNR on the report's test view (final iteration, first seed only: the rows whose render
+    /// trade.html shows).
+    pub view_psnr: Option<f64>,
+    /// What the base model's own rules did up to this iteration (SpacetimeGaussians' guided
+    /// sampling: its choice and each sampling), as `train`'s `metrics.json` has them.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub model_events: Vec<serde_json::Value>,
+}
 
 /// One variant at one iteration, over its seeds.
 #[derive(Debug, Clone, serde::Serialize)]
@@ -158,49 +191,10 @@ pub fn summarize(rows: &[TradeRow]) -> Vec<Summary> {
         .collect()
 }
 
-pub fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
-    let resolution = args
-        .scene
-        .resolution
-        .map_or("full resolution".to_string(), |r| format!("-r {r}"));
+/// The table's rows, one per run and evaluated iteration (under the columns `trade::table` heads).
+pub fn table_rows(rows: &[Summary]) -> String {
     let several = rows.iter().any(|r| r.seeds > 1);
-    let mut s = format!(
-        "bench trade: {} {resolution}, base model {}, {} iterations on the calendar of {}, {device}; LPM \
-         error blocks of {} kept above {} error pixels\n\n{} \
-         trade.png plots test PSNR against Gaussians and training seconds (top), and PSNR and \
-         Gaussians against iterations (bottom), one named line per run through its evaluated \
-         iterations; trade.html shows the plot, this table and the runs' renders. LPIPS is \
-         AlexNet v0.1 (n/a without --lpips-weights).{}\n\n\
-         | run | iteration | colour | PSNR | ΔPSNR vs adc | SSIM | LPIPS | Gaussians | train s | time vs adc | ms/it | LPM ms/it (share) | LPM zones · densified · pruned · added · reset · zone radius / extent | FPS 1352×1014 |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
-        args.scene.scene.display(),
-        args.model.name(),
-        args.iterations,
-        args.calendar.unwrap_or(args.iterations),
-        if args.lpm_block == 0 {
-            "the image's size (16 px at 1 MP, scaled with the diagonal, at least 4)".to_string()
-        } else {
-            format!("{} px", args.lpm_block)
-        },
-        args.lpm_block_fraction,
-        if args.sequential {
-            "Runs were sequential: compare their times only on an otherwise idle machine."
-        } else {
-            "Runs were interleaved one iteration at a time, so their times saw the same machine load."
-        },
-        if several {
-            format!(
-                " Each row is the mean over {} seeds ({}..{}): PSNR and SSIM ± their standard \
-                 deviation, ΔPSNR ± the standard error of the per-seed differences from ADC, \
-                 the rest means; the plot shows the means.",
-                args.seeds,
-                args.seed,
-                args.seed + args.seeds as u64 - 1
-            )
-        } else {
-            String::new()
-        }
-    );
+    let mut s = String::new();
     for r in rows {
         let pm = |sd: f64, digits: usize| {
             if several {
@@ -315,11 +309,17 @@ pub fn plot(rows: &[TradeRow]) -> anyhow::Result<Vec<u8>> {
 
 #[cfg(test)]
 mod tests {
-    use super::super::trade::RUNS;
     use super::*;
 
+    /// Each test run's colour in the plot.
+    const COLOURS: [(&str, [u8; 3]); 3] = [
+        ("adc", [31, 119, 180]),
+        ("adc+lpm", [214, 39, 40]),
+        ("lpm-no-add", [44, 160, 44]),
+    ];
+
     fn row(run: &str, iteration: u32, psnr: f64, gaussians: usize, secs: f64) -> TradeRow {
-        let colour = RUNS.iter().find(|r| r.0 == run).unwrap().1;
+        let colour = COLOURS.iter().find(|r| r.0 == run).unwrap().1;
         TradeRow {
             run: run.into(),
             seed: 0,
@@ -358,7 +358,7 @@ mod tests {
         assert_eq!((img.width(), img.height()), (1040, 680));
         let count = |c: [u8; 3]| img.pixels().filter(|p| p.0 == c).count();
         // Two dots (~50 px each) per panel, four panels, plus the lines and the legend swatch.
-        for (name, colour) in [RUNS[0], RUNS[2]] {
+        for (name, colour) in [COLOURS[0], COLOURS[1]] {
             assert!(count(colour) >= 4 * 2 * 40, "{name}: {}", count(colour));
         }
         // A run without a finite PSNR draws nothing in the PSNR panels, only in the Gaussians
@@ -370,7 +370,7 @@ mod tests {
             .to_rgb8();
         let in_psnr_panels = img
             .enumerate_pixels()
-            .filter(|(x, y, p)| (*y < 340 || *x < 520) && p.0 == RUNS[3].1)
+            .filter(|(x, y, p)| (*y < 340 || *x < 520) && p.0 == COLOURS[2].1)
             .count();
         assert_eq!(in_psnr_panels, 0);
         if let Ok(dir) = std::env::var("LPMSPLAT_KEEP_PLOT") {

@@ -9,7 +9,6 @@ mod progress;
 mod setup;
 
 pub use args::{background_from, parse_max_gaussians, InitSource, TrainArgs};
-pub use outputs::mean_metrics;
 pub use setup::{build_lpm, initial_model, prepare_output};
 
 use super::lpips_scores;

@@ -95,7 +95,7 @@ impl Finished<'_> {
     }
 
     fn psnr_ssim(&self) -> (f64, f64) {
-        mean_metrics(self.per_view)
+        ViewMetrics::means(self.per_view)
     }
 
     /// training.png: test PSNR, Gaussians and loss against iterations and training time.
@@ -318,17 +318,6 @@ fn stage_shares(t: &StageTimes) -> serde_json::Value {
             .iter()
             .map(|(n, ms)| serde_json::json!({"stage": n, "ms_total": ms, "share": ms / total}))
             .collect(),
-    )
-}
-
-pub fn mean_metrics(m: &[ViewMetrics]) -> (f64, f64) {
-    if m.is_empty() {
-        return (f64::NAN, f64::NAN);
-    }
-    let n = m.len() as f64;
-    (
-        m.iter().map(|v| v.psnr).sum::<f64>() / n,
-        m.iter().map(|v| v.ssim).sum::<f64>() / n,
     )
 }
 

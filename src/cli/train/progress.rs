@@ -151,7 +151,7 @@ impl TrainingLog {
     ) -> anyhow::Result<()> {
         let t_pause = Instant::now();
         let (m, lp) = evaluate()?;
-        let (p, s) = super::outputs::mean_metrics(&m);
+        let (p, s) = ViewMetrics::means(&m);
         self.eval_points.push(EvalPoint {
             iteration,
             seconds: t_pause.duration_since(self.t0).as_secs_f64() - self.paused_s,
