@@ -34,29 +34,29 @@ use anyhow::Context;
 use super::adam::{Adam, SplatState};
 use super::batch::{batch_partners, GradBlend};
 use super::data::{scene_cameras, ViewSchedule};
-use super::density::{DensifyArgs, DensifyOutcome, DensityControl};
+use super::density::{DensifyOutcome, DensityControl};
 use super::image_cache::{CacheStats, ImageCache, ImageSlot};
 use super::loss::{Loss, LOSS_SLOT_FLOATS};
 use super::passes::{self, FrameArgs, GradArgs, ModelPasses};
 use super::schedule::sh_degree_at;
-use super::strategy::{
-    Adc, DensityContext, DensityStrategy, IterationView, ModelRule, OpacityFilter, StepSeen,
-    StrategyEvent,
-};
+use super::strategy::{Adc, DensityStrategy, IterationView, ModelRule, StrategyEvent};
 use crate::gpu::{
     BufferKind, GpuBuffer, GpuContext, HoldFrees, Recorder, StageTimes, TimestampPool,
 };
 use crate::render::forward::Capacity;
 use crate::render::layout::{CameraGpu, RenderConstants};
-use crate::scene::image_source::{load_range, ImageSource, TrainImages};
-use crate::scene::{Image, Scene};
+use crate::scene::image_source::TrainImages;
+use crate::scene::Scene;
 use crate::splats::gpu::{grown_capacity, GpuSplats};
 use crate::splats::GaussianParams;
 
 pub use super::config::{Background, TrainConfig};
+pub use evaluation::ViewMetrics;
 use step_ahead::Prepared;
 pub use step_ahead::RecordingStats;
 
+mod density_step;
+mod evaluation;
 mod step_ahead;
 
 /// What one iteration reports.
@@ -87,42 +87,6 @@ impl StepReport {
     /// The strategy's event of this iteration as its own type (e.g. LPM's step report).
     pub fn event<T: StrategyEvent>(&self) -> Option<&T> {
         self.strategy.as_ref()?.as_any().downcast_ref::<T>()
-    }
-}
-
-/// Per-view evaluation result.
-#[derive(Debug, Clone, serde::Serialize)]
-pub struct ViewMetrics {
-    pub view: String,
-    pub psnr: f64,
-    pub ssim: f64,
-    /// Filled in by callers that have LPIPS weights (the trainer has none).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub lpips: Option<f64>,
-}
-
-impl ViewMetrics {
-    /// PSNR and SSIM of a clamped render against its composited truth (RGB interleaved).
-    pub fn of(view: &str, render: &[f32], truth: &Image) -> anyhow::Result<ViewMetrics> {
-        let (w, h) = (truth.width as usize, truth.height as usize);
-        Ok(ViewMetrics {
-            view: view.to_string(),
-            psnr: crate::metrics::psnr(render, &truth.rgb)?,
-            ssim: crate::metrics::ssim(render, &truth.rgb, w, h)?,
-            lpips: None,
-        })
-    }
-
-    /// The mean PSNR and SSIM over `views` (NaN for none).
-    pub fn means(views: &[ViewMetrics]) -> (f64, f64) {
-        if views.is_empty() {
-            return (f64::NAN, f64::NAN);
-        }
-        let n = views.len() as f64;
-        (
-            views.iter().map(|v| v.psnr).sum::<f64>() / n,
-            views.iter().map(|v| v.ssim).sum::<f64>() / n,
-        )
     }
 }
 
@@ -190,9 +154,6 @@ struct Recorded {
 /// Steps ahead whose images a streaming cache decodes while the GPU works on the current one.
 const LOOKAHEAD_STEPS: u32 = 2;
 
-/// Test images decoded at once by [`Trainer::evaluate`] (in parallel, then dropped).
-const EVAL_CHUNK: usize = 8;
-
 /// Per-iteration background colour for `Background::Random`: a hash of (seed, iteration), so a
 /// resumed run draws the same colours.
 fn random_background(seed: u64, iteration: u32) -> [f32; 3] {
@@ -202,7 +163,7 @@ fn random_background(seed: u64, iteration: u32) -> [f32; 3] {
 }
 
 /// The snapshot if it was taken at `iteration` (the current one), else `state`.
-fn snapshot_or<'a>(
+pub(super) fn snapshot_or<'a>(
     snapshot: &'a Option<GpuSplats>,
     taken_at: Option<u32>,
     iteration: u32,
@@ -766,126 +727,6 @@ impl Trainer {
         Ok(report)
     }
 
-    /// The iteration's density control: the strategy's densify step on densify iterations, the
-    /// global opacity reset on its schedule, then the strategy's end-of-iteration work.
-    fn run_density_control(
-        &mut self,
-        strategy: &mut dyn DensityStrategy,
-        at: &IterationView,
-        report: &mut StepReport,
-    ) -> anyhow::Result<()> {
-        let it = at.iteration;
-        let schedule = self.config.schedule;
-        if schedule.densifies(it) {
-            self.rec.begin()?;
-            let args = DensifyArgs {
-                extent: self.extent,
-                prune_large: schedule.prunes_large(it),
-                iteration: it,
-                phase: schedule.phase(it),
-            };
-            let outcome = strategy.densify(&mut self.density_context(at.view)?, at, &args)?;
-            self.follow_capacity()?;
-            if !outcome.skipped && outcome.after > outcome.kept {
-                self.passes.record_new_gaussians(
-                    &mut self.rec,
-                    &self.state,
-                    outcome.kept..outcome.after,
-                    it,
-                )?;
-            }
-            // New and moved Gaussians need their derived per-Gaussian data (Mip-Splatting's 3D
-            // filter: the official code recomputes it after every densification).
-            if !outcome.skipped {
-                self.passes.model_changed();
-            }
-            if schedule.resets_opacity(it) {
-                self.record_opacity_reset()?;
-            }
-            let count = self.state.count();
-            report.strategy = strategy.after_density(&mut self.density_context(at.view)?, at)?;
-            self.follow_capacity()?;
-            if self.state.count() != count {
-                self.passes.model_changed();
-            }
-            if outcome.skipped {
-                // Nothing was rebuilt, so this iteration's gradients still belong to the model:
-                // its optimizer step runs as on any other iteration.
-                self.record_adam_step(it)?;
-            }
-            self.rec.submit_and_wait()?;
-            report.gaussians = self.state.count();
-            report.densified = Some(outcome);
-        } else if schedule.resets_opacity(it) {
-            self.rec.begin()?;
-            self.record_opacity_reset()?;
-            self.rec.submit_and_wait()?;
-        }
-        let reported = report.strategy.is_some();
-        if let Some(e) =
-            strategy.after_iteration(&mut self.density_context(at.view)?, at, reported)?
-        {
-            report.strategy = Some(e);
-        }
-        self.follow_capacity()?;
-        // The base model's own rules (taken out while they drive the trainer's buffers).
-        let mut rules = std::mem::take(&mut self.model_rules);
-        let views = report.views.clone();
-        let view_ssim = report.view_ssim.clone();
-        let seen = StepSeen {
-            iteration: it,
-            views: &views,
-            view_ssim: &view_ssim,
-            background: at.background,
-        };
-        let mut result = Ok(());
-        for rule in rules.iter_mut() {
-            let count = self.state.count();
-            match rule.after_step(&mut self.density_context(at.view)?, &seen) {
-                Ok(e) => report.model_events.extend(e),
-                Err(e) => {
-                    result = Err(e);
-                    break;
-                }
-            }
-            if let Err(e) = self.follow_capacity() {
-                result = Err(e);
-                break;
-            }
-            if self.state.count() != count {
-                self.passes.model_changed();
-                report.gaussians = self.state.count();
-            }
-        }
-        self.model_rules = rules;
-        result
-    }
-
-    /// What a strategy gets to work on for training view `view` (see [`DensityContext`]).
-    fn density_context(&mut self, view: usize) -> anyhow::Result<DensityContext<'_>> {
-        let slot = self.image_slot(view)?;
-        Ok(DensityContext {
-            ctx: &self.ctx,
-            rec: &mut self.rec,
-            state: &mut self.state,
-            density: &mut self.density,
-            extent: self.extent,
-            render: self.passes.image(),
-            truth: self.images.buffer(&slot),
-            truth_offset_px: slot.offset_px,
-            width: slot.width,
-            height: slot.height,
-            primitive: self.passes.primitive(),
-            raw_colour: self.passes.raw_colour(),
-            new_extras: self.passes.new_gaussian_extras(),
-            moving: self.passes.frame_positions(),
-            opacity_filter: self.passes.smoothing_filter().map(|filter| OpacityFilter {
-                filter,
-                cameras: &self.cameras,
-            }),
-        })
-    }
-
     /// Replaces the density strategy (before the first step, or after a restore).
     pub fn set_strategy(&mut self, strategy: Box<dyn DensityStrategy>) {
         self.assert_nothing_prepared("set_strategy");
@@ -957,94 +798,5 @@ impl Trainer {
     pub fn reserve_intersections(&mut self, n: usize) -> anyhow::Result<()> {
         self.assert_nothing_prepared("reserve_intersections");
         self.passes.reserve_intersections(n)
-    }
-
-    /// The model to evaluate or export (see [`Trainer::eval_params`]).
-    /// The last step's gradients (the batch mean when batched), downloaded: for tests and
-    /// debugging.
-    pub fn gradients(&self) -> anyhow::Result<GaussianParams> {
-        self.grads.download()
-    }
-
-    pub fn model(&self) -> anyhow::Result<GaussianParams> {
-        self.eval_params().download()
-    }
-
-    /// The model to export for viewers: Mip-Splatting's 3D filter folded into scales and
-    /// opacity (as the official `create_fused_ply.py`; the 2D filter cannot be folded, so
-    /// render it with `--model mip-splatting`); other models as [`Trainer::model`].
-    pub fn export_model(&mut self) -> anyhow::Result<GaussianParams> {
-        self.assert_nothing_prepared("export_model");
-        let model = self.model()?;
-        let params = snapshot_or(
-            &self.snapshot,
-            self.snapshot_iteration,
-            self.iteration,
-            &self.state.params,
-        );
-        self.passes
-            .export(params, &self.cameras, self.iteration, model)
-    }
-
-    /// Renders view `view` of the scene with the current model (RGB interleaved).
-    pub fn render_view(&mut self, view: usize, background: [f32; 3]) -> anyhow::Result<Vec<f32>> {
-        self.assert_nothing_prepared("render_view");
-        let cam = self.cameras_host[view];
-        // Field by field (not `eval_params`): the passes are borrowed mutably below.
-        let params = snapshot_or(
-            &self.snapshot,
-            self.snapshot_iteration,
-            self.iteration,
-            &self.state.params,
-        );
-        self.passes.render_view(&FrameArgs {
-            params,
-            cameras: &self.cameras,
-            view: view as u32,
-            camera: &cam,
-            sh_degree: self.config.sh_degree,
-            background,
-            iteration: self.iteration,
-        })
-    }
-
-    /// PSNR and SSIM of every view in `views` against `images` (image `k` is that of
-    /// `views[k]`, composited on the evaluation background). `each` sees every view's metrics,
-    /// clamped render and composited truth as they are made (LPIPS, saving renders): images are
-    /// decoded a few at a time and nothing is kept, so a video's thousands of test frames take
-    /// the memory of a handful.
-    pub fn evaluate(
-        &mut self,
-        scene: &Scene,
-        views: &[usize],
-        images: &dyn ImageSource,
-        mut each: impl FnMut(usize, &mut ViewMetrics, &[f32], &Image) -> anyhow::Result<()>,
-    ) -> anyhow::Result<Vec<ViewMetrics>> {
-        self.assert_nothing_prepared("evaluate");
-        anyhow::ensure!(
-            images.count() == views.len(),
-            "evaluate: {} images for {} views",
-            images.count(),
-            views.len()
-        );
-        let bg = self.config.background.eval_colour();
-        let mut out = Vec::with_capacity(views.len());
-        for start in (0..views.len()).step_by(EVAL_CHUNK) {
-            let end = (start + EVAL_CHUNK).min(views.len());
-            let truths = load_range(images, start..end)?;
-            for (k, truth) in (start..end).zip(truths) {
-                let v = views[k];
-                let render: Vec<f32> = self
-                    .render_view(v, bg)?
-                    .iter()
-                    .map(|x| x.clamp(0.0, 1.0))
-                    .collect();
-                let gt = crate::scene::images::composite_on_background(&truth, bg);
-                let mut m = ViewMetrics::of(&scene.views[v].name, &render, &gt)?;
-                each(k, &mut m, &render, &gt)?;
-                out.push(m);
-            }
-        }
-        Ok(out)
     }
 }
