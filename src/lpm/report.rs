@@ -86,6 +86,21 @@ pub struct LpmTotals {
 }
 
 impl LpmTotals {
+    /// The totals for `metrics.json`, with LPM's share of a run of `iterations` that took
+    /// `train_seconds`.
+    pub fn to_json(&self, train_seconds: f64, iterations: u32) -> serde_json::Value {
+        serde_json::json!({
+            "steps": self.steps, "steps_with_zones": self.steps_with_zones,
+            "regions": self.regions, "paired": self.paired, "zones": self.zones,
+            "lowered": self.lowered, "pruned_extra": self.pruned, "opacity_reset": self.reset,
+            "added": self.added, "inside": self.inside, "radius_mean_rel": self.radius_mean,
+            "radius_max_rel": self.radius_max, "wide_dropped": self.wide,
+            "skipped_adc": self.skipped_adc, "seconds": self.seconds,
+            "share_of_training": self.seconds / train_seconds.max(1e-12),
+            "ms_per_iteration": 1e3 * self.seconds / iterations.max(1) as f64,
+        })
+    }
+
     pub(crate) fn add(&mut self, r: &LpmStepReport) {
         self.steps += 1;
         self.steps_with_zones += (r.zones > 0) as u32;

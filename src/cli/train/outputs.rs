@@ -170,7 +170,7 @@ impl Finished<'_> {
             })),
             "stages": if config.timestamps { stage_shares(&log.stages) } else { serde_json::Value::Null },
             "lpm": trainer.strategy_as::<LpmStrategy>().map(|l| {
-                let mut j = lpm_summary(&l.totals, self.train_s, config.iterations);
+                let mut j = l.totals.to_json(self.train_s, config.iterations);
                 j["per_step"] = l.steps.iter().map(|r| r.to_json()).collect();
                 j
             }),
@@ -319,22 +319,4 @@ fn stage_shares(t: &StageTimes) -> serde_json::Value {
             .map(|(n, ms)| serde_json::json!({"stage": n, "ms_total": ms, "share": ms / total}))
             .collect(),
     )
-}
-
-/// LPM totals for `metrics.json`.
-pub fn lpm_summary(
-    t: &lpmsplat::lpm::report::LpmTotals,
-    train_seconds: f64,
-    iterations: u32,
-) -> serde_json::Value {
-    serde_json::json!({
-        "steps": t.steps, "steps_with_zones": t.steps_with_zones, "regions": t.regions,
-        "paired": t.paired, "zones": t.zones,
-        "lowered": t.lowered, "pruned_extra": t.pruned, "opacity_reset": t.reset,
-        "added": t.added, "inside": t.inside, "radius_mean_rel": t.radius_mean,
-        "radius_max_rel": t.radius_max, "wide_dropped": t.wide, "skipped_adc": t.skipped_adc,
-        "seconds": t.seconds,
-        "share_of_training": t.seconds / train_seconds.max(1e-12),
-        "ms_per_iteration": 1e3 * t.seconds / iterations.max(1) as f64,
-    })
 }
