@@ -156,6 +156,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
                 });
             }
         };
+        log.record(&r);
         if let (Some(check), Some(every)) = (nan_check.as_mut(), args.nan_check) {
             if r.iteration % every == 0 || r.iteration == config.iterations {
                 check.check(&trainer.state.params, r.iteration)?;
@@ -184,7 +185,6 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         {
             log.paused(|| trainer.save_checkpoint(&scene, &checkpoint_path))?;
         }
-        log.record(&r);
         if args.eval_every > 0
             && r.iteration % args.eval_every == 0
             && r.iteration < config.iterations
