@@ -227,50 +227,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
         .collect();
     eval_at.sort_unstable();
     eval_at.dedup();
-    let scale = |t: u32| ((t as u64 * calendar as u64) / 30_000) as u32;
-    let mut base = TrainConfig {
-        iterations: args.iterations,
-        seed: args.seed,
-        background: background_from(None, &scene)?,
-        ..TrainConfig::default()
-    };
-    base.schedule.densify_from = scale(500);
-    base.schedule.densify_until = scale(args.model.default_densify_until());
-    base.schedule.opacity_reset_interval = (scale(3000) / 100).max(1) * 100;
-    base.lr.position_max_steps = calendar;
-    base.density.min_opacity = args.model.default_min_opacity();
-    args.model.configure(&mut base);
-    if args.densify_abs_grad {
-        abs_grad_applies(args.model)?;
-        base.density.abs_grad = true;
-    }
-    base.density.max_gaussians = args.max_gaussians;
-    if let Some(g) = base.spacetime.as_mut().and_then(|s| s.guided.as_mut()) {
-        // SpacetimeGaussians' guided sampling on the same calendar (official 1600 and 100).
-        g.from = scale(g.from);
-        g.gap = scale(g.gap);
-    }
-    if let Some(f) = base
-        .spacetime
-        .as_mut()
-        .and_then(|s| s.omega_freeze.as_mut())
-    {
-        // The angular-velocity split on the same calendar (official 8001 of 30k).
-        f.from = scale(f.from);
-    }
-    // The Neural 3D Video culls on the same calendar (official: every 1000 of 30k).
-    crate::cli::world_culls_arg::apply(
-        args.n3dv_culls,
-        &scene.root,
-        args.model,
-        &mut base,
-        scale(1000),
-    )?;
-    if let Some(t) = base.surfels.as_mut() {
-        // 2DGS's regularisers start on the same calendar (official 7000 and 3000 of 30k).
-        t.normal_from = scale(t.normal_from);
-        t.distortion_from = scale(t.distortion_from);
-    }
+    let base = calendar_config(args, &scene, calendar)?;
     eprintln!(
         "bench trade: {} ({} train / {} test views), {} iterations per run on the calendar of \
          {calendar}: densify {}..{}, reset every {}, on {}",
@@ -524,6 +481,57 @@ struct Run {
     model_events: Vec<serde_json::Value>,
 }
 
+/// The configuration every run starts from: the base model's defaults with every iteration
+/// its official code names on a 30k calendar (densification, opacity resets, the position
+/// learning rate's decay, the models' own rules' starts) scaled to `calendar` iterations.
+fn calendar_config(args: &TradeArgs, scene: &Scene, calendar: u32) -> anyhow::Result<TrainConfig> {
+    let scale = |t: u32| ((t as u64 * calendar as u64) / 30_000) as u32;
+    let mut base = TrainConfig {
+        iterations: args.iterations,
+        seed: args.seed,
+        background: background_from(None, scene)?,
+        ..TrainConfig::default()
+    };
+    base.schedule.densify_from = scale(500);
+    base.schedule.densify_until = scale(args.model.default_densify_until());
+    base.schedule.opacity_reset_interval = (scale(3000) / 100).max(1) * 100;
+    base.lr.position_max_steps = calendar;
+    base.density.min_opacity = args.model.default_min_opacity();
+    args.model.configure(&mut base);
+    if args.densify_abs_grad {
+        abs_grad_applies(args.model)?;
+        base.density.abs_grad = true;
+    }
+    base.density.max_gaussians = args.max_gaussians;
+    if let Some(g) = base.spacetime.as_mut().and_then(|s| s.guided.as_mut()) {
+        // SpacetimeGaussians' guided sampling on the same calendar (official 1600 and 100).
+        g.from = scale(g.from);
+        g.gap = scale(g.gap);
+    }
+    if let Some(f) = base
+        .spacetime
+        .as_mut()
+        .and_then(|s| s.omega_freeze.as_mut())
+    {
+        // The angular-velocity split on the same calendar (official 8001 of 30k).
+        f.from = scale(f.from);
+    }
+    // The Neural 3D Video culls on the same calendar (official: every 1000 of 30k).
+    crate::cli::world_culls_arg::apply(
+        args.n3dv_culls,
+        &scene.root,
+        args.model,
+        &mut base,
+        scale(1000),
+    )?;
+    if let Some(t) = base.surfels.as_mut() {
+        // 2DGS's regularisers start on the same calendar (official 7000 and 3000 of 30k).
+        t.normal_from = scale(t.normal_from);
+        t.distortion_from = scale(t.distortion_from);
+    }
+    Ok(base)
+}
+
 /// The absolute-gradient test needs the mean-gradient statistic of a Gaussian model.
 fn abs_grad_applies(model: BaseModel) -> anyhow::Result<()> {
     anyhow::ensure!(
@@ -765,6 +773,47 @@ fn fps_of(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_calendar_scales_the_official_schedule() {
+        use clap::Parser;
+        #[derive(Parser)]
+        struct Cli {
+            #[command(flatten)]
+            trade: TradeArgs,
+        }
+        let root = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/lund_door_small");
+        let scene = Scene::load(std::path::Path::new(root), &Default::default()).unwrap();
+        // The shortened calendar the LPM tables use: 3,000 iterations on a 3,000 calendar is
+        // train's --densify-from 50 --densify-until 1500 --opacity-reset-interval 300
+        // --lr-position-max-steps 3000.
+        let args = Cli::parse_from([
+            "bench",
+            "scene",
+            "--iterations",
+            "3000",
+            "--max-gaussians",
+            "9",
+        ]);
+        let c = calendar_config(&args.trade, &scene, 3000).unwrap();
+        let s = &c.schedule;
+        assert_eq!(
+            (s.densify_from, s.densify_until, s.opacity_reset_interval),
+            (50, 1500, 300)
+        );
+        assert_eq!((c.iterations, c.lr.position_max_steps), (3000, 3000));
+        assert_eq!(c.density.max_gaussians, Some(9));
+        // The full calendar is the official schedule itself; the reset interval stays a
+        // multiple of 100 and at least 100 on a short one.
+        let c = calendar_config(&args.trade, &scene, 30_000).unwrap();
+        let s = &c.schedule;
+        assert_eq!(
+            (s.densify_from, s.densify_until, s.opacity_reset_interval),
+            (500, 15_000, 3000)
+        );
+        let c = calendar_config(&args.trade, &scene, 1000).unwrap();
+        assert_eq!(c.schedule.opacity_reset_interval, 100);
+    }
 
     #[test]
     fn each_lpm_run_gets_its_rules_and_the_benchmark_overrides() {
