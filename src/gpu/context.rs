@@ -293,14 +293,18 @@ impl GpuContext {
             None
         };
 
+        // On an error before the device exists: the messenger, then the instance.
+        let teardown = || {
+            if let Some((loader, m)) = &debug {
+                loader.destroy_debug_utils_messenger(*m, None);
+            }
+            instance.destroy_instance(None);
+        };
         let result = Self::open_device(&entry, &instance, choose);
         let (physical, index, queue_family) = match result {
             Ok(v) => v,
             Err(e) => {
-                if let Some((loader, m)) = &debug {
-                    loader.destroy_debug_utils_messenger(*m, None);
-                }
-                instance.destroy_instance(None);
+                teardown();
                 return Err(e);
             }
         };
@@ -319,7 +323,7 @@ impl GpuContext {
                 .any(|e| CStr::from_ptr(e.extension_name.as_ptr()) == n)
         };
         if !has_ext(ash::khr::push_descriptor::NAME) {
-            instance.destroy_instance(None);
+            teardown();
             bail!("the Vulkan device lacks VK_KHR_push_descriptor, which this engine needs. Fix: choose another device with --device");
         }
         let has_atomic_float = has_ext(ash::ext::shader_atomic_float::NAME);
@@ -379,7 +383,7 @@ impl GpuContext {
         let device = match instance.create_device(physical, &dci, None) {
             Ok(d) => d,
             Err(e) => {
-                instance.destroy_instance(None);
+                teardown();
                 bail!("vkCreateDevice failed: {e}. Fix: update the Vulkan driver or choose another device with --device");
             }
         };
