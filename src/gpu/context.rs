@@ -95,11 +95,14 @@ impl DeviceInfo {
     }
 }
 
+/// The validation layer's messenger and the loader that destroys it.
+type DebugMessenger = (ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT);
+
 /// The Vulkan instance, the chosen device, its compute queue and the memory allocator.
 pub struct GpuContext {
     pub(crate) entry: ash::Entry,
     pub(crate) instance: ash::Instance,
-    debug: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
+    debug: Option<DebugMessenger>,
     validation: Option<Arc<ValidationStats>>,
     pub physical: vk::PhysicalDevice,
     pub(crate) device: ash::Device,
@@ -231,67 +234,7 @@ impl GpuContext {
         opts: &GpuOptions,
     ) -> anyhow::Result<Arc<GpuContext>> {
         let (choose, memory_limit) = (opts.device.as_deref(), opts.memory_limit);
-        let app_name = CString::new("lpmsplat").unwrap();
-        let app = vk::ApplicationInfo::default()
-            .application_name(&app_name)
-            .engine_name(&app_name)
-            .api_version(vk::API_VERSION_1_3);
-        let mut layers: Vec<*const i8> = Vec::new();
-        let mut extensions: Vec<*const i8> = Vec::new();
-        let stats = if validation {
-            let available = entry
-                .enumerate_instance_layer_properties()
-                .unwrap_or_default();
-            let found = available
-                .iter()
-                .any(|l| CStr::from_ptr(l.layer_name.as_ptr()) == VALIDATION_LAYER);
-            if !found {
-                bail!(
-                    "validation was requested but the Khronos validation layer (VK_LAYER_KHRONOS_validation) is not installed. Fix: `apt-get install vulkan-validationlayers`, or run without --validation / LPMSPLAT_VALIDATION"
-                );
-            }
-            layers.push(VALIDATION_LAYER.as_ptr());
-            extensions.push(ash::ext::debug_utils::NAME.as_ptr());
-            Some(Arc::new(ValidationStats::default()))
-        } else {
-            None
-        };
-        // Synchronisation validation catches missing barriers: the bugs a compute engine makes.
-        let enables = [vk::ValidationFeatureEnableEXT::SYNCHRONIZATION_VALIDATION];
-        let mut features =
-            vk::ValidationFeaturesEXT::default().enabled_validation_features(&enables);
-        let mut create = vk::InstanceCreateInfo::default()
-            .application_info(&app)
-            .enabled_layer_names(&layers)
-            .enabled_extension_names(&extensions);
-        if validation {
-            create = create.push_next(&mut features);
-        }
-        let instance = entry
-            .create_instance(&create, None)
-            .map_err(|e| no_vulkan(format!("vkCreateInstance failed: {e}")))?;
-
-        let debug = if let Some(stats) = &stats {
-            let loader = ash::ext::debug_utils::Instance::new(&entry, &instance);
-            let info = vk::DebugUtilsMessengerCreateInfoEXT::default()
-                .message_severity(
-                    vk::DebugUtilsMessageSeverityFlagsEXT::ERROR
-                        | vk::DebugUtilsMessageSeverityFlagsEXT::WARNING,
-                )
-                .message_type(
-                    vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
-                        | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
-                        | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE,
-                )
-                .pfn_user_callback(Some(debug_callback))
-                .user_data(Arc::as_ptr(stats) as *mut std::ffi::c_void);
-            let messenger = loader
-                .create_debug_utils_messenger(&info, None)
-                .context("creating debug messenger")?;
-            Some((loader, messenger))
-        } else {
-            None
-        };
+        let (instance, debug, stats) = Self::create_instance(&entry, validation)?;
 
         // On an error before the device exists: the messenger, then the instance.
         let teardown = || {
@@ -433,6 +376,84 @@ impl GpuContext {
             held_frees: Mutex::new(Default::default()),
             sort_digit_bits: opts.sort_digit_bits,
         }))
+    }
+
+    /// The Vulkan instance, with the Khronos validation layer (synchronisation validation on)
+    /// and a messenger counting its messages when `validation` is set.
+    unsafe fn create_instance(
+        entry: &ash::Entry,
+        validation: bool,
+    ) -> anyhow::Result<(
+        ash::Instance,
+        Option<DebugMessenger>,
+        Option<Arc<ValidationStats>>,
+    )> {
+        let app_name = CString::new("lpmsplat").unwrap();
+        let app = vk::ApplicationInfo::default()
+            .application_name(&app_name)
+            .engine_name(&app_name)
+            .api_version(vk::API_VERSION_1_3);
+        let mut layers: Vec<*const i8> = Vec::new();
+        let mut extensions: Vec<*const i8> = Vec::new();
+        let stats = if validation {
+            let available = entry
+                .enumerate_instance_layer_properties()
+                .unwrap_or_default();
+            let found = available
+                .iter()
+                .any(|l| CStr::from_ptr(l.layer_name.as_ptr()) == VALIDATION_LAYER);
+            if !found {
+                bail!(
+                    "validation was requested but the Khronos validation layer (VK_LAYER_KHRONOS_validation) is not installed. Fix: `apt-get install vulkan-validationlayers`, or run without --validation / LPMSPLAT_VALIDATION"
+                );
+            }
+            layers.push(VALIDATION_LAYER.as_ptr());
+            extensions.push(ash::ext::debug_utils::NAME.as_ptr());
+            Some(Arc::new(ValidationStats::default()))
+        } else {
+            None
+        };
+        // Synchronisation validation catches missing barriers: the bugs a compute engine makes.
+        let enables = [vk::ValidationFeatureEnableEXT::SYNCHRONIZATION_VALIDATION];
+        let mut features =
+            vk::ValidationFeaturesEXT::default().enabled_validation_features(&enables);
+        let mut create = vk::InstanceCreateInfo::default()
+            .application_info(&app)
+            .enabled_layer_names(&layers)
+            .enabled_extension_names(&extensions);
+        if validation {
+            create = create.push_next(&mut features);
+        }
+        let instance = entry
+            .create_instance(&create, None)
+            .map_err(|e| no_vulkan(format!("vkCreateInstance failed: {e}")))?;
+
+        let debug = if let Some(stats) = &stats {
+            let loader = ash::ext::debug_utils::Instance::new(entry, &instance);
+            let info = vk::DebugUtilsMessengerCreateInfoEXT::default()
+                .message_severity(
+                    vk::DebugUtilsMessageSeverityFlagsEXT::ERROR
+                        | vk::DebugUtilsMessageSeverityFlagsEXT::WARNING,
+                )
+                .message_type(
+                    vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
+                        | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
+                        | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE,
+                )
+                .pfn_user_callback(Some(debug_callback))
+                .user_data(Arc::as_ptr(stats) as *mut std::ffi::c_void);
+            let messenger = match loader.create_debug_utils_messenger(&info, None) {
+                Ok(m) => m,
+                Err(e) => {
+                    instance.destroy_instance(None);
+                    bail!("creating the validation layer's debug messenger: {e}");
+                }
+            };
+            Some((loader, messenger))
+        } else {
+            None
+        };
+        Ok((instance, debug, stats))
     }
 
     unsafe fn open_device(
