@@ -2,7 +2,7 @@
 
 use super::memory::DeviceMemory;
 use super::validation::{debug_callback, ValidationStats};
-use anyhow::{anyhow, bail, Context as _};
+use anyhow::{anyhow, bail};
 use ash::vk;
 use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
 use std::ffi::{CStr, CString};
@@ -332,23 +332,37 @@ impl GpuContext {
         };
         let queue = device.get_device_queue(queue_family, 0);
         let push_descriptor = ash::khr::push_descriptor::Device::new(&instance, &device);
-        let pool = device
-            .create_command_pool(
-                &vk::CommandPoolCreateInfo::default()
-                    .queue_family_index(queue_family)
-                    .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER),
-                None,
-            )
-            .context("creating command pool")?;
-        let allocator = Allocator::new(&AllocatorCreateDesc {
+        // On an error once the device exists: the device, then the messenger and the instance
+        // (the order `Drop` keeps), so that a caller who goes on holds nothing of this one.
+        let pool = match device.create_command_pool(
+            &vk::CommandPoolCreateInfo::default()
+                .queue_family_index(queue_family)
+                .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER),
+            None,
+        ) {
+            Ok(p) => p,
+            Err(e) => {
+                device.destroy_device(None);
+                teardown();
+                return Err(anyhow::Error::new(e).context("creating command pool"));
+            }
+        };
+        let allocator = match Allocator::new(&AllocatorCreateDesc {
             instance: instance.clone(),
             device: device.clone(),
             physical_device: physical,
             debug_settings: Default::default(),
             buffer_device_address: false,
             allocation_sizes: Default::default(),
-        })
-        .context("creating the GPU memory allocator")?;
+        }) {
+            Ok(a) => a,
+            Err(e) => {
+                device.destroy_command_pool(pool, None);
+                device.destroy_device(None);
+                teardown();
+                return Err(anyhow::Error::new(e).context("creating the GPU memory allocator"));
+            }
+        };
 
         let info = Self::query_info(
             &instance,
