@@ -2,7 +2,8 @@
 # Packs what the GPU machine needs (the `device` tool of this workplace; scripts/device/README.md
 # says how a session uses it) into the git-ignored folders .device/ and .gl/:
 #   .device/bin.tar.xz    the stripped release binary
-#   .device/tests.tar.xz  the stripped test executables whose tests run GPU kernels (gpu_*)
+#   .device/tests.tar.xz  the stripped test executables whose tests run GPU kernels (gpu_*),
+#                         and the loss benchmark (bench_loss)
 #   .device/scene-NAME.tar.xz  each scene given as an argument (../shared/data/tnt_truck ...),
 #                         one per call (run.sh takes the one carried, or SCENE=NAME)
 #   .gl/libvulkan1_*.deb  the Vulkan loader, which that machine lacks
@@ -27,6 +28,14 @@ for line in sys.stdin:
     exe, t = m.get("executable"), m.get("target", {})
     if exe and t.get("kind") == ["test"] and t["name"].startswith("gpu_"):
         shutil.copy(exe, ".device/tests/" + t["name"])
+'
+# The loss benchmark (benches/loss.rs): both loss layouts' GPU time at four image sizes.
+cargo bench --no-run --bench loss --message-format=json --quiet 2>/dev/null | python3 -c '
+import json, shutil, sys
+for line in sys.stdin:
+    m = json.loads(line)
+    if m.get("executable") and m.get("target", {}).get("name") == "loss":
+        shutil.copy(m["executable"], ".device/tests/bench_loss")
 '
 strip .device/bin/* .device/tests/*
 for k in bin tests; do tar -cJf ".device/$k.tar.xz" -C .device "$k" && rm -rf ".device/$k"; done

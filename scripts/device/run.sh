@@ -32,6 +32,8 @@
 #   layouts  train the packed scene at full size with each --raster-pixels layout (LAYOUTS,
 #            default "1 2 4 8"), ITERATIONS (default 5000) each, --timestamps, alternated twice;
 #            TRAIN_FLAGS=... added to every run (e.g. "--model 2dgs")
+#   lossbench the loss kernels alone (benches/loss.rs): each layout's GPU time at four image
+#            sizes, twice (needs tests.tar.xz, like `tests`)
 #   losslayouts train the packed scene at full size with each loss layout (--loss-layout
 #            segments, tiles), ITERATIONS (default 3000) each, --timestamps, alternated twice
 #   stgs     SpacetimeGaussians full on the packed video scene (panoptic_basketball) at full
@@ -157,7 +159,7 @@ for s in "$@"; do
         nvidia-smi >"$res/nvidia-smi.txt" 2>&1
         ;;
     tests)
-        for t in "$work"/tests/*; do
+        for t in "$work"/tests/gpu_*; do
             step "test-$(basename "$t")" 240 "$t" --test-threads=4
         done
         ;;
@@ -293,6 +295,18 @@ for s in "$@"; do
         need_scene losslayouts &&
             alternate loss --loss-layout "${ITERATIONS:-3000}" segments tiles
         ;;
+    lossbench)
+        # The loss kernels' GPU time alone (benches/loss.rs, carried in tests.tar.xz), each
+        # layout at 162x242, 245x137, 979x546 and 1352x1014, twice: a minute's answer to which
+        # layout this GPU wants, before losslayouts spends a scene's training on it.
+        if [ -x "$work/tests/bench_loss" ]; then
+            for r in 1 2; do
+                step "lossbench-$r" 60 "$work/tests/bench_loss"
+            done
+        else
+            echo "lossbench: skipped (carry .device/tests.tar.xz)" >>"$summary"
+        fi
+        ;;
     stgs)
         # SpacetimeGaussians (full) on the packed video scene (panoptic_basketball) at full
         # size: ADC and ADC+LPM interleaved, ITERATIONS (default 12000) with an evaluation at
@@ -331,7 +345,7 @@ for s in "$@"; do
             step train30k 900 "$bin" train "$scene" -r 1 --iterations 30000 --lpm --eval-every 5000 \
                 --timestamps -o "$work/train30k"
         ;;
-    *) echo "$s: unknown step (info tests demo ahead fps sortdigits fpspair trade7k trade30k ablate7k pair30k serial30k layouts losslayouts stgs local7k budget7k train30k)" >>"$summary" ;;
+    *) echo "$s: unknown step (info tests demo ahead fps sortdigits fpspair trade7k trade30k ablate7k pair30k serial30k layouts lossbench losslayouts stgs local7k budget7k train30k)" >>"$summary" ;;
     esac
     collect
 done
