@@ -94,8 +94,9 @@ fn truncated_binary_files_name_the_record() {
             if cut >= 8 {
                 assert_mentions(&msg, &[&format!("{kind} record ")]);
             } else {
-                assert_mentions(&msg, &[&format!("{kind} count")]);
+                assert_mentions(&msg, &[&format!("{kind} record count")]);
             }
+            assert!(!msg.contains(" of 0 "), "a record of no records: {msg}");
         }
         // Extra bytes after the announced records are refused too.
         let mut longer = bytes.clone();
@@ -105,6 +106,31 @@ fn truncated_binary_files_name_the_record() {
             &load_error(dir.path(), ColmapForm::Binary),
             &[file, "3 bytes follow"],
         );
+    }
+}
+
+/// A record count the rest of the file cannot hold is named as the count, with its value.
+#[test]
+fn a_count_past_the_end_names_the_count() {
+    for (file, kind) in [
+        ("cameras.bin", "camera"),
+        ("images.bin", "image"),
+        ("points3D.bin", "point3D"),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let sparse = write_scene(dir.path(), &good_model(4));
+        let path = sparse.join(file);
+        let mut bytes = std::fs::read(&path).unwrap();
+        // More records than the file has bytes: refused before any record is read.
+        let count = bytes.len() as u64 + 1;
+        bytes[..8].copy_from_slice(&count.to_le_bytes());
+        std::fs::write(&path, &bytes).unwrap();
+        let msg = load_error(dir.path(), ColmapForm::Binary);
+        assert_mentions(
+            &msg,
+            &[file, &format!("{kind} record count = {count}"), "truncated"],
+        );
+        assert!(!msg.contains(" of 0 "), "{msg}");
     }
 }
 

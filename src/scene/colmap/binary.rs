@@ -35,8 +35,9 @@ impl<'a> Cursor<'a> {
     }
 
     fn truncated(&self, what: &str, need: usize) -> InputError {
-        let field = if self.pos < 8 && self.record == 0 {
-            format!("{} count", self.kind)
+        let field = if self.count == 0 {
+            // Still in the header: the record count itself, or one the file cannot hold.
+            format!("{} {what}", self.kind)
         } else {
             format!(
                 "{} record {} of {} ({what})",
