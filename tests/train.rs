@@ -1480,3 +1480,39 @@ fn cli_gaussian_budget_caps_the_count() {
         assert!(!bad.exists(), "{v}: nothing is written");
     }
 }
+
+/// A run whose density control prunes every Gaussian finishes, writes its (empty) model and
+/// says why at the end; the commands that read a model refuse the empty one with a fix.
+#[test]
+fn a_run_that_prunes_every_gaussian_says_so_and_readers_refuse_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = data("lund_door_small");
+    let out = dir.path().join("empty");
+    let text = run_ok(
+        lpmsplat()
+            .arg("train")
+            .arg(&scene)
+            .args(["-r", "4", "--sh-degree", "0", "--iterations", "60"])
+            .args(["--densify-from", "20", "--densify-interval", "20"])
+            .args(["--min-opacity", "0.999", "-o"])
+            .arg(&out),
+    );
+    assert!(
+        text.contains("0 Gaussians") && text.contains("warning: the model ended with no Gaussians"),
+        "{text}"
+    );
+    assert!(text.contains("--min-opacity 0.999"), "{text}");
+    let ply = out.join("point_cloud.ply");
+    assert!(ply.exists(), "the empty model is still written");
+    let err = run_err(
+        lpmsplat()
+            .arg("eval")
+            .arg(&scene)
+            .args(["-r", "4", "--ply"])
+            .arg(&ply),
+    );
+    assert!(
+        err.contains("point_cloud.ply") && err.contains("no Gaussians") && err.contains("Fix:"),
+        "{err}"
+    );
+}

@@ -147,11 +147,7 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
     );
     let lpips = args.lpips.load()?;
     let params = args.model.read_ply(&args.ply)?;
-    anyhow::ensure!(
-        !params.is_empty(),
-        "{}: the PLY holds no Gaussians. Fix: pass a trained point_cloud.ply",
-        args.ply.display()
-    );
+    lpmsplat::splats::require_nonempty(&args.ply, &params)?;
     if let Some(dir) = &args.side_by_side {
         std::fs::create_dir_all(dir).with_context(|| {
             format!(

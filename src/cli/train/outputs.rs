@@ -247,6 +247,17 @@ impl Finished<'_> {
             ssim,
             lpips_scores::mean(self.per_view).map_or(String::new(), |d| format!(", LPIPS {d:.4}"))
         );
+        if self.gaussians == 0 {
+            // Density control may prune every Gaussian (an opacity floor above what training
+            // reaches, a scene box that excludes the model); the empty PLY is still written, and
+            // eval, render, mesh and export refuse it, so say why here.
+            eprintln!(
+                "warning: the model ended with no Gaussians: density control pruned them all \
+                 (Gaussians fainter than --min-opacity {} are pruned at every density step). \
+                 Fix: a lower --min-opacity, or check the scene's scale and the learning rates",
+                config.density.min_opacity
+            );
+        }
         if config.timestamps {
             let stages = &self.log.stages;
             let total = stages.total_ms().max(1e-12);

@@ -190,7 +190,8 @@ pub fn require_nonempty(path: &Path, params: &GaussianParams) -> anyhow::Result<
             path,
             "element vertex",
             "the model has no Gaussians (vertex count 0)",
-            "use a PLY written by a training run that produced Gaussians",
+            "use a model that has Gaussians (a training run whose density control pruned them \
+             all says so in its last lines)",
         );
     }
     Ok(())
