@@ -8,12 +8,7 @@ use lpmsplat::train::loss::{Loss, LossLayout};
 use rand::{Rng, SeedableRng};
 
 fn main() -> anyhow::Result<()> {
-    let ctx = GpuContext::new(&GpuOptions {
-        validation: false,
-        device: std::env::var("LPMSPLAT_DEVICE").ok(),
-        memory_limit: None,
-        sort_digit_bits: None,
-    })?;
+    let ctx = GpuContext::new(&GpuOptions::for_benches())?;
     println!("{}", ctx.info.summary());
     let reps: usize = std::env::var("LPMSPLAT_BENCH_REPS")
         .ok()

@@ -58,12 +58,7 @@ fn random_zones(rng: &mut impl Rng, count: usize, slab: bool) -> Vec<ZoneRecord>
 }
 
 fn main() -> anyhow::Result<()> {
-    let ctx = GpuContext::new(&GpuOptions {
-        validation: false,
-        device: std::env::var("LPMSPLAT_DEVICE").ok(),
-        memory_limit: None,
-        sort_digit_bits: None,
-    })?;
+    let ctx = GpuContext::new(&GpuOptions::for_benches())?;
     println!("{}", ctx.info.summary());
     let sizes: Vec<usize> = env_list("LPMSPLAT_BENCH_SIZES", "100000,1000000,10000000");
     let zone_counts: Vec<usize> = env_list("LPMSPLAT_BENCH_ZONES", "16,256");

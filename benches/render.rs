@@ -25,12 +25,7 @@ fn env_list<T: std::str::FromStr>(name: &str, default: &str) -> Vec<T> {
 }
 
 fn main() -> anyhow::Result<()> {
-    let ctx = GpuContext::new(&GpuOptions {
-        validation: false,
-        device: std::env::var("LPMSPLAT_DEVICE").ok(),
-        memory_limit: None,
-        sort_digit_bits: None,
-    })?;
+    let ctx = GpuContext::new(&GpuOptions::for_benches())?;
     println!("{}", ctx.info.summary());
     let sizes: Vec<usize> = env_list("LPMSPLAT_BENCH_SIZES", "3000,12000");
     let res: Vec<String> = env_list("LPMSPLAT_BENCH_RES", "162x242,324x484");

@@ -8,12 +8,7 @@ use rand::{Rng, SeedableRng};
 use std::time::Instant;
 
 fn main() -> anyhow::Result<()> {
-    let ctx = GpuContext::new(&GpuOptions {
-        validation: false,
-        device: std::env::var("LPMSPLAT_DEVICE").ok(),
-        memory_limit: None,
-        sort_digit_bits: None,
-    })?;
+    let ctx = GpuContext::new(&GpuOptions::for_benches())?;
     println!("{}", ctx.info.summary());
     let max: usize = std::env::var("LPMSPLAT_BENCH_MAX")
         .ok()

@@ -35,6 +35,15 @@ impl GpuOptions {
             sort_digit_bits: None,
         }
     }
+
+    /// Options for benchmarks: validation off (it would be timed too); `LPMSPLAT_DEVICE` picks
+    /// the device.
+    pub fn for_benches() -> Self {
+        Self {
+            validation: false,
+            ..Self::for_tests()
+        }
+    }
 }
 
 /// What the engine needs to know about the chosen device.
