@@ -57,14 +57,15 @@ pub enum Command {
     Match(matching::MatchArgs),
     /// Render chosen cameras of a scene from a trained PLY into PNGs, or an orbit into a GIF.
     Render(render::RenderArgs),
-    /// Train a scene (ADC baseline) and write the PLY, test renders and metrics.
+    /// Train a scene (ADC, or ADC + LPM with --lpm) and write the PLY, test renders and metrics.
     // A repeated flag takes its last value, so `scripts/demo.sh --iterations 500` overrides
     // the script's own `--iterations 2000`.
     #[command(args_override_self = true)]
     Train(Box<train::TrainArgs>),
     /// PSNR and SSIM of a trained PLY on a scene's test views (table, JSON, side-by-side PNGs).
     Eval(eval::EvalArgs),
-    /// Benchmarks: `bench fps` (rendering speed and per-stage GPU time), `bench trade`.
+    /// Benchmarks: `bench fps` (rendering speed and per-stage GPU time) and `bench trade` (ADC
+    /// against ADC + LPM and ablations, side by side).
     Bench(bench::BenchArgs),
     /// Convert a trained PLY to the compact `.splat` format of web viewers.
     Export(export::ExportArgs),

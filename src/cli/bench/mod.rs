@@ -50,18 +50,22 @@ pub struct FpsArgs {
     /// A generated scene of this many Gaussians; several counts may be given, comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "100000")]
     pub gaussians: Vec<usize>,
+    /// Frame width in pixels (1352×1014: the LPM paper's FPS resolution).
     #[arg(long, default_value_t = 1352)]
     pub width: u32,
+    /// Frame height in pixels.
     #[arg(long, default_value_t = 1014)]
     pub height: u32,
     /// Frames timed (after the warm-up).
     #[arg(long, default_value_t = 50)]
     pub frames: usize,
+    /// Frames rendered first and not timed (pipelines, caches and clocks settle).
     #[arg(long, default_value_t = 5)]
     pub warmup: usize,
     /// Write the results as JSON here as well.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// Seed of the generated scene.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// SH degree of the generated scene (0–3).

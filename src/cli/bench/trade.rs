@@ -46,8 +46,8 @@ pub struct TradeArgs {
     /// Iterations per run.
     #[arg(long, default_value_t = 30_000)]
     pub iterations: u32,
-    /// Base model of every run (3dgs, pixel-gs, mip-splatting): the table compares ADC and LPM
-    /// on it.
+    /// Base model of every run (3dgs, pixel-gs, mip-splatting, 2dgs; spacetime-lite or
+    /// spacetime-full on a video scene): the table compares ADC and LPM on it.
     #[arg(long, default_value = "3dgs", value_parser = BaseModel::parse)]
     pub model: BaseModel,
     /// The run length whose calendar is followed: the reference's density / LPM calendar

@@ -14,6 +14,7 @@ use lpmsplat::scene::Scene;
 use lpmsplat::train::config::ChildTime;
 use lpmsplat::train::loss::LossLayout;
 use lpmsplat::train::passes::surfels::SurfelTraining;
+use lpmsplat::train::schedule::DensitySchedule;
 use lpmsplat::train::trainer::{Background, TrainConfig};
 use std::path::PathBuf;
 
@@ -26,6 +27,8 @@ pub struct TrainArgs {
     /// Output folder (created; existing files in it are replaced atomically).
     #[arg(long, short = 'o')]
     pub out: PathBuf,
+    /// Optimizer steps (the schedule's defaults are the reference's 30k calendar; shorter runs
+    /// keep it, so pass --densify-until and the like to compress it).
     #[arg(long, default_value_t = 30_000)]
     pub iterations: u32,
     /// Base model: 3dgs, pixel-gs (Pixel-GS's pixel-weighted densification statistic),
@@ -34,9 +37,11 @@ pub struct TrainArgs {
     /// distortion regularisers; see --lambda-normal, --lambda-dist, --depth-ratio),
     /// spacetime-lite (SpacetimeGaussians on a video scene: motion, rotation and opacity in
     /// time, RGB colour) or spacetime-full (the same with 9 feature channels and the per-pixel
-    /// decoder, whose weights go to OUT/decoder.json). Combines with --lpm.
+    /// decoder, whose weights go to OUT/point_cloud.decoder.json). Combines with --lpm.
     #[arg(long, default_value = "3dgs", value_parser = BaseModel::parse)]
     pub model: BaseModel,
+    /// Seed of everything random: random initial points, the view order, split samples, LPM's
+    /// neighbour picks.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Highest SH degree (0–3).
@@ -96,36 +101,51 @@ pub struct TrainArgs {
     #[arg(long, num_args = 0..=1, default_missing_value = "1")]
     pub nan_check: Option<u32>,
     // Learning rates and density control (reference defaults).
+    /// Position learning rate at the start, times the scene extent (reference).
     #[arg(long, default_value_t = 1.6e-4)]
     pub lr_position: f64,
+    /// Position learning rate at --lr-position-max-steps (log-linear decay), times the extent.
     #[arg(long, default_value_t = 1.6e-6)]
     pub lr_position_final: f64,
+    /// The iteration the position learning rate's decay reaches its final value.
     #[arg(long, default_value_t = 30_000)]
     pub lr_position_max_steps: u32,
+    /// Learning rate of the colours' DC coefficients.
     #[arg(long, default_value_t = 2.5e-3)]
     pub lr_sh_dc: f64,
+    /// Learning rate of the higher SH coefficients (the reference: DC's / 20).
     #[arg(long, default_value_t = 2.5e-3 / 20.0)]
     pub lr_sh_rest: f64,
+    /// Learning rate of the opacity logits.
     #[arg(long, default_value_t = 0.05)]
     pub lr_opacity: f64,
+    /// Learning rate of the log-scales.
     #[arg(long, default_value_t = 5e-3)]
     pub lr_scaling: f64,
+    /// Learning rate of the rotation quaternions.
     #[arg(long, default_value_t = 1e-3)]
     pub lr_rotation: f64,
+    /// Weight of D-SSIM in the loss, (1 − w)·L1 + w·(1 − SSIM).
     #[arg(long, default_value_t = 0.2)]
     pub ssim_weight: f32,
+    /// ADC clones or splits a Gaussian whose mean view-space gradient norm (NDC units) reaches
+    /// this (LPM lowers it inside its zones by --lpm-threshold-ratio).
     #[arg(long, default_value_t = 2e-4)]
     pub densify_grad_threshold: f32,
+    /// Densification starts after this iteration.
     #[arg(long, default_value_t = 500)]
     pub densify_from: u32,
     /// Densification stops here (default the model's official value: 15000, 9000 for the
     /// spacetime models).
     #[arg(long)]
     pub densify_until: Option<u32>,
+    /// Density control runs every N iterations inside the densification window.
     #[arg(long, default_value_t = 100)]
     pub densify_interval: u32,
+    /// ADC's global opacity reset every N iterations while densifying.
     #[arg(long, default_value_t = 3000)]
     pub opacity_reset_interval: u32,
+    /// Clone (below) or split (above) at this fraction of the scene extent, the largest scale.
     #[arg(long, default_value_t = 0.01)]
     pub percent_dense: f64,
     /// Prune Gaussians below this opacity. Default: 0.005, or 0.05 for 2dgs (official).
@@ -135,12 +155,14 @@ pub struct TrainArgs {
     /// --normal-from (7000).
     #[arg(long)]
     pub lambda_normal: Option<f32>,
+    /// 2dgs: the iteration the normal-consistency regulariser starts (official 7000).
     #[arg(long)]
     pub normal_from: Option<u32>,
     /// 2dgs: weight of the depth-distortion regulariser (official code 0; its DTU script
     /// 1000), active after --dist-from (3000).
     #[arg(long)]
     pub lambda_dist: Option<f32>,
+    /// 2dgs: the iteration the depth-distortion regulariser starts (official 3000).
     #[arg(long)]
     pub dist_from: Option<u32>,
     /// 2dgs: the surface depth the normal regulariser differentiates: 0 the expected depth
@@ -202,7 +224,8 @@ pub struct TrainArgs {
 /// Localized Point Management (LPM.md), fused into the density steps.
 #[derive(Args, Debug, Clone)]
 pub struct LpmArgs {
-    /// Turn LPM on (ADC always runs).
+    /// Turn LPM on, on top of ADC (which runs on every density step unless --lpm-skip-adc or
+    /// --lpm-rules authors skips it on steps without a zone).
     #[arg(long)]
     pub lpm: bool,
     /// Ablation: no point addition in sparse zones.
@@ -214,11 +237,15 @@ pub struct LpmArgs {
     /// LPM runs every N iterations (a multiple of --densify-interval: it is fused with it).
     #[arg(long, default_value_t = 100)]
     pub lpm_interval: u32,
-    /// LPM window: from < iteration < until.
-    #[arg(long, default_value_t = 500)]
-    pub lpm_from: u32,
-    #[arg(long, default_value_t = 15_000)]
-    pub lpm_until: u32,
+    /// LPM's window starts after this iteration (LPM runs at from < iteration < until).
+    /// Default: the densification window's start, --densify-from.
+    #[arg(long)]
+    pub lpm_from: Option<u32>,
+    /// LPM's window ends before this iteration. Default: the densification window's end,
+    /// --densify-until (the model's: 15000, 9000 for the spacetime models): LPM only steers
+    /// densification, so neither its lowered threshold nor its opacity reset runs after it.
+    #[arg(long)]
+    pub lpm_until: Option<u32>,
     /// Gradient-threshold multiplier inside zones.
     #[arg(long, default_value_t = 0.5)]
     pub lpm_threshold_ratio: f32,
@@ -292,8 +319,14 @@ pub struct LpmArgs {
 }
 
 impl LpmArgs {
-    /// The LPM configuration, or `None` without `--lpm`.
-    pub fn config(&self, densify_interval: u32, seed: u64) -> anyhow::Result<Option<LpmConfig>> {
+    /// The LPM configuration, or `None` without `--lpm`. Its window defaults to the schedule's
+    /// densification window.
+    pub fn config(
+        &self,
+        schedule: &DensitySchedule,
+        seed: u64,
+    ) -> anyhow::Result<Option<LpmConfig>> {
+        let densify_interval = schedule.interval;
         if !self.lpm {
             return Ok(None);
         }
@@ -316,8 +349,8 @@ impl LpmArgs {
             _ => LpmConfig::default(),
         };
         c.interval = self.lpm_interval;
-        c.from = self.lpm_from;
-        c.until = self.lpm_until;
+        c.from = self.lpm_from.unwrap_or(schedule.densify_from);
+        c.until = self.lpm_until.unwrap_or(schedule.densify_until);
         c.threshold_ratio = self.lpm_threshold_ratio;
         c.add_points &= !self.lpm_no_add;
         c.reset = !self.lpm_no_reset;
@@ -638,5 +671,50 @@ mod tests {
         }
         let e = parse_zone("cone").unwrap_err().to_string();
         assert!(e.contains("\"cone\"") && e.contains("slab"), "{e}");
+    }
+
+    /// LPM steers densification, so its window is the densify window unless given: a
+    /// spacetime model densifies until 9000, and an LPM window to 3DGS's 15000 would run its
+    /// opacity resets for 6000 iterations after the last densification.
+    #[test]
+    fn the_lpm_window_follows_the_densify_window_unless_given() {
+        use clap::Parser;
+        #[derive(Parser)]
+        struct Cli {
+            #[command(flatten)]
+            train: TrainArgs,
+        }
+        let root = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/lund_door_small");
+        let scene = Scene::load(std::path::Path::new(root), &Default::default()).unwrap();
+        let window = |flags: &[&str]| {
+            let args = Cli::parse_from(
+                ["train", "scene", "--out", "o", "--lpm"]
+                    .iter()
+                    .chain(flags),
+            );
+            let c = args.train.config(&scene).unwrap();
+            let lpm = args.train.lpm.config(&c.schedule, 0).unwrap().unwrap();
+            (lpm.from, lpm.until)
+        };
+        assert_eq!(window(&[]), (500, 15_000));
+        assert_eq!(
+            window(&["--densify-from", "50", "--densify-until", "1500"]),
+            (50, 1500)
+        );
+        assert_eq!(window(&["--model", "spacetime-lite"]).1, 9000);
+        assert_eq!(
+            window(&[
+                "--densify-until",
+                "1500",
+                "--lpm-from",
+                "700",
+                "--lpm-until",
+                "1200"
+            ]),
+            (700, 1200)
+        );
+        let off = Cli::parse_from(["train", "scene", "--out", "o"]);
+        let c = off.train.config(&scene).unwrap();
+        assert!(off.train.lpm.config(&c.schedule, 0).unwrap().is_none());
     }
 }

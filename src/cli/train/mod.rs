@@ -28,7 +28,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     check_flags(args)?;
     let scene = Scene::load(&args.scene.scene, &args.scene.load_options()?)?;
     let config = args.config(&scene)?;
-    let lpm_config = args.lpm.config(args.densify_interval, args.seed)?;
+    let lpm_config = args.lpm.config(&config.schedule, args.seed)?;
     let lpips = args.lpips.load()?;
     prepare_output(&args.out)?;
     let checkpoint_path = args.out.join("checkpoint.bin");
