@@ -217,9 +217,14 @@ impl BaseModel {
         })
     }
 
-    /// Reads a trained PLY of this model (a video model's with its temporal groups).
+    /// Reads a trained PLY of this model (a video model's with its temporal groups; a 2DGS one
+    /// also in the official 2DGS layout, with two scales). A file another base model wrote is
+    /// refused where this one would draw it wrongly ([`BaseModel::check_ply_properties`],
+    /// [`BaseModel::check_ply_shape`]), and a 2DGS file read as 3D Gaussians gets a warning.
     pub fn read_ply(&self, path: &std::path::Path) -> anyhow::Result<GaussianParams> {
-        match self {
+        let names = crate::splats::ply::vertex_property_names(path)?;
+        self.check_ply_properties(path, &names)?;
+        let params = match self {
             BaseModel::SpacetimeLite => {
                 crate::splats::ply::read_ply_extras(path, &crate::render::spacetime::extra_groups())
             }
@@ -227,8 +232,135 @@ impl BaseModel {
                 path,
                 &crate::train::passes::spacetime::extra_groups_of(true),
             ),
+            BaseModel::Surfels2d => crate::splats::ply::read_ply_two_scales(path, UNUSED_LOG_SCALE),
             _ => crate::splats::read_ply(path),
+        }?;
+        if let Some(w) = self.check_ply_shape(path, &params)? {
+            eprintln!("warning: {}: {w}", path.display());
         }
+        Ok(params)
+    }
+
+    /// Reads any still model's PLY as the 3D Gaussians it draws as, for formats that hold
+    /// nothing else (`.splat`): a 2DGS file in the official two-scale layout as flat discs
+    /// (as our 2DGS files are), a SpacetimeGaussians one refused (it would be drawn at no
+    /// time at all).
+    pub fn read_still_ply(path: &std::path::Path) -> anyhow::Result<GaussianParams> {
+        let names = crate::splats::ply::vertex_property_names(path)?;
+        let has = |n: &str| names.iter().any(|p| p == n);
+        if has("trbf_center") {
+            return Err(crate::error::InputError::new(
+                path,
+                "property trbf_center",
+                "the file holds a SpacetimeGaussians model (its temporal groups): a still format \
+                 would show it at no time at all",
+                "render it at a time instead (`render SCENE --model spacetime-lite --time T`, \
+                 or spacetime-full with its decoder file)",
+            )
+            .into());
+        }
+        if !has("scale_2") && has("scale_1") {
+            return BaseModel::Surfels2d.read_ply(path);
+        }
+        crate::splats::read_ply(path)
+    }
+
+    /// Refuses a PLY whose properties say another base model wrote it, where reading it as
+    /// this one would silently draw something else: a SpacetimeGaussians model (its temporal
+    /// groups) read as a still one would be drawn at no time, a full one read as lite would
+    /// show its raw features as colours, a lite one has no features for the full model.
+    pub fn check_ply_properties(
+        &self,
+        path: &std::path::Path,
+        names: &[String],
+    ) -> anyhow::Result<()> {
+        let has = |n: &str| names.iter().any(|p| p == n);
+        let (temporal, features) = (has("trbf_center"), has("f_spec_0"));
+        let wrote = match (temporal, features) {
+            (true, true) => BaseModel::SpacetimeFull,
+            (true, false) => BaseModel::SpacetimeLite,
+            _ => return Ok(()),
+        };
+        let (field, problem) = match (self.is_spacetime(), *self == wrote) {
+            (_, true) => return Ok(()),
+            (false, _) => (
+                "property trbf_center",
+                format!(
+                    "the file holds a SpacetimeGaussians model (its temporal groups); as --model \
+                     {} every Gaussian would be drawn at no time at all",
+                    self.name()
+                ),
+            ),
+            (true, _) if features => (
+                "property f_spec_0",
+                "the file holds the full SpacetimeGaussians model (9 feature channels for its \
+                 decoder); as spacetime-lite its features would be drawn as colours"
+                    .to_string(),
+            ),
+            (true, _) => (
+                "property f_spec_0",
+                "the file holds the lite SpacetimeGaussians model: it has no feature channels \
+                 for the full model's decoder"
+                    .to_string(),
+            ),
+        };
+        Err(crate::error::InputError::new(
+            path,
+            field,
+            problem,
+            format!(
+                "pass --model {} (the model it was trained as), with the video scene it was \
+                 trained on",
+                wrote.name()
+            ),
+        )
+        .into())
+    }
+
+    /// What a model's shape says about the model that wrote it: under 2dgs, 3D Gaussians (a
+    /// third scale not far below the other two; a surfel keeps e^−20 there, and the official
+    /// 2DGS layout has none) are refused, since the surfel renderer would flatten them; under
+    /// the 3D Gaussian models a file of surfels only is drawn as the flat discs it stands for
+    /// (as 3DGS viewers show it) with a warning, returned, that names the flag that draws it
+    /// as surfels.
+    pub fn check_ply_shape(
+        &self,
+        path: &std::path::Path,
+        params: &GaussianParams,
+    ) -> anyhow::Result<Option<String>> {
+        // A third scale under a thousandth of the larger of the other two is flat, and so is
+        // the surfel's own (it only shrinks from UNUSED_LOG_SCALE, while a surfel whose other
+        // two scales shrank past e^−13 would fail the ratio).
+        let flat = |l: &[f32; 3]| l[2] <= UNUSED_LOG_SCALE || l[2] <= l[0].max(l[1]) - 1000f32.ln();
+        if *self == BaseModel::Surfels2d {
+            if let Some(i) = params.log_scales.iter().position(|l| !flat(l)) {
+                let l = params.log_scales[i];
+                return Err(crate::error::InputError::new(
+                    path,
+                    format!("vertex {i}, property scale_2"),
+                    format!(
+                        "the third log-scale {} is not far below the other two ({}, {}): the \
+                         file holds 3D Gaussians, which --model 2dgs would draw flattened (a \
+                         2DGS PLY keeps {UNUSED_LOG_SCALE} there, or has no scale_2)",
+                        l[2], l[0], l[1]
+                    ),
+                    "pass --model 3dgs (or the model it was trained as)",
+                )
+                .into());
+            }
+            return Ok(None);
+        }
+        let still = !self.is_spacetime();
+        if still && !params.log_scales.is_empty() && params.log_scales.iter().all(flat) {
+            return Ok(Some(format!(
+                "every Gaussian is flat (its third scale under a thousandth of the others): \
+                 this looks like a 2DGS model, drawn here as flat 3D Gaussians as 3DGS viewers \
+                 show it. Pass --model 2dgs to draw it as surfels, as it was trained (not \
+                 --model {})",
+                self.name()
+            )));
+        }
+        Ok(None)
     }
 
     /// The rasterizer constants its renders use (eval, render, viewers of an exported PLY):

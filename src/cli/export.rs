@@ -2,12 +2,14 @@
 
 use anyhow::Context;
 use clap::Args;
-use lpmsplat::splats::{read_ply, require_nonempty, splat_file::SPLAT_ROW_BYTES, write_splat};
+use lpmsplat::models::BaseModel;
+use lpmsplat::splats::{require_nonempty, splat_file::SPLAT_ROW_BYTES, write_splat};
 use std::path::PathBuf;
 
 #[derive(Args, Debug)]
 pub struct ExportArgs {
-    /// Trained Gaussians (Inria-layout PLY; a Mip-Splatting export already holds its 3D filter).
+    /// Trained Gaussians (Inria-layout PLY; a Mip-Splatting export already holds its 3D filter;
+    /// a 2DGS one, also in the official two-scale layout, becomes flat discs).
     #[arg(long)]
     pub ply: PathBuf,
     /// The `.splat` file to write (32 bytes per Gaussian, SH degree 0, sorted by size ×
@@ -17,7 +19,7 @@ pub struct ExportArgs {
 }
 
 pub fn run(args: &ExportArgs) -> anyhow::Result<()> {
-    let params = read_ply(&args.ply)?;
+    let params = BaseModel::read_still_ply(&args.ply)?;
     require_nonempty(&args.ply, &params)?;
     let out = args
         .splat

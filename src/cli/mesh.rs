@@ -11,7 +11,7 @@ use lpmsplat::mesh::{extract::extract, ply::write_mesh_ply, tsdf::DepthView, tsd
 use lpmsplat::models::BaseModel;
 use lpmsplat::render::layout::CameraGpu;
 use lpmsplat::scene::{images, Scene};
-use lpmsplat::splats::{gpu::GpuSplats, read_ply};
+use lpmsplat::splats::gpu::GpuSplats;
 
 use super::SceneArgs;
 
@@ -71,7 +71,9 @@ pub fn run(gpu: &GpuOptions, args: &MeshArgs) -> anyhow::Result<()> {
         args.depth_ratio
     );
     let scene = Scene::load(&args.scene.scene, &args.scene.load_options()?)?;
-    let params = read_ply(&args.ply)?.with_sh_degree(0)?;
+    let params = BaseModel::Surfels2d
+        .read_ply(&args.ply)?
+        .with_sh_degree(0)?;
     lpmsplat::splats::require_nonempty(&args.ply, &params)?;
     let views: Vec<usize> = match args.cameras.as_str() {
         "train" if !scene.train.is_empty() => scene.train.clone(),

@@ -61,8 +61,14 @@ const REQUIRED: [&str; 14] = [
     "f_dc_0", "f_dc_1", "f_dc_2",
 ];
 
-/// Resolves the required properties of `vertex` to indices into its property list.
-fn required_indices(path: &Path, vertex: &Element) -> anyhow::Result<(Vec<usize>, u32)> {
+/// Resolves the required properties of `vertex` to indices into its property list. With
+/// `two_scales`, a file without `scale_2` (the official 2DGS layout) reads `scale_1` in its
+/// place, for the caller to overwrite; the returned flag says it did.
+fn required_indices(
+    path: &Path,
+    vertex: &Element,
+    two_scales: bool,
+) -> anyhow::Result<(Vec<usize>, u32, bool)> {
     let mut by_name = std::collections::HashMap::new();
     for (i, p) in vertex.props.iter().enumerate() {
         if by_name.insert(p.name.as_str(), i).is_some() {
@@ -95,14 +101,29 @@ fn required_indices(path: &Path, vertex: &Element) -> anyhow::Result<(Vec<usize>
     };
     let rest_names = (0..n_rest).map(|k| format!("f_rest_{k}"));
     let mut indices = Vec::with_capacity(REQUIRED.len() + n_rest);
+    let mut stood_in = false;
     for name in REQUIRED.iter().map(|s| s.to_string()).chain(rest_names) {
-        let Some(&i) = by_name.get(name.as_str()) else {
+        let found = by_name.get(name.as_str()).copied();
+        let found = match (found, name.as_str()) {
+            (None, "scale_2") if two_scales => {
+                stood_in = true;
+                by_name.get("scale_1").copied()
+            }
+            _ => found,
+        };
+        let Some(i) = found else {
+            let fix = if name == "scale_2" && by_name.contains_key("scale_1") {
+                "a PLY with two scales is a 2DGS model (the official 2DGS layout): read it with \
+                 --model 2dgs; a 3D Gaussian model needs scale_0..2"
+            } else {
+                "a Gaussian model needs x y z f_dc_0..2 f_rest_* opacity scale_0..2 rot_0..3 \
+                 (the Inria 3DGS layout); re-export it in that layout"
+            };
             return bad_input(
                 path,
                 format!("property {name}"),
                 "the vertex element has no such property",
-                "a Gaussian model needs x y z f_dc_0..2 f_rest_* opacity scale_0..2 rot_0..3 \
-                 (the Inria 3DGS layout); re-export it in that layout",
+                fix,
             );
         };
         match vertex.props[i].kind {
@@ -126,7 +147,7 @@ fn required_indices(path: &Path, vertex: &Element) -> anyhow::Result<(Vec<usize>
         }
         indices.push(i);
     }
-    Ok((indices, degree))
+    Ok((indices, degree, stood_in))
 }
 
 fn layout_from_slots(slots: &[Slot], degree: u32) -> Layout {
@@ -142,11 +163,14 @@ fn layout_from_slots(slots: &[Slot], degree: u32) -> Layout {
     }
 }
 
+/// Parses a whole PLY file. `third_log_scale`: a file without `scale_2` is read as a 2DGS
+/// model whose third log-scale is this value (None: `scale_2` is required).
 pub(super) fn parse_ply(
     path: &Path,
     bytes: &[u8],
     max_degree: u32,
     extra: &[crate::splats::ExtraGroup],
+    third_log_scale: Option<f32>,
 ) -> anyhow::Result<GaussianParams> {
     let header = parse_header(path, bytes)?;
     let Some(vi) = header.elements.iter().position(|e| e.name == "vertex") else {
@@ -170,7 +194,8 @@ pub(super) fn parse_ply(
             "export the Gaussians with scalar properties only",
         );
     }
-    let (mut indices, file_degree) = required_indices(path, vertex)?;
+    let (mut indices, file_degree, scale_2_stood_in) =
+        required_indices(path, vertex, third_log_scale.is_some())?;
     let base_len = indices.len();
     for g in extra {
         for name in extra_property_names(g) {
@@ -252,6 +277,9 @@ pub(super) fn parse_ply(
     }
     let degree = file_degree.min(max_degree);
     let mut params = gather(rows, stride, n, &layout, degree);
+    if let (true, Some(v)) = (scale_2_stood_in, third_log_scale) {
+        params.log_scales.iter_mut().for_each(|l| l[2] = v);
+    }
     let mut at = 0;
     for g in extra {
         let slots = &extra_slots[at..at + g.stride];
@@ -409,10 +437,11 @@ fn ascii_to_rows(
             }
         }
     }
-    // Where each vertex property goes in the output row, if anywhere.
-    let mut dest = vec![None; vertex.props.len()];
+    // Where each vertex property goes in the output row, if anywhere (twice for a property
+    // that stands in for a missing one).
+    let mut dest = vec![Vec::new(); vertex.props.len()];
     for (k, &i) in indices.iter().enumerate() {
-        dest[i] = Some(k);
+        dest[i].push(k);
     }
     let row_bytes = indices.len() * 4;
     // Capacity from the body length, not the claimed count, so a lying header cannot make us
@@ -435,7 +464,9 @@ fn ascii_to_rows(
                     "the file is incomplete; re-export it",
                 );
             };
-            let Some(k) = *d else { continue };
+            if d.is_empty() {
+                continue;
+            }
             let value = match p.kind {
                 PropKind::Scalar(Scalar::F64) => t.parse::<f64>().map(|x| x as f32).ok(),
                 _ => t.parse::<f32>().ok(),
@@ -448,7 +479,9 @@ fn ascii_to_rows(
                     "fix the value or re-export the model",
                 );
             };
-            row[k * 4..k * 4 + 4].copy_from_slice(&value.to_le_bytes());
+            for &k in d {
+                row[k * 4..k * 4 + 4].copy_from_slice(&value.to_le_bytes());
+            }
         }
         out.extend_from_slice(&row);
     }

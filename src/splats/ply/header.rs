@@ -109,7 +109,7 @@ pub(super) struct Header {
 
 /// Headers longer than this are not PLY headers we expect (guards against scanning a huge
 /// binary file line by line).
-const MAX_HEADER_BYTES: usize = 1 << 20;
+pub(super) const MAX_HEADER_BYTES: usize = 1 << 20;
 
 pub(super) fn parse_header(path: &Path, bytes: &[u8]) -> anyhow::Result<Header> {
     let not_ply = || {

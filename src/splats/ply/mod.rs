@@ -151,7 +151,48 @@ pub fn read_ply(path: &Path) -> anyhow::Result<GaussianParams> {
 /// degree drops the higher bands; higher keeps the file's degree). Coefficients dropped this way
 /// are not checked for NaN.
 pub fn read_ply_with_degree(path: &Path, max_degree: u32) -> anyhow::Result<GaussianParams> {
-    read_ply_full(path, max_degree, &[])
+    read_ply_full(path, max_degree, &[], None)
+}
+
+/// Reads a 2DGS model: the Inria layout (our 2DGS PLYs, whose `scale_2` is unused), or the
+/// official 2DGS code's, which stores two scales; there the third log-scale is
+/// `third_log_scale` (the value the surfel model keeps in it).
+pub fn read_ply_two_scales(path: &Path, third_log_scale: f32) -> anyhow::Result<GaussianParams> {
+    read_ply_full(path, MAX_SH_DEGREE, &[], Some(third_log_scale))
+}
+
+/// The names of a PLY's vertex properties, from its header alone: which base model wrote a
+/// file can be told before reading it as one. Empty when the file has no vertex element (the
+/// readers then say so).
+pub fn vertex_property_names(path: &Path) -> anyhow::Result<Vec<String>> {
+    use std::io::Read;
+    let mut head = Vec::new();
+    std::fs::File::open(path)
+        .and_then(|f| {
+            f.take(header::MAX_HEADER_BYTES as u64 + 1)
+                .read_to_end(&mut head)
+        })
+        .map_err(|e| open_error(path, e))?;
+    let header = header::parse_header(path, &head)?;
+    Ok(header
+        .elements
+        .iter()
+        .find(|e| e.name == "vertex")
+        .map(|e| e.props.iter().map(|p| p.name.clone()).collect())
+        .unwrap_or_default())
+}
+
+/// The error for a model file that cannot be opened or read.
+fn open_error(path: &Path, e: std::io::Error) -> anyhow::Error {
+    let (problem, fix) = if e.kind() == std::io::ErrorKind::NotFound {
+        ("the file does not exist".to_string(), "check the path")
+    } else {
+        (
+            format!("cannot read the file ({e})"),
+            "check that the file is readable",
+        )
+    };
+    InputError::new(path, "file", problem, fix).into()
 }
 
 /// Reads a model with extra parameter groups (a base model's own, e.g. SpacetimeGaussians'
@@ -161,26 +202,17 @@ pub fn read_ply_extras(
     path: &Path,
     extra: &[crate::splats::ExtraGroup],
 ) -> anyhow::Result<GaussianParams> {
-    read_ply_full(path, MAX_SH_DEGREE, extra)
+    read_ply_full(path, MAX_SH_DEGREE, extra, None)
 }
 
 fn read_ply_full(
     path: &Path,
     max_degree: u32,
     extra: &[crate::splats::ExtraGroup],
+    third_log_scale: Option<f32>,
 ) -> anyhow::Result<GaussianParams> {
-    let bytes = std::fs::read(path).map_err(|e| {
-        let (problem, fix) = if e.kind() == std::io::ErrorKind::NotFound {
-            ("the file does not exist".to_string(), "check the path")
-        } else {
-            (
-                format!("cannot read the file ({e})"),
-                "check that the file is readable",
-            )
-        };
-        InputError::new(path, "file", problem, fix)
-    })?;
-    parse_ply(path, &bytes, max_degree, extra)
+    let bytes = std::fs::read(path).map_err(|e| open_error(path, e))?;
+    parse_ply(path, &bytes, max_degree, extra, third_log_scale)
 }
 
 /// An error for a model that has no Gaussians (which [`read_ply`] itself accepts).
