@@ -561,3 +561,35 @@ fn random_corruption_never_panics() {
         "only {failures} of 240 damaged models were refused"
     );
 }
+
+/// A path inside a scene (its sparse/0, its images/, one of its files) names the scene's top
+/// folder in the fix; a folder of scenes lists them; an empty folder says what a scene holds.
+#[test]
+fn a_path_that_is_not_a_scene_points_at_the_scene_nearby() {
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data");
+    let door = data.join("lund_door_small");
+    let top = door.canonicalize().unwrap();
+    for inside in [
+        door.join("sparse/0"),
+        door.join("images"),
+        door.join("README.md"),
+    ] {
+        let e = Scene::load(&inside, &Default::default()).unwrap_err();
+        let ie = e.downcast_ref::<InputError>().expect("an InputError");
+        assert_eq!(ie.file, inside);
+        assert!(ie.fix.contains(&top.display().to_string()), "{e:#}");
+    }
+    let e = Scene::load(&data, &Default::default()).unwrap_err();
+    let fix = &e.downcast_ref::<InputError>().unwrap().fix;
+    for scene in ["lego_small", "lund_door_small", "n3v_tiny"] {
+        assert!(fix.contains(scene), "{fix}");
+    }
+    assert!(!fix.contains("lpips"), "{fix}");
+    let empty = tempfile::tempdir().unwrap();
+    let e = Scene::load(empty.path(), &Default::default()).unwrap_err();
+    let ie = e.downcast_ref::<InputError>().unwrap();
+    assert!(
+        ie.problem.contains("COLMAP") && ie.fix.contains("top folder"),
+        "{e:#}"
+    );
+}

@@ -235,7 +235,7 @@ impl Scene {
             root,
             "scene folder",
             "holds neither a COLMAP model (sparse/0/cameras.bin|txt or sparse/cameras.bin|txt), transforms*.json, nor a video scene (poses_bounds.npy or train_meta.json)",
-            "point at the scene's top folder",
+            scene_nearby(root),
         )
     }
 
@@ -252,6 +252,45 @@ impl Scene {
 
     pub fn test_views(&self) -> impl Iterator<Item = &View> {
         self.test.iter().map(|&i| &self.views[i])
+    }
+}
+
+/// Whether `dir` holds a scene [`Scene::load`] recognises (by its files, without loading it).
+fn holds_scene(dir: &Path) -> bool {
+    dir.is_dir()
+        && (video::VideoScene::detect(dir).is_some()
+            || colmap::find_sparse_dir(dir).is_some()
+            || dir.join("transforms_train.json").exists()
+            || dir.join("transforms.json").exists())
+}
+
+/// The fix for a path that holds no scene: the scene folder it lies in (a file of a scene, its
+/// sparse/0 or images/ folder), or the scenes it holds (a folder of scenes).
+fn scene_nearby(path: &Path) -> String {
+    // Absolute, so that `sparse/0` given from inside the scene finds it too.
+    let abs = path.canonicalize().unwrap_or_else(|_| path.to_path_buf());
+    if let Some(up) = abs.ancestors().skip(1).take(3).find(|a| holds_scene(a)) {
+        return format!(
+            "point at the scene's top folder, {}, which holds this path",
+            up.display()
+        );
+    }
+    let mut inside: Vec<String> = std::fs::read_dir(path)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter(|e| holds_scene(&e.path()))
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    inside.sort();
+    match inside.len() {
+        0 => "point at the scene's top folder".to_string(),
+        n => format!(
+            "this folder holds {n} scene{}: point at one of them ({}{})",
+            if n == 1 { "" } else { "s" },
+            inside[..n.min(6)].join(", "),
+            if n > 6 { ", …" } else { "" }
+        ),
     }
 }
 
