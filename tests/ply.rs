@@ -404,6 +404,14 @@ fn bad_inputs_name_the_file_and_the_field() {
         let err = read_ply(&p).unwrap_err();
         assert_input_error(&err, &p, &format!("property {name}"));
     }
+    // A compressed splat PLY (chunk bounds, packed vertices) is named as such.
+    let packed = "ply\nformat binary_little_endian 1.0\nelement chunk 1\nproperty float min_x\n\
+                  element vertex 1\nproperty uint packed_position\nproperty uint packed_rotation\n\
+                  property uint packed_scale\nproperty uint packed_color\nend_header\n";
+    let p = write_bytes(d, "packed.ply", &[packed.as_bytes(), &[0u8; 20]]);
+    let err = read_ply(&p).unwrap_err();
+    assert_input_error(&err, &p, "property x");
+    assert!(format!("{err:#}").contains("compressed"), "{err:#}");
     // A gap in f_rest: 9 f_rest_* properties but f_rest_4 renamed.
     let h = header.replace("property float f_rest_4\n", "property float f_rest_9\n");
     let p = write_bytes(d, "gap.ply", &[h.as_bytes(), &body]);

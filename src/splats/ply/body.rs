@@ -112,7 +112,10 @@ fn required_indices(
             _ => found,
         };
         let Some(i) = found else {
-            let fix = if name == "scale_2" && by_name.contains_key("scale_1") {
+            let fix = if by_name.contains_key("packed_position") {
+                "this is a compressed splat PLY (packed_position, the PlayCanvas / SuperSplat \
+                 layout): convert it to an uncompressed Inria-layout PLY first"
+            } else if name == "scale_2" && by_name.contains_key("scale_1") {
                 "a PLY with two scales is a 2DGS model (the official 2DGS layout): read it with \
                  --model 2dgs; a 3D Gaussian model needs scale_0..2"
             } else {
