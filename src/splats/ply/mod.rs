@@ -13,6 +13,8 @@
 //! order, `ascii`, `binary_little_endian` and `binary_big_endian` bodies are accepted, required
 //! properties may be `float` or `double`, unknown properties and other elements are skipped. The
 //! SH degree is inferred from the number of `f_rest_*` properties (0, 9, 24, 45 → 0..3).
+//! [`read_ply_two_scales`] also takes the official 2DGS code's layout, which has no `scale_2`,
+//! and [`vertex_property_names`] reads only the header, to tell which base model wrote a file.
 
 mod body;
 mod header;
