@@ -43,7 +43,8 @@
 #            (lpm-slab), seed SEED (0); TRADE_RUNS replaces the list
 #   budget7k bench trade on the packed scene at full size, 7k of the 30k calendar: ADC and ADC+LPM
 #            under one Gaussian budget (--max-gaussians CAP, default 1000000), so they compare
-#            at one count; seed SEED (0); TRADE_RUNS replaces the list (e.g. adc,lpm,lpm-no-reset)
+#            at one count; seed SEED (0); TRADE_RUNS replaces the list (e.g. adc,lpm,lpm-no-reset);
+#            BLOCK_FRACTION sets the LPM runs' --lpm-block-fraction (0.7 led at -r 4)
 #   train30k train the packed scene at full size with LPM, 30k iterations, --timestamps
 set -uo pipefail
 cd "$(dirname "$0")/../.."
@@ -338,7 +339,7 @@ for s in "$@"; do
         need_scene budget7k &&
             step budget7k 900 "$bin" bench trade "$scene" -r 1 --iterations 7000 --calendar 30000 \
                 --runs "${TRADE_RUNS:-adc,lpm}" --max-gaussians "${CAP:-1000000}" --seed "${SEED:-0}" --eval-at 3500 \
-                --fps-frames 5 -o "$work/budget7k"
+                --fps-frames 5 ${BLOCK_FRACTION:+--lpm-block-fraction "$BLOCK_FRACTION"} -o "$work/budget7k"
         ;;
     train30k)
         need_scene train30k &&
