@@ -3,7 +3,9 @@
 // order at the Gaussian's scanned offset. The key holds only the tile id: a later stable sort by tile keeps
 // the depth order inside each tile. Writes past `capacity` are dropped and the host regrows the
 // buffers from the frame's 64-bit total (gather_tile_counts.comp), or refuses a frame past what
-// one binding of pairs holds; the scan's 32-bit total in counts[1] only bounds the writes.
+// one binding of pairs holds (tools then draw the frame in bands of tile rows, this kernel
+// emitting one band's rows [row_lo, row_hi)); the scan's 32-bit total in counts[1] only bounds
+// the writes.
 layout(constant_id = 0) const uint WG_SIZE = 256;
 layout(local_size_x_id = 0) in;
 // counts[COUNT_VISIBLE]: the Gaussians the depth sort kept (`COUNT_VISIBLE` in
@@ -21,7 +23,8 @@ layout(std430, set = 0, binding = 5) buffer Counts { uint counts[]; };
 layout(std430, set = 0, binding = 6) readonly buffer Splats { ProjectedSplat splats[]; };
 // The same tile choice as gather_tile_counts.comp (its push constants, then these).
 layout(push_constant) uniform Push {
-    float alpha_min; uint ellipse; uint smooth_mode; uint capacity; uint tiles_x;
+    float alpha_min; uint ellipse; uint smooth_mode; uint row_lo; uint row_hi; uint total_slot;
+    uint capacity; uint tiles_x;
 };
 
 void main() {
@@ -38,7 +41,8 @@ void main() {
     rs.bounded = false;
     rs.empty = false;
     if (use_ellipse) rs = row_spanner(splats[g], true, alpha_min, smooth_mode != 0u);
-    for (uint ty = p.tile_min_y; ty < p.tile_max_y; ty++) {
+    uint y0 = max(p.tile_min_y, row_lo), y1 = min(p.tile_max_y, row_hi);
+    for (uint ty = y0; ty < y1; ty++) {
         uvec2 r = row_tiles(rs, ty, cols);
         for (uint tx = r.x; tx < r.y; tx++) {
             if (slot >= capacity) return;

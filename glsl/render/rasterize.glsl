@@ -54,6 +54,9 @@ layout(push_constant) uniform Push {
     RenderConstants rc;
     uint camera_index;
     float bg_r, bg_g, bg_b;
+    // The first tile of the band of tile rows this dispatch draws (0: the whole frame; frames
+    // whose pairs pass one storage binding are drawn band by band).
+    uint tile_offset;
 };
 #include "decoder_forward.glsl"
 
@@ -117,7 +120,7 @@ bool blend(vec4 mo, vec4 cn, vec3 rgb, float f[EXTRA_N], uint index, bool smooth
 void main() {
     Camera cam = cameras[camera_index];
     uint tiles_x = cam.size.z;
-    uint tile = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
+    uint tile = tile_offset + gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
     if (tile >= tiles_x * cam.size.w) return;  // uniform over the workgroup
     uint li = gl_LocalInvocationIndex;
 

@@ -44,6 +44,9 @@ layout(push_constant) uniform Push {
     SurfelConstants sc;
     uint camera_index;
     float bg_r, bg_g, bg_b;
+    // The first tile of the band of tile rows this dispatch draws (0: the whole frame; frames
+    // whose pairs pass one storage binding are drawn band by band).
+    uint tile_offset;
 };
 
 
@@ -113,7 +116,7 @@ bool blend(vec4 h1, vec4 h2, vec4 h3, vec4 nr, vec2 gb, uint index, bool smooth_
 void main() {
     Camera cam = cameras[camera_index];
     uint tiles_x = cam.size.z;
-    uint tile = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
+    uint tile = tile_offset + gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
     if (tile >= tiles_x * cam.size.w) return;  // uniform over the workgroup
     uint li = gl_LocalInvocationIndex;
     bool smooth_mode = (sc.flags & 1u) != 0u;

@@ -60,7 +60,8 @@ impl TimestampPool {
 
     /// Reads the timestamps of the last completed submission. Stage `i` is the time between
     /// timestamp `i` and `i + 1`, named by the label of timestamp `i + 1` (the label says which
-    /// stage just finished).
+    /// stage just finished). Stages recorded more than once under one label (a frame drawn in
+    /// bands, several views an iteration) are summed, in the order of their first use.
     pub fn read(&self) -> anyhow::Result<StageTimes> {
         let n = self.labels.len();
         if n < 2 {
@@ -77,15 +78,14 @@ impl TimestampPool {
         }
         .context("reading timestamps")?;
         let period = self.ctx.info.timestamp_period_ns;
-        let stages = (1..n)
-            .map(|i| {
-                (
-                    self.labels[i].clone(),
-                    ticks[i].saturating_sub(ticks[i - 1]) as f64 * period * 1e-6,
-                )
-            })
-            .collect();
-        Ok(StageTimes { stages })
+        let mut times = StageTimes::default();
+        for i in 1..n {
+            let ms = ticks[i].saturating_sub(ticks[i - 1]) as f64 * period * 1e-6;
+            times.accumulate(&StageTimes {
+                stages: vec![(self.labels[i].clone(), ms)],
+            });
+        }
+        Ok(times)
     }
 }
 

@@ -18,11 +18,13 @@
 //! intersections is only known on the GPU: pairs past the capacity are dropped by the emit kernel
 //! and [`Renderer::last_intersections`] (after the frame's fence) tells the caller to grow and
 //! render again; `counts` is copied to a host-visible buffer at the end of every frame so this
-//! costs no extra wait.
+//! costs no extra wait. A frame with more pairs than one binding holds is drawn by tools in bands
+//! of tile rows (`super::bands`) and refused in training.
 
 use std::sync::Arc;
 
 use super::backward::default_pixels_per_invocation;
+use super::bands::{FrameWork, TileBand};
 use super::dispatch_size::DispatchSize;
 use super::layout::{CameraGpu, RenderConstants};
 use super::projected::ProjectedBuffers;
@@ -69,6 +71,11 @@ struct PairingPush {
     /// 1: only the tiles where the splat's ellipse may reach `alpha_min`; 0: the rectangle.
     ellipse: u32,
     smooth_mode: u32,
+    /// The band of tile rows `[row_lo, row_hi)` paired (the whole frame but in banded frames).
+    row_lo: u32,
+    row_hi: u32,
+    /// The band's slot of the 64-bit pair totals.
+    total_slot: u32,
 }
 
 #[repr(C)]
@@ -90,18 +97,22 @@ pub(crate) enum Pairing {
 }
 
 impl Pairing {
-    fn push(self) -> PairingPush {
-        match self {
-            Pairing::Rectangle => PairingPush {
-                alpha_min: 0.0,
-                ellipse: 0,
-                smooth_mode: 0,
-            },
-            Pairing::Ellipse(rc) => PairingPush {
-                alpha_min: rc.alpha_min,
-                ellipse: 1,
-                smooth_mode: u32::from(rc.flags & RenderConstants::SMOOTH != 0),
-            },
+    fn push(self, band: &TileBand, total_slot: u32) -> PairingPush {
+        let (alpha_min, ellipse, smooth_mode) = match self {
+            Pairing::Rectangle => (0.0, 0, 0),
+            Pairing::Ellipse(rc) => (
+                rc.alpha_min,
+                1,
+                u32::from(rc.flags & RenderConstants::SMOOTH != 0),
+            ),
+        };
+        PairingPush {
+            alpha_min,
+            ellipse,
+            smooth_mode,
+            row_lo: band.first_row,
+            row_hi: band.end_row,
+            total_slot,
         }
     }
 }
@@ -112,6 +123,8 @@ struct RasterPush {
     rc: RenderConstants,
     camera_index: u32,
     background: [f32; 3],
+    /// The band's first tile (`glsl/render/rasterize.glsl`).
+    tile_offset: u32,
 }
 
 /// What a frame needs besides the splats and the camera buffer.
@@ -203,10 +216,31 @@ pub struct FrameBuffers {
     pub last_index: GpuBuffer<u32>,
     /// `COUNT_*` slots.
     pub counts: GpuBuffer<u32>,
-    /// The frame's intersections as 64 bits: low word, carries (gather_tile_counts.comp).
-    pair_total: GpuBuffer<u32>,
-    /// `counts`, then `pair_total`, after the frame.
+    /// `counts` after the frame.
     counts_host: GpuBuffer<u32>,
+}
+
+/// Each band's intersections as 64 bits (low word, carries: gather_tile_counts.comp), on the
+/// GPU and copied for the host after the frame; room for `bands` bands.
+struct BandTotals {
+    device: GpuBuffer<u32>,
+    host: GpuBuffer<u32>,
+    bands: usize,
+}
+
+impl BandTotals {
+    fn new(ctx: &Arc<GpuContext>, bands: usize) -> anyhow::Result<Self> {
+        Ok(Self {
+            device: GpuBuffer::new(ctx, "band pair totals", 2 * bands, BufferKind::DeviceLocal)?,
+            host: GpuBuffer::new(
+                ctx,
+                "band pair totals (host)",
+                2 * bands,
+                BufferKind::Readback,
+            )?,
+            bands,
+        })
+    }
 }
 
 pub struct Renderer {
@@ -231,6 +265,18 @@ pub struct Renderer {
     /// and visible counts on the GPU ([`PAIR_GROUPS`], [`VISIBLE_GROUPS`]).
     pair_groups: DispatchSize,
     scan: PrefixScan,
+    /// Counts every tile row's pairs (`glsl/render/tile_row_pairs.comp`) to plan bands.
+    row_pairs: ComputePipeline,
+    /// Its output, 64 bits a tile row (allocated by the first planning pass).
+    row_totals: Option<GpuBuffer<u32>>,
+    /// The most pairs one frame (or band) may have: one binding's worth, or less
+    /// ([`Renderer::limit_pairs`]).
+    pair_limit: u64,
+    /// The bands of tile rows tools draw frames of `plan.0` tile rows in (empty: whole frames).
+    plan: (u32, Vec<TileBand>),
+    totals: BandTotals,
+    /// The bands of the last recorded frame.
+    last_bands: usize,
     capacity: Capacity,
     pub frame: FrameBuffers,
     tile_sorted_in: SortedIn,
@@ -276,11 +322,10 @@ impl FrameBuffers {
             final_t: GpuBuffer::new(ctx, "final T", cap.pixels.max(1), dl)?,
             last_index: GpuBuffer::new(ctx, "last index", cap.pixels.max(1), dl)?,
             counts: GpuBuffer::new(ctx, "render counts", COUNT_SLOTS, dl)?,
-            pair_total: GpuBuffer::new(ctx, "intersections (64-bit)", 2, dl)?,
             counts_host: GpuBuffer::new(
                 ctx,
                 "render counts (host)",
-                COUNT_SLOTS + 2,
+                COUNT_SLOTS,
                 BufferKind::Readback,
             )?,
         })
@@ -326,6 +371,17 @@ impl Renderer {
                 std::mem::size_of::<EmitPush>(),
             )?,
             ranges: pipe("render/tile_ranges", shaders::RENDER_TILE_RANGES, 3, 0)?,
+            row_pairs: pipe(
+                "render/tile_row_pairs",
+                shaders::RENDER_TILE_ROW_PAIRS,
+                5,
+                std::mem::size_of::<PairingPush>(),
+            )?,
+            row_totals: None,
+            pair_limit: max_intersections(ctx),
+            plan: (0, Vec::new()),
+            totals: BandTotals::new(ctx, 1)?,
+            last_bands: 1,
             // Same pixels-per-invocation choice as the backward (CPU drivers: 8).
             raster_pixels: default_pixels_per_invocation(&ctx.info),
             raster: Self::raster_pipeline(ctx, default_pixels_per_invocation(&ctx.info), 0, false)?,
@@ -413,13 +469,14 @@ impl Renderer {
     /// the old buffers must have completed).
     pub fn ensure_capacity(&mut self, need: Capacity) -> anyhow::Result<bool> {
         let cur = self.capacity;
-        let max_pairs = max_intersections(&self.ctx);
+        let max_pairs = self.pair_limit;
         if need.intersections as u64 > max_pairs {
             anyhow::bail!(
                 "a frame has {} (tile, Gaussian) intersections, more than the {max_pairs} one \
                  storage binding holds on this device ({} MiB maxStorageBufferRange, 4 bytes a \
-                 pair; frames are not drawn in tile chunks). Fix: render or train at a lower \
-                 resolution (-r, --width/--height) or with fewer Gaussians",
+                 pair); training needs all of a frame's pairs at once (render, eval and bench \
+                 fps draw such frames in bands of tile rows). Fix: train at a lower resolution \
+                 (-r, --width/--height) or with fewer Gaussians",
                 need.intersections,
                 self.ctx.info.max_storage_buffer_range >> 20
             );
@@ -465,9 +522,10 @@ impl Renderer {
         })
     }
 
-    /// Records one frame of `splats` seen from `cameras[camera_index]` (whose host copy is
-    /// `camera`). With a timestamp pool, writes one timestamp per stage (the caller starts the
-    /// pool). The frame's outputs stay in [`Renderer::frame`] until the next record.
+    /// Records one whole frame of `splats` seen from `cameras[camera_index]` (whose host copy
+    /// is `camera`), as training does. With a timestamp pool, writes one timestamp per stage
+    /// (the caller starts the pool). The frame's outputs stay in [`Renderer::frame`] until the
+    /// next record.
     #[allow(clippy::too_many_arguments)]
     pub fn record(
         &mut self,
@@ -477,9 +535,65 @@ impl Renderer {
         camera_index: u32,
         camera: &CameraGpu,
         settings: &FrameSettings,
+        timestamps: Option<&mut TimestampPool>,
+    ) -> anyhow::Result<()> {
+        let work = FrameWork::Bands(vec![TileBand::whole(camera)]);
+        self.record_work(
+            rec,
+            splats,
+            cameras,
+            camera_index,
+            camera,
+            settings,
+            &work,
+            timestamps,
+        )
+    }
+
+    /// As [`Renderer::record`], in the bands of tile rows [`Renderer::render_blocking`] planned
+    /// for frames of this size (a benchmark's repeated frames; whole when none were needed).
+    /// With several bands the per-band stages are timed once per band under the same labels.
+    #[allow(clippy::too_many_arguments)]
+    pub fn record_planned(
+        &mut self,
+        rec: &mut Recorder,
+        splats: &GpuSplats,
+        cameras: &GpuBuffer<CameraGpu>,
+        camera_index: u32,
+        camera: &CameraGpu,
+        settings: &FrameSettings,
+        timestamps: Option<&mut TimestampPool>,
+    ) -> anyhow::Result<()> {
+        let work = FrameWork::Bands(self.bands_for(camera));
+        self.record_work(
+            rec,
+            splats,
+            cameras,
+            camera_index,
+            camera,
+            settings,
+            &work,
+            timestamps,
+        )
+    }
+
+    /// Records a frame's preprocess and depth sort, then `work`.
+    #[allow(clippy::too_many_arguments)]
+    fn record_work(
+        &mut self,
+        rec: &mut Recorder,
+        splats: &GpuSplats,
+        cameras: &GpuBuffer<CameraGpu>,
+        camera_index: u32,
+        camera: &CameraGpu,
+        settings: &FrameSettings,
+        work: &FrameWork,
         mut timestamps: Option<&mut TimestampPool>,
     ) -> anyhow::Result<()> {
         self.check_frame(splats.count, camera)?;
+        if let FrameWork::Bands(bands) = work {
+            self.prepare_bands(rec, bands.len())?;
+        }
         let ctx = self.ctx.clone();
         let f = &self.frame;
         let n = splats.count as u64;
@@ -530,10 +644,18 @@ impl Renderer {
         rec.barrier();
         stamp(rec, timestamps.as_deref_mut(), "preprocess");
 
-        // 2–5 (tile ranges).
-        self.record_binning(rec, camera, Pairing::Ellipse(rc), timestamps.as_deref_mut());
+        // 2. Depth sort.
+        self.record_depth_sort(rec, timestamps.as_deref_mut());
+        let bands = match work {
+            FrameWork::RowTotals => {
+                self.record_row_totals(rec, camera, Pairing::Ellipse(rc))?;
+                self.finish_frame(rec, camera, 0);
+                return Ok(());
+            }
+            FrameWork::Bands(bands) => bands,
+        };
 
-        // 5. Rasterize one workgroup per tile.
+        // The rasterizer's feature channels.
         if let Some(fc) = settings.features {
             anyhow::ensure!(
                 fc.channels > 0 && fc.values.len() >= splats.count * fc.channels as usize,
@@ -572,48 +694,6 @@ impl Renderer {
                 )?);
             }
         }
-        let f = &self.frame;
-        let (_, ids) = self.sorted_pairs();
-        let (raster, features, feature_image, weights) = match settings.features {
-            Some(fc) => (
-                &self.raster_features.as_ref().expect("built above").1,
-                fc.values,
-                match fc.decoded_by {
-                    // Bound, never written.
-                    Some(_) => &self.no_filter,
-                    None => self.feature_image.as_ref().expect("allocated above"),
-                },
-                fc.decoded_by.unwrap_or(&self.no_filter),
-            ),
-            None => (
-                &self.raster,
-                &self.no_filter,
-                &self.no_filter,
-                &self.no_filter,
-            ),
-        };
-        rec.dispatch(
-            raster,
-            &[
-                &f.projected.splats,
-                ids,
-                &f.tile_ranges,
-                cameras,
-                &f.image,
-                &f.final_t,
-                &f.last_index,
-                features,
-                feature_image,
-                weights,
-            ],
-            &RasterPush {
-                rc: settings.constants,
-                camera_index,
-                background: settings.background,
-            },
-            ctx.groups_1d(camera.tile_count() as u64, 1),
-        );
-        rec.barrier();
         // A decoding rasterizer's stage holds the decoder too.
         let decoded = settings.features.is_some_and(|f| f.decoded_by.is_some());
         let label = if decoded {
@@ -621,8 +701,64 @@ impl Renderer {
         } else {
             "rasterize"
         };
-        stamp(rec, timestamps, label);
-        self.finish_frame(rec, camera);
+
+        for (slot, band) in bands.iter().enumerate() {
+            // 3–5. Binning, tile sort and tile ranges of the band's rows.
+            self.record_band_binning(
+                rec,
+                camera,
+                Pairing::Ellipse(rc),
+                band,
+                slot as u32,
+                timestamps.as_deref_mut(),
+            );
+            // 6. Rasterize one workgroup per tile of the band.
+            let f = &self.frame;
+            let (_, ids) = self.sorted_pairs();
+            let (raster, features, feature_image, weights) = match settings.features {
+                Some(fc) => (
+                    &self.raster_features.as_ref().expect("built above").1,
+                    fc.values,
+                    match fc.decoded_by {
+                        // Bound, never written.
+                        Some(_) => &self.no_filter,
+                        None => self.feature_image.as_ref().expect("allocated above"),
+                    },
+                    fc.decoded_by.unwrap_or(&self.no_filter),
+                ),
+                None => (
+                    &self.raster,
+                    &self.no_filter,
+                    &self.no_filter,
+                    &self.no_filter,
+                ),
+            };
+            rec.dispatch(
+                raster,
+                &[
+                    &f.projected.splats,
+                    ids,
+                    &f.tile_ranges,
+                    cameras,
+                    &f.image,
+                    &f.final_t,
+                    &f.last_index,
+                    features,
+                    feature_image,
+                    weights,
+                ],
+                &RasterPush {
+                    rc: settings.constants,
+                    camera_index,
+                    background: settings.background,
+                    tile_offset: band.first_row * camera.tiles_x(),
+                },
+                ctx.groups_1d(band.tiles(camera), 1),
+            );
+            rec.barrier();
+            stamp(rec, timestamps.as_deref_mut(), label);
+        }
+        self.finish_frame(rec, camera, bands.len());
         Ok(())
     }
 
@@ -642,22 +778,17 @@ impl Renderer {
         Ok(())
     }
 
-    /// Steps 2–5 of a frame whose preprocess (3DGS's or another model's) has filled
+    /// Step 2 of a frame whose preprocess (3DGS's or another model's) has filled
     /// `frame.projected`, the depth keys and values and `counts[0]` (its splats), and zeroed
-    /// `frame.tile_ranges`: the depth sort, tile counts, scan and emit, the stable tile sort
-    /// and the tile ranges, pairing each splat with the tiles `pairing` says. The sorted pairs
-    /// are then [`Renderer::sorted_ids`].
-    pub(super) fn record_binning(
+    /// `frame.tile_ranges`: the depth sort of the Gaussians that pair with a tile (the culled
+    /// ones, the largest key, are dropped by the sort's first pass; counts[COUNT_VISIBLE] are
+    /// kept), and the group counts of the binning kernels over them.
+    pub(super) fn record_depth_sort(
         &mut self,
         rec: &mut Recorder,
-        camera: &CameraGpu,
-        pairing: Pairing,
-        mut timestamps: Option<&mut TimestampPool>,
+        timestamps: Option<&mut TimestampPool>,
     ) {
         let f = &self.frame;
-        rec.fill(&f.pair_total, 0);
-        // 2. Depth sort of the Gaussians that pair with a tile: the culled ones (the largest
-        // key) are dropped by the sort's first pass, counts[COUNT_VISIBLE] are kept.
         let depth_in = self.depth_sort.record_dropping(
             rec,
             [
@@ -676,16 +807,47 @@ impl Renderer {
             }),
         );
         self.depth_sorted_in = depth_in;
-        let depth_ids = match depth_in {
-            SortedIn::Input => &f.depth_vals,
-            SortedIn::Scratch => &f.depth_vals_tmp,
-        };
-        stamp(rec, timestamps.as_deref_mut(), "depth sort");
-
-        // 3. Tile counts in depth order, scan, emit pairs, each over the kept Gaussians (as many
-        // workgroups as they need: CPU drivers pay for idle ones).
+        stamp(rec, timestamps, "depth sort");
+        // The binning kernels run over the kept Gaussians (as many workgroups as they need: CPU
+        // drivers pay for idle ones).
         self.pair_groups
             .record(rec, &f.counts, COUNT_VISIBLE, WG as u64, VISIBLE_GROUPS);
+    }
+
+    fn depth_ids(&self) -> &GpuBuffer<u32> {
+        match self.depth_sorted_in {
+            SortedIn::Input => &self.frame.depth_vals,
+            SortedIn::Scratch => &self.frame.depth_vals_tmp,
+        }
+    }
+
+    /// Zeroes the pair totals of a frame of `bands` bands (growing their buffers first), before
+    /// the preprocess (whose barrier orders the fill before the binning).
+    pub(super) fn prepare_bands(&mut self, rec: &mut Recorder, bands: usize) -> anyhow::Result<()> {
+        if self.totals.bands < bands {
+            self.totals = BandTotals::new(&self.ctx, bands)?;
+        }
+        rec.fill(&self.totals.device, 0);
+        Ok(())
+    }
+
+    /// Steps 3–5 of a frame after [`Renderer::record_depth_sort`], for the tile rows of `band`
+    /// (its pair total in slot `slot`): tile counts in depth order, scan, emit, the stable tile
+    /// sort and the tile ranges, pairing each splat with the tiles `pairing` says. The sorted
+    /// pairs are then [`Renderer::sorted_ids`].
+    pub(super) fn record_band_binning(
+        &mut self,
+        rec: &mut Recorder,
+        camera: &CameraGpu,
+        pairing: Pairing,
+        band: &TileBand,
+        slot: u32,
+        mut timestamps: Option<&mut TimestampPool>,
+    ) {
+        let f = &self.frame;
+        let depth_ids = self.depth_ids();
+        let push = pairing.push(band, slot);
+        // 3. Tile counts in depth order, scan, emit pairs, each over the kept Gaussians.
         let (visible_args, visible_at) = self.pair_groups.args(VISIBLE_GROUPS);
         rec.dispatch_indirect(
             &self.gather,
@@ -694,10 +856,10 @@ impl Renderer {
                 depth_ids,
                 &f.touched,
                 &f.counts,
-                &f.pair_total,
+                &self.totals.device,
                 &f.projected.splats,
             ],
-            &pairing.push(),
+            &push,
             visible_args,
             visible_at,
         );
@@ -720,9 +882,9 @@ impl Renderer {
                 &f.projected.splats,
             ],
             &EmitPush {
-                pairing: pairing.push(),
+                pairing: push,
                 capacity: self.capacity.intersections.min(u32::MAX as usize) as u32,
-                tiles_x: camera.size[2],
+                tiles_x: camera.tiles_x(),
             },
             visible_args,
             visible_at,
@@ -746,7 +908,7 @@ impl Renderer {
         let (keys, _) = self.sorted_pairs();
         stamp(rec, timestamps, "tile sort");
 
-        // 5. Tile ranges, over the frame's pairs (not the capacity).
+        // 5. Tile ranges, over the band's pairs (not the capacity).
         let f = &self.frame;
         self.pair_groups
             .record(rec, &f.counts, COUNT_STORED_PAIRS, WG as u64, PAIR_GROUPS);
@@ -761,18 +923,140 @@ impl Renderer {
         rec.barrier();
     }
 
-    /// The end of every frame: the counts go to the host buffer (read after the frame's fence)
-    /// and the camera is remembered for the readbacks.
-    pub(super) fn finish_frame(&mut self, rec: &mut Recorder, camera: &CameraGpu) {
-        rec.copy(&self.frame.counts, &self.frame.counts_host, COUNT_SLOTS);
-        rec.copy_region(
-            &self.frame.pair_total,
-            0,
-            &self.frame.counts_host,
-            COUNT_SLOTS,
-            2,
+    /// The planning pass after [`Renderer::record_depth_sort`]: every tile row's pairs into
+    /// the row totals ([`Renderer::reserve_row_totals`] first).
+    pub(super) fn record_row_totals(
+        &mut self,
+        rec: &mut Recorder,
+        camera: &CameraGpu,
+        pairing: Pairing,
+    ) -> anyhow::Result<()> {
+        let rows = self
+            .row_totals
+            .as_ref()
+            .filter(|b| b.len() >= 2 * camera.tiles_y() as usize)
+            .ok_or_else(|| anyhow::anyhow!("renderer: no row totals for this frame's rows"))?;
+        rec.fill(rows, 0);
+        rec.barrier();
+        let (args, at) = self.pair_groups.args(VISIBLE_GROUPS);
+        let f = &self.frame;
+        rec.dispatch_indirect(
+            &self.row_pairs,
+            &[
+                &f.projected.bounds,
+                self.depth_ids(),
+                &f.counts,
+                &f.projected.splats,
+                rows,
+            ],
+            &pairing.push(&TileBand::whole(camera), 0),
+            args,
+            at,
         );
+        rec.barrier();
+        Ok(())
+    }
+
+    /// Room for the row totals of `camera`'s frame.
+    pub(super) fn reserve_row_totals(&mut self, camera: &CameraGpu) -> anyhow::Result<()> {
+        let need = 2 * camera.tiles_y() as usize;
+        if self.row_totals.as_ref().is_none_or(|b| b.len() < need) {
+            self.row_totals = None;
+            self.row_totals = Some(GpuBuffer::new(
+                &self.ctx,
+                "tile row pairs",
+                need,
+                BufferKind::DeviceLocal,
+            )?);
+        }
+        Ok(())
+    }
+
+    /// The pairs of every tile row of the last planning pass (call after its fence).
+    pub(super) fn last_row_totals(&self, camera: &CameraGpu) -> anyhow::Result<Vec<u64>> {
+        let rows = camera.tiles_y() as usize;
+        let raw = self
+            .row_totals
+            .as_ref()
+            .ok_or_else(|| anyhow::anyhow!("renderer: no planning pass recorded"))?
+            .read_range(0, 2 * rows)?;
+        Ok(raw
+            .chunks_exact(2)
+            .map(|w| ((w[1] as u64) << 32) | w[0] as u64)
+            .collect())
+    }
+
+    /// The end of every frame of `bands` bands: the counts and the bands' pair totals go to the
+    /// host buffers (read after the frame's fence) and the camera is remembered for the
+    /// readbacks.
+    pub(super) fn finish_frame(&mut self, rec: &mut Recorder, camera: &CameraGpu, bands: usize) {
+        rec.copy(&self.frame.counts, &self.frame.counts_host, COUNT_SLOTS);
+        if bands > 0 {
+            rec.copy(&self.totals.device, &self.totals.host, 2 * bands);
+        }
+        self.last_bands = bands;
         self.last_camera = Some(*camera);
+    }
+
+    /// The bands tools draw `camera`'s frames in: the plan made for frames of its tile rows,
+    /// or the whole frame.
+    pub fn bands_for(&self, camera: &CameraGpu) -> Vec<TileBand> {
+        match &self.plan {
+            (rows, bands) if *rows == camera.tiles_y() && !bands.is_empty() => bands.clone(),
+            _ => vec![TileBand::whole(camera)],
+        }
+    }
+
+    /// Draws frames of `camera`'s tile rows in `bands` from now on (tools; see
+    /// [`super::bands`]).
+    pub(super) fn set_plan(
+        &mut self,
+        camera: &CameraGpu,
+        bands: Vec<TileBand>,
+    ) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            bands.first().map(|b| b.first_row) == Some(0)
+                && bands.last().map(|b| b.end_row) == Some(camera.tiles_y())
+                && bands.windows(2).all(|w| w[0].end_row == w[1].first_row),
+            "renderer: bands {bands:?} do not cover the {} tile rows in order",
+            camera.tiles_y()
+        );
+        self.plan = (camera.tiles_y(), bands);
+        Ok(())
+    }
+
+    /// Caps the pairs a frame (or a band of a frame drawn in bands) may have below what one
+    /// binding holds: to rehearse a device with a smaller `maxStorageBufferRange`, and for
+    /// tests of banded frames.
+    pub fn limit_pairs(&mut self, limit: u64) {
+        self.pair_limit = limit.clamp(1, max_intersections(&self.ctx));
+    }
+
+    /// The most pairs a frame (or band) may have ([`max_intersections`] unless lowered).
+    pub fn pair_limit(&self) -> u64 {
+        self.pair_limit
+    }
+
+    pub fn context(&self) -> &Arc<GpuContext> {
+        &self.ctx
+    }
+
+    /// How many bands of tile rows the last frame was drawn in (1: whole).
+    pub fn last_frame_bands(&self) -> usize {
+        self.last_bands
+    }
+
+    /// Fails unless the last frame was drawn whole: the backward passes read the whole frame's
+    /// sorted pairs and tile ranges.
+    pub fn whole_frame(&self) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            self.last_bands == 1,
+            "this frame was drawn in {} bands of tile rows (its pairs pass what one storage \
+             binding holds), and training needs all of a frame's pairs at once. Fix: train at a \
+             lower resolution (-r, --width/--height) or with fewer Gaussians",
+            self.last_bands
+        );
+        Ok(())
     }
 
     pub(super) fn sorted_pairs(&self) -> (&GpuBuffer<u32>, &GpuBuffer<u32>) {
@@ -797,8 +1081,17 @@ impl Renderer {
     /// The intersection count of the last completed frame (call after its fence). When it is
     /// above the capacity the frame dropped pairs: grow and render again.
     pub fn last_intersections(&self) -> anyhow::Result<u64> {
-        let c = self.frame.counts_host.read()?;
-        Ok(((c[COUNT_SLOTS + 1] as u64) << 32) | c[COUNT_SLOTS] as u64)
+        Ok(self.last_band_totals()?.iter().sum())
+    }
+
+    /// Each band's intersection count of the last completed frame (one for a whole frame;
+    /// call after its fence). A band above the capacity dropped pairs.
+    pub fn last_band_totals(&self) -> anyhow::Result<Vec<u64>> {
+        let raw = self.totals.host.read_range(0, 2 * self.last_bands)?;
+        Ok(raw
+            .chunks_exact(2)
+            .map(|w| ((w[1] as u64) << 32) | w[0] as u64)
+            .collect())
     }
 
     /// How many Gaussians of the last completed frame paired with a tile (the depth sort kept
@@ -807,13 +1100,15 @@ impl Renderer {
         Ok(self.frame.counts_host.read()?[COUNT_VISIBLE as usize] as u64)
     }
 
-    /// True when the last completed frame had room for every intersection.
+    /// True when the last completed frame (every band of it) had room for every intersection.
     pub fn last_frame_complete(&self) -> anyhow::Result<bool> {
-        Ok(self.last_intersections()? <= self.capacity.intersections as u64)
+        let cap = self.capacity.intersections as u64;
+        Ok(self.last_band_totals()?.iter().all(|&t| t <= cap))
     }
 
     /// Renders one frame and waits, regrowing and re-rendering when the intersections did not
-    /// fit. For tools and tests; the trainer records frames into its own command buffers.
+    /// fit, in bands of tile rows when they pass one binding ([`super::bands`]). For tools and
+    /// tests; the trainer records frames into its own command buffers.
     pub fn render_blocking(
         &mut self,
         splats: &GpuSplats,
@@ -823,27 +1118,18 @@ impl Renderer {
         settings: &FrameSettings,
     ) -> anyhow::Result<()> {
         self.ensure_capacity(Capacity::for_frame(splats.count, camera))?;
-        loop {
-            let mut rec = Recorder::new(&self.ctx)?;
-            self.record(
-                &mut rec,
+        super::bands::render_blocking(self, camera, |r, rec, work| {
+            r.record_work(
+                rec,
                 splats,
                 cameras,
                 camera_index,
                 camera,
                 settings,
+                work,
                 None,
-            )?;
-            rec.submit_and_wait()?;
-            let m = self.last_intersections()?;
-            if m <= self.capacity.intersections as u64 {
-                return Ok(());
-            }
-            self.ensure_capacity(Capacity {
-                intersections: m as usize,
-                ..self.capacity
-            })?;
-        }
+            )
+        })
     }
 
     /// Reads the last frame's image (RGB interleaved, `width × height × 3`).

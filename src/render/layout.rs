@@ -72,6 +72,12 @@ impl CameraGpu {
     pub fn tile_count(&self) -> u32 {
         self.size[2] * self.size[3]
     }
+    pub fn tiles_x(&self) -> u32 {
+        self.size[2]
+    }
+    pub fn tiles_y(&self) -> u32 {
+        self.size[3]
+    }
 }
 
 /// Bits of `flags` in [`ProjectedGpu`]: channel c's `+0.5` colour was clamped at 0.

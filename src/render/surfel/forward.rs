@@ -8,6 +8,7 @@ use std::sync::Arc;
 use super::layout::{SurfelConstants, GEOM_STRIDE, MAPS_STRIDE, NORMAL_STRIDE};
 use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder, TimestampPool};
 use crate::render::backward::default_pixels_per_invocation;
+use crate::render::bands::{BandedRenderer, FrameWork, TileBand};
 use crate::render::forward::{Capacity, Pairing, Renderer};
 use crate::render::layout::CameraGpu;
 use crate::shaders;
@@ -33,6 +34,8 @@ struct RasterPush {
     sc: SurfelConstants,
     camera_index: u32,
     background: [f32; 3],
+    /// The band's first tile (`glsl/surfel/rasterize.glsl`).
+    tile_offset: u32,
 }
 
 /// What a surfel frame needs besides the splats and the camera buffer.
@@ -144,9 +147,9 @@ impl SurfelRenderer {
         Ok(grew)
     }
 
-    /// Records one frame of the surfels `splats` (log-scales `scale_stride` floats apart: 2,
-    /// or 3 in a 3DGS-shaped buffer whose third entry is unused) seen from
-    /// `cameras[camera_index]` (host copy `camera`).
+    /// Records one whole frame of the surfels `splats` (log-scales `scale_stride` floats
+    /// apart: 2, or 3 in a 3DGS-shaped buffer whose third entry is unused) seen from
+    /// `cameras[camera_index]` (host copy `camera`), as training does.
     #[allow(clippy::too_many_arguments)]
     pub fn record(
         &mut self,
@@ -157,6 +160,35 @@ impl SurfelRenderer {
         camera_index: u32,
         camera: &CameraGpu,
         settings: &SurfelFrameSettings,
+        timestamps: Option<&mut TimestampPool>,
+    ) -> anyhow::Result<()> {
+        let work = FrameWork::Bands(vec![TileBand::whole(camera)]);
+        self.record_work(
+            rec,
+            splats,
+            scale_stride,
+            cameras,
+            camera_index,
+            camera,
+            settings,
+            &work,
+            timestamps,
+        )
+    }
+
+    /// Records the preprocess and depth sort of a frame, then `work`
+    /// ([`crate::render::bands`]).
+    #[allow(clippy::too_many_arguments)]
+    fn record_work(
+        &mut self,
+        rec: &mut Recorder,
+        splats: &GpuSplats,
+        scale_stride: u32,
+        cameras: &GpuBuffer<CameraGpu>,
+        camera_index: u32,
+        camera: &CameraGpu,
+        settings: &SurfelFrameSettings,
+        work: &FrameWork,
         mut timestamps: Option<&mut TimestampPool>,
     ) -> anyhow::Result<()> {
         anyhow::ensure!(
@@ -164,6 +196,9 @@ impl SurfelRenderer {
             "surfel renderer: a log-scale stride of {scale_stride}; surfels have two scales"
         );
         self.base.check_frame(splats.count, camera)?;
+        if let FrameWork::Bands(bands) = work {
+            self.base.prepare_bands(rec, bands.len())?;
+        }
         let ctx = self.ctx.clone();
         let n = splats.count as u64;
         let f = &self.base.frame;
@@ -207,42 +242,61 @@ impl SurfelRenderer {
             rec.timestamp(p, "preprocess");
         }
 
-        self.base
-            .record_binning(rec, camera, Pairing::Rectangle, timestamps.as_deref_mut());
-
-        let f = &self.base.frame;
-        rec.dispatch(
-            &self.raster,
-            &[
-                &f.projected.splats,
-                &self.surfel.geom,
-                self.base.sorted_ids(),
-                &f.tile_ranges,
-                cameras,
-                &f.image,
-                &f.final_t,
-                &f.last_index,
-                &self.surfel.maps,
-                &self.surfel.median_index,
-                &self.surfel.normals,
-            ],
-            &RasterPush {
-                sc: settings.constants,
-                camera_index,
-                background: settings.background,
-            },
-            ctx.groups_1d(camera.tile_count() as u64, 1),
-        );
-        rec.barrier();
-        if let Some(p) = timestamps {
-            rec.timestamp(p, "rasterize");
+        self.base.record_depth_sort(rec, timestamps.as_deref_mut());
+        let bands = match work {
+            FrameWork::RowTotals => {
+                self.base
+                    .record_row_totals(rec, camera, Pairing::Rectangle)?;
+                self.base.finish_frame(rec, camera, 0);
+                return Ok(());
+            }
+            FrameWork::Bands(bands) => bands,
+        };
+        for (slot, band) in bands.iter().enumerate() {
+            self.base.record_band_binning(
+                rec,
+                camera,
+                Pairing::Rectangle,
+                band,
+                slot as u32,
+                timestamps.as_deref_mut(),
+            );
+            let f = &self.base.frame;
+            rec.dispatch(
+                &self.raster,
+                &[
+                    &f.projected.splats,
+                    &self.surfel.geom,
+                    self.base.sorted_ids(),
+                    &f.tile_ranges,
+                    cameras,
+                    &f.image,
+                    &f.final_t,
+                    &f.last_index,
+                    &self.surfel.maps,
+                    &self.surfel.median_index,
+                    &self.surfel.normals,
+                ],
+                &RasterPush {
+                    sc: settings.constants,
+                    camera_index,
+                    background: settings.background,
+                    tile_offset: band.first_row * camera.tiles_x(),
+                },
+                ctx.groups_1d(band.tiles(camera), 1),
+            );
+            rec.barrier();
+            if let Some(p) = timestamps.as_deref_mut() {
+                rec.timestamp(p, "rasterize");
+            }
         }
-        self.base.finish_frame(rec, camera);
+        self.base.finish_frame(rec, camera, bands.len());
         Ok(())
     }
 
     /// Renders one frame and waits, regrowing and re-rendering when the intersections did not
-    /// fit. For tools and tests; the trainer records frames into its own command buffers.
+    /// fit, in bands of tile rows when they pass one binding ([`crate::render::bands`]). For
+    /// tools and tests; the trainer records frames into its own command buffers.
     pub fn render_blocking(
         &mut self,
         splats: &GpuSplats,
@@ -254,27 +308,27 @@ impl SurfelRenderer {
     ) -> anyhow::Result<()> {
         let need = Capacity::for_frame(splats.count, camera);
         self.ensure_capacity(need)?;
-        loop {
-            let mut rec = Recorder::new(&self.ctx)?;
-            self.record(
-                &mut rec,
+        crate::render::bands::render_blocking(self, camera, |r, rec, work| {
+            r.record_work(
+                rec,
                 splats,
                 scale_stride,
                 cameras,
                 camera_index,
                 camera,
                 settings,
+                work,
                 None,
-            )?;
-            rec.submit_and_wait()?;
-            let m = self.base.last_intersections()?;
-            if m <= self.base.capacity().intersections as u64 {
-                return Ok(());
-            }
-            self.ensure_capacity(Capacity {
-                intersections: m as usize,
-                ..self.base.capacity()
-            })?;
-        }
+            )
+        })
+    }
+}
+
+impl BandedRenderer for SurfelRenderer {
+    fn base(&mut self) -> &mut Renderer {
+        &mut self.base
+    }
+    fn grow(&mut self, need: Capacity) -> anyhow::Result<bool> {
+        self.ensure_capacity(need)
     }
 }

@@ -136,6 +136,8 @@ impl GaussianPasses {
         features: Option<FeatureGrads>,
         timestamps: Option<&mut TimestampPool>,
     ) -> Result<()> {
+        // The backward reads the frame's tile lists, which a frame drawn in bands lacks.
+        self.renderer.whole_frame()?;
         let fr = &self.renderer.frame;
         let f = &g.frame;
         self.backward.record_timed(

@@ -144,6 +144,8 @@ impl ModelPasses for SurfelPasses {
         config: &TrainConfig,
         mut timestamps: Option<&mut TimestampPool>,
     ) -> Result<()> {
+        // The backward reads the frame's tile lists, which a frame drawn in bands lacks.
+        self.renderer.base.whole_frame()?;
         let f = &g.frame;
         let training = config.surfels.unwrap_or_default();
         self.regularisers.record(
