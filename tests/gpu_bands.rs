@@ -11,6 +11,7 @@
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder};
 use lpmsplat::reference::scenes;
 use lpmsplat::reference::surfel::random_surfels;
+use lpmsplat::render::bands::FrameWork;
 use lpmsplat::render::forward::{Capacity, FeatureChannels, FrameSettings, Renderer};
 use lpmsplat::render::layout::CameraGpu;
 use lpmsplat::render::surfel::forward::{SurfelFrameSettings, SurfelRenderer};
@@ -167,8 +168,9 @@ fn a_frame_drawn_in_bands_is_the_whole_frame_bit_for_bit() {
         poison(&banded);
         let mut rec = Recorder::new(&ctx).unwrap();
         rec.begin().unwrap();
+        let planned = FrameWork::Bands(banded.bands_for(&cam));
         banded
-            .record_planned(&mut rec, &splats, &cameras, 0, &cam, &frame, None)
+            .record_work(&mut rec, &splats, &cameras, 0, &cam, &frame, &planned, None)
             .unwrap();
         rec.submit_and_wait().unwrap();
         assert!(banded.last_frame_complete().unwrap(), "{label}");

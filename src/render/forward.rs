@@ -550,36 +550,13 @@ impl Renderer {
         )
     }
 
-    /// As [`Renderer::record`], in the bands of tile rows [`Renderer::render_blocking`] planned
-    /// for frames of this size (a benchmark's repeated frames; whole when none were needed).
-    /// With several bands the per-band stages are timed once per band under the same labels.
+    /// Records a frame's preprocess and depth sort, then `work`: with
+    /// `FrameWork::Bands(renderer.bands_for(camera))`, a frame in the bands of tile rows
+    /// [`Renderer::render_blocking`] planned for frames of this size (a benchmark's repeated
+    /// frames; the whole frame when none were needed), whose per-band stages are timed once per
+    /// band under the same labels.
     #[allow(clippy::too_many_arguments)]
-    pub fn record_planned(
-        &mut self,
-        rec: &mut Recorder,
-        splats: &GpuSplats,
-        cameras: &GpuBuffer<CameraGpu>,
-        camera_index: u32,
-        camera: &CameraGpu,
-        settings: &FrameSettings,
-        timestamps: Option<&mut TimestampPool>,
-    ) -> anyhow::Result<()> {
-        let work = FrameWork::Bands(self.bands_for(camera));
-        self.record_work(
-            rec,
-            splats,
-            cameras,
-            camera_index,
-            camera,
-            settings,
-            &work,
-            timestamps,
-        )
-    }
-
-    /// Records a frame's preprocess and depth sort, then `work`.
-    #[allow(clippy::too_many_arguments)]
-    fn record_work(
+    pub fn record_work(
         &mut self,
         rec: &mut Recorder,
         splats: &GpuSplats,

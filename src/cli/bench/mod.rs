@@ -7,6 +7,7 @@ use clap::{Args, Subcommand};
 use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder, StageTimes, TimestampPool};
 use lpmsplat::models::BaseModel;
+use lpmsplat::render::bands::FrameWork;
 use lpmsplat::render::forward::{FrameSettings, Renderer};
 use lpmsplat::render::layout::CameraGpu;
 use lpmsplat::render::spacetime::TimedModel;
@@ -251,6 +252,7 @@ fn fps_one(
     // A frame drawn in bands of tile rows times three stages a band.
     let bands = renderer.last_frame_bands() as u32;
     let mut pool = TimestampPool::new(ctx, 16 + 3 * bands)?;
+    let planned = FrameWork::Bands(renderer.bands_for(&cam));
     let mut rec = Recorder::new(ctx)?;
     let mut wall = Vec::new();
     let mut stages: Vec<StageTimes> = Vec::new();
@@ -261,13 +263,14 @@ fn fps_one(
         if let Some(t) = &still {
             t.record(&mut rec, &model, args.time)?;
         }
-        renderer.record_planned(
+        renderer.record_work(
             &mut rec,
             splats,
             &cameras,
             0,
             &cam,
             &settings,
+            &planned,
             Some(&mut pool),
         )?;
         rec.submit_and_wait()?;
@@ -335,6 +338,7 @@ fn time_pipelined(
         Some(t) => t.settings([0.0; 3]),
         None => FrameSettings::plain(splats.sh_degree, [0.0; 3]),
     };
+    let planned = FrameWork::Bands(renderer.bands_for(cam));
     let mut recs = [Recorder::new(ctx)?, Recorder::new(ctx)?];
     let mut t0 = Instant::now();
     for k in 0..args.warmup + args.frames {
@@ -351,7 +355,7 @@ fn time_pipelined(
         if let Some(t) = still {
             t.record(rec, model, args.time)?;
         }
-        renderer.record_planned(rec, splats, cameras, 0, cam, &settings, None)?;
+        renderer.record_work(rec, splats, cameras, 0, cam, &settings, &planned, None)?;
         rec.submit()?;
     }
     for r in &mut recs {
