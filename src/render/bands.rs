@@ -3,8 +3,8 @@
 //! A frame's pairs live in 4-byte buffers of tile keys and Gaussian ids, each one binding: at
 //! most `maxStorageBufferRange / 4` pairs (33.5 M on lavapipe's 128 MiB, 1.07 G at 4 GiB). A
 //! 4K render of a multi-million-Gaussian model passes that on CPU drivers. Tools
-//! ([`render_blocking`]: `render`, `eval`, `bench fps`, the orbit GIF) then draw the frame band
-//! by band: the preprocess and the depth sort once, then per band of whole tile rows the
+//! (`render`, `eval`, `bench fps`, the orbit GIF, through `super::blocking`) then draw the
+//! frame band by band: the preprocess and the depth sort once, then per band of whole tile rows the
 //! binning, the tile sort and the rasterizer, which writes only the band's pixels. Each band's
 //! tile lists are the whole frame's lists of the same tiles, in the same order, so the image
 //! is the same bit for bit (`tests/gpu_bands.rs`).
@@ -14,13 +14,10 @@
 //! single row past the limit is refused with its count. The plan is kept for the next frames of
 //! the same size (a benchmark's loop, an evaluation's views) and redone when one of them
 //! overflows. Training never draws in bands: its backward needs the whole frame's pairs at once,
-//! so such a frame is refused there ([`Renderer::whole_frame`]).
+//! so such a frame is refused there (`Renderer::whole_frame`). This module holds the bands and
+//! their planning; `super::blocking` draws frames with them.
 
-use anyhow::Result;
-
-use super::forward::{Capacity, Renderer};
 use super::layout::CameraGpu;
-use crate::gpu::Recorder;
 
 /// Tile rows `[first_row, end_row)` of a frame, with their (tile, Gaussian) pairs when known.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -86,91 +83,6 @@ pub fn plan_bands(row_pairs: &[u64], limit: u64) -> Result<Vec<TileBand>, RowToo
         }
     }
     Ok(bands)
-}
-
-/// A renderer that can be drawn in bands: the 3D-Gaussian renderer, or one built on its
-/// binning (surfels).
-pub trait BandedRenderer {
-    /// The binning stages and buffers.
-    fn base(&mut self) -> &mut Renderer;
-    /// Grows every buffer the renderer sizes by `need` ([`Renderer::ensure_capacity`]).
-    fn grow(&mut self, need: Capacity) -> Result<bool>;
-}
-
-impl BandedRenderer for Renderer {
-    fn base(&mut self) -> &mut Renderer {
-        self
-    }
-    fn grow(&mut self, need: Capacity) -> Result<bool> {
-        self.ensure_capacity(need)
-    }
-}
-
-/// Renders one frame and waits: `record` records the frame's work into the given command
-/// buffer. The frame is redrawn after growing the pair buffers when they were too small, and in
-/// bands of tile rows (planned by one counting pass) when its pairs pass what one binding holds.
-pub fn render_blocking<R: BandedRenderer>(
-    r: &mut R,
-    camera: &CameraGpu,
-    mut record: impl FnMut(&mut R, &mut Recorder, &FrameWork) -> Result<()>,
-) -> Result<()> {
-    let ctx = r.base().context().clone();
-    let mut planned = false;
-    loop {
-        let bands = r.base().bands_for(camera);
-        let mut rec = Recorder::new(&ctx)?;
-        record(r, &mut rec, &FrameWork::Bands(bands))?;
-        rec.submit_and_wait()?;
-        let totals = r.base().last_band_totals()?;
-        let most = totals.iter().copied().max().unwrap_or(0);
-        let base = r.base();
-        let capacity = base.capacity();
-        if most <= capacity.intersections as u64 {
-            return Ok(());
-        }
-        let limit = base.pair_limit();
-        if most <= limit {
-            r.grow(Capacity {
-                intersections: most as usize,
-                ..capacity
-            })?;
-            continue;
-        }
-        // The planned bands were counted exactly: one past the limit would mean the count and
-        // the binning disagree.
-        anyhow::ensure!(
-            !planned,
-            "a band of tile rows has {most} (tile, Gaussian) pairs after planning for at most \
-             {limit}: the planning pass and the binning disagree (a bug; please report it)"
-        );
-        let total: u64 = totals.iter().sum();
-        let mut rec = Recorder::new(&ctx)?;
-        r.base().reserve_row_totals(camera)?;
-        record(r, &mut rec, &FrameWork::RowTotals)?;
-        rec.submit_and_wait()?;
-        let base = r.base();
-        let rows = base.last_row_totals(camera)?;
-        let plan = plan_bands(&rows, limit).map_err(|full| {
-            anyhow::anyhow!(
-                "a frame has {total} (tile, Gaussian) intersections, and its row {} of 16-px \
-                 tiles alone has {}, more than the {limit} one storage binding holds on this \
-                 device ({} MiB maxStorageBufferRange, 4 bytes a pair): it cannot be drawn even \
-                 in bands of tile rows. Fix: render at a lower resolution (-r, \
-                 --width/--height) or with fewer Gaussians",
-                full.row,
-                full.pairs,
-                base.context().info.max_storage_buffer_range >> 20
-            )
-        })?;
-        let most = plan.iter().map(|b| b.pairs).max().unwrap_or(0);
-        base.set_plan(camera, plan)?;
-        let capacity = base.capacity();
-        r.grow(Capacity {
-            intersections: most as usize,
-            ..capacity
-        })?;
-        planned = true;
-    }
 }
 
 #[cfg(test)]

@@ -1083,32 +1083,6 @@ impl Renderer {
         Ok(self.last_band_totals()?.iter().all(|&t| t <= cap))
     }
 
-    /// Renders one frame and waits, regrowing and re-rendering when the intersections did not
-    /// fit, in bands of tile rows when they pass one binding ([`super::bands`]). For tools and
-    /// tests; the trainer records frames into its own command buffers.
-    pub fn render_blocking(
-        &mut self,
-        splats: &GpuSplats,
-        cameras: &GpuBuffer<CameraGpu>,
-        camera_index: u32,
-        camera: &CameraGpu,
-        settings: &FrameSettings,
-    ) -> anyhow::Result<()> {
-        self.ensure_capacity(Capacity::for_frame(splats.count, camera))?;
-        super::bands::render_blocking(self, camera, |r, rec, work| {
-            r.record_work(
-                rec,
-                splats,
-                cameras,
-                camera_index,
-                camera,
-                settings,
-                work,
-                None,
-            )
-        })
-    }
-
     /// Reads the last frame's image (RGB interleaved, `width × height × 3`).
     pub fn read_image(&self) -> anyhow::Result<Vec<f32>> {
         let cam = self

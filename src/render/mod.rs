@@ -5,6 +5,7 @@
 
 pub mod backward;
 pub mod bands;
+pub mod blocking;
 pub mod decoder;
 pub mod dispatch_size;
 pub mod filter3d;

@@ -8,7 +8,8 @@ use std::sync::Arc;
 use super::layout::{SurfelConstants, GEOM_STRIDE, MAPS_STRIDE, NORMAL_STRIDE};
 use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder, TimestampPool};
 use crate::render::backward::default_pixels_per_invocation;
-use crate::render::bands::{BandedRenderer, FrameWork, TileBand};
+use crate::render::bands::{FrameWork, TileBand};
+use crate::render::blocking::BandedRenderer;
 use crate::render::forward::{Capacity, Pairing, Renderer};
 use crate::render::layout::CameraGpu;
 use crate::shaders;
@@ -295,7 +296,7 @@ impl SurfelRenderer {
     }
 
     /// Renders one frame and waits, regrowing and re-rendering when the intersections did not
-    /// fit, in bands of tile rows when they pass one binding ([`crate::render::bands`]). For
+    /// fit, in bands of tile rows when they pass one binding ([`crate::render::blocking`]). For
     /// tools and tests; the trainer records frames into its own command buffers.
     pub fn render_blocking(
         &mut self,
@@ -308,7 +309,7 @@ impl SurfelRenderer {
     ) -> anyhow::Result<()> {
         let need = Capacity::for_frame(splats.count, camera);
         self.ensure_capacity(need)?;
-        crate::render::bands::render_blocking(self, camera, |r, rec, work| {
+        crate::render::blocking::render_blocking(self, camera, |r, rec, work| {
             r.record_work(
                 rec,
                 splats,
