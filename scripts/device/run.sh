@@ -186,6 +186,10 @@ for s in "$@"; do
         ;;
     fps)
         step fps 120 "$bin" bench fps --gaussians 100000,1000000,3000000 --json "$res/fps.json"
+        # 4K frames of multi-million models (issue 19's "4K renders"; on lavapipe 3 M
+        # Gaussians at 4096×2700 need two bands of tile rows, on a GPU one binding holds them).
+        step fps-4k 120 "$bin" bench fps --gaussians 1000000,3000000 --width 3840 --height 2160 \
+            --frames 20 --json "$res/fps-4k.json"
         ;;
     sortdigits)
         for r in 1 2; do
