@@ -1,7 +1,8 @@
 //! Frames drawn in bands of tile rows (`lpmsplat::render::bands`): a frame whose pairs pass the
 //! renderer's pair limit is drawn band by band, and every output (image, final T, last
 //! contributor, feature channels, a decoded image, the surfel maps) is the whole frame's bit
-//! for bit, as is a benchmark's next frame recorded with the same plan. The planning pass's
+//! for bit, as is a benchmark's next frame recorded with the same plan (dropped once frames fit
+//! whole again). The planning pass's
 //! per-row counts are checked against the whole frame's tile lists (themselves checked against
 //! the f64 reference in gpu_forward.rs), a tile row past the limit is refused with its count,
 //! and a banded frame is refused where the backward would read it. The limit is lowered with
@@ -199,6 +200,21 @@ fn a_frame_drawn_in_bands_is_the_whole_frame_bit_for_bit() {
                 && refused.contains("training needs"),
             "{refused}"
         );
+
+        // With room for the whole frame, the next frame still follows the plan, finds that
+        // the frame fits whole and drops the plan; the one after is drawn whole.
+        banded.limit_pairs(total);
+        banded
+            .render_blocking(&splats, &cameras, 0, &cam, &frame)
+            .unwrap();
+        assert_eq!(banded.last_frame_bands(), bands.len(), "{label}");
+        assert_eq!(banded.bands_for(&cam).len(), 1, "{label}: plan kept");
+        poison(&banded);
+        banded
+            .render_blocking(&splats, &cameras, 0, &cam, &frame)
+            .unwrap();
+        assert_eq!(banded.last_frame_bands(), 1, "{label}");
+        assert_eq!(outputs(&banded, &cam), want, "{label}: whole again");
     }
     assert_eq!(banded_frames, 4);
     ctx.check_validation().unwrap();

@@ -12,8 +12,8 @@
 //! The bands come from one planning pass that counts every tile row's pairs
 //! (`glsl/render/tile_row_pairs.comp`) and packs consecutive rows greedily ([`plan_bands`]); a
 //! single row past the limit is refused with its count. The plan is kept for the next frames of
-//! the same size (a benchmark's loop, an evaluation's views) and redone when one of them
-//! overflows. Training never draws in bands: its backward needs the whole frame's pairs at once,
+//! the same tile rows (a benchmark's loop, an evaluation's views), made again when one of them
+//! overflows, and dropped after a banded frame whose pairs would have fit whole. Training never draws in bands: its backward needs the whole frame's pairs at once,
 //! so such a frame is refused there (`Renderer::whole_frame`). This module holds the bands and
 //! their planning; `super::blocking` draws frames with them.
 

@@ -48,10 +48,15 @@ pub fn render_blocking<R: BandedRenderer>(
         let most = totals.iter().copied().max().unwrap_or(0);
         let base = r.base();
         let capacity = base.capacity();
+        let limit = base.pair_limit();
         if most <= capacity.intersections as u64 {
+            // A frame drawn in bands that would fit whole: the next frames of this size are
+            // drawn whole again (planned again if one does not fit).
+            if totals.len() > 1 && totals.iter().sum::<u64>() <= limit {
+                base.clear_plan();
+            }
             return Ok(());
         }
-        let limit = base.pair_limit();
         if most <= limit {
             r.grow(Capacity {
                 intersections: most as usize,

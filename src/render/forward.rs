@@ -1002,6 +1002,11 @@ impl Renderer {
         Ok(())
     }
 
+    /// Draws every frame whole again (tools; see [`super::bands`]).
+    pub(super) fn clear_plan(&mut self) {
+        self.plan = (0, Vec::new());
+    }
+
     /// Caps the pairs a frame (or a band of a frame drawn in bands) may have below what one
     /// binding holds: to rehearse a device with a smaller `maxStorageBufferRange`, and for
     /// tests of banded frames.
