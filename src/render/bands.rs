@@ -2,20 +2,21 @@
 //!
 //! A frame's pairs live in 4-byte buffers of tile keys and Gaussian ids, each one binding: at
 //! most `maxStorageBufferRange / 4` pairs (33.5 M on lavapipe's 128 MiB, 1.07 G at 4 GiB). A
-//! 4K render of a multi-million-Gaussian model passes that on CPU drivers. Tools
-//! (`render`, `eval`, `bench fps`, the orbit GIF, through `super::blocking`) then draw the
-//! frame band by band: the preprocess and the depth sort once, then per band of whole tile rows the
-//! binning, the tile sort and the rasterizer, which writes only the band's pixels. Each band's
-//! tile lists are the whole frame's lists of the same tiles, in the same order, so the image
-//! is the same bit for bit (`tests/gpu_bands.rs`).
+//! 4K render of a multi-million-Gaussian model passes that on CPU drivers. Tools (`render`,
+//! `eval`, `bench fps`, the orbit GIF, through `super::blocking`) then draw the frame band by
+//! band: the preprocess and the depth sort once, then per band of whole tile rows the binning,
+//! the tile sort and the rasterizer, which writes only the band's pixels. Each band's tile
+//! lists are the whole frame's lists of the same tiles, in the same order, so the image is the
+//! same bit for bit (`tests/gpu_bands.rs`).
 //!
 //! The bands come from one planning pass that counts every tile row's pairs
 //! (`glsl/render/tile_row_pairs.comp`) and packs consecutive rows greedily ([`plan_bands`]); a
-//! single row past the limit is refused with its count. The plan is kept for the next frames of
-//! the same tile rows (a benchmark's loop, an evaluation's views), made again when one of them
-//! overflows, and dropped after a banded frame whose pairs would have fit whole. Training never draws in bands: its backward needs the whole frame's pairs at once,
-//! so such a frame is refused there (`Renderer::whole_frame`). This module holds the bands and
-//! their planning; `super::blocking` draws frames with them.
+//! single row past the limit is refused with its count. The plan is kept for the next frames
+//! of the same tile rows (a benchmark's loop, an evaluation's views), made again when one of
+//! them overflows, and dropped after a banded frame whose pairs would have fit whole. Training
+//! never draws in bands: its backward needs the whole frame's pairs at once, so such a frame is
+//! refused there (`Renderer::whole_frame`). This module holds the bands and their planning;
+//! `super::blocking` draws frames with them.
 
 use super::layout::CameraGpu;
 
