@@ -359,6 +359,57 @@ fn bench_fps_reports_each_count_as_json() {
 }
 
 #[test]
+fn bench_trade_rows_carry_lpm_per_step_telemetry_that_adds_up_to_the_totals() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("steps");
+    // Density control (and LPM with it) runs every 100 iterations: one LPM step by 101. Small
+    // blocks and a low fraction so that the 81x121 views give an error region.
+    let (ok, text) = output(
+        lpmsplat()
+            .args(["bench", "trade"])
+            .arg(data("lund_door_small"))
+            .args(["-r", "8", "--iterations", "101", "--fps-frames", "1"])
+            .args(["--calendar", "600", "--runs", "adc,lpm", "-o"])
+            .arg(&out)
+            .args(["--lpm-block", "4", "--lpm-block-fraction", "0.5"]),
+    );
+    assert!(ok, "{text}");
+    let json = trade_json(&out);
+    let runs = json["runs"].as_array().unwrap();
+    assert_eq!(runs.len(), 2);
+    assert!(runs[0]["lpm_steps"].is_null(), "ADC has no LPM steps");
+    let lpm = &runs[1];
+    let steps = lpm["lpm_steps"]
+        .as_array()
+        .expect("LPM's row has its steps");
+    assert_eq!(
+        steps
+            .iter()
+            .map(|s| s["iteration"].as_u64().unwrap())
+            .collect::<Vec<_>>(),
+        [100]
+    );
+    let sum = |k: &str| steps.iter().map(|s| s[k].as_f64().unwrap()).sum::<f64>();
+    for (step, total) in [
+        ("zones", "lpm_zones"),
+        ("lowered", "lpm_lowered"),
+        ("pruned_extra", "lpm_pruned"),
+        ("opacity_reset", "lpm_reset"),
+        ("added", "lpm_added"),
+    ] {
+        assert_eq!(sum(step), lpm[total].as_f64().unwrap(), "{step}: {lpm}");
+    }
+    assert!(sum("zones") > 0.0, "no zone to report: {lpm}");
+    let s = &steps[0];
+    assert_eq!(s["block"], 4);
+    assert!(s["inside"].as_u64().unwrap() > 0, "{s}");
+    assert!(
+        (s["radius_mean_rel"].as_f64().unwrap() - lpm["lpm_radius"].as_f64().unwrap()).abs() < 1e-9,
+        "{s}"
+    );
+}
+
+#[test]
 fn bench_trade_compares_the_absolute_gradient_test_side_by_side() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("abs");

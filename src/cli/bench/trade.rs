@@ -661,9 +661,10 @@ fn evaluate_run(
     let (psnr, ssim) = ViewMetrics::means(&m);
     let view_psnr = report.map(|k| m[k].psnr);
     let model = t.export_model()?;
-    let lpm_totals = t
-        .strategy_as::<LpmStrategy>()
-        .map(|l| l.totals)
+    let lpm = t.strategy_as::<LpmStrategy>();
+    let lpm_totals = lpm.map(|l| l.totals).unwrap_or_default();
+    let lpm_steps: Vec<serde_json::Value> = lpm
+        .map(|l| l.steps.iter().map(|s| s.to_json()).collect())
         .unwrap_or_default();
     let lpm_s = lpm_totals.seconds;
     // The full SpacetimeGaussians model's decoder weights, for its FPS and beside its PLY.
@@ -709,6 +710,7 @@ fn evaluate_run(
         fps_1352x1014: fps,
         view_psnr,
         model_events: r.model_events.clone(),
+        lpm_steps,
     };
     let name = if args.seeds > 1 {
         format!("{name} (seed {})", r.seed)

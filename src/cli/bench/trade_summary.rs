@@ -36,6 +36,11 @@ pub struct TradeRow {
     /// sampling: its choice and each sampling), as `train`'s `metrics.json` has them.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub model_events: Vec<serde_json::Value>,
+    /// LPM's steps up to this iteration, one object each as in `train`'s `metrics.json`
+    /// (`lpm.per_step`): iteration, view, zones, radii, Gaussians inside, lowered
+    /// densifications, extra prunes, resets, additions. Empty (and left out) for ADC runs.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub lpm_steps: Vec<serde_json::Value>,
 }
 
 /// One variant at one iteration, over its seeds.
@@ -99,6 +104,7 @@ impl Summary {
             fps_1352x1014: self.fps_1352x1014,
             view_psnr: None,
             model_events: Vec::new(),
+            lpm_steps: Vec::new(),
         }
     }
 }
@@ -342,6 +348,7 @@ mod tests {
             fps_1352x1014: 1.0,
             view_psnr: None,
             model_events: Vec::new(),
+            lpm_steps: Vec::new(),
         }
     }
 
