@@ -95,7 +95,9 @@ pub struct TradeArgs {
     /// for it), lpm-bounding-cone (our rules with the in-front cone to the zone's bounding
     /// sphere, the default before 2026-11-26), lpm-local-zones (our rules without the zones
     /// wider than the scene extent), lpm-slab (our rules with the zone cut to the view's cone
-    /// through the region and the depths of its matches) (aliases: adc-1e-4, lpm). Default: the first five.
+    /// through the region and the depths of its matches), lpm-loose-blocks (our rules with error
+    /// blocks kept above 70 % error pixels, whatever --lpm-block-fraction says) (aliases:
+    /// adc-1e-4, lpm). Default: the first five.
     #[arg(long, value_delimiter = ',')]
     pub runs: Vec<String>,
     /// Run the variants one after another instead of interleaving their iterations. Interleaving
@@ -133,7 +135,7 @@ pub struct TradeArgs {
     pub lpips: LpipsArgs,
 }
 
-pub const RUNS: [(&str, [u8; 3]); 15] = [
+pub const RUNS: [(&str, [u8; 3]); 16] = [
     ("adc", [40, 40, 40]),
     ("adc-threshold-1e-4", [200, 120, 0]),
     ("adc+lpm", [220, 30, 30]),
@@ -165,6 +167,9 @@ pub const RUNS: [(&str, [u8; 3]); 15] = [
     // Our rules with the zone cut to the region's cone and the matches' depths
     // (`train --lpm --lpm-zone slab`).
     ("lpm-slab", [200, 80, 200]),
+    // Our rules with error blocks kept above 70 % error pixels instead of the paper's 85 %
+    // (`train --lpm --lpm-block-fraction 0.7`), beside the default in one interleaved run.
+    ("lpm-loose-blocks", [250, 120, 40]),
 ];
 
 pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
@@ -549,6 +554,10 @@ fn abs_grad_applies(model: BaseModel) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The block rule of `lpm-loose-blocks`: ahead of the paper's 0.85 at one Gaussian count on
+/// Truck `-r 4` over eleven seeds (docs/lpm-results.md), not yet measured at full size.
+const LOOSE_BLOCK_FRACTION: f32 = 0.7;
+
 /// LPM's configuration for run `name` (None for the runs without LPM), on `cfg`'s calendar
 /// and seed, with the benchmark's LPM overrides.
 fn run_lpm_config(name: &str, cfg: &TrainConfig, args: &TradeArgs) -> Option<LpmConfig> {
@@ -593,7 +602,11 @@ fn run_lpm_config(name: &str, cfg: &TrainConfig, args: &TradeArgs) -> Option<Lpm
         c.prune = p;
     }
     c.regions.block = args.lpm_block;
-    c.regions.keep_fraction = args.lpm_block_fraction;
+    c.regions.keep_fraction = if name == "lpm-loose-blocks" {
+        LOOSE_BLOCK_FRACTION
+    } else {
+        args.lpm_block_fraction
+    };
     Some(c)
 }
 
@@ -869,6 +882,19 @@ mod tests {
         let mut same = slab.clone();
         same.zones.geometry = ZoneGeometry::Triangulated;
         assert_eq!(same, default, "only the zone geometry differs");
+        // lpm-loose-blocks: our rules but for the block fraction, whatever the flag says.
+        let loose = run_lpm_config("lpm-loose-blocks", &cfg, &plain.trade).unwrap();
+        assert_eq!(loose.regions.keep_fraction, 0.7);
+        let mut same = loose.clone();
+        same.regions.keep_fraction = default.regions.keep_fraction;
+        assert_eq!(same, default, "only the block fraction differs");
+        let flagged = Cli::parse_from(["bench", "scene", "--lpm-block-fraction", "0.6"]);
+        let loose = run_lpm_config("lpm-loose-blocks", &cfg, &flagged.trade).unwrap();
+        let ours = run_lpm_config("adc+lpm", &cfg, &flagged.trade).unwrap();
+        assert_eq!(
+            (loose.regions.keep_fraction, ours.regions.keep_fraction),
+            (0.7, 0.6)
+        );
     }
 
     #[test]
