@@ -13,7 +13,7 @@ use lpmsplat::lpm::membership::{
     apply_opacity_reset, membership, OpacityResetSettings, ZoneTest, FLAG_INSIDE, FLAG_IN_BALL,
     FLAG_IN_FRONT,
 };
-use lpmsplat::lpm::record::ZONE_SLAB;
+use lpmsplat::lpm::record::{ZONE_NO_RESET, ZONE_SLAB};
 use lpmsplat::lpm::regions::{block_mask, error_map, quantile, BlockMask};
 use lpmsplat::lpm::{ConeRadius, RegionSettings, Zone, ZoneRecord};
 use rand::{Rng, SeedableRng};
@@ -309,6 +309,55 @@ fn membership_matches_cpu_exactly() {
             assert!(flags.iter().all(|&f| f == 0));
         }
     }
+    ctx.check_validation().unwrap();
+}
+
+/// Zones marked `ZONE_NO_RESET` (wider than `--lpm-reset-max-zone-radius`) hold their
+/// Gaussians as before, but put nothing in front of them or in their ball: the GPU matches the
+/// CPU mirror bit for bit, the inside bits and counts are those of the unmarked zones, and the
+/// in-front and ball bits are exactly those of the zones left unmarked.
+#[test]
+fn zones_marked_no_reset_keep_their_inside_and_lose_their_front() {
+    let ctx = ctx();
+    let lpm = LpmGpu::new(&ctx, 1).unwrap();
+    let mut rng = Pcg64::seed_from_u64(72);
+    let zones = random_zones(&mut rng, 40);
+    let positions = random_positions(&mut rng, &zones, 20_011);
+    let mut marked = zones.clone();
+    for z in marked.iter_mut().step_by(3) {
+        z.shape |= ZONE_NO_RESET;
+    }
+    assert!(marked.iter().any(|z| z.shape == ZONE_SLAB | ZONE_NO_RESET));
+    let cpu = membership(&positions, &marked);
+    let (flags, counts) = run_membership(&ctx, &lpm, &positions, &marked);
+    assert_eq!(flags, cpu.flags, "GPU and CPU flags");
+    assert_eq!(counts, cpu.inside_counts);
+    let all = membership(&positions, &zones);
+    let kept: Vec<ZoneRecord> = zones.iter().skip(1).step_by(3).copied().collect();
+    let kept2: Vec<ZoneRecord> = zones.iter().skip(2).step_by(3).copied().collect();
+    let resetting = membership(&positions, &[kept, kept2].concat());
+    assert_eq!(
+        counts, all.inside_counts,
+        "marked zones hold what they held"
+    );
+    let (front_ball, mut lost) = (FLAG_IN_FRONT | FLAG_IN_BALL, 0);
+    for (i, &f) in flags.iter().enumerate() {
+        assert_eq!(
+            f & FLAG_INSIDE,
+            all.flags[i] & FLAG_INSIDE,
+            "inside bit of {i}"
+        );
+        assert_eq!(
+            f & front_ball,
+            resetting.flags[i] & front_ball,
+            "front bits of {i}"
+        );
+        lost += (all.flags[i] & FLAG_IN_FRONT != 0 && f & FLAG_IN_FRONT == 0) as usize;
+    }
+    assert!(
+        lost > 100,
+        "the marked zones took only {lost} Gaussians out of the front"
+    );
     ctx.check_validation().unwrap();
 }
 

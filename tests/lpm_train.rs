@@ -825,6 +825,73 @@ fn zones_wider_than_the_largest_radius_are_dropped_and_counted() {
     ctx.check_validation().unwrap();
 }
 
+/// `reset_max_zone_radius`: zones wider than that many scene extents stay (they still hold
+/// their Gaussians and get points added) but the opacity reset ignores them. Below every zone's
+/// radius the step keeps every zone and adds what it added, resets nothing and leaves the
+/// occluder the default step resets alone; bad values are refused naming the flag.
+#[test]
+fn zones_wider_than_the_reset_radius_reset_nothing_and_keep_the_rest() {
+    let ctx = GpuContext::new(&GpuOptions::for_tests()).unwrap();
+    let scene = scene();
+    let gt = ground_truth(&ctx, &scene);
+    let init = initial_model();
+    let step = |max: Option<f64>| {
+        let c = LpmConfig {
+            reset_max_zone_radius: max,
+            ..lpm_config()
+        };
+        c.validate().unwrap();
+        let mut t = Trainer::new(&ctx, &scene, &gt, &init, config(1e9, 1)).unwrap();
+        t.set_strategy(Box::new(
+            LpmStrategy::new(&ctx, &scene, &gt, correspondences(&scene), c).unwrap(),
+        ));
+        let r = t.step().unwrap();
+        let rep = lpm_report(&r).expect("LPM ran at iteration 1");
+        assert_eq!(lpm_of(&t).unwrap().totals.no_reset, rep.no_reset as u64);
+        let m = t.model().unwrap();
+        let occ: Vec<usize> = (0..m.len())
+            .filter(|&i| dist(m.positions[i], OCCLUDER) < 0.05)
+            .collect();
+        assert_eq!(occ.len(), 1);
+        (rep, m.opacity_logits[occ[0]])
+    };
+    let (all, occluder) = step(None);
+    assert!(
+        all.zones >= 2 && all.reset >= 1 && all.no_reset == 0,
+        "{all:?}"
+    );
+    assert!((occluder - logit(0.01)).abs() < 1e-4, "occluder {occluder}");
+
+    let (local, occluder) = step(Some(all.radius_mean * 1e-6));
+    assert_eq!(
+        (
+            local.zones,
+            local.no_reset,
+            local.wide,
+            local.added,
+            local.inside
+        ),
+        (all.zones, all.zones, 0, all.added, all.inside),
+        "{local:?}"
+    );
+    assert_eq!(local.reset, 0, "{local:?}");
+    assert!(occluder > logit(0.9), "the occluder was reset: {occluder}");
+
+    // A radius above every zone changes nothing.
+    let (wide, _) = step(Some(all.radius_max * 1.001));
+    assert_eq!((wide.no_reset, wide.reset), (0, all.reset), "{wide:?}");
+
+    for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+        let c = LpmConfig {
+            reset_max_zone_radius: Some(bad),
+            ..LpmConfig::default()
+        };
+        let e = c.validate().unwrap_err().to_string();
+        assert!(e.contains("--lpm-reset-max-zone-radius"), "{bad}: {e}");
+    }
+    ctx.check_validation().unwrap();
+}
+
 /// LPM's opacity reset follows its own interval: on an iteration without a density step it
 /// runs alone (zones, membership, reset), and a density step off that interval does not reset.
 #[test]

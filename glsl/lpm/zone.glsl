@@ -4,7 +4,7 @@ struct Zone {
     vec3 center;
     float radius;         // sphere radius; for a box, its circumscribed radius
     vec3 camera_center;   // apex of the "in front" cone
-    uint shape;           // ZONE_SPHERE, ZONE_BOX or ZONE_SLAB
+    uint shape;           // ZONE_SPHERE, ZONE_BOX or ZONE_SLAB, | ZONE_NO_RESET
     vec3 color;
     float front_radius;   // "in front" ends at the near side of the ball of this radius;
                           // a slab spans |x − camera_center| within this of |center − camera_center|
@@ -14,6 +14,10 @@ struct Zone {
 const uint ZONE_SPHERE = 0u;
 const uint ZONE_BOX = 1u;
 const uint ZONE_SLAB = 2u;  // the in-front cone cut to a band of distances from its apex
+const uint ZONE_SHAPE_MASK = 0xFFu;
+// OR-ed into shape: nothing is in front of the zone or in its ball, so the opacity reset
+// ignores it (a zone wider than --lpm-reset-max-zone-radius); it still holds Gaussians inside.
+const uint ZONE_NO_RESET = 0x100u;
 
 // Bits of the per-Gaussian membership flags (src/lpm/membership.rs has the same constants).
 const uint FLAG_INSIDE = 1u;

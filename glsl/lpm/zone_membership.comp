@@ -7,7 +7,7 @@
 //
 // flags[i]: bit 0 (FLAG_INSIDE) inside at least one zone, bit 1 (FLAG_IN_FRONT) in front of at
 // least one zone, bit 2 (FLAG_IN_BALL) within the cone radius of a zone's centre; the other
-// bits are 0.
+// bits are 0. A zone marked ZONE_NO_RESET sets no FLAG_IN_FRONT or FLAG_IN_BALL.
 //
 // Inside: sphere |x − c|² ≤ r², box |x_k − c_k| ≤ h_k on each axis, slab: inside the in-front
 // cone below and |a| − f ≤ |v| ≤ |a| + f (boundary included everywhere).
@@ -86,8 +86,9 @@ bool inside_slab(vec3 x, uint j) {
 
 bool inside_zone(vec3 x, uint j) {
     vec4 s = s_sphere[j];
-    if (s_shape[j] == ZONE_SLAB) return inside_slab(x, j);
-    if (s_shape[j] == ZONE_BOX) {
+    uint shape = s_shape[j] & ZONE_SHAPE_MASK;
+    if (shape == ZONE_SLAB) return inside_slab(x, j);
+    if (shape == ZONE_BOX) {
         vec3 h = s_half[j].xyz;
         precise vec3 d = abs(x - s.xyz);
         return d.x <= h.x && d.y <= h.y && d.z <= h.z;
@@ -157,14 +158,15 @@ void main() {
         barrier();
         for (uint j = 0u; j < nb; j++) {
             uint c = 0u;
+            bool resets = (s_shape[j] & ZONE_NO_RESET) == 0u;
             for (uint k = 0u; k < ITEMS; k++) {
                 if (first + k * WG_SIZE >= count) continue;
                 if (inside_zone(x[k], j)) {
                     f[k] |= FLAG_INSIDE;
                     c++;
                 }
-                if ((f[k] & FLAG_IN_FRONT) == 0u && in_front(x[k], j)) f[k] |= FLAG_IN_FRONT;
-                if ((f[k] & FLAG_IN_BALL) == 0u && in_ball(x[k], j)) f[k] |= FLAG_IN_BALL;
+                if (resets && (f[k] & FLAG_IN_FRONT) == 0u && in_front(x[k], j)) f[k] |= FLAG_IN_FRONT;
+                if (resets && (f[k] & FLAG_IN_BALL) == 0u && in_ball(x[k], j)) f[k] |= FLAG_IN_BALL;
             }
             if (subgroupAny(c != 0u)) {
                 uint s = subgroupAdd(c);

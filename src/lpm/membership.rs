@@ -9,7 +9,7 @@
 //! * The opacity threshold is an order statistic, selected exactly on both sides, and compared in
 //!   the total order of [`float_key`].
 
-use super::record::{ZoneRecord, ZONE_BOX, ZONE_SLAB};
+use super::record::{ZoneRecord, ZONE_BOX, ZONE_NO_RESET, ZONE_SHAPE_MASK, ZONE_SLAB};
 
 /// Bit 0 of a Gaussian's membership flags: its centre is inside at least one zone.
 pub const FLAG_INSIDE: u32 = 1;
@@ -38,6 +38,8 @@ pub struct ZoneTest {
     half: [f32; 3],
     is_box: bool,
     is_slab: bool,
+    /// Whether the opacity reset sees the zone (not [`ZONE_NO_RESET`]).
+    resets: bool,
     apex: [f32; 3],
     axis: [f32; 3],
     a2: f32,
@@ -56,8 +58,9 @@ impl ZoneTest {
             center: c,
             r2: z.radius * z.radius,
             half: z.half_extents,
-            is_box: z.shape == ZONE_BOX,
-            is_slab: z.shape == ZONE_SLAB,
+            is_box: z.shape & ZONE_SHAPE_MASK == ZONE_BOX,
+            is_slab: z.shape & ZONE_SHAPE_MASK == ZONE_SLAB,
+            resets: z.shape & ZONE_NO_RESET == 0,
             apex: o,
             axis,
             a2: axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2],
@@ -66,7 +69,12 @@ impl ZoneTest {
         }
     }
 
+    /// In the ball of the zone's cone radius around its centre (never for a [`ZONE_NO_RESET`]
+    /// zone).
     pub fn in_ball(&self, x: [f32; 3]) -> bool {
+        if !self.resets {
+            return false;
+        }
         let c = self.center;
         let (dx, dy, dz) = (x[0] - c[0], x[1] - c[1], x[2] - c[2]);
         dx * dx + dy * dy + dz * dz <= self.c2
@@ -122,7 +130,11 @@ impl ZoneTest {
         w <= 0.0 || (4.0 * big_f) * v >= w * w
     }
 
+    /// In front of the zone (never for a [`ZONE_NO_RESET`] zone).
     pub fn in_front(&self, x: [f32; 3]) -> bool {
+        if !self.resets {
+            return false;
+        }
         let Some(v) = self.in_cone(x) else {
             return false;
         };

@@ -12,6 +12,13 @@ pub const ZONE_BOX: u32 = 1;
 /// A cone from `camera_center` through the ball (`center`, `cone_radius`), cut to the distances
 /// from the apex within `front_radius` of the centre's ([`Zone::Slab`]).
 pub const ZONE_SLAB: u32 = 2;
+/// The bits of [`ZoneRecord::shape`] that hold the shape code.
+pub const ZONE_SHAPE_MASK: u32 = 0xFF;
+/// OR-ed into [`ZoneRecord::shape`]: the opacity reset ignores the zone (no Gaussian is in
+/// front of it or in its ball); it still holds Gaussians inside ([`LpmConfig::reset_max_zone_radius`]).
+///
+/// [`LpmConfig::reset_max_zone_radius`]: crate::lpm::config::LpmConfig::reset_max_zone_radius
+pub const ZONE_NO_RESET: u32 = 0x100;
 
 /// One error zone as the membership shaders read it. 64 bytes, std430-compatible:
 ///
@@ -21,7 +28,8 @@ pub const ZONE_SLAB: u32 = 2;
 ///     float radius;        // 12  sphere radius; for a box, its circumscribed radius
 ///     vec3  camera_center; // 16  centre of the view the zone was seen from (the "in front" cone apex)
 ///     uint  shape;         // 28  0 = sphere, 1 = axis-aligned box (centre ± half_extents),
-///                          //     2 = slab (the in-front cone cut to |x − o| ∈ |c − o| ± front_radius)
+///                          //     2 = slab (the in-front cone cut to |x − o| ∈ |c − o| ± front_radius);
+///                          //     | 0x100: the reset ignores the zone (ZONE_NO_RESET)
 ///     vec3  color;         // 32  mean ground-truth colour of R_e, linear [0, 1]
 ///     float front_radius;  // 44  "in front" ends at the near side of the ball of this radius
 ///     vec3  half_extents;  // 48  box only (zero for spheres)

@@ -20,6 +20,8 @@ pub struct LpmStepReport {
     pub radius_max: f64,
     /// Zones dropped as wider than `max_zone_radius` scene extents.
     pub wide: usize,
+    /// Zones kept but ignored by the opacity reset, as wider than `reset_max_zone_radius`.
+    pub no_reset: usize,
     /// Gaussian centres inside zones, summed over the zones (before densification).
     pub inside: u64,
     /// Gaussians densified only because of the lowered threshold.
@@ -42,7 +44,8 @@ impl LpmStepReport {
             "iteration": self.iteration, "view": self.view, "reference": self.reference,
             "regions": self.regions, "paired": self.paired, "zones": self.zones,
             "block": self.block, "radius_mean_rel": self.radius_mean,
-            "radius_max_rel": self.radius_max, "wide_dropped": self.wide, "inside": self.inside,
+            "radius_max_rel": self.radius_max, "wide_dropped": self.wide,
+            "no_reset_zones": self.no_reset, "inside": self.inside,
             "lowered": self.lowered, "pruned_extra": self.pruned, "opacity_reset": self.reset,
             "added": self.added, "skipped_adc": self.skipped_adc, "reset_only": self.reset_only,
             "seconds": self.seconds,
@@ -80,6 +83,8 @@ pub struct LpmTotals {
     pub radius_max: f64,
     /// Zones dropped as wider than `max_zone_radius`.
     pub wide: u64,
+    /// Zones the opacity reset ignored (wider than `reset_max_zone_radius`).
+    pub no_reset: u64,
     /// Density steps whose ADC was skipped (no zone).
     pub skipped_adc: u32,
     pub seconds: f64,
@@ -95,7 +100,7 @@ impl LpmTotals {
             "lowered": self.lowered, "pruned_extra": self.pruned, "opacity_reset": self.reset,
             "added": self.added, "inside": self.inside, "radius_mean_rel": self.radius_mean,
             "radius_max_rel": self.radius_max, "wide_dropped": self.wide,
-            "skipped_adc": self.skipped_adc, "seconds": self.seconds,
+            "no_reset_zones": self.no_reset, "skipped_adc": self.skipped_adc, "seconds": self.seconds,
             "share_of_training": self.seconds / train_seconds.max(1e-12),
             "ms_per_iteration": 1e3 * self.seconds / iterations.max(1) as f64,
         })
@@ -116,6 +121,7 @@ impl LpmTotals {
         self.paired += r.paired as u64;
         self.zones += r.zones as u64;
         self.wide += r.wide as u64;
+        self.no_reset += r.no_reset as u64;
         self.lowered += r.lowered as u64;
         self.pruned += r.pruned as u64;
         self.reset += r.reset as u64;

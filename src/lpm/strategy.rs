@@ -34,6 +34,7 @@ use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext};
 use crate::lpm::config::{LpmConfig, PruneMode};
 use crate::lpm::gpu::{block_grid, ErrorImages, FilteredOpacity, LpmGpu};
 use crate::lpm::pairing::RegionKeypoints;
+use crate::lpm::record::ZONE_NO_RESET;
 use crate::lpm::report::{LpmStepReport, LpmTotals};
 use crate::lpm::{regions, zones_for_step, Correspondences, ZoneRecord};
 use crate::scene::image_source::{ImageSource, TrainImages};
@@ -301,11 +302,18 @@ impl LpmStrategy {
             .collect();
         let found = finite.len();
         let widest = self.config.max_zone_radius.map(|r| r * extent);
-        let records: Vec<ZoneRecord> = finite
+        let mut records: Vec<ZoneRecord> = finite
             .into_iter()
             .filter(|z| widest.is_none_or(|w| z.radius as f64 <= w))
             .collect();
         report.wide = found - records.len();
+        if let Some(w) = self.config.reset_max_zone_radius.map(|r| r * extent) {
+            // Kept for the lowered threshold and point addition; the reset ignores them.
+            for z in records.iter_mut().filter(|z| z.radius as f64 > w) {
+                z.shape |= ZONE_NO_RESET;
+                report.no_reset += 1;
+            }
+        }
         report.zones = records.len();
         if !records.is_empty() {
             let rel: Vec<f64> = records

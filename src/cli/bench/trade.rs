@@ -96,8 +96,9 @@ pub struct TradeArgs {
     /// sphere, the default before 2026-11-26), lpm-local-zones (our rules without the zones
     /// wider than the scene extent), lpm-slab (our rules with the zone cut to the view's cone
     /// through the region and the depths of its matches), lpm-loose-blocks (our rules with error
-    /// blocks kept above 70 % error pixels, whatever --lpm-block-fraction says) (aliases:
-    /// adc-1e-4, lpm). Default: the first five.
+    /// blocks kept above 70 % error pixels, whatever --lpm-block-fraction says),
+    /// lpm-local-resets (our rules with the zones wider than the scene kept but ignored by the
+    /// opacity reset) (aliases: adc-1e-4, lpm). Default: the first five.
     #[arg(long, value_delimiter = ',')]
     pub runs: Vec<String>,
     /// Run the variants one after another instead of interleaving their iterations. Interleaving
@@ -135,7 +136,7 @@ pub struct TradeArgs {
     pub lpips: LpipsArgs,
 }
 
-pub const RUNS: [(&str, [u8; 3]); 16] = [
+pub const RUNS: [(&str, [u8; 3]); 17] = [
     ("adc", [40, 40, 40]),
     ("adc-threshold-1e-4", [200, 120, 0]),
     ("adc+lpm", [220, 30, 30]),
@@ -170,6 +171,9 @@ pub const RUNS: [(&str, [u8; 3]); 16] = [
     // Our rules with error blocks kept above 70 % error pixels instead of the paper's 85 %
     // (`train --lpm --lpm-block-fraction 0.7`), beside the default in one interleaved run.
     ("lpm-loose-blocks", [250, 120, 40]),
+    // Our rules with zones wider than the scene kept but ignored by the opacity reset
+    // (`train --lpm --lpm-reset-max-zone-radius 1`).
+    ("lpm-local-resets", [120, 40, 120]),
 ];
 
 pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
@@ -598,6 +602,9 @@ fn run_lpm_config(name: &str, cfg: &TrainConfig, args: &TradeArgs) -> Option<Lpm
     if name == "lpm-slab" {
         c.zones.geometry = ZoneGeometry::Slab;
     }
+    if name == "lpm-local-resets" {
+        c.reset_max_zone_radius = Some(1.0);
+    }
     if let Some(p) = args.lpm_prune {
         c.prune = p;
     }
@@ -895,6 +902,12 @@ mod tests {
             (loose.regions.keep_fraction, ours.regions.keep_fraction),
             (0.7, 0.6)
         );
+        // lpm-local-resets: our rules but for the reset's largest zone.
+        let local = run_lpm_config("lpm-local-resets", &cfg, &plain.trade).unwrap();
+        assert_eq!(local.reset_max_zone_radius, Some(1.0));
+        let mut same = local.clone();
+        same.reset_max_zone_radius = None;
+        assert_eq!(same, default, "only the reset's largest zone differs");
     }
 
     #[test]

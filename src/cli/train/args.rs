@@ -313,6 +313,11 @@ pub struct LpmArgs {
     /// which then lowers the threshold and resets opacities over most of the model.
     #[arg(long, value_name = "EXTENTS")]
     pub lpm_max_zone_radius: Option<f64>,
+    /// Zones wider than this many scene extents keep their lowered threshold and point
+    /// addition, but the opacity reset ignores them (default: every zone resets). One such zone
+    /// can reset a quarter of the model's opacities in one step.
+    #[arg(long, value_name = "EXTENTS")]
+    pub lpm_reset_max_zone_radius: Option<f64>,
     /// Dump PNGs of every LPM step (error map, kept blocks, paired regions, zones) here.
     #[arg(long)]
     pub lpm_debug: Option<PathBuf>,
@@ -384,6 +389,7 @@ impl LpmArgs {
             c.cone = ConeRadius::parse(k)?;
         }
         c.max_zone_radius = self.lpm_max_zone_radius;
+        c.reset_max_zone_radius = self.lpm_reset_max_zone_radius;
         c.validate()?;
         Ok(Some(c))
     }
