@@ -1016,12 +1016,20 @@ fn checkpoint_settings_leave_out_new_rules_at_their_old_values() {
         ..LpmConfig::default()
     };
     assert_eq!(local.checkpoint_json()["max_zone_radius"], 1.0);
+    assert!(ck.get("reset_max_zone_radius").is_none());
+    assert!(plain.to_json()["reset_max_zone_radius"].is_null());
+    let local_resets = LpmConfig {
+        reset_max_zone_radius: Some(1.0),
+        ..LpmConfig::default()
+    };
+    assert_eq!(local_resets.checkpoint_json()["reset_max_zone_radius"], 1.0);
     // Everything else is the same object.
     let mut full = plain.to_json();
     let o = full.as_object_mut().unwrap();
     o.remove("neighbours");
     o.remove("region_keypoints");
     o.remove("max_zone_radius");
+    o.remove("reset_max_zone_radius");
     assert_eq!(full, ck);
 }
 
