@@ -241,6 +241,25 @@ fn lpm_config() -> LpmConfig {
     c
 }
 
+/// One training step of the constructed scene with LPM (`c`, checked first) at iteration 1:
+/// the trainer after it and LPM's report of the step.
+fn one_lpm_step(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    gt: &[Image],
+    init: &GaussianParams,
+    c: LpmConfig,
+) -> (Trainer, LpmStepReport) {
+    c.validate().unwrap();
+    let mut t = Trainer::new(ctx, scene, gt, init, config(1e9, 1)).unwrap();
+    t.set_strategy(Box::new(
+        LpmStrategy::new(ctx, scene, gt, correspondences(scene), c).unwrap(),
+    ));
+    let r = t.step().unwrap();
+    let rep = lpm_report(&r).expect("LPM ran at iteration 1");
+    (t, rep)
+}
+
 #[test]
 fn one_lpm_step_fills_the_hole_and_resets_the_occluder_adc_does_neither() {
     let ctx = GpuContext::new(&GpuOptions::for_tests()).unwrap();
@@ -786,13 +805,7 @@ fn zones_wider_than_the_largest_radius_are_dropped_and_counted() {
             max_zone_radius: max,
             ..lpm_config()
         };
-        c.validate().unwrap();
-        let mut t = Trainer::new(&ctx, &scene, &gt, &init, config(1e9, 1)).unwrap();
-        t.set_strategy(Box::new(
-            LpmStrategy::new(&ctx, &scene, &gt, correspondences(&scene), c).unwrap(),
-        ));
-        let r = t.step().unwrap();
-        let rep = lpm_report(&r).expect("LPM ran at iteration 1");
+        let (t, rep) = one_lpm_step(&ctx, &scene, &gt, &init, c);
         assert_eq!(lpm_of(&t).unwrap().totals.wide, rep.wide as u64);
         (rep, t.model().unwrap().len())
     };
@@ -840,13 +853,7 @@ fn zones_wider_than_the_reset_radius_reset_nothing_and_keep_the_rest() {
             reset_max_zone_radius: max,
             ..lpm_config()
         };
-        c.validate().unwrap();
-        let mut t = Trainer::new(&ctx, &scene, &gt, &init, config(1e9, 1)).unwrap();
-        t.set_strategy(Box::new(
-            LpmStrategy::new(&ctx, &scene, &gt, correspondences(&scene), c).unwrap(),
-        ));
-        let r = t.step().unwrap();
-        let rep = lpm_report(&r).expect("LPM ran at iteration 1");
+        let (t, rep) = one_lpm_step(&ctx, &scene, &gt, &init, c);
         assert_eq!(lpm_of(&t).unwrap().totals.no_reset, rep.no_reset as u64);
         let m = t.model().unwrap();
         let occ: Vec<usize> = (0..m.len())
