@@ -1,5 +1,6 @@
-//! `bench trade` and `bench fps` end to end through the CLI, under the validation layer: the files
-//! they promise exist and hold consistent numbers, and bad `--runs` lists are refused clearly.
+//! `bench trade`, `bench merge` and `bench fps` end to end through the CLI, under the validation
+//! layer: the files they promise exist and hold consistent numbers, and bad `--runs` lists are
+//! refused clearly.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -237,6 +238,66 @@ fn bench_trade_with_several_seeds_reports_means_and_paired_differences() {
         md.contains("mean over 2 seeds (5..6)") && md.contains(" ± "),
         "{md}"
     );
+
+    // Each seed in its own file, as two processes write them, merged back by `bench merge`:
+    // the pooled summary is the one-process summary, less the time ratio.
+    assert_eq!(json["settings"]["lpm_block_fraction"], 0.5);
+    assert!(json["settings"]["max_gaussians"].is_null());
+    for seed in [5u64, 6] {
+        let mut one = json.clone();
+        one["runs"] =
+            serde_json::Value::Array(runs.iter().filter(|r| r["seed"] == seed).cloned().collect());
+        let d = dir.path().join(format!("seed{seed}"));
+        std::fs::create_dir_all(&d).unwrap();
+        std::fs::write(d.join("trade.json"), one.to_string()).unwrap();
+    }
+    let merged = dir.path().join("merged");
+    let (ok, text) = output(
+        lpmsplat()
+            .args(["bench", "merge"])
+            .arg(dir.path().join("seed5"))
+            .arg(dir.path().join("seed6/trade.json"))
+            .arg("-o")
+            .arg(&merged),
+    );
+    assert!(ok, "{text}");
+    let m = trade_json(&merged);
+    assert_eq!(m["interleaved"], false);
+    let ms = m["summary"].as_array().unwrap();
+    assert_eq!(ms.len(), 2);
+    for (a, b) in summary.iter().zip(ms) {
+        assert_eq!(a["run"], b["run"]);
+        assert_eq!(a["seeds"], b["seeds"]);
+        for k in ["psnr", "ssim"] {
+            assert!(
+                (a[k].as_f64().unwrap() - b[k].as_f64().unwrap()).abs() < 1e-12,
+                "{k}"
+            );
+        }
+        assert!(b["time_vs_adc"].is_null(), "{b}");
+    }
+    for k in ["delta_psnr", "delta_psnr_se"] {
+        let (a, b) = (lpm[k].as_f64().unwrap(), ms[1][k].as_f64().unwrap());
+        assert!((a - b).abs() < 1e-12, "{k}: {a} vs {b}");
+    }
+    let mmd = std::fs::read_to_string(merged.join("trade.md")).unwrap();
+    let pair = format!("| adc+lpm | 12 | 5: {:+.3}, 6: {:+.3} |", d[0], d[1]);
+    assert!(mmd.contains(&pair), "{pair}\n{mmd}");
+    assert!(merged.join("trade.png").is_file());
+    // A `bench trade` result is never merged over.
+    let before = std::fs::read(out.join("trade.json")).unwrap();
+    let (ok, text) = output(
+        lpmsplat()
+            .args(["bench", "merge"])
+            .arg(dir.path().join("seed5"))
+            .arg("-o")
+            .arg(&out),
+    );
+    assert!(
+        !ok && text.contains("not a merge") && text.contains("Fix:"),
+        "{text}"
+    );
+    assert_eq!(std::fs::read(out.join("trade.json")).unwrap(), before);
 }
 
 #[test]

@@ -64,8 +64,9 @@ pub enum Command {
     Train(Box<train::TrainArgs>),
     /// PSNR and SSIM of a trained PLY on a scene's test views (table, JSON, side-by-side PNGs).
     Eval(eval::EvalArgs),
-    /// Benchmarks: `bench fps` (rendering speed and per-stage GPU time) and `bench trade` (ADC
-    /// against ADC + LPM and ablations, side by side).
+    /// Benchmarks: `bench fps` (rendering speed and per-stage GPU time), `bench trade` (ADC
+    /// against ADC + LPM and ablations, side by side) and `bench merge` (several `bench trade`
+    /// results as one table).
     Bench(bench::BenchArgs),
     /// Convert a trained PLY to the compact `.splat` format of web viewers.
     Export(export::ExportArgs),

@@ -20,6 +20,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 mod trade;
+mod trade_merge;
 mod trade_report;
 mod trade_summary;
 
@@ -35,6 +36,9 @@ pub enum BenchKind {
     Fps(FpsArgs),
     /// ADC vs ADC+LPM (and ablations) side by side: PSNR, SSIM, size, time, FPS.
     Trade(trade::TradeArgs),
+    /// Several `bench trade` results (more seeds, other machines, other settings) as one
+    /// table, paired seed by seed with a baseline run; no device needed.
+    Merge(trade_merge::MergeArgs),
 }
 
 #[derive(Args, Debug)]
@@ -121,6 +125,7 @@ pub fn run(gpu: &GpuOptions, args: &BenchArgs) -> anyhow::Result<()> {
     match &args.what {
         BenchKind::Fps(a) => fps(gpu, a),
         BenchKind::Trade(a) => trade::run(gpu, a),
+        BenchKind::Merge(a) => trade_merge::run(a),
     }
 }
 

@@ -5,7 +5,7 @@
 //! colour per run, listed in the table).
 
 use super::trade_report;
-use super::trade_summary::{plot, summarize, table_rows, Summary, TradeRow};
+use super::trade_summary::{column_header, plot, summarize, table_rows, Summary, TradeRow};
 use crate::cli::lpips_scores::{self, LpipsArgs};
 use crate::cli::train::{background_from, build_lpm, initial_model, prepare_output};
 use crate::cli::world_culls_arg::N3dvCulls;
@@ -401,9 +401,7 @@ pub fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
          trade.png plots test PSNR against Gaussians and training seconds (top), and PSNR and \
          Gaussians against iterations (bottom), one named line per run through its evaluated \
          iterations; trade.html shows the plot, this table and the runs' renders. LPIPS is \
-         AlexNet v0.1 (n/a without --lpips-weights).{}\n\n\
-         | run | iteration | colour | PSNR | ΔPSNR vs adc | SSIM | LPIPS | Gaussians | train s | time vs adc | ms/it | LPM ms/it (share) | LPM zones · densified · pruned · added · reset · zone radius / extent | FPS 1352×1014 |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+         AlexNet v0.1 (n/a without --lpips-weights).{}\n\n",
         args.scene.scene.display(),
         args.model.name(),
         args.iterations,
@@ -432,7 +430,25 @@ pub fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
             String::new()
         }
     );
-    s + &table_rows(rows)
+    s + &column_header("adc") + &table_rows(rows)
+}
+
+/// What changes the runs beyond the scene, model, resolution and calendar (trade.json's
+/// `settings`): `bench merge` pools only runs whose files agree here, and names the others by
+/// the difference. Settings whose name starts with `lpm_` change only the LPM runs.
+pub fn settings_json(args: &TradeArgs) -> serde_json::Value {
+    serde_json::json!({
+        "lpm_block": args.lpm_block,
+        "lpm_block_fraction": args.lpm_block_fraction,
+        "lpm_prune": args.lpm_prune.as_ref().map(PruneMode::name),
+        "densify_abs_grad": args.densify_abs_grad,
+        "max_gaussians": args.max_gaussians,
+        "init": format!("{:?}", args.init).to_lowercase(),
+        "init_points": args.init_points,
+        "n3dv_culls": format!("{:?}", args.n3dv_culls).to_lowercase(),
+        "test_split": args.scene.test_split,
+        "frames": args.scene.frames.map(|f| serde_json::json!({"start": f.start, "count": f.count})),
+    })
 }
 
 /// Writes trade.md, trade.json and trade.png for the rows so far (atomically).
@@ -458,6 +474,7 @@ fn write_outputs(
         "seeds": args.seeds,
         "lpm_block": args.lpm_block,
         "lpm_block_fraction": args.lpm_block_fraction,
+        "settings": settings_json(args),
         "summary": summary,
         "runs": rows,
     });
@@ -731,6 +748,7 @@ fn evaluate_run(
         view_psnr,
         model_events: r.model_events.clone(),
         lpm_steps,
+        source: 0,
     };
     let name = if args.seeds > 1 {
         format!("{name} (seed {})", r.seed)

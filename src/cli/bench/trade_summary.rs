@@ -4,11 +4,14 @@
 
 use lpmsplat::plot::{panels_png, Panel, Series};
 
-#[derive(Debug, Clone, serde::Serialize)]
+/// One run at one evaluated iteration: a row of trade.json's `runs` (read back by `bench merge`,
+/// which is why the telemetry that older files lack defaults to zero or empty).
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct TradeRow {
     pub run: String,
     pub seed: u64,
     pub iteration: u32,
+    #[serde(default)]
     pub colour: [u8; 3],
     pub psnr: f64,
     pub ssim: f64,
@@ -16,31 +19,45 @@ pub struct TradeRow {
     pub lpips: Option<f64>,
     pub gaussians: usize,
     pub train_seconds: f64,
+    #[serde(default)]
     pub ms_per_iteration: f64,
+    #[serde(default)]
     pub lpm_ms_per_iteration: f64,
+    #[serde(default)]
     pub lpm_share: f64,
     /// What LPM did up to this iteration (zeros for ADC runs): zones found, Gaussians densified
     /// only because of the lowered threshold, Gaussians added at zone centres, opacities reset.
+    #[serde(default)]
     pub lpm_zones: f64,
+    #[serde(default)]
     pub lpm_lowered: f64,
+    #[serde(default)]
     pub lpm_added: f64,
+    #[serde(default)]
     pub lpm_reset: f64,
     /// Extra (density-aware) prunes, and the zones' mean radius relative to the scene extent.
+    #[serde(default)]
     pub lpm_pruned: f64,
+    #[serde(default)]
     pub lpm_radius: f64,
+    #[serde(default)]
     pub fps_1352x1014: f64,
     /// PSNR on the report's test view (final iteration, first seed only: the rows whose render
     /// trade.html shows).
     pub view_psnr: Option<f64>,
     /// What the base model's own rules did up to this iteration (SpacetimeGaussians' guided
     /// sampling: its choice and each sampling), as `train`'s `metrics.json` has them.
-    #[serde(skip_serializing_if = "Vec::is_empty")]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub model_events: Vec<serde_json::Value>,
     /// LPM's steps up to this iteration, one object each as in `train`'s `metrics.json`
     /// (`lpm.per_step`): iteration, view, zones, radii, Gaussians inside, lowered
     /// densifications, extra prunes, resets, additions. Empty (and left out) for ADC runs.
-    #[serde(skip_serializing_if = "Vec::is_empty")]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub lpm_steps: Vec<serde_json::Value>,
+    /// The process the row came from: 0 in `bench trade`; in `bench merge` the input file's
+    /// index. Times are compared only between rows of one process (interleaved runs).
+    #[serde(skip)]
+    pub source: usize,
 }
 
 /// One variant at one iteration, over its seeds.
@@ -53,10 +70,10 @@ pub struct Summary {
     pub psnr: f64,
     /// Sample standard deviation over the seeds (0 with one seed).
     pub psnr_sd: f64,
-    /// Mean over the seeds of (this run's PSNR − ADC's PSNR with the same seed); `None` when
-    /// ADC was not run.
+    /// Mean over the seeds of (this run's PSNR − the baseline's PSNR with the same seed; the
+    /// baseline is ADC, or `bench merge --baseline`); `None` when the baseline was not run.
     pub delta_psnr: Option<f64>,
-    /// Standard error of that mean (sd / √seeds; `None` with fewer than two seeds).
+    /// Standard error of that mean (sd / √pairs; `None` with fewer than two pairs).
     pub delta_psnr_se: Option<f64>,
     pub ssim: f64,
     pub ssim_sd: f64,
@@ -64,7 +81,8 @@ pub struct Summary {
     pub lpips: Option<f64>,
     pub gaussians: f64,
     pub train_seconds: f64,
-    /// Mean train seconds over ADC's mean train seconds at the same iteration.
+    /// Mean train seconds over the baseline's mean train seconds at the same iteration; `None`
+    /// unless both ran interleaved in one process.
     pub time_vs_adc: Option<f64>,
     pub ms_per_iteration: f64,
     pub lpm_ms_per_iteration: f64,
@@ -105,6 +123,7 @@ impl Summary {
             view_psnr: None,
             model_events: Vec::new(),
             lpm_steps: Vec::new(),
+            source: 0,
         }
     }
 }
@@ -120,8 +139,17 @@ fn mean_sd(v: &[f64]) -> (f64, f64) {
     (mean, var.sqrt())
 }
 
-/// Groups `rows` by (run, iteration), in the rows' order of first appearance.
+/// Groups `rows` by (run, iteration), in the rows' order of first appearance, each paired with
+/// ADC seed by seed ([`summarize_against`] with `"adc"`).
 pub fn summarize(rows: &[TradeRow]) -> Vec<Summary> {
+    summarize_against(rows, "adc")
+}
+
+/// Groups `rows` by (run, iteration), in the rows' order of first appearance: means and spread
+/// over the seeds, ΔPSNR paired with the `baseline` run of the same seed and iteration, and the
+/// time ratio to the baseline only where the group and the baseline's rows all come from one
+/// process ([`TradeRow::source`]), whose runs were interleaved.
+pub fn summarize_against(rows: &[TradeRow], baseline: &str) -> Vec<Summary> {
     let mut keys: Vec<(&str, u32)> = Vec::new();
     for r in rows {
         if !keys.contains(&(r.run.as_str(), r.iteration)) {
@@ -136,15 +164,15 @@ pub fn summarize(rows: &[TradeRow]) -> Vec<Summary> {
     keys.iter()
         .map(|&(run, it)| {
             let g = group(run, it);
-            let adc = group("adc", it);
+            let base = group(baseline, it);
             let col = |f: &dyn Fn(&TradeRow) -> f64| g.iter().map(|r| f(r)).collect::<Vec<_>>();
             let (psnr, psnr_sd) = mean_sd(&col(&|r| r.psnr));
             let (ssim, ssim_sd) = mean_sd(&col(&|r| r.ssim));
-            // Paired differences: the ADC run with the same seed.
+            // Paired differences: the baseline run with the same seed.
             let diffs: Vec<f64> = g
                 .iter()
                 .filter_map(|r| {
-                    adc.iter()
+                    base.iter()
                         .find(|a| a.seed == r.seed)
                         .map(|a| r.psnr - a.psnr)
                 })
@@ -159,8 +187,9 @@ pub fn summarize(rows: &[TradeRow]) -> Vec<Summary> {
                 )
             };
             let train_seconds = mean_sd(&col(&|r| r.train_seconds)).0;
-            let time_vs_adc = (!adc.is_empty()).then(|| {
-                let a: Vec<f64> = adc.iter().map(|r| r.train_seconds).collect();
+            let one_process = g.iter().chain(&base).all(|r| r.source == g[0].source);
+            let time_vs_adc = (!base.is_empty() && one_process).then(|| {
+                let a: Vec<f64> = base.iter().map(|r| r.train_seconds).collect();
                 train_seconds / mean_sd(&a).0.max(1e-12)
             });
             Summary {
@@ -197,7 +226,17 @@ pub fn summarize(rows: &[TradeRow]) -> Vec<Summary> {
         .collect()
 }
 
-/// The table's rows, one per run and evaluated iteration (under the columns `trade::table` heads).
+/// The table's head: its columns, the differences and the time ratio against `baseline`.
+pub fn column_header(baseline: &str) -> String {
+    format!(
+        "| run | iteration | colour | PSNR | ΔPSNR vs {baseline} | SSIM | LPIPS | Gaussians | train s | \
+         time vs {baseline} | ms/it | LPM ms/it (share) | LPM zones · densified · pruned · added · \
+         reset · zone radius / extent | FPS 1352×1014 |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n"
+    )
+}
+
+/// The table's rows, one per run and evaluated iteration (under [`column_header`]).
 pub fn table_rows(rows: &[Summary]) -> String {
     let several = rows.iter().any(|r| r.seeds > 1);
     let mut s = String::new();
@@ -349,6 +388,7 @@ mod tests {
             view_psnr: None,
             model_events: Vec::new(),
             lpm_steps: Vec::new(),
+            source: 0,
         }
     }
 
