@@ -280,8 +280,10 @@ fn bench_trade_with_several_seeds_reports_means_and_paired_differences() {
         let (a, b) = (lpm[k].as_f64().unwrap(), ms[1][k].as_f64().unwrap());
         assert!((a - b).abs() < 1e-12, "{k}: {a} vs {b}");
     }
-    let mmd = std::fs::read_to_string(merged.join("trade.md")).unwrap();
+    // Both tables list the per-seed differences.
     let pair = format!("| adc+lpm | 12 | 5: {:+.3}, 6: {:+.3} |", d[0], d[1]);
+    assert!(md.contains(&pair), "{pair}\n{md}");
+    let mmd = std::fs::read_to_string(merged.join("trade.md")).unwrap();
     assert!(mmd.contains(&pair), "{pair}\n{mmd}");
     assert!(merged.join("trade.png").is_file());
     // A `bench trade` result is never merged over.

@@ -5,7 +5,9 @@
 //! colour per run, listed in the table).
 
 use super::trade_report;
-use super::trade_summary::{column_header, plot, summarize, table_rows, Summary, TradeRow};
+use super::trade_summary::{
+    column_header, paired_table, plot, summarize, table_rows, Summary, TradeRow,
+};
 use crate::cli::lpips_scores::{self, LpipsArgs};
 use crate::cli::train::{background_from, build_lpm, initial_model, prepare_output};
 use crate::cli::world_culls_arg::N3dvCulls;
@@ -382,7 +384,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
         }
     }
     bar.finish_and_clear();
-    print!("{}", table(&summarize(&rows), &ctx.info.name, args));
+    print!("{}", tables(&rows, &ctx.info.name, args));
     println!("wrote {}", args.out.display());
     ctx.check_validation()?;
     Ok(())
@@ -451,6 +453,17 @@ pub fn settings_json(args: &TradeArgs) -> serde_json::Value {
     })
 }
 
+/// [`table`] of the rows' summary, and with several seeds each run's per-seed differences from
+/// ADC ([`paired_table`]).
+fn tables(rows: &[TradeRow], device: &str, args: &TradeArgs) -> String {
+    let mut s = table(&summarize(rows), device, args);
+    if args.seeds > 1 && rows.iter().any(|r| r.run == "adc") {
+        s += "\n";
+        s += &paired_table(rows, "adc");
+    }
+    s
+}
+
 /// Writes trade.md, trade.json and trade.png for the rows so far (atomically).
 fn write_outputs(
     rows: &[TradeRow],
@@ -459,7 +472,7 @@ fn write_outputs(
     args: &TradeArgs,
 ) -> anyhow::Result<()> {
     let summary = summarize(rows);
-    let table = table(&summary, device, args);
+    let table = tables(rows, device, args);
     write_atomic(&args.out.join("trade.md"), |f| {
         Ok(f.write_all(table.as_bytes())?)
     })?;

@@ -288,6 +288,40 @@ pub fn table_rows(rows: &[Summary]) -> String {
     s
 }
 
+/// Each run's per-seed ΔPSNR against the baseline, one line per run and iteration.
+pub fn paired_table(rows: &[TradeRow], baseline: &str) -> String {
+    let mut s = format!("| run | iteration | ΔPSNR vs {baseline}, seed by seed |\n|---|---|---|\n");
+    let mut keys: Vec<(&str, u32)> = Vec::new();
+    for r in rows {
+        if r.run != baseline && !keys.contains(&(r.run.as_str(), r.iteration)) {
+            keys.push((r.run.as_str(), r.iteration));
+        }
+    }
+    for (run, it) in keys {
+        let mut pairs: Vec<(u64, f64)> = rows
+            .iter()
+            .filter(|r| r.run == run && r.iteration == it)
+            .filter_map(|r| {
+                rows.iter()
+                    .find(|b| b.run == baseline && b.iteration == it && b.seed == r.seed)
+                    .map(|b| (r.seed, r.psnr - b.psnr))
+            })
+            .collect();
+        pairs.sort_by_key(|p| p.0);
+        let cells = if pairs.is_empty() {
+            "no seed of the baseline".to_string()
+        } else {
+            pairs
+                .iter()
+                .map(|(seed, d)| format!("{seed}: {d:+.3}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        s += &format!("| {run} | {it} | {cells} |\n");
+    }
+    s
+}
+
 /// Four panels (2 × 2): PSNR against Gaussians and against training seconds (the trade-off),
 /// then PSNR and Gaussians against iterations (the curves). One line per run through its
 /// evaluated iterations, in the run's colour, named in the legend; a dot per evaluation.
