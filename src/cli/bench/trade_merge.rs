@@ -137,7 +137,10 @@ pub fn merge(inputs: &[(PathBuf, Value)]) -> anyhow::Result<Merged> {
     let mut devices = Vec::new();
     let mut differences = Vec::new();
     let mut incomplete = Vec::new();
+    // The input file of each row.
+    let mut file_of: Vec<usize> = Vec::new();
     for (i, (path, json)) in inputs.iter().enumerate() {
+        let interleaved = json.get("interleaved") != Some(&Value::Bool(false));
         for ((name, want), (_, got)) in first.iter().zip(identity(i)?) {
             anyhow::ensure!(
                 *want == got,
@@ -191,16 +194,21 @@ pub fn merge(inputs: &[(PathBuf, Value)]) -> anyhow::Result<Merged> {
             if !tags.is_empty() {
                 row.run = format!("{} [{}]", row.run, tags.join(", "));
             }
-            row.source = i;
-            if let Some(other) = rows
-                .iter()
-                .find(|o| o.run == row.run && o.seed == row.seed && o.iteration == row.iteration)
-            {
+            // Rows of one interleaved process share a source (their times compare); those of
+            // a sequential run or an earlier merge each get their own.
+            row.source = if interleaved {
+                i
+            } else {
+                inputs.len() + rows.len()
+            };
+            if let Some(k) = rows.iter().position(|o| {
+                o.run == row.run && o.seed == row.seed && o.iteration == row.iteration
+            }) {
                 anyhow::bail!(
                     "{} and {} both hold run `{}` with seed {} at iteration {}: merging would \
                      count that seed twice. Fix: leave one of the two files out, or run one \
                      with another --seed",
-                    inputs[other.source].0.display(),
+                    inputs[file_of[k]].0.display(),
                     path.display(),
                     row.run,
                     row.seed,
@@ -208,6 +216,7 @@ pub fn merge(inputs: &[(PathBuf, Value)]) -> anyhow::Result<Merged> {
                 );
             }
             rows.push(row);
+            file_of.push(i);
         }
     }
     let mut remarks = Vec::new();
@@ -440,9 +449,14 @@ mod tests {
         assert!((lpm.delta_psnr.unwrap() - 0.2).abs() < 1e-12, "{lpm:?}");
         assert!((lpm.delta_psnr_se.unwrap() - 0.1).abs() < 1e-12, "{lpm:?}");
         assert!(lpm.time_vs_adc.is_none(), "three processes: no time ratio");
-        let one = merge(&[a]).unwrap();
+        let one = merge(std::slice::from_ref(&a)).unwrap();
         let s = summarize_against(&one.rows, "adc");
         assert_eq!(s[1].time_vs_adc, Some(1.0));
+        // Nor within a file whose runs were not interleaved (`--sequential`, or a merge).
+        let mut sequential = a;
+        sequential.1["interleaved"] = json!(false);
+        let s = summarize_against(&merge(&[sequential]).unwrap().rows, "adc");
+        assert!(s[1].time_vs_adc.is_none());
         let pairs = paired_table(&m.rows, "adc");
         assert!(
             pairs.contains("| adc+lpm | 3000 | 2: +0.300, 3: +0.100 |"),
