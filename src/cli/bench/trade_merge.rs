@@ -85,8 +85,8 @@ fn show(v: &Value) -> String {
     }
 }
 
-/// The settings a file records: its `settings` object, or for files written before that
-/// existed the two LPM block settings at its top level (`None` when neither is there).
+/// The settings a file records, and whether that is all of them: its `settings` object (true),
+/// or for files written before that existed the LPM block settings at its top level (false).
 fn settings_of(json: &Value) -> (serde_json::Map<String, Value>, bool) {
     if let Some(Value::Object(m)) = json.get("settings") {
         return (m.clone(), true);
