@@ -307,11 +307,13 @@ pub fn run(args: &MergeArgs) -> anyhow::Result<()> {
         );
     }
     // Nor over a `bench trade` result: only an earlier merge's files are replaced.
-    if let Ok((_, old)) = read_input(&out_file) {
+    if out_file.exists() {
+        let earlier_merge =
+            read_input(&out_file).is_ok_and(|(_, j)| j.get("merged_from").is_some());
         anyhow::ensure!(
-            old.get("merged_from").is_some(),
-            "{}: a `bench trade` result, not a merge; merging into its folder would overwrite \
-             it. Fix: choose another --out",
+            earlier_merge,
+            "{}: not a merge (a `bench trade` result, or unreadable); merging into its folder \
+             would overwrite it. Fix: choose another --out",
             out_file.display()
         );
     }
