@@ -20,8 +20,10 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 mod trade;
+mod trade_args;
 mod trade_merge;
 mod trade_report;
+mod trade_runs;
 mod trade_summary;
 
 #[derive(Args, Debug)]
@@ -35,7 +37,7 @@ pub enum BenchKind {
     /// Rendering frames per second and per-stage GPU time.
     Fps(FpsArgs),
     /// ADC vs ADC+LPM (and ablations) side by side: PSNR, SSIM, size, time, FPS.
-    Trade(trade::TradeArgs),
+    Trade(trade_args::TradeArgs),
     /// Several `bench trade` results (more seeds, other machines, other settings) as one
     /// table, paired seed by seed with a baseline run; no device needed.
     Merge(trade_merge::MergeArgs),

@@ -1,0 +1,131 @@
+//! `bench trade`'s command line: the scene, the runs, their calendar and the settings every
+//! run shares, and [`settings_json`], what of them trade.json records for `bench merge`.
+
+use crate::cli::lpips_scores::LpipsArgs;
+use crate::cli::world_culls_arg::N3dvCulls;
+use crate::cli::SceneArgs;
+use clap::Args;
+use lpmsplat::lpm::config::PruneMode;
+use lpmsplat::models::BaseModel;
+use std::path::PathBuf;
+
+fn parse_prune(s: &str) -> anyhow::Result<PruneMode> {
+    PruneMode::parse(s)
+}
+
+#[derive(Args, Debug)]
+pub struct TradeArgs {
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    #[command(flatten)]
+    pub images: crate::cli::image_cache_args::ImageCacheArgs,
+    /// Iterations per run.
+    #[arg(long, default_value_t = 30_000)]
+    pub iterations: u32,
+    /// Base model of every run (3dgs, pixel-gs, mip-splatting, 2dgs; spacetime-lite or
+    /// spacetime-full on a video scene): the table compares ADC and LPM on it.
+    #[arg(long, default_value = "3dgs", value_parser = BaseModel::parse)]
+    pub model: BaseModel,
+    /// The run length whose calendar is followed: the reference's density / LPM calendar
+    /// (densify 500..15000, resets every 3000, position learning-rate decay over 30000; 2dgs's
+    /// normal and distortion regularisers from 7000 and 3000) is scaled by CALENDAR / 30000. Default: --iterations (a complete, compressed schedule);
+    /// `--calendar 30000 --iterations 7000` is the reference schedule stopped at 7k.
+    #[arg(long)]
+    pub calendar: Option<u32>,
+    /// Also evaluate every run at these iterations (comma separated); the final iteration is
+    /// always evaluated. trade.json / trade.md / trade.png are rewritten after each, so an
+    /// interrupted benchmark keeps the rows it reached.
+    #[arg(long, value_delimiter = ',')]
+    pub eval_at: Vec<u32>,
+    /// Initial points when the scene has no point cloud (video scenes, transforms.json without
+    /// points).
+    #[arg(long, default_value_t = 100_000)]
+    pub init_points: usize,
+    /// Where they come from: auto (triangulate video scenes), random or triangulate (as
+    /// `train --init`).
+    #[arg(long, value_enum, default_value_t = crate::cli::train::InitSource::Auto)]
+    pub init: crate::cli::train::InitSource,
+    /// Output folder for trade.json, trade.md and trade.png.
+    #[arg(long, short = 'o', default_value = "bench_trade")]
+    pub out: PathBuf,
+    /// The first seed; with --seeds K the runs use seeds SEED to SEED+K−1.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Train every variant with K seeds (initialisation where it is random, view order,
+    /// split samples, LPM's neighbour picks) and report mean ± standard deviation, and the gain
+    /// over ADC as the mean ± standard error of the per-seed differences (ADC and the variant
+    /// share each seed). Run-to-run spread on scenes with few test views is several tenths of a
+    /// dB, so a single seed cannot separate effects that small.
+    #[arg(long, default_value_t = 1)]
+    pub seeds: u32,
+    /// Frames timed for the FPS of each result (1352×1014).
+    #[arg(long, default_value_t = 20)]
+    pub fps_frames: usize,
+    /// The runs to compare, comma separated, in table order: adc, adc-threshold-1e-4, adc+lpm,
+    /// lpm-no-add, lpm-no-reset, lpm-authors (the authors' rules), lpm-authors-adc (the same
+    /// with ADC on steps without a zone), lpm-sphere (the paper's cone-intersection zone),
+    /// adc-abs-grad (with the absolute-gradient test), lpm-additive (our rules with the additive
+    /// pruning: exactly as many extra prunes as lowered-threshold densifications),
+    /// lpm-overlap-neighbours (our rules with the neighbour views sharing the most tracks),
+    /// lpm-error-blocks (our rules with only the matches on a region's own error blocks speaking
+    /// for it), lpm-bounding-cone (our rules with the in-front cone to the zone's bounding
+    /// sphere, the default before 2026-11-26), lpm-local-zones (our rules without the zones
+    /// wider than the scene extent), lpm-slab (our rules with the zone cut to the view's cone
+    /// through the region and the depths of its matches), lpm-loose-blocks (our rules with error
+    /// blocks kept above 70 % error pixels, whatever --lpm-block-fraction says),
+    /// lpm-local-resets (our rules with the zones wider than the scene kept but ignored by the
+    /// opacity reset) (aliases: adc-1e-4, lpm). Default: the first five.
+    #[arg(long, value_delimiter = ',')]
+    pub runs: Vec<String>,
+    /// Run the variants one after another instead of interleaving their iterations. Interleaving
+    /// (the default) keeps every run's time measured under the same machine load, so the time
+    /// ratios hold on a noisy machine; sequential needs the memory of one run only.
+    #[arg(long)]
+    pub sequential: bool,
+    /// LPM runs: error-region block side in pixels (as `train --lpm-block`; 0 follows the
+    /// image size).
+    #[arg(long, default_value_t = 0)]
+    pub lpm_block: u32,
+    /// LPM runs: density-aware pruning (as `train --lpm-prune`; default: each rule set's own).
+    #[arg(long, value_parser = parse_prune)]
+    pub lpm_prune: Option<PruneMode>,
+    /// LPM runs: fraction of error pixels that keeps a block (as `train --lpm-block-fraction`).
+    #[arg(long, default_value_t = 0.85)]
+    pub lpm_block_fraction: f32,
+    /// Every run also densifies by the absolute-gradient test (as `train --densify-abs-grad`:
+    /// Mip-Splatting's official densification).
+    #[arg(long)]
+    pub densify_abs_grad: bool,
+    /// Every run trains under the same cap on the number of Gaussians (as `train
+    /// --max-gaussians`): at the cap the runs compare at one count.
+    #[arg(long, value_name = "N", value_parser = crate::cli::train::parse_max_gaussians)]
+    pub max_gaussians: Option<usize>,
+    /// spacetime-*: SpacetimeGaussians' Neural 3D Video culls (as `train --n3dv-culls`; their
+    /// 1000-iteration rhythm scaled to the calendar).
+    #[arg(long, value_enum, default_value_t = N3dvCulls::Auto)]
+    pub n3dv_culls: N3dvCulls,
+    /// The test view trade.html shows (name, file stem or index into the test views; default
+    /// the first): the truth beside each run's final render and error map.
+    #[arg(long)]
+    pub report_view: Option<String>,
+    #[command(flatten)]
+    pub lpips: LpipsArgs,
+}
+
+/// What changes the runs beyond the scene, model, resolution and calendar (trade.json's
+/// `settings`): `bench merge` pools only runs whose files agree here, and names the others by
+/// the difference. Settings whose name starts with `lpm_` change only the LPM runs.
+pub fn settings_json(args: &TradeArgs) -> serde_json::Value {
+    serde_json::json!({
+        "lpm_block": args.lpm_block,
+        "lpm_block_fraction": args.lpm_block_fraction,
+        "lpm_prune": args.lpm_prune.as_ref().map(PruneMode::name),
+        "densify_abs_grad": args.densify_abs_grad,
+        "max_gaussians": args.max_gaussians,
+        "init": format!("{:?}", args.init).to_lowercase(),
+        "init_points": args.init_points,
+        "n3dv_culls": format!("{:?}", args.n3dv_culls).to_lowercase(),
+        "test_split": args.scene.test_split,
+        "frames": args.scene.frames.map(|f| serde_json::json!({"start": f.start, "count": f.count})),
+    })
+}
