@@ -286,6 +286,26 @@ fn bench_trade_with_several_seeds_reports_means_and_paired_differences() {
     let mmd = std::fs::read_to_string(merged.join("trade.md")).unwrap();
     assert!(mmd.contains(&pair), "{pair}\n{mmd}");
     assert!(merged.join("trade.png").is_file());
+    // Its page pools the plot and tables and links the inputs' own pages where they exist.
+    std::fs::copy(out.join("trade.html"), dir.path().join("seed5/trade.html")).unwrap();
+    let (ok, text) = output(
+        lpmsplat()
+            .args(["bench", "merge", "--baseline", "adc+lpm"])
+            .arg(dir.path().join("seed5"))
+            .arg(dir.path().join("seed6"))
+            .arg("-o")
+            .arg(&merged),
+    );
+    assert!(ok, "{text}");
+    let page = std::fs::read_to_string(merged.join("trade.html")).unwrap();
+    assert!(
+        page.contains("<a href=\"../seed5/trade.html\">")
+            && page.contains("seed6/trade.json (no trade.html beside it)")
+            && page.contains("ΔPSNR vs adc+lpm")
+            && page.contains("trade.png")
+            && !page.contains("report/truth.png"),
+        "{page}"
+    );
     // A `bench trade` result is never merged over.
     let before = std::fs::read(out.join("trade.json")).unwrap();
     let (ok, text) = output(

@@ -336,7 +336,13 @@ fn write_outputs(
         args.model.name(),
         args.iterations
     );
-    trade_report::write_html(&args.out, &title, view_name, rows, &summary, &table)?;
+    let page = trade_report::Page {
+        title: &title,
+        baseline: "adc",
+        view: Some(view_name),
+        sources: &[],
+    };
+    trade_report::write_html(&args.out, &page, rows, &summary, &table)?;
     Ok(())
 }
 

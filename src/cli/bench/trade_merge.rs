@@ -4,8 +4,10 @@
 //! process. A file whose recorded settings differ from the first file's names its runs with the
 //! difference (`adc+lpm [lpm_block_fraction=0.7]`), so only runs trained alike are pooled.
 //! Times are compared only between runs of one process: runs of different processes did not
-//! share the machine's load.
+//! share the machine's load. Its trade.html shows the pooled plot and tables and links each
+//! input's own page, where that run's renders are.
 
+use super::trade_report::{write_html, Page};
 use super::trade_summary::{
     column_header, paired_table, plot, summarize_against, table_rows, Summary, TradeRow,
 };
@@ -24,7 +26,8 @@ pub struct MergeArgs {
     /// reference that the other files' run names show their differences from.
     #[arg(required = true, value_name = "TRADE_JSON")]
     pub inputs: Vec<PathBuf>,
-    /// Output folder for the merged trade.json, trade.md and trade.png (not an input's folder).
+    /// Output folder for the merged trade.json, trade.md, trade.png and trade.html (which links
+    /// the inputs' own trade.html, where their renders are); not an input's folder.
     #[arg(long, short = 'o', default_value = "bench_merge")]
     pub out: PathBuf,
     /// The run every other is paired with, seed by seed, in ΔPSNR (its name as the merged
@@ -286,6 +289,27 @@ fn table(m: &Merged, summary: &[Summary], inputs: &[(PathBuf, Value)], baseline:
     s
 }
 
+/// `target` as a link from a page in folder `from`: relative where both paths resolve (so the
+/// pages can move together), else `target` as given.
+fn relative_link(from: &Path, target: &Path) -> String {
+    let (Ok(from), Ok(to)) = (from.canonicalize(), target.canonicalize()) else {
+        return target.display().to_string();
+    };
+    let common = from
+        .components()
+        .zip(to.components())
+        .take_while(|(a, b)| a == b)
+        .count();
+    let ups = from.components().count() - common;
+    let mut parts: Vec<String> = vec!["..".to_string(); ups];
+    parts.extend(
+        to.components()
+            .skip(common)
+            .map(|c| c.as_os_str().to_string_lossy().into_owned()),
+    );
+    parts.join("/")
+}
+
 pub fn run(args: &MergeArgs) -> anyhow::Result<()> {
     let inputs = args
         .inputs
@@ -358,6 +382,27 @@ pub fn run(args: &MergeArgs) -> anyhow::Result<()> {
     write_atomic(&out_file, |f| Ok(f.write_all(body.as_bytes())?))?;
     let png = plot(&summary.iter().map(Summary::as_row).collect::<Vec<_>>())?;
     write_atomic(&args.out.join("trade.png"), |f| Ok(f.write_all(&png)?))?;
+    let sources: Vec<(String, Option<String>)> = inputs
+        .iter()
+        .map(|(path, _)| {
+            let html = path.with_file_name("trade.html");
+            let link = html.is_file().then(|| relative_link(&args.out, &html));
+            (path.display().to_string(), link)
+        })
+        .collect();
+    let title = format!(
+        "bench merge: {}, {}, {} files",
+        merged.scene,
+        merged.model,
+        inputs.len()
+    );
+    let page = Page {
+        title: &title,
+        baseline: &args.baseline,
+        view: None,
+        sources: &sources,
+    };
+    write_html(&args.out, &page, &merged.rows, &summary, &text)?;
     print!("{text}");
     println!("wrote {}", args.out.display());
     Ok(())
@@ -518,6 +563,25 @@ mod tests {
             r["seed"] = json!(seed);
         }
         f
+    }
+
+    #[test]
+    fn links_to_the_inputs_pages_are_relative_to_the_merged_page() {
+        let dir = tempfile::tempdir().unwrap();
+        let (out, input) = (dir.path().join("merged"), dir.path().join("runs/seed3"));
+        std::fs::create_dir_all(&out).unwrap();
+        std::fs::create_dir_all(&input).unwrap();
+        let html = input.join("trade.html");
+        std::fs::write(&html, "").unwrap();
+        assert_eq!(relative_link(&out, &html), "../runs/seed3/trade.html");
+        assert_eq!(
+            relative_link(&input, &html),
+            "trade.html",
+            "a page beside the merged one"
+        );
+        // A path that does not resolve is given as it is.
+        let gone = dir.path().join("gone/trade.html");
+        assert_eq!(relative_link(&out, &gone), gone.display().to_string());
     }
 
     #[test]

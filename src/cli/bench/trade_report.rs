@@ -100,15 +100,28 @@ fn esc(s: &str) -> String {
         .replace('"', "&quot;")
 }
 
+/// What a trade.html shows beside its rows.
+pub struct Page<'a> {
+    pub title: &'a str,
+    /// The run ΔPSNR and the time ratio are measured against.
+    pub baseline: &'a str,
+    /// The test view whose renders the rows carry (`bench trade`, which saved them in
+    /// OUT/report/); None shows no renders (`bench merge`: they stay in its inputs' folders).
+    pub view: Option<&'a str>,
+    /// The pages the rows came from (`bench merge`'s inputs): (what to call it, link or None
+    /// where the input has no trade.html).
+    pub sources: &'a [(String, Option<String>)],
+}
+
 /// Writes OUT/trade.html from the rows so far.
 pub fn write_html(
     out: &Path,
-    title: &str,
-    view_name: &str,
+    page: &Page<'_>,
     rows: &[TradeRow],
     summary: &[Summary],
     table_md: &str,
 ) -> anyhow::Result<()> {
+    let (title, baseline) = (page.title, page.baseline);
     let mut h = String::new();
     let _ = write!(
         h,
@@ -124,7 +137,21 @@ pub fn write_html(
         t = esc(title)
     );
     h.push_str("<h2>Trade-off</h2>\n<img src=\"trade.png\" alt=\"PSNR against Gaussians, training time and iterations, one line per run\">\n");
-    h.push_str("<h2>Runs (mean over seeds)</h2>\n<table><tr><th>run</th><th>iteration</th><th>seeds</th><th>PSNR (dB)</th><th>ΔPSNR vs adc</th><th>SSIM</th><th>LPIPS</th><th>Gaussians</th><th>train s</th><th>time vs adc</th><th>FPS 1352×1014</th></tr>\n");
+    if !page.sources.is_empty() {
+        h.push_str("<h2>Merged from</h2>\n<ul>\n");
+        for (name, link) in page.sources {
+            let _ = match link {
+                Some(l) => writeln!(h, "<li><a href=\"{}\">{}</a></li>", esc(l), esc(name)),
+                None => writeln!(h, "<li>{} (no trade.html beside it)</li>", esc(name)),
+            };
+        }
+        h.push_str("</ul>\n");
+    }
+    let _ = writeln!(
+        h,
+        "<h2>Runs (mean over seeds)</h2>\n<table><tr><th>run</th><th>iteration</th><th>seeds</th><th>PSNR (dB)</th><th>ΔPSNR vs {b}</th><th>SSIM</th><th>LPIPS</th><th>Gaussians</th><th>train s</th><th>time vs {b}</th><th>FPS 1352×1014</th></tr>",
+        b = esc(baseline)
+    );
     for s in summary {
         let [r, g, b] = s.colour;
         let _ = writeln!(
@@ -147,7 +174,7 @@ pub fn write_html(
     h.push_str("</table>\n");
 
     let shown: Vec<&TradeRow> = rows.iter().filter(|r| r.view_psnr.is_some()).collect();
-    if !shown.is_empty() {
+    if let (Some(view_name), false) = (page.view, shown.is_empty()) {
         let _ = write!(
             h,
             "<h2>Test view {v}: final renders and errors</h2>\n<p>Top: the ground truth and each \
