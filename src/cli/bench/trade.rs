@@ -1,8 +1,10 @@
 //! `bench trade SCENE`: the accuracy / size / time trade-off of LPM, run side by side on one
-//! device: ADC only, ADC with the global threshold lowered to 1e-4, ADC + LPM, LPM without point
-//! addition, LPM without opacity reset. Writes `trade.json`, `trade.md` (the table, also printed)
-//! and `trade.png` (PSNR against Gaussian count, left, and against training time, right; one
-//! colour per run, listed in the table).
+//! device. The runs (`--runs`, [`super::trade_runs::RUNS`]: ADC, ADC + LPM and its ablations)
+//! train interleaved one iteration at a time, so their times see the same load, and are
+//! evaluated at `--eval-at` and at the end. Writes `trade.json`, `trade.md` (the table, also
+//! printed), `trade.png` (PSNR against Gaussians and training time, and PSNR and Gaussians
+//! against iterations) and `trade.html` (with one test view's renders); `bench merge` pools
+//! several such results.
 
 use super::trade_args::{settings_json, TradeArgs};
 use super::trade_report;
