@@ -290,10 +290,18 @@ fn table(m: &Merged, summary: &[Summary], inputs: &[(PathBuf, Value)], baseline:
 }
 
 /// `target` as a link from a page in folder `from`: relative where both paths resolve (so the
-/// pages can move together), else `target` as given.
+/// pages can move together), else `target` as given. The characters a URL reads as syntax
+/// (`%`, `#`, `?`) or that break an address (spaces) are percent-encoded, so a folder named
+/// `seed #3` still links.
 fn relative_link(from: &Path, target: &Path) -> String {
+    let encode = |s: &str| {
+        s.replace('%', "%25")
+            .replace('#', "%23")
+            .replace('?', "%3F")
+            .replace(' ', "%20")
+    };
     let (Ok(from), Ok(to)) = (from.canonicalize(), target.canonicalize()) else {
-        return target.display().to_string();
+        return encode(&target.display().to_string());
     };
     let common = from
         .components()
@@ -307,7 +315,7 @@ fn relative_link(from: &Path, target: &Path) -> String {
             .skip(common)
             .map(|c| c.as_os_str().to_string_lossy().into_owned()),
     );
-    parts.join("/")
+    encode(&parts.join("/"))
 }
 
 pub fn run(args: &MergeArgs) -> anyhow::Result<()> {
@@ -582,6 +590,14 @@ mod tests {
         // A path that does not resolve is given as it is.
         let gone = dir.path().join("gone/trade.html");
         assert_eq!(relative_link(&out, &gone), gone.display().to_string());
+        // Characters a URL reads as syntax are encoded.
+        let odd = dir.path().join("seed #3 100%?");
+        std::fs::create_dir_all(&odd).unwrap();
+        std::fs::write(odd.join("trade.html"), "").unwrap();
+        assert_eq!(
+            relative_link(&out, &odd.join("trade.html")),
+            "../seed%20%233%20100%25%3F/trade.html"
+        );
     }
 
     #[test]
