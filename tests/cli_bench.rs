@@ -329,19 +329,81 @@ fn bench_trade_rejects_unknown_or_repeated_runs() {
         ("adc,fancy", "1", "unknown run"),
         ("adc,adc", "1", "twice"),
         ("adc", "0", "--seeds 0"),
+        ("lpm,adc-1e-4", "match", "has no adc"),
     ] {
         let out = dir.path().join(runs.replace(',', "_"));
-        let (ok, text) = output(
-            lpmsplat()
-                .args(["bench", "trade"])
-                .arg(data("lund_door_small"))
-                .args(["-r", "8", "--iterations", "5", "--runs", runs])
-                .args(["--seeds", seeds, "-o"])
-                .arg(&out),
-        );
+        let mut c = lpmsplat();
+        c.args(["bench", "trade"])
+            .arg(data("lund_door_small"))
+            .args(["-r", "8", "--iterations", "5", "--runs", runs, "-o"])
+            .arg(&out);
+        if seeds == "match" {
+            c.arg("--match-adc-count");
+        } else {
+            c.args(["--seeds", seeds]);
+        }
+        let (ok, text) = output(&mut c);
         assert!(!ok, "{runs}: {text}");
         assert!(text.contains(needle) && text.contains("Fix:"), "{text}");
         assert!(!out.join("trade.json").exists());
+    }
+}
+
+/// `--match-adc-count`: a run that densifies more than ADC (the threshold halved) is held to
+/// ADC's count at the same seed and iteration, and since the budget keeps the candidates
+/// furthest over their own threshold, it keeps ADC's own; without the flag it ends far above.
+#[test]
+fn bench_trade_match_adc_count_holds_the_other_runs_to_adcs_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut counts = Vec::new();
+    for matched in [false, true] {
+        let out = dir.path().join(format!("m{matched}"));
+        let mut c = lpmsplat();
+        c.args(["bench", "trade"])
+            .arg(data("lund_door_small"))
+            .args(["-r", "8", "--iterations", "101", "--calendar", "600"])
+            .args([
+                "--runs",
+                "adc,adc-1e-4",
+                "--fps-frames",
+                "1",
+                "--seeds",
+                "2",
+                "-o",
+            ])
+            .arg(&out);
+        if matched {
+            c.arg("--match-adc-count");
+        }
+        let (ok, text) = output(&mut c);
+        assert!(ok, "{text}");
+        let json = trade_json(&out);
+        assert_eq!(json["settings"]["match_adc_count"], matched);
+        assert_eq!(text.contains("--match-adc-count"), matched, "{text}");
+        let runs = json["runs"].as_array().unwrap();
+        let count = |run: &str, seed: u64| {
+            runs.iter()
+                .find(|r| r["run"] == run && r["seed"] == seed)
+                .and_then(|r| r["gaussians"].as_u64())
+                .unwrap()
+        };
+        for seed in [0, 1] {
+            counts.push((
+                matched,
+                count("adc", seed),
+                count("adc-threshold-1e-4", seed),
+            ));
+        }
+    }
+    for &(matched, adc, low) in &counts {
+        if matched {
+            assert!(low <= adc && low * 100 >= adc * 99, "{counts:?}");
+        } else {
+            assert!(
+                low * 10 > adc * 11,
+                "the lower threshold densifies more: {counts:?}"
+            );
+        }
     }
 }
 

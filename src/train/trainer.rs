@@ -733,6 +733,14 @@ impl Trainer {
         self.strategy = strategy;
     }
 
+    /// Changes the Gaussian budget (`DensityConfig::max_gaussians`; `None`: none) from the
+    /// next density step on. Only density control reads it, so an iteration already recorded
+    /// ahead is unaffected (`bench trade --match-adc-count` moves it every iteration).
+    pub fn set_max_gaussians(&mut self, cap: Option<usize>) {
+        self.config.density.max_gaussians = cap;
+        self.density.config.max_gaussians = cap;
+    }
+
     pub fn strategy(&self) -> &dyn DensityStrategy {
         self.strategy.as_ref()
     }

@@ -41,6 +41,11 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
         "bench trade: --seeds 0. Fix: pass at least 1"
     );
     let selected = selected_runs(&args.runs)?;
+    anyhow::ensure!(
+        !args.match_adc_count || selected.first().is_some_and(|&k| RUNS[k].0 == "adc"),
+        "bench trade --match-adc-count: the other runs follow adc's Gaussian count, but --runs \
+         has no adc. Fix: add adc to --runs"
+    );
     let lpips = args.lpips.load()?;
     let scene = Scene::load(&args.scene.scene, &args.scene.load_options()?)?;
     anyhow::ensure!(
@@ -147,6 +152,10 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
     let mut rows = Vec::new();
     // Interleaved: every run advances one iteration per round, so each run's summed step time
     // sees the same load. Sequential: one run to the end, evaluated and dropped, then the next.
+    // --match-adc-count: adc's count after each iteration, one list per seed. adc comes first
+    // in `runs` (table order), so within a round, or sequentially, it has run the iteration
+    // that another run of its seed is about to.
+    let mut adc_counts: Vec<Vec<usize>> = vec![Vec::new(); seeds.len()];
     let groups: Vec<Vec<usize>> = if args.sequential {
         (0..runs.len()).map(|i| vec![i]).collect()
     } else {
@@ -172,6 +181,11 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
             for &i in &group {
                 let r = &mut runs[i];
                 let t = r.trainer.as_mut().expect("trainer built above");
+                let is_adc = RUNS[r.k].0 == "adc";
+                if args.match_adc_count && !is_adc {
+                    let adc = adc_counts[r.init][it as usize - 1];
+                    t.set_max_gaussians(Some(args.max_gaussians.map_or(adc, |cap| cap.min(adc))));
+                }
                 if eval_at.contains(&it) {
                     t.snapshot_next_step();
                 }
@@ -182,6 +196,9 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                     it < args.iterations && !eval_at.contains(&it) && !eval_at.contains(&(it + 1));
                 let report = t.step_ahead(prepare)?;
                 r.seconds += t0.elapsed().as_secs_f64();
+                if args.match_adc_count && is_adc {
+                    adc_counts[r.init].push(t.state.count());
+                }
                 r.model_events
                     .extend(report.model_events.iter().map(|e| e.to_json()));
             }
@@ -256,7 +273,7 @@ pub fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
          trade.png plots test PSNR against Gaussians and training seconds (top), and PSNR and \
          Gaussians against iterations (bottom), one named line per run through its evaluated \
          iterations; trade.html shows the plot, this table and the runs' renders. LPIPS is \
-         AlexNet v0.1 (n/a without --lpips-weights).{}\n\n",
+         AlexNet v0.1 (n/a without --lpips-weights).{}{}\n\n",
         args.scene.scene.display(),
         args.model.name(),
         args.iterations,
@@ -272,6 +289,7 @@ pub fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
         } else {
             "Runs were interleaved one iteration at a time, so their times saw the same machine load."
         },
+        budget_sentence(args),
         if several {
             format!(
                 " Each row is the mean over {} seeds ({}..{}): PSNR and SSIM ± their standard \
@@ -286,6 +304,27 @@ pub fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
         }
     );
     s + &column_header("adc") + &table_rows(rows)
+}
+
+/// What the table header says of the Gaussian budget, if the runs had one.
+fn budget_sentence(args: &TradeArgs) -> String {
+    let cap = args
+        .max_gaussians
+        .map(|n| format!(" at most {n} Gaussians"))
+        .unwrap_or_default();
+    match (args.match_adc_count, cap.is_empty()) {
+        (true, _) => format!(
+            " Every run but adc trained under a budget of adc's count at the same seed and \
+             iteration{} (--match-adc-count).",
+            if cap.is_empty() {
+                String::new()
+            } else {
+                format!(",{cap}")
+            }
+        ),
+        (false, false) => format!(" Every run trained under a budget of{cap}."),
+        (false, true) => String::new(),
+    }
 }
 
 /// [`table`] of the rows' summary, and with several seeds each run's per-seed differences from

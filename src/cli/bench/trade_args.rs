@@ -100,6 +100,11 @@ pub struct TradeArgs {
     /// --max-gaussians`): at the cap the runs compare at one count.
     #[arg(long, value_name = "N", value_parser = crate::cli::train::parse_max_gaussians)]
     pub max_gaussians: Option<usize>,
+    /// Every run but adc trains under a Gaussian budget that follows adc's count at the same
+    /// seed and iteration (at most --max-gaussians too), so the runs compare at adc's count at
+    /// every evaluation without knowing it beforehand. Needs adc in --runs.
+    #[arg(long)]
+    pub match_adc_count: bool,
     /// spacetime-*: SpacetimeGaussians' Neural 3D Video culls (as `train --n3dv-culls`; their
     /// 1000-iteration rhythm scaled to the calendar).
     #[arg(long, value_enum, default_value_t = N3dvCulls::Auto)]
@@ -122,6 +127,7 @@ pub fn settings_json(args: &TradeArgs) -> serde_json::Value {
         "lpm_prune": args.lpm_prune.as_ref().map(PruneMode::name),
         "densify_abs_grad": args.densify_abs_grad,
         "max_gaussians": args.max_gaussians,
+        "match_adc_count": args.match_adc_count,
         "init": format!("{:?}", args.init).to_lowercase(),
         "init_points": args.init_points,
         "n3dv_culls": format!("{:?}", args.n3dv_culls).to_lowercase(),

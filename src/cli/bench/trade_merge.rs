@@ -92,7 +92,10 @@ fn show(v: &Value) -> String {
 /// or for files written before that existed the LPM block settings at its top level (false).
 fn settings_of(json: &Value) -> (serde_json::Map<String, Value>, bool) {
     if let Some(Value::Object(m)) = json.get("settings") {
-        return (m.clone(), true);
+        let mut m = m.clone();
+        // Written before --match-adc-count existed: its runs did not follow adc's count.
+        m.entry("match_adc_count").or_insert(Value::Bool(false));
+        return (m, true);
     }
     let mut m = serde_json::Map::new();
     for k in ["lpm_block", "lpm_block_fraction"] {
@@ -188,10 +191,11 @@ pub fn merge(inputs: &[(PathBuf, Value)]) -> anyhow::Result<Merged> {
                     path.display()
                 )
             })?;
-            // `lpm_*` settings change only the LPM runs.
+            // `lpm_*` settings change only the LPM runs; following adc's count, all but adc.
             let tags: Vec<String> = differ
                 .iter()
                 .filter(|(k, _)| !k.starts_with("lpm_") || row.run.contains("lpm"))
+                .filter(|(k, _)| k != "match_adc_count" || row.run != "adc")
                 .map(|(k, v)| format!("{k}={v}"))
                 .collect();
             if !tags.is_empty() {
@@ -477,6 +481,35 @@ mod tests {
         assert!(m.remarks.is_empty(), "{:?}", m.remarks);
         // The scene is compared by its folder's name (the paths differ).
         assert_eq!(m.scene, "tnt_truck");
+    }
+
+    #[test]
+    fn following_adcs_count_names_every_run_but_adc_and_older_files_did_not_follow_it() {
+        let mut matched = settings(0.85, None);
+        matched["match_adc_count"] = json!(true);
+        // Written before the flag existed: no key, so its runs did not follow adc's count.
+        let old = file(
+            "old",
+            settings(0.85, None),
+            vec![row("adc", 2, 3000, 23.0), row("adc+lpm", 2, 3000, 23.2)],
+        );
+        let new = file(
+            "new",
+            matched,
+            vec![row("adc", 3, 3000, 23.1), row("adc+lpm", 3, 3000, 23.3)],
+        );
+        let m = merge(&[old, new]).unwrap();
+        let names: Vec<(&str, u64)> = m.rows.iter().map(|r| (r.run.as_str(), r.seed)).collect();
+        assert_eq!(
+            names,
+            [
+                ("adc", 2),
+                ("adc+lpm", 2),
+                ("adc", 3),
+                ("adc+lpm [match_adc_count=true]", 3),
+            ]
+        );
+        assert_eq!(m.settings["match_adc_count"], json!(false));
     }
 
     #[test]
