@@ -44,7 +44,8 @@
 #   budget7k bench trade on the packed scene at full size, 7k of the 30k calendar: ADC and ADC+LPM
 #            under one Gaussian budget (--max-gaussians CAP, default 1000000), so they compare
 #            at one count; seed SEED (0); TRADE_RUNS replaces the list (e.g. adc,lpm,lpm-no-reset);
-#            BLOCK_FRACTION sets the LPM runs' --lpm-block-fraction (0.7 led at -r 4)
+#            BLOCK_FRACTION sets the LPM runs' --lpm-block-fraction (0.7 led at -r 4);
+#            MATCH=1 holds the other runs to ADC's count at every iteration instead
 #   train30k train the packed scene at full size with LPM, 30k iterations, --timestamps
 set -uo pipefail
 cd "$(dirname "$0")/../.."
@@ -340,9 +341,16 @@ for s in "$@"; do
         ;;
     budget7k)
         # ADC and LPM at one count: both under the same cap, interleaved.
+        # MATCH=1: the LPM runs follow ADC's count at every iteration (--match-adc-count)
+        # instead of a cap guessed beforehand; CAP then applies only when given.
+        if [ -n "${MATCH:-}" ]; then
+            count_args=(--match-adc-count ${CAP:+--max-gaussians "$CAP"})
+        else
+            count_args=(--max-gaussians "${CAP:-1000000}")
+        fi
         need_scene budget7k &&
             step budget7k 900 "$bin" bench trade "$scene" -r 1 --iterations 7000 --calendar 30000 \
-                --runs "${TRADE_RUNS:-adc,lpm}" --max-gaussians "${CAP:-1000000}" --seed "${SEED:-0}" --eval-at 3500 \
+                --runs "${TRADE_RUNS:-adc,lpm}" "${count_args[@]}" --seed "${SEED:-0}" --eval-at 3500 \
                 --fps-frames 5 ${BLOCK_FRACTION:+--lpm-block-fraction "$BLOCK_FRACTION"} -o "$work/budget7k"
         ;;
     train30k)
