@@ -308,22 +308,13 @@ pub fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
 
 /// What the table header says of the Gaussian budget, if the runs had one.
 fn budget_sentence(args: &TradeArgs) -> String {
-    let cap = args
-        .max_gaussians
-        .map(|n| format!(" at most {n} Gaussians"))
-        .unwrap_or_default();
-    match (args.match_adc_count, cap.is_empty()) {
-        (true, _) => format!(
-            " Every run but adc trained under a budget of adc's count at the same seed and \
-             iteration{} (--match-adc-count).",
-            if cap.is_empty() {
-                String::new()
-            } else {
-                format!(",{cap}")
-            }
-        ),
-        (false, false) => format!(" Every run trained under a budget of{cap}."),
-        (false, true) => String::new(),
+    let follow = "Every run but adc trained under a budget of adc's count at the same seed and \
+                  iteration";
+    match (args.match_adc_count, args.max_gaussians) {
+        (true, None) => format!(" {follow} (--match-adc-count)."),
+        (true, Some(n)) => format!(" {follow}, at most {n} Gaussians (--match-adc-count)."),
+        (false, Some(n)) => format!(" Every run trained under a budget of at most {n} Gaussians."),
+        (false, None) => String::new(),
     }
 }
 

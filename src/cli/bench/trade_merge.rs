@@ -440,31 +440,28 @@ mod tests {
         )
     }
 
+    /// The merged rows' run names and seeds, in order.
+    fn run_names(m: &Merged) -> Vec<(&str, u64)> {
+        m.rows.iter().map(|r| (r.run.as_str(), r.seed)).collect()
+    }
+
+    /// An ADC row and an LPM row of one seed at 3,000 iterations.
+    fn adc_lpm(seed: u64, adc: f64, lpm: f64) -> Vec<Value> {
+        vec![row("adc", seed, 3000, adc), row("adc+lpm", seed, 3000, lpm)]
+    }
+
     fn settings(fraction: f32, cap: Option<usize>) -> Value {
         json!({"lpm_block": 0, "lpm_block_fraction": fraction, "max_gaussians": cap})
     }
 
     #[test]
     fn an_lpm_setting_names_only_the_lpm_runs_and_another_names_every_run() {
-        let a = file(
-            "a",
-            settings(0.85, Some(150_000)),
-            vec![row("adc", 2, 3000, 23.0), row("adc+lpm", 2, 3000, 23.2)],
-        );
-        let b = file(
-            "b",
-            settings(0.7, Some(150_000)),
-            vec![row("adc", 3, 3000, 23.1), row("adc+lpm", 3, 3000, 23.4)],
-        );
-        let c = file(
-            "c",
-            settings(0.85, None),
-            vec![row("adc", 2, 3000, 22.0), row("adc+lpm", 2, 3000, 22.5)],
-        );
+        let a = file("a", settings(0.85, Some(150_000)), adc_lpm(2, 23.0, 23.2));
+        let b = file("b", settings(0.7, Some(150_000)), adc_lpm(3, 23.1, 23.4));
+        let c = file("c", settings(0.85, None), adc_lpm(2, 22.0, 22.5));
         let m = merge(&[a, b, c]).unwrap();
-        let names: Vec<(&str, u64)> = m.rows.iter().map(|r| (r.run.as_str(), r.seed)).collect();
         assert_eq!(
-            names,
+            run_names(&m),
             [
                 ("adc", 2),
                 ("adc+lpm", 2),
@@ -488,20 +485,11 @@ mod tests {
         let mut matched = settings(0.85, None);
         matched["match_adc_count"] = json!(true);
         // Written before the flag existed: no key, so its runs did not follow adc's count.
-        let old = file(
-            "old",
-            settings(0.85, None),
-            vec![row("adc", 2, 3000, 23.0), row("adc+lpm", 2, 3000, 23.2)],
-        );
-        let new = file(
-            "new",
-            matched,
-            vec![row("adc", 3, 3000, 23.1), row("adc+lpm", 3, 3000, 23.3)],
-        );
+        let old = file("old", settings(0.85, None), adc_lpm(2, 23.0, 23.2));
+        let new = file("new", matched, adc_lpm(3, 23.1, 23.3));
         let m = merge(&[old, new]).unwrap();
-        let names: Vec<(&str, u64)> = m.rows.iter().map(|r| (r.run.as_str(), r.seed)).collect();
         assert_eq!(
-            names,
+            run_names(&m),
             [
                 ("adc", 2),
                 ("adc+lpm", 2),
@@ -514,16 +502,8 @@ mod tests {
 
     #[test]
     fn pooled_differences_pair_seed_by_seed_and_times_stay_within_one_process() {
-        let a = file(
-            "a",
-            settings(0.85, None),
-            vec![row("adc", 2, 3000, 23.0), row("adc+lpm", 2, 3000, 23.3)],
-        );
-        let b = file(
-            "b",
-            settings(0.85, None),
-            vec![row("adc", 3, 3000, 24.0), row("adc+lpm", 3, 3000, 24.1)],
-        );
+        let a = file("a", settings(0.85, None), adc_lpm(2, 23.0, 23.3));
+        let b = file("b", settings(0.85, None), adc_lpm(3, 24.0, 24.1));
         let c = file(
             "c",
             settings(0.85, None),
