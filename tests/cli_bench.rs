@@ -355,7 +355,7 @@ fn bench_trade_rejects_unknown_or_repeated_runs() {
 #[test]
 fn bench_trade_match_adc_count_holds_the_other_runs_to_adcs_count() {
     let dir = tempfile::tempdir().unwrap();
-    let mut counts = Vec::new();
+    let (mut counts, mut means) = (Vec::new(), Vec::new());
     for matched in [false, true] {
         let out = dir.path().join(format!("m{matched}"));
         let mut c = lpmsplat();
@@ -381,18 +381,20 @@ fn bench_trade_match_adc_count_holds_the_other_runs_to_adcs_count() {
         assert_eq!(json["settings"]["match_adc_count"], matched);
         assert_eq!(text.contains("--match-adc-count"), matched, "{text}");
         let runs = json["runs"].as_array().unwrap();
-        let count = |run: &str, seed: u64| {
+        let row = |run: &str, seed: u64| {
             runs.iter()
                 .find(|r| r["run"] == run && r["seed"] == seed)
-                .and_then(|r| r["gaussians"].as_u64())
                 .unwrap()
         };
+        let count = |run: &str, seed: u64| row(run, seed)["gaussians"].as_u64().unwrap();
+        let mean = |run: &str, seed: u64| row(run, seed)["mean_gaussians"].as_f64().unwrap();
         for seed in [0, 1] {
             counts.push((
                 matched,
                 count("adc", seed),
                 count("adc-threshold-1e-4", seed),
             ));
+            means.push((matched, mean("adc", seed), mean("adc-threshold-1e-4", seed)));
         }
     }
     for &(matched, adc, low) in &counts {
@@ -404,6 +406,53 @@ fn bench_trade_match_adc_count_holds_the_other_runs_to_adcs_count() {
                 "the lower threshold densifies more: {counts:?}"
             );
         }
+    }
+    // The model size over the run follows: held to adc's count at every iteration, never
+    // above adc's mean; free, larger on average too (by far less than at the end: both start
+    // from the same points and most of the growth comes late in this short run).
+    for &(matched, adc, low) in &means {
+        assert!(adc > 0.0 && low > 0.0, "{means:?}");
+        if matched {
+            assert!(low <= adc * (1.0 + 1e-9) && low >= adc * 0.99, "{means:?}");
+        } else {
+            assert!(low > adc, "{means:?}");
+        }
+    }
+}
+
+/// trade.json's `mean_gaussians` is the count averaged over the iterations so far: before
+/// densification starts (the reference calendar's iteration 500) it is the initial count, which
+/// is also the final one, exactly; the table shows it in brackets beside the final count.
+#[test]
+fn bench_trade_mean_count_is_the_count_over_the_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("trade");
+    let (ok, text) = output(
+        lpmsplat()
+            .args(["bench", "trade"])
+            .arg(data("lund_door_small"))
+            .args(["-r", "8", "--iterations", "12", "--eval-at", "5"])
+            .args([
+                "--calendar",
+                "30000",
+                "--runs",
+                "adc",
+                "--fps-frames",
+                "1",
+                "-o",
+            ])
+            .arg(&out),
+    );
+    assert!(ok, "{text}");
+    let json = trade_json(&out);
+    let runs = json["runs"].as_array().unwrap();
+    assert_eq!(runs.len(), 2);
+    for r in runs {
+        let n = r["gaussians"].as_u64().unwrap();
+        assert!(n > 0, "{r}");
+        assert_eq!(r["mean_gaussians"].as_f64().unwrap(), n as f64, "{r}");
+        let md = std::fs::read_to_string(out.join("trade.md")).unwrap();
+        assert!(md.contains(&format!("| {n} ({n}) |")), "{md}");
     }
 }
 

@@ -134,6 +134,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                 lpm,
                 trainer: None,
                 seconds: 0.0,
+                count_sum: 0.0,
                 model_events: Vec::new(),
             });
         }
@@ -196,6 +197,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                     it < args.iterations && !eval_at.contains(&it) && !eval_at.contains(&(it + 1));
                 let report = t.step_ahead(prepare)?;
                 r.seconds += t0.elapsed().as_secs_f64();
+                r.count_sum += t.state.count() as f64;
                 if args.match_adc_count && is_adc {
                     adc_counts[r.init].push(t.state.count());
                 }
@@ -387,6 +389,8 @@ struct Run {
     lpm: Option<LpmConfig>,
     trainer: Option<Trainer>,
     seconds: f64,
+    /// The Gaussian counts after each iteration so far, summed (for the mean model size).
+    count_sum: f64,
     /// The base model's own rules' events so far.
     model_events: Vec<serde_json::Value>,
 }
@@ -460,6 +464,7 @@ fn evaluate_run(
         ssim,
         lpips: lpips_mean,
         gaussians: model.len(),
+        mean_gaussians: r.count_sum / iteration as f64,
         train_seconds: train_s,
         ms_per_iteration: 1e3 * train_s / iteration as f64,
         lpm_ms_per_iteration: 1e3 * lpm_s / iteration as f64,
@@ -482,8 +487,9 @@ fn evaluate_run(
         name.to_string()
     };
     eprintln!(
-        "  {name} @ {iteration}: PSNR {psnr:.3} dB, SSIM {ssim:.4}, {} Gaussians, {train_s:.1} s, {fps:.1} FPS",
-        row.gaussians
+        "  {name} @ {iteration}: PSNR {psnr:.3} dB, SSIM {ssim:.4}, {} Gaussians ({:.0} on average \
+         over the run), {train_s:.1} s, {fps:.1} FPS",
+        row.gaussians, row.mean_gaussians
     );
     Ok(row)
 }

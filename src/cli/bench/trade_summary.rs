@@ -18,6 +18,12 @@ pub struct TradeRow {
     /// Mean LPIPS (AlexNet, v0.1) over the test views; `None` without --lpips-weights.
     pub lpips: Option<f64>,
     pub gaussians: usize,
+    /// The run's Gaussian count averaged over iterations 1..=`iteration` (each counted after
+    /// its density step): the model size it trained with, where `gaussians` is only where it
+    /// ended. Two runs capped at one final count can differ here (the one that reaches the cap
+    /// sooner trains larger); 0 in files written before this column (2026-11-29).
+    #[serde(default)]
+    pub mean_gaussians: f64,
     pub train_seconds: f64,
     #[serde(default)]
     pub ms_per_iteration: f64,
@@ -80,6 +86,8 @@ pub struct Summary {
     /// Mean LPIPS (AlexNet, v0.1) over the test views; `None` without --lpips-weights.
     pub lpips: Option<f64>,
     pub gaussians: f64,
+    /// Mean over the seeds of [`TradeRow::mean_gaussians`]; 0 when any row lacks it.
+    pub mean_gaussians: f64,
     pub train_seconds: f64,
     /// Mean train seconds over the baseline's mean train seconds at the same iteration; `None`
     /// unless both ran interleaved in one process.
@@ -109,6 +117,7 @@ impl Summary {
             ssim: self.ssim,
             lpips: self.lpips,
             gaussians: self.gaussians.round() as usize,
+            mean_gaussians: self.mean_gaussians,
             train_seconds: self.train_seconds,
             ms_per_iteration: self.ms_per_iteration,
             lpm_ms_per_iteration: self.lpm_ms_per_iteration,
@@ -209,6 +218,11 @@ pub fn summarize_against(rows: &[TradeRow], baseline: &str) -> Vec<Summary> {
                     .collect::<Option<Vec<f64>>>()
                     .map(|v| mean_sd(&v).0),
                 gaussians: mean_sd(&col(&|r| r.gaussians as f64)).0,
+                mean_gaussians: if g.iter().all(|r| r.mean_gaussians > 0.0) {
+                    mean_sd(&col(&|r| r.mean_gaussians)).0
+                } else {
+                    0.0
+                },
                 train_seconds,
                 time_vs_adc,
                 ms_per_iteration: mean_sd(&col(&|r| r.ms_per_iteration)).0,
@@ -229,9 +243,9 @@ pub fn summarize_against(rows: &[TradeRow], baseline: &str) -> Vec<Summary> {
 /// The table's head: its columns, the differences and the time ratio against `baseline`.
 pub fn column_header(baseline: &str) -> String {
     format!(
-        "| run | iteration | colour | PSNR | ΔPSNR vs {baseline} | SSIM | LPIPS | Gaussians | train s | \
-         time vs {baseline} | ms/it | LPM ms/it (share) | LPM zones · densified · pruned · added · \
-         reset · zone radius / extent | FPS 1352×1014 |\n\
+        "| run | iteration | colour | PSNR | ΔPSNR vs {baseline} | SSIM | LPIPS | Gaussians (mean \
+         over the run) | train s | time vs {baseline} | ms/it | LPM ms/it (share) | LPM zones · \
+         densified · pruned · added · reset · zone radius / extent | FPS 1352×1014 |\n\
          |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n"
     )
 }
@@ -253,6 +267,11 @@ pub fn table_rows(rows: &[Summary]) -> String {
             (Some(d), None) => format!("{d:+.3}"),
             _ => "n/a".into(),
         };
+        let mean_count = if r.mean_gaussians > 0.0 {
+            format!("{:.0}", r.mean_gaussians)
+        } else {
+            "n/a".to_string()
+        };
         let dtime = r
             .time_vs_adc
             .map_or("n/a".to_string(), |t| format!("{t:.3}×"));
@@ -265,7 +284,7 @@ pub fn table_rows(rows: &[Summary]) -> String {
             "—".to_string()
         };
         s += &format!(
-            "| {} | {} | #{:02x}{:02x}{:02x} | {:.3}{} | {dpsnr} | {:.4}{} | {} | {:.0} | {:.1} | {dtime} | {:.2} | {:.3} ({:.2} %) | {} | {:.1} |\n",
+            "| {} | {} | #{:02x}{:02x}{:02x} | {:.3}{} | {dpsnr} | {:.4}{} | {} | {:.0} ({mean_count}) | {:.1} | {dtime} | {:.2} | {:.3} ({:.2} %) | {} | {:.1} |\n",
             r.run,
             r.iteration,
             r.colour[0],
@@ -408,6 +427,7 @@ mod tests {
             ssim: 0.9,
             lpips: None,
             gaussians,
+            mean_gaussians: 0.8 * gaussians as f64,
             train_seconds: secs,
             ms_per_iteration: 1.0,
             lpm_ms_per_iteration: 0.0,
