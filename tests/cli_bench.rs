@@ -603,6 +603,61 @@ fn bench_trade_rows_carry_lpm_per_step_telemetry_that_adds_up_to_the_totals() {
     );
 }
 
+/// `--lpm-threshold-ratio`: the LPM runs' multiplier inside zones. At 1 the zones are found as
+/// before but nothing is densified by a lowered threshold (what is left of LPM is its resets,
+/// prunes and additions); the setting is recorded and said; a ratio that is not positive is
+/// refused naming the flag.
+#[test]
+fn bench_trade_lpm_threshold_ratio_one_lowers_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut lowered = Vec::new();
+    for ratio in [None, Some("1")] {
+        let out = dir.path().join(format!("r{}", ratio.unwrap_or("default")));
+        let mut c = lpmsplat();
+        c.args(["bench", "trade"])
+            .arg(data("lund_door_small"))
+            .args(["-r", "8", "--iterations", "101", "--fps-frames", "1"])
+            .args(["--calendar", "600", "--runs", "lpm", "-o"])
+            .arg(&out)
+            .args(["--lpm-block", "4", "--lpm-block-fraction", "0.5"]);
+        if let Some(r) = ratio {
+            c.args(["--lpm-threshold-ratio", r]);
+        }
+        let (ok, text) = output(&mut c);
+        assert!(ok, "{text}");
+        let json = trade_json(&out);
+        let r = &json["runs"][0];
+        assert!(r["lpm_zones"].as_f64().unwrap() > 0.0, "no zone: {r}");
+        lowered.push(r["lpm_lowered"].as_f64().unwrap());
+        match ratio {
+            None => assert!(json["settings"]["lpm_threshold_ratio"].is_null()),
+            Some(_) => {
+                assert_eq!(json["settings"]["lpm_threshold_ratio"], 1.0);
+                assert!(
+                    text.contains("gradient threshold × 1 inside zones"),
+                    "{text}"
+                );
+            }
+        }
+    }
+    assert!(lowered[0] > 0.0, "the default ratio lowers: {lowered:?}");
+    assert_eq!(lowered[1], 0.0, "{lowered:?}");
+    for bad in ["0", "-0.5", "inf"] {
+        let (ok, text) = output(
+            lpmsplat()
+                .args(["bench", "trade"])
+                .arg(data("lund_door_small"))
+                .args(["-r", "8", "--iterations", "2", "--runs", "lpm", "-o"])
+                .arg(dir.path().join("bad"))
+                .arg(format!("--lpm-threshold-ratio={bad}")),
+        );
+        assert!(
+            !ok && text.contains("--lpm-threshold-ratio") && text.contains("Fix:"),
+            "{bad}: {text}"
+        );
+    }
+}
+
 #[test]
 fn bench_trade_compares_the_absolute_gradient_test_side_by_side() {
     let dir = tempfile::tempdir().unwrap();

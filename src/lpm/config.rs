@@ -179,7 +179,8 @@ impl LpmConfig {
     pub fn validate(&self) -> anyhow::Result<()> {
         anyhow::ensure!(
             self.threshold_ratio > 0.0 && self.threshold_ratio.is_finite(),
-            "LPM threshold ratio {} must be positive (0.5 halves the threshold inside zones)",
+            "LPM threshold ratio {} (--lpm-threshold-ratio) must be positive and finite. Fix: \
+             pass e.g. 0.5 (halves the gradient threshold inside zones) or 1 (keeps ADC's)",
             self.threshold_ratio
         );
         anyhow::ensure!(

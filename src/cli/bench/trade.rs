@@ -271,7 +271,7 @@ pub fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
     let several = rows.iter().any(|r| r.seeds > 1);
     let s = format!(
         "bench trade: {} {resolution}, base model {}, {} iterations on the calendar of {}, {device}; LPM \
-         error blocks of {} kept above {} error pixels\n\n{} \
+         error blocks of {} kept above {} error pixels{}\n\n{} \
          trade.png plots test PSNR against Gaussians and training seconds (top), and PSNR and \
          Gaussians against iterations (bottom), one named line per run through its evaluated \
          iterations; trade.html shows the plot, this table and the runs' renders. LPIPS is \
@@ -286,6 +286,8 @@ pub fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
             format!("{} px", args.lpm_block)
         },
         args.lpm_block_fraction,
+        args.lpm_threshold_ratio
+            .map_or(String::new(), |r| format!(", gradient threshold × {r} inside zones")),
         if args.sequential {
             "Runs were sequential: compare their times only on an otherwise idle machine."
         } else {

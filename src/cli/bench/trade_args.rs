@@ -92,6 +92,12 @@ pub struct TradeArgs {
     /// LPM runs: fraction of error pixels that keeps a block (as `train --lpm-block-fraction`).
     #[arg(long, default_value_t = 0.85)]
     pub lpm_block_fraction: f32,
+    /// LPM runs: gradient-threshold multiplier inside zones (as `train --lpm-threshold-ratio`;
+    /// default: each rule set's own, 0.5). 1 keeps ADC's threshold in the zones, so that LPM
+    /// acts only by its opacity resets, extra prunes and added points: which of its rules
+    /// costs or gains what.
+    #[arg(long, value_name = "R")]
+    pub lpm_threshold_ratio: Option<f32>,
     /// Every run also densifies by the absolute-gradient test (as `train --densify-abs-grad`:
     /// Mip-Splatting's official densification).
     #[arg(long)]
@@ -125,6 +131,7 @@ pub fn settings_json(args: &TradeArgs) -> serde_json::Value {
         "lpm_block": args.lpm_block,
         "lpm_block_fraction": args.lpm_block_fraction,
         "lpm_prune": args.lpm_prune.as_ref().map(PruneMode::name),
+        "lpm_threshold_ratio": args.lpm_threshold_ratio,
         "densify_abs_grad": args.densify_abs_grad,
         "max_gaussians": args.max_gaussians,
         "match_adc_count": args.match_adc_count,

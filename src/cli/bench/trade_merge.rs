@@ -95,6 +95,8 @@ fn settings_of(json: &Value) -> (serde_json::Map<String, Value>, bool) {
         let mut m = m.clone();
         // Written before --match-adc-count existed: its runs did not follow adc's count.
         m.entry("match_adc_count").or_insert(Value::Bool(false));
+        // Before --lpm-threshold-ratio: each rule set's own ratio (null, as when not given).
+        m.entry("lpm_threshold_ratio").or_insert(Value::Null);
         return (m, true);
     }
     let mut m = serde_json::Map::new();

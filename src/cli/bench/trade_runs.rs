@@ -173,6 +173,9 @@ pub fn run_lpm_config(name: &str, cfg: &TrainConfig, args: &TradeArgs) -> Option
     if let Some(p) = args.lpm_prune {
         c.prune = p;
     }
+    if let Some(r) = args.lpm_threshold_ratio {
+        c.threshold_ratio = r;
+    }
     c.regions.block = args.lpm_block;
     c.regions.keep_fraction = if name == "lpm-loose-blocks" {
         LOOSE_BLOCK_FRACTION
