@@ -45,7 +45,8 @@
 #            under one Gaussian budget (--max-gaussians CAP, default 1000000), so they compare
 #            at one count; seed SEED (0); TRADE_RUNS replaces the list (e.g. adc,lpm,lpm-no-reset);
 #            BLOCK_FRACTION sets the LPM runs' --lpm-block-fraction (0.7 led at -r 4);
-#            MATCH=1 holds the other runs to ADC's count at every iteration instead
+#            MATCH=1 holds the other runs to ADC's count at every iteration instead;
+#            THRESHOLD_RATIO=1 runs LPM without its lowered threshold (its resets only)
 #   train30k train the packed scene at full size with LPM, 30k iterations, --timestamps
 set -uo pipefail
 cd "$(dirname "$0")/../.."
@@ -351,7 +352,8 @@ for s in "$@"; do
         need_scene budget7k &&
             step budget7k 900 "$bin" bench trade "$scene" -r 1 --iterations 7000 --calendar 30000 \
                 --runs "${TRADE_RUNS:-adc,lpm}" "${count_args[@]}" --seed "${SEED:-0}" --eval-at 3500 \
-                --fps-frames 5 ${BLOCK_FRACTION:+--lpm-block-fraction "$BLOCK_FRACTION"} -o "$work/budget7k"
+                --fps-frames 5 ${BLOCK_FRACTION:+--lpm-block-fraction "$BLOCK_FRACTION"} \
+                ${THRESHOLD_RATIO:+--lpm-threshold-ratio "$THRESHOLD_RATIO"} -o "$work/budget7k"
         ;;
     train30k)
         need_scene train30k &&
