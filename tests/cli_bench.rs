@@ -27,6 +27,17 @@ fn output(c: &mut Command) -> (bool, String) {
     (out.status.success(), text)
 }
 
+/// `bench trade` on the bundled lund_door at `-r 8` (81×121), `iterations` a run, into `out`;
+/// the caller adds the runs and settings under test.
+fn door_trade(iterations: &str, out: &Path) -> Command {
+    let mut c = lpmsplat();
+    c.args(["bench", "trade"])
+        .arg(data("lund_door_small"))
+        .args(["-r", "8", "--iterations", iterations, "-o"])
+        .arg(out);
+    c
+}
+
 /// The trade.json a `bench trade` run wrote into `out`.
 fn trade_json(out: &std::path::Path) -> serde_json::Value {
     serde_json::from_slice(&std::fs::read(out.join("trade.json")).unwrap()).unwrap()
@@ -37,13 +48,16 @@ fn bench_trade_interleaved_writes_table_json_and_plot() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("trade");
     let (ok, text) = output(
-        lpmsplat()
-            .args(["bench", "trade"])
-            .arg(data("lund_door_small"))
-            .args(["-r", "8", "--iterations", "40", "--fps-frames", "1"])
-            .args(["--eval-at", "20,0,99", "--calendar", "400"])
-            .args(["--runs", "lpm,adc", "-o"])
-            .arg(&out),
+        door_trade("40", &out)
+            .args([
+                "--fps-frames",
+                "1",
+                "--eval-at",
+                "20,0,99",
+                "--calendar",
+                "400",
+            ])
+            .args(["--runs", "lpm,adc"]),
     );
     assert!(ok, "{text}");
     let json = trade_json(&out);
@@ -189,12 +203,17 @@ fn bench_trade_with_several_seeds_reports_means_and_paired_differences() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("trade");
     let (ok, text) = output(
-        lpmsplat()
-            .args(["bench", "trade"])
-            .arg(data("lund_door_small"))
-            .args(["-r", "8", "--iterations", "12", "--fps-frames", "1"])
-            .args(["--seeds", "2", "--seed", "5", "--runs", "adc,lpm", "-o"])
-            .arg(&out)
+        door_trade("12", &out)
+            .args([
+                "--fps-frames",
+                "1",
+                "--seeds",
+                "2",
+                "--seed",
+                "5",
+                "--runs",
+                "adc,lpm",
+            ])
             .args(["--lpm-block", "8", "--lpm-block-fraction", "0.5"]),
     );
     assert!(ok, "{text}");
@@ -358,20 +377,9 @@ fn bench_trade_match_adc_count_holds_the_other_runs_to_adcs_count() {
     let (mut counts, mut means) = (Vec::new(), Vec::new());
     for matched in [false, true] {
         let out = dir.path().join(format!("m{matched}"));
-        let mut c = lpmsplat();
-        c.args(["bench", "trade"])
-            .arg(data("lund_door_small"))
-            .args(["-r", "8", "--iterations", "101", "--calendar", "600"])
-            .args([
-                "--runs",
-                "adc,adc-1e-4",
-                "--fps-frames",
-                "1",
-                "--seeds",
-                "2",
-                "-o",
-            ])
-            .arg(&out);
+        let mut c = door_trade("101", &out);
+        c.args(["--calendar", "600", "--runs", "adc,adc-1e-4"])
+            .args(["--fps-frames", "1", "--seeds", "2"]);
         if matched {
             c.arg("--match-adc-count");
         }
@@ -428,20 +436,9 @@ fn bench_trade_mean_count_is_the_count_over_the_run() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("trade");
     let (ok, text) = output(
-        lpmsplat()
-            .args(["bench", "trade"])
-            .arg(data("lund_door_small"))
-            .args(["-r", "8", "--iterations", "12", "--eval-at", "5"])
-            .args([
-                "--calendar",
-                "30000",
-                "--runs",
-                "adc",
-                "--fps-frames",
-                "1",
-                "-o",
-            ])
-            .arg(&out),
+        door_trade("12", &out)
+            .args(["--eval-at", "5", "--calendar", "30000", "--runs", "adc"])
+            .args(["--fps-frames", "1"]),
     );
     assert!(ok, "{text}");
     let json = trade_json(&out);
@@ -559,12 +556,15 @@ fn bench_trade_rows_carry_lpm_per_step_telemetry_that_adds_up_to_the_totals() {
     // Density control (and LPM with it) runs every 100 iterations: one LPM step by 101. Small
     // blocks and a low fraction so that the 81x121 views give an error region.
     let (ok, text) = output(
-        lpmsplat()
-            .args(["bench", "trade"])
-            .arg(data("lund_door_small"))
-            .args(["-r", "8", "--iterations", "101", "--fps-frames", "1"])
-            .args(["--calendar", "600", "--runs", "adc,lpm", "-o"])
-            .arg(&out)
+        door_trade("101", &out)
+            .args([
+                "--fps-frames",
+                "1",
+                "--calendar",
+                "600",
+                "--runs",
+                "adc,lpm",
+            ])
             .args(["--lpm-block", "4", "--lpm-block-fraction", "0.5"]),
     );
     assert!(ok, "{text}");
@@ -613,12 +613,8 @@ fn bench_trade_lpm_threshold_ratio_one_lowers_nothing() {
     let mut lowered = Vec::new();
     for ratio in [None, Some("1")] {
         let out = dir.path().join(format!("r{}", ratio.unwrap_or("default")));
-        let mut c = lpmsplat();
-        c.args(["bench", "trade"])
-            .arg(data("lund_door_small"))
-            .args(["-r", "8", "--iterations", "101", "--fps-frames", "1"])
-            .args(["--calendar", "600", "--runs", "lpm", "-o"])
-            .arg(&out)
+        let mut c = door_trade("101", &out);
+        c.args(["--fps-frames", "1", "--calendar", "600", "--runs", "lpm"])
             .args(["--lpm-block", "4", "--lpm-block-fraction", "0.5"]);
         if let Some(r) = ratio {
             c.args(["--lpm-threshold-ratio", r]);
@@ -644,11 +640,8 @@ fn bench_trade_lpm_threshold_ratio_one_lowers_nothing() {
     assert_eq!(lowered[1], 0.0, "{lowered:?}");
     for bad in ["0", "-0.5", "inf"] {
         let (ok, text) = output(
-            lpmsplat()
-                .args(["bench", "trade"])
-                .arg(data("lund_door_small"))
-                .args(["-r", "8", "--iterations", "2", "--runs", "lpm", "-o"])
-                .arg(dir.path().join("bad"))
+            door_trade("2", &dir.path().join("bad"))
+                .args(["--runs", "lpm"])
                 .arg(format!("--lpm-threshold-ratio={bad}")),
         );
         assert!(
@@ -663,12 +656,9 @@ fn bench_trade_compares_the_absolute_gradient_test_side_by_side() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("abs");
     let (ok, text) = output(
-        lpmsplat()
-            .args(["bench", "trade"])
-            .arg(data("lund_door_small"))
-            .args(["-r", "8", "--iterations", "120", "--fps-frames", "1"])
-            .args(["--calendar", "600", "--runs", "adc-abs-grad,adc", "-o"])
-            .arg(&out),
+        door_trade("120", &out)
+            .args(["--fps-frames", "1", "--calendar", "600"])
+            .args(["--runs", "adc-abs-grad,adc"]),
     );
     assert!(ok, "{text}");
     let json = trade_json(&out);
@@ -697,14 +687,8 @@ fn bench_trade_compares_the_absolute_gradient_test_side_by_side() {
     assert_eq!(last[1].2, 0.0, "adc-abs-grad is not an LPM run");
     // Models with another statistic refuse it before anything is written.
     let refused = dir.path().join("pixel");
-    let (ok, text) = output(
-        lpmsplat()
-            .args(["bench", "trade"])
-            .arg(data("lund_door_small"))
-            .args(["-r", "8", "--iterations", "5", "--model", "pixel-gs"])
-            .args(["--runs", "adc-abs-grad", "-o"])
-            .arg(&refused),
-    );
+    let (ok, text) =
+        output(door_trade("5", &refused).args(["--model", "pixel-gs", "--runs", "adc-abs-grad"]));
     assert!(
         !ok && text.contains("absolute-gradient") && text.contains("Fix:"),
         "{text}"
