@@ -648,6 +648,10 @@ fn bench_trade_lpm_threshold_ratio_one_lowers_nothing() {
             !ok && text.contains("--lpm-threshold-ratio") && text.contains("Fix:"),
             "{bad}: {text}"
         );
+        assert!(
+            !dir.path().join("bad").exists(),
+            "refused before -o is made"
+        );
     }
 }
 

@@ -46,6 +46,15 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
         "bench trade --match-adc-count: the other runs follow adc's Gaussian count, but --runs \
          has no adc. Fix: add adc to --runs"
     );
+    if let Some(r) = args.lpm_threshold_ratio {
+        // Refused before the scene loads or the output folder is made; the runs' whole LPM
+        // settings are validated again once the calendar is known.
+        LpmConfig {
+            threshold_ratio: r,
+            ..LpmConfig::default()
+        }
+        .validate()?;
+    }
     let lpips = args.lpips.load()?;
     let scene = Scene::load(&args.scene.scene, &args.scene.load_options()?)?;
     anyhow::ensure!(
