@@ -662,6 +662,8 @@ fn cli_train_resume_eval_end_to_end() {
     );
     assert_eq!(history[0]["iteration"], 6);
     assert_eq!(history[0]["gaussians"], 300);
+    // No density step in 6 iterations: the count over the run is the count.
+    assert_eq!(metrics["mean_gaussians"].as_f64().unwrap(), 300.0);
     let splat = std::fs::read(out.join("point_cloud.splat")).unwrap();
     assert_eq!(splat.len(), 300 * 32);
     let exported = dir.path().join("exported.splat");
@@ -1452,6 +1454,21 @@ fn cli_gaussian_budget_caps_the_count() {
         natural > initial + 100,
         "the run must densify: {initial} → {natural}"
     );
+    // The count after each iteration, averaged: the initial count until the first density
+    // step (iteration 40, the first past --densify-from), then the count the history shows at
+    // 50, which the run exports (the export's snapshot comes before the density step at 60),
+    // and at 60 the count after that step.
+    let history = &metrics(&free)["history"];
+    assert_eq!(history[4]["iteration"], 50);
+    assert_eq!(history[5]["iteration"], 60);
+    let (after_40, after_60) = (
+        history[4]["gaussians"].as_u64().unwrap(),
+        history[5]["gaussians"].as_u64().unwrap(),
+    );
+    assert_eq!(after_40, natural);
+    let mean = metrics(&free)["mean_gaussians"].as_f64().unwrap();
+    let expected = (39 * initial + 20 * after_40 + after_60) as f64 / 60.0;
+    assert!((mean - expected).abs() < 1e-6, "{mean} vs {expected}");
     let cap = initial + (natural - initial) / 2;
     let capped = dir.path().join("capped");
     let o = train(&capped, &["--max-gaussians", &cap.to_string()]);

@@ -206,7 +206,8 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                     it < args.iterations && !eval_at.contains(&it) && !eval_at.contains(&(it + 1));
                 let report = t.step_ahead(prepare)?;
                 r.seconds += t0.elapsed().as_secs_f64();
-                r.count_sum += t.state.count() as f64;
+                // The count after this iteration, as `train`'s metrics.json averages it.
+                r.count_sum += report.gaussians as f64;
                 if args.match_adc_count && is_adc {
                     adc_counts[r.init].push(t.state.count());
                 }

@@ -134,6 +134,9 @@ impl Finished<'_> {
             "scene": self.args.scene.scene.display().to_string(),
             "iterations": config.iterations,
             "gaussians": self.gaussians,
+            // The count after each iteration, averaged over this run's iterations (a resumed
+            // run's from `resumed_from`): what the model size cost over the run.
+            "mean_gaussians": log.mean_gaussians(),
             "test_views": self.scene.test.len(),
             "psnr": psnr,
             "ssim": ssim,
@@ -238,11 +241,12 @@ impl Finished<'_> {
             String::new()
         };
         println!(
-            "trained {} iterations in {:.1} s ({:.2} it/s{unpaused}): {} Gaussians, test PSNR {:.3} dB, SSIM {:.4}{}",
+            "trained {} iterations in {:.1} s ({:.2} it/s{unpaused}): {} Gaussians ({:.0} on average over the run), test PSNR {:.3} dB, SSIM {:.4}{}",
             config.iterations,
             self.train_s,
             trained / self.train_s,
             self.gaussians,
+            self.log.mean_gaussians(),
             psnr,
             ssim,
             lpips_scores::mean(self.per_view).map_or(String::new(), |d| format!(", LPIPS {d:.4}"))

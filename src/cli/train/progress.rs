@@ -31,6 +31,10 @@ pub struct TrainingLog {
     pub model_events: Vec<serde_json::Value>,
     /// Under --max-gaussians: additions the budget dropped, and on how many density steps.
     pub budget: (usize, usize),
+    /// The Gaussian count after each iteration of this run, summed: over the iterations, the
+    /// model size the run paid for, which the final count alone does not say.
+    count_sum: f64,
+    recorded: u32,
 }
 
 impl TrainingLog {
@@ -59,6 +63,8 @@ impl TrainingLog {
             paused_s: 0.0,
             model_events: Vec::new(),
             budget: (0, 0),
+            count_sum: 0.0,
+            recorded: 0,
         }
     }
 
@@ -99,6 +105,8 @@ impl TrainingLog {
             self.budget.0 += d.budget_dropped;
             self.budget.1 += 1;
         }
+        self.count_sum += r.gaussians as f64;
+        self.recorded += 1;
         let l = r.loss as f64;
         let ema = self.ema_loss.map_or(l, |e| 0.9 * e + 0.1 * l);
         self.ema_loss = Some(ema);
@@ -131,6 +139,12 @@ impl TrainingLog {
                 (self.iterations - r.iteration) as f64 / rate
             );
         }
+    }
+
+    /// The Gaussian count averaged over the iterations recorded so far (a resumed run's own,
+    /// not the checkpoint's); 0 before the first.
+    pub fn mean_gaussians(&self) -> f64 {
+        self.count_sum / self.recorded.max(1) as f64
     }
 
     /// Runs `work` (a checkpoint) on the paused clock.

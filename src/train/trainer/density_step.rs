@@ -71,6 +71,8 @@ impl Trainer {
             report.strategy = Some(e);
         }
         self.follow_capacity()?;
+        // A strategy may add or remove Gaussians between density steps (LPM's additions).
+        report.gaussians = self.state.count();
         // The base model's own rules (taken out while they drive the trainer's buffers).
         let mut rules = std::mem::take(&mut self.model_rules);
         let views = report.views.clone();
