@@ -47,6 +47,8 @@
 #            BLOCK_FRACTION sets the LPM runs' --lpm-block-fraction (0.7 led at -r 4);
 #            MATCH=1 holds the other runs to ADC's count at every iteration instead;
 #            THRESHOLD_RATIO=1 runs LPM without its lowered threshold (its resets only)
+#   MODEL=NAME (2dgs, pixel-gs, mip-splatting) sets the base model of trade7k, trade30k,
+#            local7k and budget7k (default 3dgs)
 #   train30k train the packed scene at full size with LPM, 30k iterations, --timestamps
 set -uo pipefail
 cd "$(dirname "$0")/../.."
@@ -149,6 +151,10 @@ alternate() {
     done
 }
 
+# MODEL=NAME: the base model of the bench trade steps (trade7k, trade30k, local7k, budget7k)
+# and of trade7k's FPS of the trained model (default 3dgs).
+model_args=(${MODEL:+--model "$MODEL"})
+
 need_scene() {
     [ -n "$scene" ] && return 0
     echo "$1: skipped (no .device/scene-NAME.tar.xz carried)" >>"$summary"
@@ -225,14 +231,15 @@ for s in "$@"; do
     trade7k)
         need_scene trade7k &&
             step trade7k 900 "$bin" bench trade "$scene" -r 1 --iterations 7000 --calendar 30000 \
-                --runs adc,lpm --eval-at 3500 --fps-frames 20 -o "$work/trade7k" &&
+                --runs adc,lpm --eval-at 3500 --fps-frames 20 "${model_args[@]}" -o "$work/trade7k" &&
             step fps-trained 90 "$bin" bench fps --ply "$work/trade7k/adc+lpm.ply" \
-                --json "$res/fps-trained.json"
+                "${model_args[@]}" --json "$res/fps-trained.json"
         ;;
     trade30k)
         need_scene trade30k &&
             step trade30k 900 "$bin" bench trade "$scene" -r 1 --iterations 30000 \
-                --runs adc,lpm --eval-at 3000,7000,15000 --fps-frames 20 -o "$work/trade30k"
+                --runs adc,lpm --eval-at 3000,7000,15000 --fps-frames 20 "${model_args[@]}" \
+                -o "$work/trade30k"
         ;;
     ablate7k)
         need_scene ablate7k &&
@@ -338,7 +345,7 @@ for s in "$@"; do
         need_scene local7k &&
             step local7k 900 "$bin" bench trade "$scene" -r 1 --iterations 7000 --calendar 30000 \
                 --runs "${TRADE_RUNS:-adc,lpm,lpm-local-zones,lpm-slab}" --seed "${SEED:-0}" --eval-at 3500 --fps-frames 5 \
-                -o "$work/local7k"
+                "${model_args[@]}" -o "$work/local7k"
         ;;
     budget7k)
         # ADC and LPM at one count: both under the same cap, interleaved.
@@ -353,7 +360,8 @@ for s in "$@"; do
             step budget7k 900 "$bin" bench trade "$scene" -r 1 --iterations 7000 --calendar 30000 \
                 --runs "${TRADE_RUNS:-adc,lpm}" "${count_args[@]}" --seed "${SEED:-0}" --eval-at 3500 \
                 --fps-frames 5 ${BLOCK_FRACTION:+--lpm-block-fraction "$BLOCK_FRACTION"} \
-                ${THRESHOLD_RATIO:+--lpm-threshold-ratio "$THRESHOLD_RATIO"} -o "$work/budget7k"
+                ${THRESHOLD_RATIO:+--lpm-threshold-ratio "$THRESHOLD_RATIO"} "${model_args[@]}" \
+                -o "$work/budget7k"
         ;;
     train30k)
         need_scene train30k &&
