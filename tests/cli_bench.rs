@@ -77,6 +77,13 @@ fn bench_trade_interleaved_writes_table_json_and_plot() {
         json["lpm_block"], 0,
         "the block follows the image size by default"
     );
+    // 16 px at 1 MP scaled to a ~40×60 image is under the 4-px floor.
+    assert_eq!(json["lpm_block_px"], serde_json::json!([4, 4]));
+    let md = std::fs::read_to_string(out.join("trade.md")).unwrap();
+    assert!(
+        md.contains("error blocks of the image's size (4 px here:"),
+        "{md}"
+    );
     assert!(
         runs[2]["train_seconds"].as_f64().unwrap() > runs[0]["train_seconds"].as_f64().unwrap()
     );
@@ -219,6 +226,7 @@ fn bench_trade_with_several_seeds_reports_means_and_paired_differences() {
     assert!(ok, "{text}");
     let json = trade_json(&out);
     assert_eq!(json["lpm_block"], 8);
+    assert_eq!(json["lpm_block_px"], serde_json::json!([8, 8]));
     assert_eq!(json["lpm_block_fraction"], 0.5);
     let runs = json["runs"].as_array().unwrap();
     let keys: Vec<(&str, u64)> = runs

@@ -19,6 +19,7 @@ use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder};
 use lpmsplat::lpips::Lpips;
 use lpmsplat::lpm::config::LpmConfig;
+use lpmsplat::lpm::regions::RegionSettings;
 use lpmsplat::lpm::strategy::LpmStrategy;
 use lpmsplat::render::forward::{FrameSettings, Renderer};
 use lpmsplat::render::layout::CameraGpu;
@@ -91,6 +92,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
     let ctx = GpuContext::new(gpu)?;
+    let facts = RunFacts::new(&ctx.info.name, &scene, args.lpm_block);
     let calendar = args.calendar.unwrap_or(args.iterations);
     anyhow::ensure!(
         calendar > 0,
@@ -108,7 +110,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
     let base = calendar_config(args, &scene, calendar)?;
     eprintln!(
         "bench trade: {} ({} train / {} test views), {} iterations per run on the calendar of \
-         {calendar}: densify {}..{}, reset every {}, on {}",
+         {calendar}: densify {}..{}, reset every {}, LPM error blocks of {}, on {}",
         args.scene.scene.display(),
         scene.train.len(),
         scene.test.len(),
@@ -116,6 +118,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
         base.schedule.densify_from,
         base.schedule.densify_until,
         base.schedule.opacity_reset_interval,
+        facts.blocks_px(),
         ctx.info.name
     );
     let mut runs = Vec::new();
@@ -258,7 +261,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                         r.seed,
                     )
                 });
-                write_outputs(&rows, &ctx.info.name, &view_name, args)?;
+                write_outputs(&rows, &facts, &view_name, args)?;
             }
         }
         for &i in &group {
@@ -266,14 +269,48 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
         }
     }
     bar.finish_and_clear();
-    print!("{}", tables(&rows, &ctx.info.name, args));
+    print!("{}", tables(&rows, &facts, args));
     println!("wrote {}", args.out.display());
     ctx.check_validation()?;
     Ok(())
 }
 
+/// What the tables say about the setting besides the arguments: the device and the LPM error
+/// blocks' side in pixels over the training views (the automatic size follows each image's).
+pub struct RunFacts {
+    pub device: String,
+    pub lpm_blocks: (u32, u32),
+}
+
+impl RunFacts {
+    pub fn new(device: &str, scene: &Scene, lpm_block: u32) -> RunFacts {
+        let settings = RegionSettings {
+            block: lpm_block,
+            ..RegionSettings::default()
+        };
+        let sides = scene.train.iter().map(|&v| {
+            let c = &scene.views[v].camera;
+            settings.resolved(c.width, c.height).block
+        });
+        let lpm_blocks = sides.fold((u32::MAX, 0), |(lo, hi), b| (lo.min(b), hi.max(b)));
+        RunFacts {
+            device: device.to_string(),
+            lpm_blocks,
+        }
+    }
+
+    /// "12 px", or "10–12 px" where the training images differ in size.
+    fn blocks_px(&self) -> String {
+        match self.lpm_blocks {
+            (lo, hi) if lo == hi => format!("{lo} px"),
+            (lo, hi) => format!("{lo}–{hi} px"),
+        }
+    }
+}
+
 /// The table: what was run, how to read it, and the rows ([`table_rows`]).
-pub fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
+pub fn table(rows: &[Summary], facts: &RunFacts, args: &TradeArgs) -> String {
+    let device = &facts.device;
     let resolution = args
         .scene
         .resolution
@@ -291,7 +328,10 @@ pub fn table(rows: &[Summary], device: &str, args: &TradeArgs) -> String {
         args.iterations,
         args.calendar.unwrap_or(args.iterations),
         if args.lpm_block == 0 {
-            "the image's size (16 px at 1 MP, scaled with the diagonal, at least 4)".to_string()
+            format!(
+                "the image's size ({} here: 16 px at 1 MP, scaled with the diagonal, at least 4)",
+                facts.blocks_px()
+            )
         } else {
             format!("{} px", args.lpm_block)
         },
@@ -334,8 +374,8 @@ fn budget_sentence(args: &TradeArgs) -> String {
 
 /// [`table`] of the rows' summary, and with several seeds each run's per-seed differences from
 /// ADC ([`paired_table`]).
-fn tables(rows: &[TradeRow], device: &str, args: &TradeArgs) -> String {
-    let mut s = table(&summarize(rows), device, args);
+fn tables(rows: &[TradeRow], facts: &RunFacts, args: &TradeArgs) -> String {
+    let mut s = table(&summarize(rows), facts, args);
     if args.seeds > 1 && rows.iter().any(|r| r.run == "adc") {
         s += "\n";
         s += &paired_table(rows, "adc");
@@ -346,12 +386,12 @@ fn tables(rows: &[TradeRow], device: &str, args: &TradeArgs) -> String {
 /// Writes trade.md, trade.json and trade.png for the rows so far (atomically).
 fn write_outputs(
     rows: &[TradeRow],
-    device: &str,
+    facts: &RunFacts,
     view_name: &str,
     args: &TradeArgs,
 ) -> anyhow::Result<()> {
     let summary = summarize(rows);
-    let table = tables(rows, device, args);
+    let table = tables(rows, facts, args);
     write_atomic(&args.out.join("trade.md"), |f| {
         Ok(f.write_all(table.as_bytes())?)
     })?;
@@ -362,9 +402,11 @@ fn write_outputs(
         "iterations": args.iterations,
         "calendar": args.calendar.unwrap_or(args.iterations),
         "interleaved": !args.sequential,
-        "device": device,
+        "device": facts.device,
         "seeds": args.seeds,
         "lpm_block": args.lpm_block,
+        // The block sides the LPM runs used over the training views: [smallest, largest].
+        "lpm_block_px": [facts.lpm_blocks.0, facts.lpm_blocks.1],
         "lpm_block_fraction": args.lpm_block_fraction,
         "settings": settings_json(args),
         "summary": summary,
