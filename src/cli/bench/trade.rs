@@ -292,7 +292,10 @@ impl RunFacts {
             let c = &scene.views[v].camera;
             settings.resolved(c.width, c.height).block
         });
-        let lpm_blocks = sides.fold((u32::MAX, 0), |(lo, hi), b| (lo.min(b), hi.max(b)));
+        let lpm_blocks = match sides.fold((u32::MAX, 0), |(lo, hi), b| (lo.min(b), hi.max(b))) {
+            (lo, hi) if lo > hi => (lpm_block, lpm_block), // no training view
+            range => range,
+        };
         RunFacts {
             device: device.to_string(),
             lpm_blocks,
