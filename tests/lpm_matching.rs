@@ -64,6 +64,7 @@ fn scene(views: Vec<View>, points: Option<SfmPoints>) -> Scene {
         background: None,
         has_alpha: false,
         view_times: None,
+        time_base: None,
     }
 }
 

@@ -89,6 +89,7 @@ fn scene() -> Scene {
         background: None,
         has_alpha: false,
         view_times: None,
+        time_base: None,
     }
 }
 

@@ -7,7 +7,8 @@ use lpmsplat::error::InputError;
 use lpmsplat::splats::model::sh_rest_coeffs;
 use lpmsplat::splats::ply::property_names;
 use lpmsplat::splats::{
-    read_ply, read_ply_with_degree, require_nonempty, write_ply, GaussianParams,
+    ply_comments, read_ply, read_ply_with_degree, require_nonempty, write_ply,
+    write_ply_with_comments, GaussianParams,
 };
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
@@ -111,6 +112,35 @@ fn round_trip_is_bit_exact_for_every_degree() {
         write_ply(&again, &back).unwrap();
         assert_eq!(bytes, std::fs::read(&again).unwrap());
     }
+}
+
+#[test]
+fn comments_round_trip_and_leave_the_model_alone() {
+    let dir = tmp();
+    let model = random_model(50, 1, 3);
+    let plain = dir.path().join("plain.ply");
+    write_ply(&plain, &model).unwrap();
+    assert!(ply_comments(&plain).unwrap().is_empty());
+    let noted = dir.path().join("noted.ply");
+    let comments = vec![
+        "lpmsplat video segment 0..50".to_string(),
+        "two  words".into(),
+    ];
+    write_ply_with_comments(&noted, &model, &comments).unwrap();
+    assert_eq!(ply_comments(&noted).unwrap(), comments);
+    assert_bit_equal(&model, &read_ply(&noted).unwrap());
+    let text = String::from_utf8_lossy(&std::fs::read(&noted).unwrap()[..200]).to_string();
+    assert!(
+        text.starts_with(
+            "ply\nformat binary_little_endian 1.0\ncomment lpmsplat video segment 0..50\n"
+        ),
+        "{text}"
+    );
+    // A comment must be one line; the file already there is left as it was.
+    let before = std::fs::read(&noted).unwrap();
+    let e = write_ply_with_comments(&noted, &model, &["a\nb".into()]).unwrap_err();
+    assert!(format!("{e:#}").contains("one line"), "{e:#}");
+    assert_eq!(std::fs::read(&noted).unwrap(), before);
 }
 
 #[test]

@@ -136,6 +136,65 @@ fn spacetime_lite_learns_the_motion_a_still_model_cannot() {
             "frame {k}"
         );
     }
+    // The PLY records the segment it was trained on (the fixture's 8 frames), so a part of
+    // it renders at the times training gave it: frames 3..5 are the images the whole segment
+    // gave frames 3 and 4, byte for byte.
+    assert!(
+        header.contains("comment lpmsplat video segment 0..8\n"),
+        "{header}"
+    );
+    let render_frames = |frames: &str, ply: &Path, dir: &str| {
+        lpmsplat()
+            .args([
+                "render",
+                fixture().to_str().unwrap(),
+                "--ply",
+                ply.to_str().unwrap(),
+                "--model",
+                "spacetime-lite",
+                "--frames",
+                frames,
+                "--out",
+                out.join(dir).to_str().unwrap(),
+            ])
+            .output()
+            .unwrap()
+    };
+    let o = render_frames("3..5", &out.join("point_cloud.ply"), "part");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for k in [3, 4] {
+        let name = format!("cam00_{k:06}.png");
+        assert_eq!(
+            std::fs::read(out.join("part").join(&name)).unwrap(),
+            std::fs::read(out.join("r").join(&name)).unwrap(),
+            "frame {k} of the part against the whole segment"
+        );
+    }
+    // The same model marked as trained on 0..4 (the comment edited in place): frames past 4
+    // are refused, and a broken comment names the file and the line.
+    let edit = |from: &[u8], to: &[u8], name: &str| {
+        let mut bytes = std::fs::read(out.join("point_cloud.ply")).unwrap();
+        let at = bytes.windows(from.len()).position(|w| w == from).unwrap();
+        bytes[at..at + from.len()].copy_from_slice(to);
+        let path = out.join(name);
+        std::fs::write(&path, bytes).unwrap();
+        path
+    };
+    let four = edit(b"segment 0..8", b"segment 0..4", "four.ply");
+    let o = render_frames("3..6", &four, "refused");
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && e.contains("outside the segment 0..4"),
+        "{e}"
+    );
+    assert!(!out.join("refused").exists(), "nothing written");
+    let broken = edit(b"segment 0..8", b"segment 0..x", "broken.ply");
+    let o = render_frames("3..5", &broken, "broken");
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && e.contains("broken.ply") && e.contains("START..END"),
+        "{e}"
+    );
     // render --time: every camera once at one time; at a frame's time, that frame's image.
     let render_at = |t: &str, dir: &str, extra: &[&str]| {
         lpmsplat()

@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use lpmsplat::scene::images::{load_view_image, save_png};
-use lpmsplat::scene::video::{npy, FrameRange, VideoLayout, VideoScene};
+use lpmsplat::scene::video::{npy, FrameRange, Segment, VideoLayout, VideoScene};
 use lpmsplat::scene::{Image, LoadOptions};
 
 fn close(a: [f64; 3], b: [f64; 3], tol: f64) -> bool {
@@ -181,6 +181,67 @@ fn neural_3d_video_frames_extracted_downscaled_scale_the_focal_length() {
     let c = &s.cameras[1];
     assert_eq!((c.source_width, c.source_height), (40, 30));
     assert!((c.camera.fx - 32.0).abs() < 1e-12, "{}", c.camera.fx);
+}
+
+#[test]
+fn a_models_segment_gives_any_part_of_it_its_training_times() {
+    let dir = tempfile::tempdir().unwrap();
+    n3v_fixture(dir.path(), 6, 40, 30, false);
+    // The PLY comment round-trips; other comments are not a segment; a broken one is refused.
+    let trained = Segment {
+        start: 1,
+        frames: 4,
+    };
+    assert_eq!(trained.comment(), "lpmsplat video segment 1..5");
+    let ply = dir.path().join("m.ply");
+    let found = Segment::from_comments(&ply, &["made by hand".into(), trained.comment()]);
+    assert_eq!(found.unwrap(), Some(trained));
+    assert_eq!(Segment::from_comments(&ply, &["x".into()]).unwrap(), None);
+    let e = Segment::from_comments(&ply, &["lpmsplat video segment 5..2".into()]).unwrap_err();
+    let e = format!("{e:#}");
+    assert!(e.contains("m.ply") && e.contains("START..END"), "{e}");
+    // Frames 2..4 of a model trained on 1..5: times (2 − 1) / 4 and (3 − 1) / 4, not 0 and 1/2.
+    let opts = LoadOptions {
+        time_base: Some(trained),
+        ..LoadOptions::default()
+    };
+    let part = VideoScene::load(dir.path(), &opts, "2..4".parse().unwrap()).unwrap();
+    assert_eq!((part.time(0), part.time(1)), (0.25, 0.5));
+    let scene = part.to_scene();
+    assert_eq!(scene.time_base, Some(trained));
+    let times = scene.view_times.unwrap();
+    assert_eq!(
+        &times[..2],
+        &[0.25, 0.5],
+        "camera-major: cam00's two frames first"
+    );
+    // The whole trained segment loads with the times training gave it.
+    let whole = VideoScene::load(dir.path(), &opts, trained.range()).unwrap();
+    assert_eq!(
+        (0..4).map(|k| whole.time(k)).collect::<Vec<_>>(),
+        vec![0.0, 0.25, 0.5, 0.75]
+    );
+    // Without a time base the loaded segment is its own.
+    let own = VideoScene::load(dir.path(), &LoadOptions::default(), "2..4".parse().unwrap())
+        .unwrap()
+        .to_scene();
+    assert_eq!(own.view_times.unwrap()[..2], [0.0, 0.5]);
+    assert_eq!(
+        own.time_base,
+        Some(Segment {
+            start: 2,
+            frames: 2
+        })
+    );
+    // Frames outside the trained segment have no time in it: refused, naming the fix.
+    for outside in ["0..3", "4..6"] {
+        let e = VideoScene::load(dir.path(), &opts, outside.parse().unwrap()).unwrap_err();
+        let e = format!("{e:#}");
+        assert!(
+            e.contains("outside the segment 1..5") && e.contains("--frames within 1..5"),
+            "{e}"
+        );
+    }
 }
 
 #[test]

@@ -15,7 +15,7 @@ use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions};
 use lpmsplat::models::BaseModel;
 use lpmsplat::render::layout::CameraGpu;
 use lpmsplat::scene::image_source::{load_range, ViewImages};
-use lpmsplat::scene::{images, Image, Scene};
+use lpmsplat::scene::{images, Image};
 use lpmsplat::splats::gpu::GpuSplats;
 use lpmsplat::train::trainer::{Background, ViewMetrics};
 use std::io::Write;
@@ -126,7 +126,7 @@ fn side_by_side(render: &[f32], gt: &Image) -> Image {
 }
 
 pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
-    let scene = Scene::load(&args.scene.scene, &args.scene.load_options()?)?;
+    let scene = crate::cli::model_segment::load_scene_for_model(&args.scene, &args.ply)?;
     let bg = match background_from(args.background.as_deref(), &scene)? {
         Background::Fixed(c) => c,
         Background::Random => anyhow::bail!(

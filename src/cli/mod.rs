@@ -10,6 +10,7 @@ mod interrupt;
 mod lpips_scores;
 mod matching;
 mod mesh;
+mod model_segment;
 mod render;
 
 mod train;
@@ -89,8 +90,10 @@ pub struct SceneArgs {
     pub test_split: Option<String>,
     /// Video scenes: the segment of frames, START..END (END excluded) or START.. (50 frames,
     /// SpacetimeGaussians' segment length, fewer when the video is shorter). Frame k of the
-    /// segment has time k / its length, so evaluate and render a video model with the segment
-    /// it was trained on. Default: 0..
+    /// segment trained on has time k / its length; the model's PLY records that segment, so
+    /// `render` and `eval` load it by default and take any part of it (e.g. 10..20 of a model
+    /// trained on 0..50: frames 10 to 19 at times 0.2 to 0.38). Default: 0.. for `train`, the
+    /// model's segment for `render` and `eval`.
     #[arg(long, value_name = "START..END")]
     pub frames: Option<lpmsplat::scene::video::FrameRange>,
 }

@@ -74,7 +74,7 @@ pub fn parse_rgb(s: &str) -> Result<[f32; 3], String> {
 }
 
 pub fn run(gpu: &GpuOptions, args: &RenderArgs) -> anyhow::Result<()> {
-    let scene = Scene::load(&args.scene.scene, &args.scene.load_options()?)?;
+    let scene = crate::cli::model_segment::load_scene_for_model(&args.scene, &args.ply)?;
     let params = args.model.read_ply(&args.ply)?;
     if let Some(t) = args.time {
         anyhow::ensure!(

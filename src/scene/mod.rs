@@ -122,6 +122,9 @@ pub struct LoadOptions {
     pub eval_split: bool,
     /// Video scenes: the segment of frames.
     pub frames: video::FrameRange,
+    /// Video scenes: the segment of the model the frames are loaded for (from its PLY), which
+    /// gives them their times and must hold them; `None`: the loaded segment itself.
+    pub time_base: Option<video::Segment>,
 }
 
 impl Default for LoadOptions {
@@ -134,6 +137,7 @@ impl Default for LoadOptions {
             holdout_every: 8,
             eval_split: true,
             frames: video::FrameRange::default(),
+            time_base: None,
         }
     }
 }
@@ -164,6 +168,10 @@ pub struct Scene {
     /// The time of every view, for a scene made of a video's frames
     /// ([`video::VideoScene::to_scene`]); `None` for a still scene.
     pub view_times: Option<Vec<f64>>,
+    /// For a video scene, the segment whose frame `start + k` has time `k / frames`: the
+    /// loaded frames, or the segment of the model they are loaded for
+    /// ([`LoadOptions::time_base`]). A video model's PLY records it.
+    pub time_base: Option<video::Segment>,
 }
 
 impl Scene {

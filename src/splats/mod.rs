@@ -14,5 +14,8 @@ pub mod splat_file;
 
 pub use init::{from_sfm, from_sfm_points, random_init};
 pub use model::{ExtraGroup, ExtraValues, GaussianParams, ParamField, MAX_SH_DEGREE, SH_C0};
-pub use ply::{read_ply, read_ply_with_degree, require_nonempty, write_ply};
+pub use ply::{
+    ply_comments, read_ply, read_ply_with_degree, require_nonempty, write_ply,
+    write_ply_with_comments,
+};
 pub use splat_file::write_splat;

@@ -27,7 +27,6 @@ use lpmsplat::render::spacetime::TimedModel;
 use lpmsplat::scene::image_source::{ImageSource, ViewImages};
 use lpmsplat::scene::Scene;
 use lpmsplat::splats::gpu::GpuSplats;
-use lpmsplat::splats::write_ply;
 use lpmsplat::train::trainer::{TrainConfig, Trainer, ViewMetrics};
 use std::io::Write;
 use std::time::Instant;
@@ -505,7 +504,7 @@ fn evaluate_run(
             format!("{name}.ply")
         };
         let ply = args.out.join(file);
-        write_ply(&ply, &model)?;
+        crate::cli::model_segment::write_model_ply(&ply, &model, scene)?;
         if let Some(w) = &decoder {
             let path = lpmsplat::splats::decoder_json::path_for(&ply);
             std::fs::write(&path, lpmsplat::splats::decoder_json::to_json(w)?)?;

@@ -16,7 +16,6 @@ use args::{check_flags, RecordAhead};
 use lpmsplat::gpu::{GpuContext, GpuOptions};
 use lpmsplat::scene::image_source::ViewImages;
 use lpmsplat::scene::Scene;
-use lpmsplat::splats::write_ply;
 use lpmsplat::train::nan_check::NonFiniteCheck;
 use lpmsplat::train::trainer::Trainer;
 use outputs::Finished;
@@ -170,7 +169,11 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
                 false => r,
             };
             trainer.save_checkpoint(&scene, &checkpoint_path)?;
-            write_ply(&args.out.join("point_cloud.ply"), &trainer.export_model()?)?;
+            crate::cli::model_segment::write_model_ply(
+                &args.out.join("point_cloud.ply"),
+                &trainer.export_model()?,
+                &scene,
+            )?;
             anyhow::bail!(
                 "interrupted (Ctrl-C) after iteration {}: wrote {} and {}. To continue: {}",
                 r.iteration,

@@ -13,7 +13,7 @@ use lpmsplat::lpm::config::LpmConfig;
 use lpmsplat::lpm::strategy::LpmStrategy;
 use lpmsplat::scene::image_source::ViewImages;
 use lpmsplat::scene::{images, Image, Scene};
-use lpmsplat::splats::{write_ply, write_splat};
+use lpmsplat::splats::write_splat;
 use lpmsplat::train::trainer::{TrainConfig, Trainer, ViewMetrics};
 use std::io::Write;
 use std::path::Path;
@@ -22,7 +22,7 @@ use std::path::Path;
 /// still models, and the checkpoint. Returns the model's Gaussian count.
 pub fn export(trainer: &mut Trainer, scene: &Scene, out: &Path) -> anyhow::Result<usize> {
     let model = trainer.export_model()?;
-    write_ply(&out.join("point_cloud.ply"), &model)?;
+    crate::cli::model_segment::write_model_ply(&out.join("point_cloud.ply"), &model, scene)?;
     for (ext, contents) in trainer.export_files()? {
         let path = out.join("point_cloud.ply").with_extension(&ext);
         std::fs::write(&path, contents).with_context(|| format!("writing {}", path.display()))?;

@@ -10,7 +10,7 @@ use lpmsplat::lpm::strategy::LpmStrategy;
 use lpmsplat::models::BaseModel;
 use lpmsplat::scene::image_source::TrainImages;
 use lpmsplat::scene::{images, Image, Scene};
-use lpmsplat::splats::{self, read_ply, write_ply, GaussianParams};
+use lpmsplat::splats::{self, read_ply, GaussianParams};
 use lpmsplat::train::trainer::Trainer;
 use std::path::Path;
 
@@ -154,7 +154,10 @@ pub(super) fn save_after_oom(
         );
     }
     let ply = args.out.join("point_cloud.ply");
-    let ply_note = match trainer.export_model().and_then(|m| write_ply(&ply, &m)) {
+    let ply_note = match trainer
+        .export_model()
+        .and_then(|m| crate::cli::model_segment::write_model_ply(&ply, &m, scene))
+    {
         Ok(()) => format!(" and {}", ply.display()),
         Err(e) => format!(" (the PLY could not be exported: {e:#})"),
     };

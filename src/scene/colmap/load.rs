@@ -328,6 +328,7 @@ pub fn build_scene(
         background: None,
         has_alpha: false,
         view_times: None,
+        time_base: None,
     })
 }
 

@@ -114,6 +114,7 @@ pub(super) fn finish(
         background,
         has_alpha,
         view_times: None,
+        time_base: None,
     })
 }
 

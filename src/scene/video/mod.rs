@@ -9,8 +9,11 @@
 //!   `ims/`, foreground masks under `seg/`.
 //!
 //! Training works on a segment of frames (SpacetimeGaussians trains 50-frame segments); frame
-//! `k` of a segment of `F` frames has time `t = k / F`, the official normalisation. Only paths
-//! are held here: pixels are read per frame when they are needed.
+//! `k` of a segment of `F` frames has time `t = k / F`, the official normalisation. A model
+//! trained on a segment carries it in its PLY ([`Segment::comment`]), so that `render` and
+//! `eval` load that segment by default and give any part of it the times it had in training
+//! ([`LoadOptions::time_base`](super::LoadOptions::time_base)). Only paths are held here:
+//! pixels are read per frame when they are needed.
 
 pub mod n3v;
 pub mod npy;
@@ -59,6 +62,63 @@ impl std::str::FromStr for FrameRange {
     }
 }
 
+/// A segment of frames as loaded: the first frame and how many. The segment a model was trained
+/// on is its time base: frame `start + k` has time `k / frames`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Segment {
+    pub start: usize,
+    pub frames: usize,
+}
+
+/// The start of the PLY comment that records a video model's training segment.
+const SEGMENT_COMMENT: &str = "lpmsplat video segment";
+
+impl Segment {
+    /// One past the last frame.
+    pub fn end(&self) -> usize {
+        self.start + self.frames
+    }
+
+    /// The same frames as a `--frames` range.
+    pub fn range(&self) -> FrameRange {
+        FrameRange {
+            start: self.start,
+            count: Some(self.frames),
+        }
+    }
+
+    /// The PLY comment that records this segment as a model's time base:
+    /// `lpmsplat video segment START..END`.
+    pub fn comment(&self) -> String {
+        format!("{SEGMENT_COMMENT} {}..{}", self.start, self.end())
+    }
+
+    /// The segment recorded in a PLY's comments (`path` names the file in errors); `None` when
+    /// no comment records one (a still model, or a video model written before models recorded
+    /// their segment).
+    pub fn from_comments(path: &Path, comments: &[String]) -> anyhow::Result<Option<Segment>> {
+        let Some(text) = comments
+            .iter()
+            .find_map(|c| c.strip_prefix(SEGMENT_COMMENT))
+        else {
+            return Ok(None);
+        };
+        match text.trim().parse::<FrameRange>() {
+            Ok(FrameRange {
+                start,
+                count: Some(frames),
+            }) => Ok(Some(Segment { start, frames })),
+            _ => crate::error::bad_input(
+                path,
+                format!("header comment `{SEGMENT_COMMENT}{text}`"),
+                "is not a segment START..END",
+                "fix the comment to the frames the model was trained on (e.g. `lpmsplat video \
+                 segment 0..50`) or delete the line",
+            ),
+        }
+    }
+}
+
 /// Which layout a video scene came in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum VideoLayout {
@@ -95,6 +155,9 @@ pub struct VideoScene {
     pub first_frame: usize,
     /// Frames in the segment (every camera has this many).
     pub frames: usize,
+    /// The segment whose normalisation gives the frames their times: the loaded one, or the
+    /// one a model was trained on (`LoadOptions::time_base`), which holds the loaded one.
+    pub time_base: Segment,
     /// Indices into `cameras`.
     pub train: Vec<usize>,
     pub test: Vec<usize>,
@@ -117,23 +180,59 @@ impl VideoScene {
 
     /// Loads the video scene in `root` (`opts.resolution_factor` and the width cap apply as for
     /// still scenes).
+    /// With `opts.time_base` the frames take their times from that segment (a trained model's),
+    /// which must hold the loaded frames.
     pub fn load(root: &Path, opts: &LoadOptions, range: FrameRange) -> anyhow::Result<Self> {
-        match Self::detect(root) {
-            Some(VideoLayout::Panoptic) => panoptic::load(root, opts, range),
-            Some(VideoLayout::NeuralVideo) => n3v::load(root, opts, range),
+        let mut scene = match Self::detect(root) {
+            Some(VideoLayout::Panoptic) => panoptic::load(root, opts, range)?,
+            Some(VideoLayout::NeuralVideo) => n3v::load(root, opts, range)?,
             None => crate::error::bad_input(
                 root,
                 "video scene folder",
                 "holds neither train_meta.json (Panoptic / Dynamic 3D Gaussians) nor \
                  poses_bounds.npy (Neural 3D Video)",
                 "point at the scene's top folder",
-            ),
+            )?,
+        };
+        if let Some(base) = opts.time_base {
+            let loaded = scene.segment();
+            if loaded.start < base.start || loaded.end() > base.end() {
+                return crate::error::bad_input(
+                    root,
+                    "frames",
+                    format!(
+                        "the frames {}..{} lie outside the segment {}..{} the model was trained \
+                         on (a video model knows only the times of its own segment)",
+                        loaded.start,
+                        loaded.end(),
+                        base.start,
+                        base.end()
+                    ),
+                    format!(
+                        "pass --frames within {}..{}, or leave it out for the whole segment",
+                        base.start,
+                        base.end()
+                    ),
+                );
+            }
+            scene.time_base = base;
+        }
+        Ok(scene)
+    }
+
+    /// The loaded frames.
+    pub fn segment(&self) -> Segment {
+        Segment {
+            start: self.first_frame,
+            frames: self.frames,
         }
     }
 
-    /// The time of segment frame `frame`: `frame / frames` (SpacetimeGaussians' normalisation).
+    /// The time of loaded frame `frame`: its place in the time base, `(first_frame + frame −
+    /// base start) / base frames` (SpacetimeGaussians' normalisation; `frame / frames` when the
+    /// loaded segment is the time base).
     pub fn time(&self, frame: usize) -> f64 {
-        frame as f64 / self.frames as f64
+        (self.first_frame + frame - self.time_base.start) as f64 / self.time_base.frames as f64
     }
 
     /// Camera `camera` at segment frame `frame` as a still view (its image and camera).
@@ -182,6 +281,7 @@ impl VideoScene {
             background: None,
             has_alpha: false,
             view_times: Some(times),
+            time_base: Some(self.time_base),
         }
     }
 
@@ -202,6 +302,7 @@ impl VideoScene {
             background: None,
             has_alpha: false,
             view_times: None,
+            time_base: None,
         }
     }
 }
@@ -264,6 +365,10 @@ fn finish(
         cameras,
         first_frame,
         frames,
+        time_base: Segment {
+            start: first_frame,
+            frames,
+        },
         train,
         test,
         center: [0.0; 3],

@@ -103,6 +103,8 @@ pub(super) struct Element {
 pub(super) struct Header {
     pub(super) format: Format,
     pub(super) elements: Vec<Element>,
+    /// The text of every `comment` line, in order (without the keyword).
+    pub(super) comments: Vec<String>,
     /// Byte offset of the body.
     pub(super) body: usize,
 }
@@ -124,6 +126,7 @@ pub(super) fn parse_header(path: &Path, bytes: &[u8]) -> anyhow::Result<Header> 
     let mut lines = 0usize;
     let mut format = None;
     let mut elements: Vec<Element> = Vec::new();
+    let mut comments = Vec::new();
     loop {
         let Some(nl) = bytes[pos..].iter().position(|&b| b == b'\n') else {
             if lines == 0 {
@@ -168,7 +171,11 @@ pub(super) fn parse_header(path: &Path, bytes: &[u8]) -> anyhow::Result<Header> 
         let mut tok = line.split_ascii_whitespace();
         let field = || format!("header line {lines} (`{line}`)");
         match tok.next() {
-            None | Some("comment") | Some("obj_info") => {}
+            Some("comment") => {
+                let text = line.trim_start().strip_prefix("comment").unwrap_or("");
+                comments.push(text.trim().to_string());
+            }
+            None | Some("obj_info") => {}
             Some("end_header") => break,
             Some("format") => {
                 format = Some(match tok.next() {
@@ -279,6 +286,7 @@ pub(super) fn parse_header(path: &Path, bytes: &[u8]) -> anyhow::Result<Header> 
     Ok(Header {
         format,
         elements,
+        comments,
         body: pos,
     })
 }

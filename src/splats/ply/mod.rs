@@ -32,6 +32,23 @@ use crate::error::{bad_input, write_atomic, InputError};
 /// Writes `params` to `path` in the Inria layout, atomically: on any failure (including a model
 /// that fails [`GaussianParams::validate`]) an existing file at `path` is left untouched.
 pub fn write_ply(path: &Path, params: &GaussianParams) -> anyhow::Result<()> {
+    write_ply_with_comments(path, params, &[])
+}
+
+/// [`write_ply`] with `comments` as `comment` lines of the header (one line each: a comment
+/// holding a line break is refused), e.g. the segment of frames a video model was trained on.
+/// Readers that do not know them skip them.
+pub fn write_ply_with_comments(
+    path: &Path,
+    params: &GaussianParams,
+    comments: &[String],
+) -> anyhow::Result<()> {
+    if let Some(c) = comments.iter().find(|c| c.contains(['\n', '\r'])) {
+        anyhow::bail!(
+            "{}: a PLY comment must be one line, not {c:?}",
+            path.display()
+        );
+    }
     params
         .validate()
         .with_context(|| format!("{}: refusing to write an invalid model", path.display()))?;
@@ -44,7 +61,13 @@ pub fn write_ply(path: &Path, params: &GaussianParams) -> anyhow::Result<()> {
             .iter()
             .flat_map(|e| extra_property_names(&e.group)),
     );
-    let mut header = format!("ply\nformat binary_little_endian 1.0\nelement vertex {n}\n");
+    let mut header = String::from("ply\nformat binary_little_endian 1.0\n");
+    for c in comments {
+        header.push_str("comment ");
+        header.push_str(c);
+        header.push('\n');
+    }
+    header.push_str(&format!("element vertex {n}\n"));
     for name in &names {
         header.push_str("property float ");
         header.push_str(name);
@@ -167,6 +190,22 @@ pub fn read_ply_two_scales(path: &Path, third_log_scale: f32) -> anyhow::Result<
 /// file can be told before reading it as one. Empty when the file has no vertex element (the
 /// readers then say so).
 pub fn vertex_property_names(path: &Path) -> anyhow::Result<Vec<String>> {
+    let header = read_header(path)?;
+    Ok(header
+        .elements
+        .iter()
+        .find(|e| e.name == "vertex")
+        .map(|e| e.props.iter().map(|p| p.name.clone()).collect())
+        .unwrap_or_default())
+}
+
+/// The text of a PLY's `comment` lines, in order, from its header alone.
+pub fn ply_comments(path: &Path) -> anyhow::Result<Vec<String>> {
+    Ok(read_header(path)?.comments)
+}
+
+/// Reads and parses the header of the PLY at `path` without reading its body.
+fn read_header(path: &Path) -> anyhow::Result<header::Header> {
     use std::io::Read;
     let mut head = Vec::new();
     std::fs::File::open(path)
@@ -175,13 +214,7 @@ pub fn vertex_property_names(path: &Path) -> anyhow::Result<Vec<String>> {
                 .read_to_end(&mut head)
         })
         .map_err(|e| open_error(path, e))?;
-    let header = header::parse_header(path, &head)?;
-    Ok(header
-        .elements
-        .iter()
-        .find(|e| e.name == "vertex")
-        .map(|e| e.props.iter().map(|p| p.name.clone()).collect())
-        .unwrap_or_default())
+    header::parse_header(path, &head)
 }
 
 /// The error for a model file that cannot be opened or read.
