@@ -393,6 +393,47 @@ fn reference_decoder_backward_matches_finite_differences() {
     }
 }
 
+/// The time features `[f_spec, (t − c)·f_t]` against central differences of a random linear
+/// loss, with `t − c` held constant as in training (the specification's chain rule,
+/// ../shared/docs/BASE_MODELS.md §4.4, gives the temporal centre no gradient through the
+/// features: only `∂L/∂f_t = Δ·∂L/∂F[6:9]`).
+#[test]
+fn reference_time_features_backward_matches_finite_differences() {
+    let mut rng = Pcg64::seed_from_u64(13);
+    let h = 1e-6;
+    for case in 0..50 {
+        let f_spec = [0; 3].map(|_| rng.gen_range(-2.0..2.0f64));
+        let f_t = [0; 3].map(|_| rng.gen_range(-2.0..2.0f64));
+        let (t, c) = (rng.gen_range(0.0..1.0f64), rng.gen_range(-0.5..1.5f64));
+        let dl = [0; 6].map(|_| rng.gen_range(-1.0..1.0f64));
+        let loss = |s: [f64; 3], ft: [f64; 3]| -> f64 {
+            let f = decoder::time_features(s, ft, t, c);
+            (0..6).map(|k| f[k] * dl[k]).sum()
+        };
+        let (gs, gt) = decoder::time_features_backward(dl, t, c);
+        for k in 0..3 {
+            let (mut sp, mut sm) = (f_spec, f_spec);
+            sp[k] += h;
+            sm[k] -= h;
+            let fd = (loss(sp, f_t) - loss(sm, f_t)) / (2.0 * h);
+            assert!(
+                (fd - gs[k]).abs() < 1e-8,
+                "case {case} f_spec[{k}]: fd {fd} vs {}",
+                gs[k]
+            );
+            let (mut tp, mut tm) = (f_t, f_t);
+            tp[k] += h;
+            tm[k] -= h;
+            let fd = (loss(f_spec, tp) - loss(f_spec, tm)) / (2.0 * h);
+            assert!(
+                (fd - gt[k]).abs() < 1e-8,
+                "case {case} f_t[{k}]: fd {fd} vs {}",
+                gt[k]
+            );
+        }
+    }
+}
+
 #[test]
 fn decoder_matches_the_reference_forward_and_backward() {
     let ctx = ctx();
