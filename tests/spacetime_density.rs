@@ -10,6 +10,7 @@ use lpmsplat::models::BaseModel;
 use lpmsplat::scene::{images, LoadOptions, Scene};
 use lpmsplat::splats::{random_init, GaussianParams};
 use lpmsplat::train::config::ChildTime;
+use lpmsplat::train::density::{DensifyArgs, DensifyPhase, DensityConfig, Thresholds};
 use lpmsplat::train::passes::spacetime::random_child_centre;
 use lpmsplat::train::trainer::{TrainConfig, Trainer};
 
@@ -91,6 +92,36 @@ fn clones_and_children_get_random_temporal_centres() {
             assert!(before.contains(c), "row {row}: {c} is no parent's centre");
         }
     }
+}
+
+/// The prune-only rounds remove by opacity alone, as the official code's later rounds do: the
+/// world- and screen-size prunes that 3DGS's combined step applies after the first opacity
+/// reset are off there (and in the grow-only rounds, which prune nothing).
+#[test]
+fn prune_only_rounds_prune_by_opacity_alone() {
+    let cfg = DensityConfig {
+        screen_size_limit: Some(20.0),
+        ..DensityConfig::default()
+    };
+    let at = |phase| {
+        let args = DensifyArgs {
+            extent: 3.0,
+            prune_large: true,
+            iteration: 5000,
+            phase,
+        };
+        Thresholds::new(&cfg, &args).unwrap()
+    };
+    let both = at(DensifyPhase::Both);
+    assert!(both.prune_large && both.screen_max == 20.0, "{both:?}");
+    assert!(both.min_opacity_logit.is_finite() && both.grad_threshold.is_finite());
+    let prune = at(DensifyPhase::PruneOnly);
+    assert!(!prune.prune_large && prune.screen_max < 0.0, "{prune:?}");
+    assert_eq!(prune.min_opacity_logit, both.min_opacity_logit);
+    assert_eq!(prune.grad_threshold, f32::INFINITY);
+    let grow = at(DensifyPhase::GrowOnly);
+    assert!(!grow.prune_large && grow.screen_max < 0.0, "{grow:?}");
+    assert_eq!(grow.min_opacity_logit, f32::NEG_INFINITY);
 }
 
 /// SpacetimeGaussians' rounds (`--growth-rounds`): the first densify steps clone and split and

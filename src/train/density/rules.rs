@@ -129,7 +129,9 @@ pub enum DensifyPhase {
     /// Clone and split; nothing is pruned (the official code computes the prune mask in these
     /// rounds but does not apply it).
     GrowOnly,
-    /// Prune only: no Gaussian crosses the gradient threshold.
+    /// Prune only, and by opacity alone: no Gaussian crosses the gradient threshold, and the
+    /// world- and screen-size prunes are off (the official code's later rounds remove only
+    /// what is fainter than the floor).
     PruneOnly,
 }
 
@@ -211,8 +213,10 @@ impl Thresholds {
             },
             log_world_max: (cfg.max_world_fraction * args.extent).ln() as f32,
             log_split_shrink: cfg.split_shrink.ln() as f32,
-            screen_max: if prunes { screen_max } else { -1.0 },
-            prune_large: args.prune_large && prunes,
+            // Size prunes belong to 3DGS's combined step only: a grow-only round prunes
+            // nothing, a prune-only round (SpacetimeGaussians' later rounds) only the faint.
+            screen_max: if grows && prunes { screen_max } else { -1.0 },
+            prune_large: args.prune_large && grows && prunes,
         })
     }
 }
