@@ -1,6 +1,7 @@
 //! GPU density control against the host reference (`train::density::reference`): statistics,
-//! decisions, compaction of every per-Gaussian buffer, split samples, opacity reset, growth past
-//! the capacity, the decision hook. Validation on; destinations poisoned before every step.
+//! decisions, compaction of every per-Gaussian buffer, split samples (a 2DGS surfel's in its
+//! plane), opacity reset, growth past the capacity, the decision hook. Validation on;
+//! destinations poisoned before every step.
 
 use lpmsplat::gpu::{BufferKind, GpuBuffer, GpuContext, GpuOptions, Recorder};
 use lpmsplat::render::layout::ProjectedBoundsGpu;
@@ -677,6 +678,112 @@ fn split_children_are_samples_of_the_parent_and_deterministic() {
     assert_eq!(bits(&a.positions), bits(&b.positions));
     let c = run(6);
     assert_ne!(a.positions[0], c.positions[0]);
+    ctx.check_validation().unwrap();
+}
+
+/// 2DGS's split on the GPU path: surfels live in the 3DGS buffers with the unused third
+/// log-scale (`UNUSED_LOG_SCALE`, e^−20), so a split samples its children in the parent's
+/// plane, as the official 2DGS split does (std (s_u, s_v, 0)): each child's offset along the
+/// parent's normal (the rotation's third column) is f32 rounding of the position, while its
+/// offsets along the two tangent axes, divided by the parent's two scales, are standard
+/// normal. The children keep the rotation and every log-scale shrinks by ln 1.6, the third
+/// included (it only gets smaller).
+#[test]
+fn surfel_split_children_stay_in_the_parents_plane() {
+    use lpmsplat::train::passes::surfels::UNUSED_LOG_SCALE;
+    let ctx = ctx();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(17);
+    let n = 2_000usize;
+    let mut p = GaussianParams::empty(0);
+    for _ in 0..n {
+        p.positions.push([(); 3].map(|_| rng.gen_range(-2.0..2.0)));
+        // In-plane scales 0.03–0.3 of an extent of 1: all above percent_dense, so all split.
+        p.log_scales.push([
+            rng.gen_range(0.03f32.ln()..0.3f32.ln()),
+            rng.gen_range(0.03f32.ln()..0.3f32.ln()),
+            UNUSED_LOG_SCALE,
+        ]);
+        p.rotations.push([(); 4].map(|_| normal(&mut rng)));
+        p.opacity_logits.push(1.0);
+        p.sh_dc.push([0.1, 0.2, 0.3]);
+    }
+    let host = HostState {
+        m: random_moments(&mut rng, n, 0, false),
+        v: random_moments(&mut rng, n, 0, true),
+        params: p.clone(),
+    };
+    let stats = HostStats {
+        grad_accum: vec![1e-3; n],
+        denom: vec![1.0; n],
+        max_radii: vec![0.0; n],
+        abs_accum: vec![0.0; n],
+    };
+    let mut state = upload_state(&ctx, &host, 2 * n);
+    let mut dc = DensityControl::new(
+        &ctx,
+        2 * n,
+        DensityConfig {
+            seed: 3,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    upload_stats(&dc, &stats);
+    let args = DensifyArgs {
+        extent: 1.0,
+        prune_large: false,
+        iteration: 900,
+        phase: DensifyPhase::Both,
+    };
+    let mut rec = Recorder::new(&ctx).unwrap();
+    let out = dc.step(&mut rec, &mut state, &args, None).unwrap();
+    assert_eq!((out.kept, out.split_children, out.after), (0, 2 * n, 2 * n));
+    let c = download_state(&state).params;
+    let shrink = 1.6f64.ln() as f32;
+    let (mut worst_normal, mut worst_rel) = (0.0f64, 0.0f64);
+    let mut moments = [0.0f64; 2];
+    for (row, parent) in (0..2 * n).map(|r| (r, r / 2)) {
+        assert_eq!(
+            c.rotations[row], p.rotations[parent],
+            "child {row}'s rotation"
+        );
+        assert_eq!(
+            c.log_scales[row],
+            p.log_scales[parent].map(|v| v - shrink),
+            "child {row}'s log-scales"
+        );
+        let q = p.rotations[parent].map(|v| v as f64);
+        let (u, _) = lpmsplat::reference::project::normalize_quat(q).unwrap();
+        let r = lpmsplat::reference::project::quat_to_rotation(u);
+        let d: [f64; 3] =
+            [0, 1, 2].map(|k| c.positions[row][k] as f64 - p.positions[parent][k] as f64);
+        let along = |axis: usize| (0..3).map(|k| r[k][axis] * d[k]).sum::<f64>();
+        // Rounding: the position's f32 ulp (|p| ≤ 2·√3 + 1) and the parent's as the input.
+        let ulp = 2.0 * f32::EPSILON as f64 * 4.5;
+        worst_normal = worst_normal.max(along(2).abs());
+        assert!(
+            along(2).abs() <= ulp,
+            "child {row}: {:e} off its parent's plane (offset {d:?})",
+            along(2)
+        );
+        let s = p.log_scales[parent].map(|v| (v as f64).exp());
+        for (m, axis) in moments.iter_mut().zip([0, 1]) {
+            *m += (along(axis) / s[axis]).powi(2) / (2 * n) as f64;
+        }
+        let tangent = (along(0).powi(2) + along(1).powi(2)).sqrt();
+        worst_rel = worst_rel.max(along(2).abs() / tangent.max(1e-30));
+    }
+    eprintln!(
+        "{} children: largest offset along the normal {worst_normal:e} ({worst_rel:e} of the \
+         in-plane offset); in-plane variance / scale²: {:.3}, {:.3}",
+        2 * n,
+        moments[0],
+        moments[1]
+    );
+    // Standard normal samples: the variance of 4,000 is 1 within 0.1 (4.5 standard errors).
+    for m in moments {
+        assert!((m - 1.0).abs() < 0.1, "in-plane variance / scale² {m}");
+    }
     ctx.check_validation().unwrap();
 }
 

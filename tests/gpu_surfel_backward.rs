@@ -2,8 +2,10 @@
 //! (`reference::surfel::backward`): random scenes with random gradients on every output
 //! (image, alpha, depth numerator, median depth, normal, distortion), both atomic paths, smooth
 //! and normal mode, low-pass-dominated scenes, the official densification statistic, and the
-//! unused third log-scale of a 3DGS-shaped buffer. Gradient outputs are poisoned first; the
-//! validation layer is on.
+//! unused third log-scale of a 3DGS-shaped buffer; the regularisers' passes against
+//! `reference::surfel::regularise`, their forward values (surface depth, normal-consistency
+//! terms, both losses) and their gradients. Outputs are poisoned first; the validation layer is
+//! on.
 #![allow(clippy::too_many_arguments)]
 
 mod child_run;
@@ -18,7 +20,7 @@ use lpmsplat::render::forward::Capacity;
 use lpmsplat::render::layout::CameraGpu;
 use lpmsplat::render::surfel::backward::{SurfelBackward, SurfelBackwardArgs, MAP_GRADS_STRIDE};
 use lpmsplat::render::surfel::forward::{SurfelFrameSettings, SurfelRenderer};
-use lpmsplat::render::surfel::layout::SurfelConstants;
+use lpmsplat::render::surfel::layout::{SurfelConstants, MAPS_STRIDE};
 use lpmsplat::render::surfel::regularise::{RegulariserWeights, SurfelRegularisers};
 use lpmsplat::scene::{PinholeCamera, Pose};
 use lpmsplat::splats::gpu::GpuSplats;
@@ -522,6 +524,101 @@ fn a_short_gradient_buffer_is_refused() {
     );
 }
 
+/// One frame of a dense random scene (interior pixels with a surface to take normals of) with
+/// the regularisers: the GPU frame and its regulariser passes, and the reference forward of
+/// the same f32 values.
+struct RegularisedFrame {
+    camera: PinholeCamera,
+    weights: RegulariserWeights,
+    px: usize,
+    renderer: SurfelRenderer,
+    regs: SurfelRegularisers,
+    /// dL/d(maps) as the GPU wrote it (poisoned before).
+    dl_dmaps: Vec<f32>,
+    fwd: surfel::SurfelRenderOutput,
+}
+
+impl RegularisedFrame {
+    /// Whether the f32 frame blended the same surfels as the f64 one (else not comparable).
+    fn comparable(&self) -> bool {
+        let f = &self.renderer.base.frame;
+        f.last_index.read_range(0, self.px).unwrap() == self.fwd.raster.last_contributor
+    }
+}
+
+/// Draws the scene of `seed` from `rng` (normal weight 0.05–0.15, distortion 100, expected
+/// depth on even seeds and median on odd ones) and runs both sides.
+fn regularised_frame(ctx: &Arc<GpuContext>, rng: &mut Pcg64, seed: u64) -> RegularisedFrame {
+    let mut s = random_scene(rng, SurfelSettings::default(), 0.8);
+    for _ in 0..20 {
+        let extra = random_surfels(rng, 1);
+        s.surfels.positions.extend(extra.positions);
+        s.surfels
+            .log_scales
+            .extend(extra.log_scales.iter().map(|l| l.map(|v| v + 0.8)));
+        s.surfels.rotations.extend(extra.rotations);
+        s.surfels.opacity_logits.extend(extra.opacity_logits);
+        s.surfels.sh.extend(extra.sh);
+    }
+    let weights = RegulariserWeights {
+        normal: 0.05 * (1 + seed % 3) as f32,
+        distortion: 100.0,
+        depth_ratio: (seed % 2) as f32,
+    };
+    let params = s.surfels.to_params(3, THIRD);
+    let exact = RefSurfels::from_params(&params);
+    let n = params.len();
+    let splats = GpuSplats::upload(ctx, &params, n).unwrap();
+    let cam = CameraGpu::new(&s.camera, &s.pose);
+    let cameras = GpuBuffer::from_slice(ctx, "cameras", &[cam]).unwrap();
+    let mut renderer = SurfelRenderer::new(ctx, Capacity::single()).unwrap();
+    let constants = SurfelConstants::from_settings(&s.settings);
+    renderer
+        .render_blocking(
+            &splats,
+            3,
+            &cameras,
+            0,
+            &cam,
+            &SurfelFrameSettings {
+                sh_degree: s.sh_degree,
+                background: s.background,
+                constants,
+            },
+        )
+        .unwrap();
+    let px = (s.camera.width * s.camera.height) as usize;
+    let regs = SurfelRegularisers::new(ctx, px).unwrap();
+    // The scratch outputs too: a pass that skipped a pixel would leave NaN.
+    regs.surf_depth.upload(&vec![f32::NAN; px]).unwrap();
+    regs.terms.upload(&vec![f32::NAN; px]).unwrap();
+    let dl_dmaps =
+        GpuBuffer::from_slice(ctx, "dl_dmaps", &vec![f32::NAN; px * MAP_GRADS_STRIDE]).unwrap();
+    let mut rec = Recorder::new(ctx).unwrap();
+    regs.record(&mut rec, &renderer, &cameras, 0, &cam, &weights, &dl_dmaps)
+        .unwrap();
+    rec.submit_and_wait().unwrap();
+    let bg = s.background.map(|v| v as f64);
+    let fwd = surfel::render(
+        &exact,
+        &s.camera,
+        &s.pose,
+        s.sh_degree as usize,
+        bg,
+        &s.settings,
+    )
+    .unwrap();
+    RegularisedFrame {
+        camera: s.camera,
+        weights,
+        px,
+        renderer,
+        regs,
+        dl_dmaps: dl_dmaps.read().unwrap(),
+        fwd,
+    }
+}
+
 /// The regularisers' GPU passes (surface depth, depth normals, gather) against
 /// `reference::surfel::regularise` on the same frames: every slot of dL/d(maps).
 #[test]
@@ -530,74 +627,22 @@ fn regulariser_map_gradients_match_the_reference() {
     let mut rng = Pcg64::seed_from_u64(4242);
     let (mut compared, mut with_normals) = (0, 0);
     for seed in 0..16u64 {
-        let mut s = random_scene(&mut rng, SurfelSettings::default(), 0.8);
-        for _ in 0..20 {
-            // Dense scenes: interior pixels with a surface to take normals of.
-            let extra = random_surfels(&mut rng, 1);
-            s.surfels.positions.extend(extra.positions);
-            s.surfels
-                .log_scales
-                .extend(extra.log_scales.iter().map(|l| l.map(|v| v + 0.8)));
-            s.surfels.rotations.extend(extra.rotations);
-            s.surfels.opacity_logits.extend(extra.opacity_logits);
-            s.surfels.sh.extend(extra.sh);
-        }
-        let ratio = (seed % 2) as f32;
-        let weights = RegulariserWeights {
-            normal: 0.05 * (1 + seed % 3) as f32,
-            distortion: 100.0,
-            depth_ratio: ratio,
-        };
-        let params = s.surfels.to_params(3, THIRD);
-        let exact = RefSurfels::from_params(&params);
-        let n = params.len();
-        let splats = GpuSplats::upload(&ctx, &params, n).unwrap();
-        let cam = CameraGpu::new(&s.camera, &s.pose);
-        let cameras = GpuBuffer::from_slice(&ctx, "cameras", &[cam]).unwrap();
-        let mut renderer = SurfelRenderer::new(&ctx, Capacity::single()).unwrap();
-        let constants = SurfelConstants::from_settings(&s.settings);
-        renderer
-            .render_blocking(
-                &splats,
-                3,
-                &cameras,
-                0,
-                &cam,
-                &SurfelFrameSettings {
-                    sh_degree: s.sh_degree,
-                    background: s.background,
-                    constants,
-                },
-            )
-            .unwrap();
-        let px = (s.camera.width * s.camera.height) as usize;
-        let regs = SurfelRegularisers::new(&ctx, px).unwrap();
-        let dl_dmaps =
-            GpuBuffer::from_slice(&ctx, "dl_dmaps", &vec![f32::NAN; px * MAP_GRADS_STRIDE])
-                .unwrap();
-        let mut rec = Recorder::new(&ctx).unwrap();
-        regs.record(&mut rec, &renderer, &cameras, 0, &cam, &weights, &dl_dmaps)
-            .unwrap();
-        rec.submit_and_wait().unwrap();
-        let got = dl_dmaps.read().unwrap();
-        let bg = s.background.map(|v| v as f64);
-        let fwd = surfel::render(
-            &exact,
-            &s.camera,
-            &s.pose,
-            s.sh_degree as usize,
-            bg,
-            &s.settings,
-        )
-        .unwrap();
-        if renderer.base.frame.last_index.read_range(0, px).unwrap() != fwd.raster.last_contributor
-        {
+        let frame = regularised_frame(&ctx, &mut rng, seed);
+        if !frame.comparable() {
             continue;
         }
+        let RegularisedFrame {
+            camera,
+            weights,
+            px,
+            dl_dmaps: got,
+            fwd,
+            ..
+        } = frame;
         let (_, gn) = regularise::normal_consistency(
             &fwd.raster,
-            &s.camera,
-            ratio as f64,
+            &camera,
+            weights.depth_ratio as f64,
             weights.normal as f64,
         );
         let (_, gd) = regularise::distortion_loss(&fwd.raster, weights.distortion as f64);
@@ -635,6 +680,103 @@ fn regulariser_map_gradients_match_the_reference() {
         }
         compared += 1;
     }
+    assert!(compared >= 12, "only {compared} of 16 scenes comparable");
+    assert!(
+        with_normals >= 10,
+        "only {with_normals} scenes had surface normals"
+    );
+    ctx.check_validation().unwrap();
+}
+
+/// The regularisers' forward values on the GPU against `reference::surfel::regularise` on the
+/// same frames (the scenes of `regulariser_map_gradients_match_the_reference`): the
+/// surface-depth map, the per-pixel normal-consistency term `1 − alpha·N·n̂` and the two losses
+/// (λ·mean of the terms, λ·mean of the distortion map). Measured on lavapipe: surface depth
+/// within 3.3e-5 (relative), terms within 2.4e-5, losses within 1.3e-4 (relative).
+#[test]
+fn regulariser_forward_values_match_the_reference() {
+    let ctx = ctx();
+    let mut rng = Pcg64::seed_from_u64(4242);
+    let (mut compared, mut with_normals) = (0, 0);
+    let (mut worst_depth, mut worst_term, mut worst_loss) = (0.0f64, 0.0f64, 0.0f64);
+    for seed in 0..16u64 {
+        let frame = regularised_frame(&ctx, &mut rng, seed);
+        if !frame.comparable() {
+            continue;
+        }
+        let (px, w) = (frame.px, &frame.weights);
+        let raster = &frame.fwd.raster;
+        let label = format!("regularisers seed {seed} (depth ratio {})", w.depth_ratio);
+        let got_depth = frame.regs.surf_depth.read_range(0, px).unwrap();
+        let got_terms = frame.regs.terms.read_range(0, px).unwrap();
+        let maps = frame
+            .renderer
+            .surfel
+            .maps
+            .read_range(0, px * MAPS_STRIDE)
+            .unwrap();
+        let (depth, _) = regularise::surface_depth(raster, w.depth_ratio as f64);
+        compare(
+            &format!("{label} surface depth"),
+            &got_depth,
+            &depth,
+            1e-4,
+            1e-5,
+        );
+        for (g, r) in got_depth.iter().zip(&depth) {
+            worst_depth = worst_depth.max((*g as f64 - r).abs() / r.abs().max(1.0));
+        }
+        // The terms from the reference's depth normals.
+        let normals = regularise::depth_normals(&frame.camera, &depth);
+        let terms: Vec<f64> = (0..px)
+            .map(|p| {
+                let n = normals[p];
+                let r = raster.normal[p];
+                1.0 - raster.alpha[p] * (r[0] * n[0] + r[1] * n[1] + r[2] * n[2])
+            })
+            .collect();
+        compare(
+            &format!("{label} normal terms"),
+            &got_terms,
+            &terms,
+            1e-4,
+            2e-4,
+        );
+        for (g, r) in got_terms.iter().zip(&terms) {
+            worst_term = worst_term.max((*g as f64 - r).abs());
+        }
+        // The losses: the GPU's terms and distortion map summed on the host, as a report would.
+        let (want_normal, _) = regularise::normal_consistency(
+            raster,
+            &frame.camera,
+            w.depth_ratio as f64,
+            w.normal as f64,
+        );
+        let got_normal =
+            w.normal as f64 * got_terms.iter().map(|&t| t as f64).sum::<f64>() / px as f64;
+        let (want_dist, _) = regularise::distortion_loss(raster, w.distortion as f64);
+        let got_dist = w.distortion as f64
+            * (0..px)
+                .map(|p| maps[p * MAPS_STRIDE + 5] as f64)
+                .sum::<f64>()
+            / px as f64;
+        for (what, g, r) in [
+            ("normal consistency", got_normal, want_normal),
+            ("distortion", got_dist, want_dist),
+        ] {
+            let err = (g - r).abs() / r.abs().max(1e-6);
+            worst_loss = worst_loss.max(err);
+            assert!(err < 1e-3, "{label}: {what} loss {g:e} vs reference {r:e}");
+        }
+        if normals.iter().any(|n| *n != [0.0; 3]) {
+            with_normals += 1;
+        }
+        compared += 1;
+    }
+    eprintln!(
+        "{compared} scenes: surface depth within {worst_depth:.1e} (relative), terms within \
+         {worst_term:.1e}, losses within {worst_loss:.1e} (relative)"
+    );
     assert!(compared >= 12, "only {compared} of 16 scenes comparable");
     assert!(
         with_normals >= 10,

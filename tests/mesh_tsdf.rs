@@ -1,7 +1,8 @@
 //! The TSDF fusion and marching-tetrahedra extraction against known geometry: exact depth maps
-//! of a sphere and of a box seen from several cameras give a closed mesh whose vertices lie on
-//! the surface (mesh-to-surface distance a fraction of a voxel), facing outwards, with the
-//! fused colours; masks and the depth cut keep pixels out; small pieces are dropped.
+//! of a sphere seen from several cameras give a closed mesh whose vertices lie on the surface
+//! (mesh-to-surface distance a fraction of a voxel), facing outwards, with the fused colours;
+//! masks and the depth cut keep pixels out; small pieces are dropped; the preview shows it.
+//! `tests/mesh_2dgs.rs` fuses depths rendered from surfels, in process and through `mesh`.
 
 use lpmsplat::mesh::extract::extract;
 use lpmsplat::mesh::tsdf::{DepthView, Tsdf};
