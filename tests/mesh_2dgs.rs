@@ -594,6 +594,27 @@ fn mesh_cli_finds_masks_by_stem_and_dtu_number_and_resizes_them() {
     assert!(lo > -(5.0 * 0.04 + 2.0 * 0.04), "a vertex at y = {lo}");
     assert!(y_range(&read_mesh_ply(&dir.path().join("none.ply")).vertices).0 < -0.9 * RADIUS);
 
+    // A scene with its own `mask/` folder (DTU's layout) is meshed with it by default;
+    // --no-masks fuses every pixel.
+    let own = scene.join("mask");
+    write_masks(&own, 2, 2, |k| format!("{k:03}.png"));
+    assert!(
+        mesh(None, "own.ply") == c,
+        "the scene's mask/ folder was not used"
+    );
+    let out = dir.path().join("no_masks.ply");
+    run_ok(&mut mesh_cmd(
+        &scene,
+        &ply,
+        &out,
+        &["-r", "2", "--voxel", "0.04", "--no-masks"],
+    ));
+    assert!(
+        std::fs::read(out).unwrap() == none,
+        "--no-masks still masked"
+    );
+    std::fs::remove_dir_all(&own).unwrap();
+
     // View 3 (a training view) without its mask.
     std::fs::remove_file(dtu.join("003.png")).unwrap();
     let (ok, text) = run(&mut mesh_cmd(

@@ -46,9 +46,12 @@ pub struct MeshArgs {
     pub depth_trunc: Option<f64>,
     /// Folder of object masks (PNG, white = object), named like the images (`<stem>.png`) or
     /// by the image's number (DTU's `mask/000.png` for `images/000000.jpg`); pixels outside a
-    /// mask do not vote.
-    #[arg(long)]
+    /// mask do not vote. Default: the scene's own `mask/` or `masks/` folder when it has one.
+    #[arg(long, conflicts_with = "no_masks")]
     pub masks: Option<PathBuf>,
+    /// Fuse every pixel, even when the scene has a mask folder.
+    #[arg(long)]
+    pub no_masks: bool,
     /// Drop connected pieces with fewer triangles (official 50).
     #[arg(long, default_value_t = 50)]
     pub min_triangles: usize,
@@ -89,6 +92,13 @@ pub fn run(gpu: &GpuOptions, args: &MeshArgs) -> anyhow::Result<()> {
     let mut renderer =
         BaseModel::Surfels2d.view_renderer(&ctx, params.len(), &cams[0], None, None)?;
     let depth_trunc = args.depth_trunc.unwrap_or(f64::INFINITY);
+    let masks = mask_folder(args);
+    if let (Some(dir), None) = (&masks, &args.masks) {
+        println!(
+            "using the scene's object masks in {} (--no-masks fuses every pixel)",
+            dir.display()
+        );
+    }
     // Render every view once: surface depth, colour and mask.
     let mut frames = Vec::new();
     for (k, &v) in views.iter().enumerate() {
@@ -102,7 +112,7 @@ pub fn run(gpu: &GpuOptions, args: &MeshArgs) -> anyhow::Result<()> {
                 *d = 0.0;
             }
         }
-        let mask = match &args.masks {
+        let mask = match &masks {
             Some(dir) => Some(load_mask(dir, &scene, v)?),
             None => None,
         };
@@ -191,6 +201,22 @@ pub fn run(gpu: &GpuOptions, args: &MeshArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The mask folder to use: `--masks`, else (unless `--no-masks`) the scene's `mask/` (DTU's
+/// name) or `masks/` folder when it has one, so that a scene shipped with its object masks is
+/// meshed with them as its users expect.
+fn mask_folder(args: &MeshArgs) -> Option<PathBuf> {
+    if args.no_masks {
+        return None;
+    }
+    if let Some(dir) = &args.masks {
+        return Some(dir.clone());
+    }
+    ["mask", "masks"]
+        .iter()
+        .map(|name| args.scene.scene.join(name))
+        .find(|dir| dir.is_dir())
+}
+
 /// The mask of view `v`: `<stem>.png`, else the PNG whose name is the same number as the
 /// image's stem (DTU). Resized to the view's size when the scene was downscaled.
 fn load_mask(dir: &Path, scene: &Scene, v: usize) -> anyhow::Result<Vec<bool>> {
@@ -218,7 +244,7 @@ fn load_mask(dir: &Path, scene: &Scene, v: usize) -> anyhow::Result<Vec<bool>> {
         found.with_context(|| {
             format!(
                 "{}: no mask for view {} (looked for {}.png or a PNG named by its number). \
-                 Fix: name the masks like the images",
+                 Fix: name the masks like the images, or pass --no-masks to fuse every pixel",
                 dir.display(),
                 view.stem,
                 view.stem
