@@ -1187,3 +1187,82 @@ fn lpm_on_2dgs_adds_surfels_facing_the_camera_and_trains_on() {
     }
     ctx.check_validation().unwrap();
 }
+
+/// A density strategy of a user's own: ADC that counts the densify steps it is handed and has
+/// settings of its own.
+struct CountingAdc(Arc<std::sync::atomic::AtomicU32>);
+
+impl lpmsplat::train::strategy::DensityStrategy for CountingAdc {
+    fn name(&self) -> &'static str {
+        "counting-adc"
+    }
+    fn densify(
+        &mut self,
+        t: &mut lpmsplat::train::strategy::DensityContext,
+        at: &lpmsplat::train::strategy::IterationView,
+        args: &lpmsplat::train::density::DensifyArgs,
+    ) -> anyhow::Result<lpmsplat::train::density::DensifyOutcome> {
+        self.0.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+        lpmsplat::train::strategy::Adc.densify(t, at, args)
+    }
+    fn settings_json(&self) -> serde_json::Value {
+        serde_json::json!({ "counting": true })
+    }
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
+        self
+    }
+}
+
+/// LPM wraps whatever strategy it is given (issue 16: LPM as a wrapper around any strategy):
+/// the densify steps it does not run at go to that strategy, and so do its zone-less steps
+/// unless the authors' rule skips them; the wrapped strategy's settings join LPM's in the
+/// run's settings. Densify at iterations 1–4, LPM at 2 and 4; no matches, so no zone.
+#[test]
+fn lpm_hands_the_wrapped_strategy_every_step_it_does_not_densify_itself() {
+    use lpmsplat::train::strategy::DensityStrategy;
+    let ctx = GpuContext::new(&GpuOptions::for_tests()).unwrap();
+    let scene = scene();
+    let gt = ground_truth(&ctx, &scene);
+    let init = initial_model();
+    let mut no_matches = correspondences(&scene);
+    for p in &mut no_matches.pairs {
+        p.xy_a.clear();
+        p.xy_b.clear();
+    }
+    let handed = |skip_adc_without_zone: bool| {
+        let calls = Arc::new(std::sync::atomic::AtomicU32::new(0));
+        let c = LpmConfig {
+            interval: 2,
+            skip_adc_without_zone,
+            ..lpm_config()
+        };
+        let lpm = LpmStrategy::new(&ctx, &scene, &gt, no_matches.clone(), c)
+            .unwrap()
+            .wrapping(Box::new(CountingAdc(calls.clone())));
+        assert_eq!(lpm.settings_json()["lpm"]["wraps"]["counting"], true);
+        let mut t = Trainer::new(&ctx, &scene, &gt, &init, config(1e9, 1)).unwrap();
+        t.set_strategy(Box::new(lpm));
+        let mut lpm_steps = 0;
+        for _ in 0..4 {
+            let r = t.step().unwrap();
+            // Its reset runs every iteration (reset-only reports at 1 and 3); its densify
+            // steps are the others.
+            lpm_steps += lpm_report(&r).map_or(0, |rep| {
+                assert_eq!(rep.zones, 0, "no matches, no zone");
+                u32::from(!rep.reset_only)
+            });
+        }
+        assert_eq!(lpm_steps, 2, "LPM ran at 2 and 4");
+        ctx.check_validation().unwrap();
+        calls.load(std::sync::atomic::Ordering::SeqCst)
+    };
+    assert_eq!(handed(false), 4, "1 and 3, and LPM's zone-less 2 and 4");
+    assert_eq!(
+        handed(true),
+        2,
+        "1 and 3: the authors' rule skips zone-less steps"
+    );
+}
