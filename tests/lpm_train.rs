@@ -196,8 +196,18 @@ fn correspondences(scene: &Scene) -> Correspondences {
 }
 
 fn ground_truth(ctx: &Arc<GpuContext>, scene: &Scene) -> Vec<Image> {
+    renders(ctx, scene, &plane(false), config(1e9, 0))
+}
+
+/// The three views of `model` as a trainer configured by `cfg` renders them.
+fn renders(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    model: &GaussianParams,
+    cfg: TrainConfig,
+) -> Vec<Image> {
     let blank = vec![Image::new(W, H); 3];
-    let mut t = Trainer::new(ctx, scene, &blank, &plane(false), config(1e9, 0)).unwrap();
+    let mut t = Trainer::new(ctx, scene, &blank, model, cfg).unwrap();
     (0..3)
         .map(|v| Image {
             width: W,
@@ -1103,25 +1113,7 @@ fn surfel_config(interval: u32) -> TrainConfig {
 fn lpm_on_2dgs_adds_surfels_facing_the_camera_and_trains_on() {
     let ctx = GpuContext::new(&GpuOptions::for_tests()).unwrap();
     let scene = scene();
-    let gt: Vec<Image> = {
-        let blank = vec![Image::new(W, H); 3];
-        let mut t = Trainer::new(
-            &ctx,
-            &scene,
-            &blank,
-            &as_surfels(plane(false)),
-            surfel_config(0),
-        )
-        .unwrap();
-        (0..3)
-            .map(|v| Image {
-                width: W,
-                height: H,
-                rgb: t.render_view(v, [0.0; 3]).unwrap(),
-                alpha: None,
-            })
-            .collect()
-    };
+    let gt = renders(&ctx, &scene, &as_surfels(plane(false)), surfel_config(0));
     let init = as_surfels(initial_model());
     let n0 = init.len();
     let mut t = Trainer::new(&ctx, &scene, &gt, &init, surfel_config(1)).unwrap();

@@ -9,11 +9,16 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+mod cli_support;
+mod sphere_rig;
+
+use cli_support::{lpmsplat, run, run_ok};
+use sphere_rig::ring_poses;
+
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions};
 use lpmsplat::mesh::extract::extract;
 use lpmsplat::mesh::tsdf::{DepthView, Tsdf};
 use lpmsplat::models::BaseModel;
-use lpmsplat::reference::scenes::look_at;
 use lpmsplat::render::layout::CameraGpu;
 use lpmsplat::scene::colmap::{self, ColmapCamera, ColmapImage, ColmapModel};
 use lpmsplat::scene::{CameraModel, PinholeCamera, Pose};
@@ -36,24 +41,6 @@ fn camera() -> PinholeCamera {
         width: W,
         height: H,
     }
-}
-
-/// Twelve cameras on a ring at distance ~3.2 (alternately above and below the equator) and one
-/// above and one below, all looking at the centre.
-fn poses() -> Vec<Pose> {
-    let mut poses = Vec::new();
-    for k in 0..12 {
-        let a = k as f64 * std::f64::consts::TAU / 12.0;
-        let h = if k % 2 == 0 { 1.2 } else { -1.0 };
-        poses.push(look_at(
-            [3.0 * a.cos(), h, 3.0 * a.sin()],
-            [0.0; 3],
-            [0.0, -1.0, 0.0],
-        ));
-    }
-    poses.push(look_at([0.1, 3.2, 0.0], [0.0; 3], [1.0, 0.0, 0.0]));
-    poses.push(look_at([0.1, -3.2, 0.0], [0.0; 3], [1.0, 0.0, 0.0]));
-    poses
 }
 
 /// The rotation (w, x, y, z) whose third column is the unit vector `n` (the quaternion between
@@ -194,7 +181,7 @@ fn write_scene(root: &Path) -> PathBuf {
             W as u64,
             H as u64,
         )],
-        images: poses()
+        images: ring_poses()
             .iter()
             .enumerate()
             .map(|(k, pose)| ColmapImage {
@@ -226,7 +213,7 @@ fn write_scene(root: &Path) -> PathBuf {
 /// overhang past the silhouette can reach from the upper half), so nothing above the equator
 /// is fused.
 fn mask(k: usize, factor: u32) -> image::GrayImage {
-    let pose = poses()[k];
+    let pose = ring_poses()[k];
     let full = camera();
     let cam = full.resized(W / factor, H / factor);
     let upper =
@@ -246,35 +233,13 @@ fn mask(k: usize, factor: u32) -> image::GrayImage {
 /// replication, so an area-average back down by `up` gives it exactly), named by `name`.
 fn write_masks(dir: &Path, factor: u32, up: u32, name: impl Fn(usize) -> String) {
     std::fs::create_dir_all(dir).unwrap();
-    for k in 0..poses().len() {
+    for k in 0..ring_poses().len() {
         let m = mask(k, factor);
         let big = image::GrayImage::from_fn(m.width() * up, m.height() * up, |x, y| {
             *m.get_pixel(x / up, y / up)
         });
         big.save(dir.join(name(k))).unwrap();
     }
-}
-
-fn lpmsplat() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_lpmsplat"));
-    c.env("LPMSPLAT_VALIDATION", "1");
-    c
-}
-
-fn run(c: &mut Command) -> (bool, String) {
-    let out = c.output().unwrap();
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    (out.status.success(), text)
-}
-
-fn run_ok(c: &mut Command) -> String {
-    let (ok, text) = run(c);
-    assert!(ok, "{c:?} failed:\n{text}");
-    text
 }
 
 fn mesh_cmd(scene: &Path, ply: &Path, out: &Path, extra: &[&str]) -> Command {
@@ -475,7 +440,7 @@ fn mesh_cli_fuses_a_surfel_sphere_with_every_flag() {
     // where its rays pass the sphere by more than two pixels.
     let img = image::open(&preview).unwrap().to_rgb8();
     assert_eq!(img.dimensions(), (W, H));
-    let pose = poses()[1];
+    let pose = ring_poses()[1];
     let (mut lit, mut sum, mut black) = (0, 0.0, 0);
     for y in 0..H {
         for x in 0..W {
@@ -660,7 +625,7 @@ fn a_rendered_surfel_sphere_gives_its_depth_normals_and_mesh() {
     let params = sphere_surfels(3000, sigma as f32);
     let splats = GpuSplats::upload(&ctx, &params, params.len()).unwrap();
     let cam = camera();
-    let poses = poses();
+    let poses = ring_poses();
     let cams: Vec<CameraGpu> = poses.iter().map(|p| CameraGpu::new(&cam, p)).collect();
     let cameras = GpuBuffer::from_slice(&ctx, "cameras", &cams).unwrap();
     let mut renderer = BaseModel::Surfels2d

@@ -4,11 +4,13 @@
 //! masks and the depth cut keep pixels out; small pieces are dropped; the preview shows it.
 //! `tests/mesh_2dgs.rs` fuses depths rendered from surfels, in process and through `mesh`.
 
+mod sphere_rig;
+
 use lpmsplat::mesh::extract::extract;
 use lpmsplat::mesh::tsdf::{DepthView, Tsdf};
 use lpmsplat::mesh::Mesh;
-use lpmsplat::reference::scenes::look_at;
 use lpmsplat::scene::{PinholeCamera, Pose};
+use sphere_rig::ring_poses;
 
 fn camera() -> PinholeCamera {
     PinholeCamera {
@@ -50,28 +52,12 @@ fn sphere_depth(cam: &PinholeCamera, pose: &Pose, c: [f64; 3], r: f64) -> Vec<f3
     out
 }
 
-fn views() -> Vec<Pose> {
-    let mut poses = Vec::new();
-    for k in 0..12 {
-        let a = k as f64 * std::f64::consts::TAU / 12.0;
-        let h = if k % 2 == 0 { 1.2 } else { -1.0 };
-        poses.push(look_at(
-            [3.0 * a.cos(), h, 3.0 * a.sin()],
-            [0.0; 3],
-            [0.0, -1.0, 0.0],
-        ));
-    }
-    poses.push(look_at([0.1, 3.2, 0.0], [0.0; 3], [1.0, 0.0, 0.0]));
-    poses.push(look_at([0.1, -3.2, 0.0], [0.0; 3], [1.0, 0.0, 0.0]));
-    poses
-}
-
 fn fuse_sphere(voxel: f64, mask: bool, depth_trunc: f64) -> (Mesh, f64) {
     let cam = camera();
     let r = 0.7;
     let mut tsdf = Tsdf::new([-1.0; 3], [1.0; 3], voxel, 4.0 * voxel).unwrap();
     let rgb = vec![0.25f32; (cam.width * cam.height * 3) as usize];
-    for pose in views() {
+    for pose in ring_poses() {
         let depth = sphere_depth(&cam, &pose, [0.0; 3], r);
         // A mask that hides the left half of every image.
         let m: Vec<bool> = (0..depth.len())
@@ -181,7 +167,7 @@ fn a_tsdf_too_large_is_refused_with_a_fix() {
 fn the_preview_shows_the_sphere_lit_from_the_camera() {
     let (mesh, _) = fuse_sphere(0.04, false, f64::INFINITY);
     let cam = camera();
-    let pose = views()[0];
+    let pose = ring_poses()[0];
     let img = lpmsplat::mesh::preview::render_preview(&mesh, &cam, &pose);
     let at = |x: u32, y: u32| img.rgb[3 * (y * cam.width + x) as usize];
     // The sphere's centre projects to the principal point (the view looks at the origin).

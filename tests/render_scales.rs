@@ -7,27 +7,13 @@
 //! two are within 0.5 dB at the training scale). Validation layer on.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
+
+mod cli_support;
+
+use cli_support::{lpmsplat, run_ok};
 
 fn scene() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/lund_door_small")
-}
-
-fn lpmsplat() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_lpmsplat"));
-    c.env("LPMSPLAT_VALIDATION", "1");
-    c
-}
-
-fn run_ok(c: &mut Command) -> String {
-    let out = c.output().unwrap();
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert!(out.status.success(), "{c:?} failed:\n{text}");
-    text
 }
 
 /// Test-view PSNR of `ply` rendered as `model` at `-r r`.

@@ -1,0 +1,23 @@
+//! The cameras of the constructed sphere scenes (`tests/mesh_tsdf.rs`, `tests/mesh_2dgs.rs`):
+//! every part of a sphere at the origin is seen by several of them.
+
+use lpmsplat::reference::scenes::look_at;
+use lpmsplat::scene::Pose;
+
+/// Twelve cameras on a ring at distance ~3.2 (alternately above and below the equator) and one
+/// above and one below, all looking at the centre.
+pub fn ring_poses() -> Vec<Pose> {
+    let mut poses = Vec::new();
+    for k in 0..12 {
+        let a = k as f64 * std::f64::consts::TAU / 12.0;
+        let h = if k % 2 == 0 { 1.2 } else { -1.0 };
+        poses.push(look_at(
+            [3.0 * a.cos(), h, 3.0 * a.sin()],
+            [0.0; 3],
+            [0.0, -1.0, 0.0],
+        ));
+    }
+    poses.push(look_at([0.1, 3.2, 0.0], [0.0; 3], [1.0, 0.0, 0.0]));
+    poses.push(look_at([0.1, -3.2, 0.0], [0.0; 3], [1.0, 0.0, 0.0]));
+    poses
+}
