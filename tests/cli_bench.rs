@@ -5,26 +5,14 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+mod cli_support;
+
+use cli_support::{lpmsplat, run as output};
+
 fn data(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("tests/data")
         .join(name)
-}
-
-fn lpmsplat() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_lpmsplat"));
-    c.env("LPMSPLAT_VALIDATION", "1");
-    c
-}
-
-fn output(c: &mut Command) -> (bool, String) {
-    let out = c.output().unwrap();
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    (out.status.success(), text)
 }
 
 /// `bench trade` on the bundled lund_door at `-r 8` (81×121), `iterations` a run, into `out`;
