@@ -13,12 +13,13 @@ mod cli_support;
 mod sphere_rig;
 
 use cli_support::{lpmsplat, run, run_ok};
-use sphere_rig::ring_poses;
+use sphere_rig::{is_closed, ring_poses};
 
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions};
 use lpmsplat::mesh::extract::extract;
 use lpmsplat::mesh::tsdf::{DepthView, Tsdf};
 use lpmsplat::models::BaseModel;
+use lpmsplat::reference::project::rotation_to_quat;
 use lpmsplat::render::layout::CameraGpu;
 use lpmsplat::scene::colmap::{self, ColmapCamera, ColmapImage, ColmapModel};
 use lpmsplat::scene::{CameraModel, PinholeCamera, Pose};
@@ -115,52 +116,6 @@ fn near_sphere(cam: &PinholeCamera, pose: &Pose, x: u32, y: u32) -> bool {
     })
 }
 
-/// Shepperd's rotation-matrix-to-quaternion (w, x, y, z), the inverse of
-/// [`Pose::from_qvec_tvec`].
-fn qvec(r: &[[f64; 3]; 3]) -> [f64; 4] {
-    let tr = r[0][0] + r[1][1] + r[2][2];
-    let q = if tr > 0.0 {
-        let s = 2.0 * (tr + 1.0).sqrt();
-        [
-            0.25 * s,
-            (r[2][1] - r[1][2]) / s,
-            (r[0][2] - r[2][0]) / s,
-            (r[1][0] - r[0][1]) / s,
-        ]
-    } else if r[0][0] > r[1][1] && r[0][0] > r[2][2] {
-        let s = 2.0 * (1.0 + r[0][0] - r[1][1] - r[2][2]).sqrt();
-        [
-            (r[2][1] - r[1][2]) / s,
-            0.25 * s,
-            (r[0][1] + r[1][0]) / s,
-            (r[0][2] + r[2][0]) / s,
-        ]
-    } else if r[1][1] > r[2][2] {
-        let s = 2.0 * (1.0 + r[1][1] - r[0][0] - r[2][2]).sqrt();
-        [
-            (r[0][2] - r[2][0]) / s,
-            (r[0][1] + r[1][0]) / s,
-            0.25 * s,
-            (r[1][2] + r[2][1]) / s,
-        ]
-    } else {
-        let s = 2.0 * (1.0 + r[2][2] - r[0][0] - r[1][1]).sqrt();
-        [
-            (r[1][0] - r[0][1]) / s,
-            (r[0][2] + r[2][0]) / s,
-            (r[1][2] + r[2][1]) / s,
-            0.25 * s,
-        ]
-    };
-    let back = Pose::from_qvec_tvec(q, [0.0; 3]).rotation;
-    for i in 0..3 {
-        for j in 0..3 {
-            assert!((back[i][j] - r[i][j]).abs() < 1e-12, "qvec of {r:?}");
-        }
-    }
-    q
-}
-
 fn stem(k: usize) -> String {
     format!("{k:06}")
 }
@@ -186,7 +141,7 @@ fn write_scene(root: &Path) -> PathBuf {
             .enumerate()
             .map(|(k, pose)| ColmapImage {
                 id: k as u32 + 1,
-                qvec: qvec(&pose.rotation),
+                qvec: rotation_to_quat(&pose.rotation),
                 tvec: pose.translation,
                 camera_id: 1,
                 name: format!("{}.png", stem(k)),
@@ -489,17 +444,7 @@ fn mesh_cli_fuses_a_surfel_sphere_with_every_flag() {
     assert!(mean < 0.25 * voxel && worst < 1.5 * voxel, "{mean} {worst}");
     assert!(lo < -0.9 * RADIUS && hi > 0.9 * RADIUS, "{lo} {hi}");
     check_grey(&m);
-    let mut edges = std::collections::HashMap::<(u32, u32), u32>::new();
-    for t in &m.faces {
-        for k in 0..3 {
-            let (a, b) = (t[k], t[(k + 1) % 3]);
-            *edges.entry((a.min(b), a.max(b))).or_default() += 1;
-        }
-    }
-    assert!(
-        edges.values().all(|&n| n == 2),
-        "open or non-manifold edges"
-    );
+    assert!(is_closed(&m.faces), "open or non-manifold edges");
 
     // The sphere's nearest point is 2.4 from every camera: a depth cut at 2 leaves nothing.
     let (ok, text) = run(&mut mesh_cmd(

@@ -10,7 +10,7 @@ use lpmsplat::mesh::extract::extract;
 use lpmsplat::mesh::tsdf::{DepthView, Tsdf};
 use lpmsplat::mesh::Mesh;
 use lpmsplat::scene::{PinholeCamera, Pose};
-use sphere_rig::ring_poses;
+use sphere_rig::{is_closed, ring_poses};
 
 fn camera() -> PinholeCamera {
     PinholeCamera {
@@ -100,15 +100,8 @@ fn a_fused_sphere_is_a_closed_outward_mesh_on_the_sphere() {
     assert!(mean < 0.15 * voxel, "{mean}");
     assert!(worst < voxel, "{worst}");
     // Closed: every edge is shared by exactly two triangles.
-    let mut edges = std::collections::HashMap::<(u32, u32), u32>::new();
-    for t in &mesh.triangles {
-        for k in 0..3 {
-            let (a, b) = (t[k], t[(k + 1) % 3]);
-            *edges.entry((a.min(b), a.max(b))).or_default() += 1;
-        }
-    }
     assert!(
-        edges.values().all(|&n| n == 2),
+        is_closed(&mesh.triangles),
         "the mesh has open or non-manifold edges"
     );
     // Outward: each face normal points away from the centre.

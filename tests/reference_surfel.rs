@@ -665,47 +665,13 @@ fn cross(a: V3, b: V3) -> V3 {
     ]
 }
 
-/// The quaternion (w, x, y, z) of the rotation with columns `c1, c2, c3` (Shepperd's method).
+/// The quaternion (w, x, y, z) of the rotation with columns `c1, c2, c3`.
 fn quat_from_axes(c1: V3, c2: V3, c3: V3) -> [f64; 4] {
-    let m = [
+    lpmsplat::reference::project::rotation_to_quat(&[
         [c1[0], c2[0], c3[0]],
         [c1[1], c2[1], c3[1]],
         [c1[2], c2[2], c3[2]],
-    ];
-    let tr = m[0][0] + m[1][1] + m[2][2];
-    if tr > 0.0 {
-        let s = 2.0 * (1.0 + tr).sqrt();
-        [
-            s / 4.0,
-            (m[2][1] - m[1][2]) / s,
-            (m[0][2] - m[2][0]) / s,
-            (m[1][0] - m[0][1]) / s,
-        ]
-    } else if m[0][0] > m[1][1] && m[0][0] > m[2][2] {
-        let s = 2.0 * (1.0 + m[0][0] - m[1][1] - m[2][2]).sqrt();
-        [
-            (m[2][1] - m[1][2]) / s,
-            s / 4.0,
-            (m[0][1] + m[1][0]) / s,
-            (m[0][2] + m[2][0]) / s,
-        ]
-    } else if m[1][1] > m[2][2] {
-        let s = 2.0 * (1.0 + m[1][1] - m[0][0] - m[2][2]).sqrt();
-        [
-            (m[0][2] - m[2][0]) / s,
-            (m[0][1] + m[1][0]) / s,
-            s / 4.0,
-            (m[1][2] + m[2][1]) / s,
-        ]
-    } else {
-        let s = 2.0 * (1.0 + m[2][2] - m[0][0] - m[1][1]).sqrt();
-        [
-            (m[1][0] - m[0][1]) / s,
-            (m[0][2] + m[2][0]) / s,
-            (m[1][2] + m[2][1]) / s,
-            s / 4.0,
-        ]
-    }
+    ])
 }
 
 #[test]
@@ -713,12 +679,26 @@ fn quat_from_axes_round_trips() {
     let mut rng = Pcg64::seed_from_u64(3);
     for _ in 0..50 {
         let q: [f64; 4] = [0; 4].map(|_| rng.gen_range(-1.0..1.0));
-        let [c1, c2, c3] = axes(q);
-        let back = axes(quat_from_axes(c1, c2, c3));
-        for (a, b) in back.iter().zip([c1, c2, c3]) {
-            for k in 0..3 {
-                assert!((a[k] - b[k]).abs() < 1e-12);
-            }
+        round_trip(q);
+    }
+    // Every branch of Shepperd's method: half turns about x, y and z (trace −1) and near them.
+    for q in [
+        [0.0, 1.0, 0.0, 0.0],
+        [0.0, 0.0, 1.0, 0.0],
+        [0.0, 0.0, 0.0, 1.0],
+        [0.05, 0.3, 0.2, 0.9],
+    ] {
+        round_trip(q);
+    }
+}
+
+/// The axes of `q` back through [`quat_from_axes`] (the library's `rotation_to_quat`).
+fn round_trip(q: [f64; 4]) {
+    let [c1, c2, c3] = axes(q);
+    let back = axes(quat_from_axes(c1, c2, c3));
+    for (a, b) in back.iter().zip([c1, c2, c3]) {
+        for k in 0..3 {
+            assert!((a[k] - b[k]).abs() < 1e-12, "{q:?}");
         }
     }
 }

@@ -21,3 +21,16 @@ pub fn ring_poses() -> Vec<Pose> {
     poses.push(look_at([0.1, -3.2, 0.0], [0.0; 3], [1.0, 0.0, 0.0]));
     poses
 }
+
+/// Whether a triangle mesh is closed: every edge shared by exactly two triangles (no border,
+/// no non-manifold edge).
+pub fn is_closed(triangles: &[[u32; 3]]) -> bool {
+    let mut edges = std::collections::HashMap::<(u32, u32), u32>::new();
+    for t in triangles {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            *edges.entry((a.min(b), a.max(b))).or_default() += 1;
+        }
+    }
+    edges.values().all(|&n| n == 2)
+}
