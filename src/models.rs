@@ -96,6 +96,75 @@ impl BaseModel {
             })
     }
 
+    /// The header comment that records which model a PLY holds (`comment lpmsplat model
+    /// NAME`): `train` writes it, and `eval`, `render`, `mesh` and `bench fps` read the file
+    /// as that model unless `--model` says otherwise.
+    pub const PLY_COMMENT: &'static str = "lpmsplat model";
+
+    /// This model's header comment ([`BaseModel::PLY_COMMENT`]).
+    pub fn ply_comment(&self) -> String {
+        format!("{} {}", Self::PLY_COMMENT, self.name())
+    }
+
+    /// The model a PLY's header records, if any; an unknown name is an error naming the file.
+    pub fn recorded_in(path: &std::path::Path) -> anyhow::Result<Option<BaseModel>> {
+        let comments = crate::splats::ply::ply_comments(path)?;
+        let prefix = format!("{} ", Self::PLY_COMMENT);
+        let Some(name) = comments.iter().find_map(|c| c.strip_prefix(&prefix)) else {
+            return Ok(None);
+        };
+        let name = name.trim();
+        match Self::ALL.into_iter().find(|m| m.name() == name) {
+            Some(m) => Ok(Some(m)),
+            None => crate::error::bad_input(
+                path,
+                format!("header comment '{} {name}'", Self::PLY_COMMENT),
+                format!(
+                    "names no model this build knows (it knows {})",
+                    Self::ALL.map(|m| m.name()).join(", ")
+                ),
+                "read it with the lpmsplat version that wrote it, or pass --model",
+            ),
+        }
+    }
+
+    /// The model to read `path` as: the one its header records, `flag` (`--model`) when the
+    /// header records none (another trainer's PLY; 3DGS when neither says, as viewers read
+    /// such files). A `flag` that contradicts the header is an error naming both. A file that
+    /// cannot be read gives `flag` or 3DGS, and its reader reports the problem.
+    pub fn for_ply(flag: Option<BaseModel>, path: &std::path::Path) -> anyhow::Result<BaseModel> {
+        let recorded = match Self::recorded_in(path) {
+            Ok(r) => r,
+            Err(e)
+                if e.downcast_ref::<crate::error::InputError>()
+                    .is_some_and(|i| i.field.starts_with("header comment")) =>
+            {
+                return Err(e)
+            }
+            Err(_) => None,
+        };
+        match (flag, recorded) {
+            (Some(f), Some(r)) if f != r => crate::error::bad_input(
+                path,
+                format!("header comment '{}'", r.ply_comment()),
+                format!(
+                    "the file holds a {} model, but --model {} was given: read as {} it would \
+                     be drawn as another model",
+                    r.name(),
+                    f.name(),
+                    f.name()
+                ),
+                format!(
+                    "drop --model (the file says which model it is), or pass --model {}",
+                    r.name()
+                ),
+            ),
+            (Some(f), _) => Ok(f),
+            (None, Some(r)) => Ok(r),
+            (None, None) => Ok(BaseModel::Gaussians3d),
+        }
+    }
+
     /// The CLI name.
     pub fn name(&self) -> &'static str {
         match self {
@@ -215,6 +284,35 @@ impl BaseModel {
                 self.render_constants(),
             )?),
         })
+    }
+
+    /// Maps a model of this base model through a change of frame `x ↦ k·x + b`
+    /// ([`GaussianParams::map_frame`]): which of its parameters are lengths is the model's to
+    /// say (a surfel's third log-scale is a fixed marker, SpacetimeGaussians' motion
+    /// coefficients are lengths per unit time).
+    pub fn map_frame(&self, params: &mut GaussianParams, map: (f64, [f64; 3])) {
+        let lengths: &[&str] = if self.is_spacetime() {
+            &["motion"]
+        } else {
+            &[]
+        };
+        params.map_frame(map, lengths, *self == BaseModel::Surfels2d);
+    }
+
+    /// Reads a model of this base model that another file holds in the user's frame (less the
+    /// shift its header records, [`crate::scene::frame`]) into `scene`'s training frame.
+    pub fn read_ply_for_scene(
+        &self,
+        path: &std::path::Path,
+        scene: &crate::scene::Scene,
+    ) -> anyhow::Result<GaussianParams> {
+        let mut params = self.read_ply(path)?;
+        let shift = crate::scene::frame::shift_from_comments(
+            path,
+            &crate::splats::ply::ply_comments(path)?,
+        )?;
+        self.map_frame(&mut params, scene.frame.stored_to_train(shift));
+        Ok(params)
     }
 
     /// Reads a trained PLY of this model (a video model's with its temporal groups; a 2DGS one

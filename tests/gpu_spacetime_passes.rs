@@ -571,7 +571,10 @@ fn video_models_cull_at_the_official_near_plane() {
     };
     let mut config = TrainConfig::default();
     BaseModel::SpacetimeLite.configure(&mut config);
-    assert_eq!(config.render_constants().near, 0.2);
+    assert_eq!(
+        config.render_constants().near,
+        lpmsplat::render::spacetime::SPACETIME_NEAR
+    );
     let capacity = Capacity {
         gaussians: 1,
         intersections: 0,

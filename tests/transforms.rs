@@ -44,7 +44,7 @@ fn err_text(r: anyhow::Result<Scene>) -> String {
 #[test]
 fn lego_small_loads() {
     let root = lego_small();
-    let scene = Scene::load(&root, &LoadOptions::default()).unwrap();
+    let scene = Scene::load_in_file_frame(&root, &LoadOptions::default()).unwrap();
     assert_eq!(scene.format, SceneFormat::NerfSynthetic);
     assert_eq!(scene.views.len(), 11);
     assert_eq!(scene.train.len(), 8);
@@ -327,7 +327,7 @@ fn nerfstudio_distortion_overrides_and_split() {
     t["test_filenames"] = json!(["images/frame_0001.png", "images/frame_0004.png"]);
     write_json(dir.path(), "transforms.json", &t);
 
-    let scene = Scene::load(dir.path(), &LoadOptions::default()).unwrap();
+    let scene = Scene::load_in_file_frame(dir.path(), &LoadOptions::default()).unwrap();
     assert_eq!(scene.format, SceneFormat::Nerfstudio);
     assert_eq!(scene.background, None);
     assert!(!scene.has_alpha);
@@ -783,9 +783,15 @@ fn look_at(eye: [f64; 3], target: [f64; 3], up: [f64; 3]) -> Pose {
 
 #[test]
 fn random_init_box_surrounds_what_the_cameras_look_at() {
-    let scene = Scene::load(&lego_small(), &LoadOptions::default()).unwrap();
+    let scene = Scene::load_in_file_frame(&lego_small(), &LoadOptions::default()).unwrap();
     // NeRF-synthetic: the reference's box, although the cameras' mean is far above the object.
     assert_eq!(scene.random_init_box(), ([0.0; 3], 1.3));
+    // Trained recentred and scaled, the box is the same box of the dataset's frame.
+    let trained = Scene::load(&lego_small(), &LoadOptions::default()).unwrap();
+    let (c, half) = trained.random_init_box();
+    let user = trained.frame.to_user(c);
+    assert!(user.iter().all(|v| v.abs() < 1e-9), "{user:?}");
+    assert!((half / trained.frame.scale - 1.3).abs() < 1e-9, "{half}");
     assert!(scene.center[2] > 1.5, "{:?}", scene.center);
     // The lego cameras look at the origin, so their axes converge there.
     let p = axes_convergence_point(&scene.views, &scene.train).unwrap();

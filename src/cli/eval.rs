@@ -34,9 +34,11 @@ pub struct EvalArgs {
     /// The model the PLY was trained as: `mip-splatting` renders with its 2D Mip filter (the
     /// exported PLY already holds the 3D filter); 3dgs and pixel-gs render alike; 2dgs renders
     /// surfels; spacetime-lite and spacetime-full render each view at its time (the full model
-    /// with the NAME.decoder.json beside its PLY).
-    #[arg(long, default_value = "3dgs", value_parser = BaseModel::parse)]
-    pub model: BaseModel,
+    /// with the NAME.decoder.json beside its PLY). Default: the model the PLY's header
+    /// records (`train` writes it), else 3dgs (another trainer's PLY); a --model that
+    /// contradicts the header is an error.
+    #[arg(long, value_parser = BaseModel::parse)]
+    pub model: Option<BaseModel>,
     /// Background: black, white, or r,g,b in [0, 1]. Default: the scene's (white for
     /// NeRF-synthetic), black otherwise. Ground truth with alpha is composited on it.
     #[arg(long)]
@@ -146,7 +148,8 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
         args.split.name()
     );
     let lpips = args.lpips.load()?;
-    let params = args.model.read_ply(&args.ply)?;
+    let model = BaseModel::for_ply(args.model, &args.ply)?;
+    let params = model.read_ply_for_scene(&args.ply, &scene)?;
     lpmsplat::splats::require_nonempty(&args.ply, &params)?;
     if let Some(dir) = &args.side_by_side {
         std::fs::create_dir_all(dir).with_context(|| {
@@ -167,7 +170,7 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
     let biggest = (0..cams.len())
         .max_by_key(|&k| cams[k].width() as u64 * cams[k].height() as u64)
         .unwrap_or(0);
-    let mut renderer = args.model.view_renderer(
+    let mut renderer = model.view_renderer(
         &ctx,
         params.len(),
         &cams[biggest],
@@ -196,6 +199,9 @@ pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
             }
             per_view.push(m);
         }
+    }
+    if let Some(e) = ViewMetrics::invalid(&per_view) {
+        return Err(e.context(format!("eval of {}", args.ply.display())));
     }
     let lpips_mean = lpips_scores::mean(&per_view);
     let (psnr, ssim) = ViewMetrics::means(&per_view);

@@ -15,6 +15,11 @@ pub struct InfoArgs {
     /// NeRF-synthetic: `val` or `test` as the test split.
     #[arg(long, value_parser = ["val", "test"])]
     pub test_split: Option<String>,
+    /// A Gaussian model (PLY) to describe: its Gaussians, SH degree and extra groups, the
+    /// model its header records (or that it is read as 3DGS when it records none), and the
+    /// shift and video segment it is stored with.
+    #[arg(long)]
+    pub ply: Option<std::path::PathBuf>,
 }
 
 pub fn run(gpu: &GpuOptions, args: &InfoArgs) -> anyhow::Result<()> {
@@ -31,6 +36,9 @@ pub fn run(gpu: &GpuOptions, args: &InfoArgs) -> anyhow::Result<()> {
         }
         None => None,
     };
+    if let Some(ply) = &args.ply {
+        print_ply(ply)?;
+    }
     match list_devices() {
         Ok(devices) => {
             println!("Vulkan devices:");
@@ -53,6 +61,55 @@ pub fn run(gpu: &GpuOptions, args: &InfoArgs) -> anyhow::Result<()> {
     }
     if let Some(scene) = scene {
         print_scene(&scene);
+    }
+    Ok(())
+}
+
+fn print_ply(path: &std::path::Path) -> anyhow::Result<()> {
+    use lpmsplat::models::BaseModel;
+    let recorded = BaseModel::recorded_in(path)?;
+    let model = recorded.unwrap_or_default();
+    let params = model.read_ply(path)?;
+    println!("Model {}:", path.display());
+    println!(
+        "  {} Gaussians, SH degree {}{}",
+        params.len(),
+        params.sh_degree,
+        if params.extra.is_empty() {
+            String::new()
+        } else {
+            format!(
+                ", extra groups {}",
+                params
+                    .extra
+                    .iter()
+                    .map(|e| format!("{} ({})", e.group.name, e.group.stride))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
+        }
+    );
+    match recorded {
+        Some(m) => println!(
+            "  model: {} (recorded in its header; eval, render, mesh and bench fps read it so)",
+            m.name()
+        ),
+        None => println!(
+            "  model: none recorded (another trainer's file, or one from before lpmsplat \
+             recorded it): read as 3dgs unless --model says otherwise"
+        ),
+    }
+    let comments = lpmsplat::splats::ply_comments(path)?;
+    let shift = lpmsplat::scene::frame::shift_from_comments(path, &comments)?;
+    if shift != [0.0; 3] {
+        println!(
+            "  positions are stored relative to ({}, {}, {}): add it for the scene's own \
+             coordinates",
+            shift[0], shift[1], shift[2]
+        );
+    }
+    if let Some(seg) = lpmsplat::scene::video::Segment::from_comments(path, &comments)? {
+        println!("  trained on frames {}..{}", seg.start, seg.end());
     }
     Ok(())
 }
@@ -145,10 +202,42 @@ fn print_scene(scene: &Scene) {
     if kp > 0 {
         println!("  keypoints: {kp}");
     }
+    if let Some(dir) = scene
+        .views
+        .first()
+        .and_then(|v| v.image_path.parent())
+        .and_then(|d| d.file_name())
+        .map(|d| d.to_string_lossy().to_string())
+        .filter(|d| d.starts_with("images_"))
+    {
+        println!("  images: the scene's downscaled copies in {dir}/ (for this -r)");
+    }
+    // The training cameras' centre and extent in the scene's own units, and the frame the
+    // scene is trained in (`lpmsplat::scene::frame`).
+    let f = &scene.frame;
+    let c = f.to_user(scene.center);
     println!(
-        "  centre ({:.3}, {:.3}, {:.3}), extent {:.4}",
-        scene.center[0], scene.center[1], scene.center[2], scene.extent
+        "  centre ({}, {}, {}), extent {:.6} (training cameras, the scene's units)",
+        c[0],
+        c[1],
+        c[2],
+        scene.extent / f.scale
     );
+    println!(
+        "  trained in its own frame recentred on ({}, {}, {}) and scaled by {:.6e} (unit extent)",
+        f.origin[0], f.origin[1], f.origin[2], f.scale
+    );
+    let shift = f.output_shift();
+    if shift != [0.0; 3] {
+        println!(
+            "  far from the origin: outputs hold positions relative to ({}, {}, {}), recorded \
+             in their headers (comment {})",
+            shift[0],
+            shift[1],
+            shift[2],
+            lpmsplat::scene::frame::SHIFT_COMMENT
+        );
+    }
     if let Some(b) = scene.background {
         println!("  background: ({}, {}, {})", b[0], b[1], b[2]);
     }

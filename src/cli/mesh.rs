@@ -74,9 +74,27 @@ pub fn run(gpu: &GpuOptions, args: &MeshArgs) -> anyhow::Result<()> {
         args.depth_ratio
     );
     let scene = Scene::load(&args.scene.scene, &args.scene.load_options()?)?;
+    if let Some(m) = BaseModel::recorded_in(&args.ply)
+        .ok()
+        .flatten()
+        .filter(|m| *m != BaseModel::Surfels2d)
+    {
+        return lpmsplat::error::bad_input(
+            &args.ply,
+            format!("header comment '{}'", m.ply_comment()),
+            format!(
+                "the file holds a {} model; meshes are extracted from 2DGS surfels",
+                m.name()
+            ),
+            "train the scene with --model 2dgs and mesh that model",
+        );
+    }
     let params = BaseModel::Surfels2d
-        .read_ply(&args.ply)?
+        .read_ply_for_scene(&args.ply, &scene)?
         .with_sh_degree(0)?;
+    // The lengths the user gives are in the scene's own units; the fusion runs in the
+    // training frame (`lpmsplat::scene::frame`).
+    let to_train = |l: f64| scene.frame.length_to_train(l);
     lpmsplat::splats::require_nonempty(&args.ply, &params)?;
     let views: Vec<usize> = match args.cameras.as_str() {
         "train" if !scene.train.is_empty() => scene.train.clone(),
@@ -91,7 +109,7 @@ pub fn run(gpu: &GpuOptions, args: &MeshArgs) -> anyhow::Result<()> {
     let cameras = GpuBuffer::from_slice(&ctx, "cameras", &cams)?;
     let mut renderer =
         BaseModel::Surfels2d.view_renderer(&ctx, params.len(), &cams[0], None, None)?;
-    let depth_trunc = args.depth_trunc.unwrap_or(f64::INFINITY);
+    let depth_trunc = args.depth_trunc.map(to_train).unwrap_or(f64::INFINITY);
     let masks = mask_folder(args);
     if let (Some(dir), None) = (&masks, &args.masks) {
         println!(
@@ -158,8 +176,11 @@ pub fn run(gpu: &GpuOptions, args: &MeshArgs) -> anyhow::Result<()> {
         .map(|a| hi[a] - lo[a])
         .fold(0.0f64, f64::max)
         .max(1e-9);
-    let voxel = args.voxel.unwrap_or(longest / args.mesh_res as f64);
-    let sdf_trunc = args.sdf_trunc.unwrap_or(5.0 * voxel);
+    let voxel = args
+        .voxel
+        .map(to_train)
+        .unwrap_or(longest / args.mesh_res as f64);
+    let sdf_trunc = args.sdf_trunc.map(to_train).unwrap_or(5.0 * voxel);
     for a in 0..3 {
         lo[a] -= sdf_trunc;
         hi[a] += sdf_trunc;
@@ -179,7 +200,17 @@ pub fn run(gpu: &GpuOptions, args: &MeshArgs) -> anyhow::Result<()> {
         );
     }
     let mesh = extract(&tsdf).keep_large_pieces(args.min_triangles, args.max_pieces);
-    write_mesh_ply(&args.out, &mesh)?;
+    // Written in the user's frame, less the shift of a far-off scene (recorded in the header).
+    let shift = scene.frame.output_shift();
+    let (k, b) = scene.frame.train_to_stored(shift);
+    let mut stored = mesh.clone();
+    for p in &mut stored.vertices {
+        *p = [0, 1, 2].map(|a| (p[a] as f64 * k + b[a]) as f32);
+    }
+    let comments: Vec<String> = lpmsplat::scene::frame::shift_comment(shift)
+        .into_iter()
+        .collect();
+    write_mesh_ply(&args.out, &stored, &comments)?;
     if let Some(path) = &args.preview {
         let view = &scene.views[views[0]];
         let img = lpmsplat::mesh::preview::render_preview(&mesh, &view.camera, &view.pose);
@@ -187,15 +218,17 @@ pub fn run(gpu: &GpuOptions, args: &MeshArgs) -> anyhow::Result<()> {
         println!("{}: the mesh seen from {}", path.display(), view.name);
     }
     println!(
-        "{}: {} vertices, {} triangles ({} views, voxel {voxel:.5}, {}×{}×{} voxels, sdf \
-         truncation {sdf_trunc:.5})",
+        "{}: {} vertices, {} triangles ({} views, voxel {:.5}, {}×{}×{} voxels, sdf \
+         truncation {:.5}, in the scene's units)",
         args.out.display(),
         mesh.vertices.len(),
         mesh.triangles.len(),
         frames.len(),
+        voxel / scene.frame.scale,
         tsdf.dims[0],
         tsdf.dims[1],
-        tsdf.dims[2]
+        tsdf.dims[2],
+        sdf_trunc / scene.frame.scale
     );
     ctx.check_validation()?;
     Ok(())

@@ -4,16 +4,52 @@
 
 use std::path::Path;
 
+use lpmsplat::models::BaseModel;
 use lpmsplat::scene::video::Segment;
-use lpmsplat::scene::Scene;
+use lpmsplat::scene::{frame, Scene};
 use lpmsplat::splats::{ply_comments, write_ply_with_comments, GaussianParams};
 
 use super::SceneArgs;
 
-/// Writes `model` to `path` as a PLY, recording the scene's segment when it is a video's.
-pub fn write_model_ply(path: &Path, model: &GaussianParams, scene: &Scene) -> anyhow::Result<()> {
-    let comments: Vec<String> = scene.time_base.iter().map(Segment::comment).collect();
-    write_ply_with_comments(path, model, &comments)
+/// Writes `model`, a `base` model in `scene`'s training frame, to `path` as a PLY in the
+/// user's frame (less the shift a far-off scene is written relative to, recorded in the
+/// header; [`lpmsplat::scene::frame`]), recording the scene's segment when it is a video's.
+pub fn write_model_ply(
+    path: &Path,
+    model: &GaussianParams,
+    base: BaseModel,
+    scene: &Scene,
+) -> anyhow::Result<()> {
+    let (stored, shift) = in_output_frame(model, base, scene);
+    write_stored_ply(path, &stored, shift, base, scene)
+}
+
+/// `model`, a `base` model in `scene`'s training frame, in the frame its outputs are written
+/// in, and that frame's shift.
+pub fn in_output_frame(
+    model: &GaussianParams,
+    base: BaseModel,
+    scene: &Scene,
+) -> (GaussianParams, [f64; 3]) {
+    let shift = scene.frame.output_shift();
+    let mut stored = model.clone();
+    base.map_frame(&mut stored, scene.frame.train_to_stored(shift));
+    (stored, shift)
+}
+
+/// Writes a `base` model already in its output frame ([`in_output_frame`]), with the model,
+/// its shift and the scene's segment in the header.
+pub fn write_stored_ply(
+    path: &Path,
+    stored: &GaussianParams,
+    shift: [f64; 3],
+    base: BaseModel,
+    scene: &Scene,
+) -> anyhow::Result<()> {
+    let mut comments = vec![base.ply_comment()];
+    comments.extend(scene.time_base.iter().map(Segment::comment));
+    comments.extend(frame::shift_comment(shift));
+    write_ply_with_comments(path, stored, &comments)
 }
 
 /// Loads the scene of `args` for the model in `ply`: when the PLY records the segment it was

@@ -22,9 +22,11 @@ pub struct RenderArgs {
     /// The model the PLY was trained as: `mip-splatting` renders with its 2D Mip filter (the
     /// exported PLY already holds the 3D filter); 3dgs and pixel-gs render alike; 2dgs renders
     /// surfels; spacetime-lite and spacetime-full render each view at its time (the full model
-    /// with the NAME.decoder.json beside its PLY).
-    #[arg(long, default_value = "3dgs", value_parser = BaseModel::parse)]
-    pub model: BaseModel,
+    /// with the NAME.decoder.json beside its PLY). Default: the model the PLY's header
+    /// records (`train` writes it), else 3dgs (another trainer's PLY); a --model that
+    /// contradicts the header is an error.
+    #[arg(long, value_parser = BaseModel::parse)]
+    pub model: Option<BaseModel>,
     /// Output folder for the PNGs (created if missing).
     #[arg(long)]
     pub out: PathBuf,
@@ -75,13 +77,14 @@ pub fn parse_rgb(s: &str) -> Result<[f32; 3], String> {
 
 pub fn run(gpu: &GpuOptions, args: &RenderArgs) -> anyhow::Result<()> {
     let scene = crate::cli::model_segment::load_scene_for_model(&args.scene, &args.ply)?;
-    let params = args.model.read_ply(&args.ply)?;
+    let model = BaseModel::for_ply(args.model, &args.ply)?;
+    let params = model.read_ply_for_scene(&args.ply, &scene)?;
     if let Some(t) = args.time {
         anyhow::ensure!(
-            args.model.is_spacetime() && scene.view_times.is_some(),
+            model.is_spacetime() && scene.view_times.is_some(),
             "--time renders a video model at one time; this is --model {} on a {} scene. Fix: \
              pass --model spacetime-lite (or spacetime-full) with the video scene it was trained on, or drop --time",
-            args.model.name(),
+            model.name(),
             if scene.view_times.is_some() {
                 "video"
             } else {
@@ -94,7 +97,7 @@ pub fn run(gpu: &GpuOptions, args: &RenderArgs) -> anyhow::Result<()> {
         );
     }
     if let Some(frames) = args.orbit {
-        return render_orbit(gpu, args, &scene, &params, frames as usize);
+        return render_orbit(gpu, args, model, &scene, &params, frames as usize);
     }
     let mut indices: Vec<usize> = match args.cameras.as_str() {
         "train" => scene.train.clone(),
@@ -133,15 +136,13 @@ pub fn run(gpu: &GpuOptions, args: &RenderArgs) -> anyhow::Result<()> {
         Some(t) => Some(vec![t; indices.len()]),
         None => scene.times_of(&indices),
     };
-    let mut renderer =
-        args.model
-            .view_renderer(&ctx, params.len(), &cams[0], times, Some(&args.ply))?;
+    let mut renderer = model.view_renderer(&ctx, params.len(), &cams[0], times, Some(&args.ply))?;
     let bg = args.background.or(scene.background).unwrap_or([0.0; 3]);
     anyhow::ensure!(
-        !(args.depth || args.normals) || args.model == BaseModel::Surfels2d,
+        !(args.depth || args.normals) || model == BaseModel::Surfels2d,
         "--depth and --normals render 2DGS surfels' depth and normal maps; this PLY is read as \
          --model {}. Fix: pass --model 2dgs for a 2DGS model, or drop the flags",
-        args.model.name()
+        model.name()
     );
     for (k, &i) in indices.iter().enumerate() {
         let rgb = renderer.render(&splats, &cameras, k as u32, &cams[k], bg)?;
@@ -189,6 +190,7 @@ pub fn run(gpu: &GpuOptions, args: &RenderArgs) -> anyhow::Result<()> {
 fn render_orbit(
     gpu: &GpuOptions,
     args: &RenderArgs,
+    model: BaseModel,
     scene: &Scene,
     params: &GaussianParams,
     frames: usize,
@@ -231,8 +233,7 @@ fn render_orbit(
         .map(|k| args.time.unwrap_or(k as f32 / cams.len() as f32))
         .collect();
     let mut renderer =
-        args.model
-            .view_renderer(&ctx, params.len(), &cams[0], Some(times), Some(&args.ply))?;
+        model.view_renderer(&ctx, params.len(), &cams[0], Some(times), Some(&args.ply))?;
     let bg = args.background.or(scene.background).unwrap_or([0.0; 3]);
     let path = args.out.join("orbit.gif");
     let mut gif = OrbitGif::new(camera.width, camera.height, args.fps);

@@ -7,9 +7,16 @@ use anyhow::Context;
 
 use super::Mesh;
 
-pub fn write_mesh_ply(path: &Path, mesh: &Mesh) -> anyhow::Result<()> {
+/// Writes `mesh` with `comments` as extra header comment lines (one line each), atomically.
+pub fn write_mesh_ply(path: &Path, mesh: &Mesh, comments: &[String]) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        comments.iter().all(|c| !c.contains(['\n', '\r'])),
+        "{}: a PLY comment must be one line",
+        path.display()
+    );
+    let extra: String = comments.iter().map(|c| format!("comment {c}\n")).collect();
     let mut bytes = format!(
-        "ply\nformat binary_little_endian 1.0\ncomment lpmsplat 2DGS TSDF mesh\n\
+        "ply\nformat binary_little_endian 1.0\ncomment lpmsplat 2DGS TSDF mesh\n{extra}\
          element vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
          property uchar red\nproperty uchar green\nproperty uchar blue\n\
          element face {}\nproperty list uchar int vertex_indices\nend_header\n",

@@ -149,7 +149,9 @@ pub const MIP_MIN_COMPENSATION: f64 = 0.005;
 /// The rasterizer's constants. [`Default`] gives the values the engine uses.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RenderSettings {
-    /// Near plane: Gaussians with camera z ≤ near are culled (gsplat: 0.01; Inria: 0.2).
+    /// Near plane: Gaussians with camera z ≤ near are culled (gsplat: 0.01 in its normalised
+    /// frame; Inria: 0.2 world units). In the engine's unit-extent training frame
+    /// (`crate::scene::frame`) 0.01 is a hundredth of the scene's extent.
     pub near: f64,
     /// Tile side in pixels.
     pub tile_size: u32,

@@ -85,7 +85,7 @@
 //! 5. Front-to-back compositing as 3DGS: stop *before* a surfel with `T·(1 − alpha) < t_min`;
 //!    else, with `w = alpha·T` and `A = 1 − T` (the weight already composited):
 //!    colour `C += w·rgb`; depth `D += w·z`; normal `N += w·n` (camera space, not
-//!    normalised); distortion with `m(z) = far/(far − near)·(1 − near/z)` (near 0.2, far 100):
+//!    normalised); distortion with `m(z) = far/(far − near)·(1 − near/z)` (near 0.05, far 100):
 //!    `dist += w·(m²·A + M₂ − 2·m·M₁)`, then `M₁ += w·m`, `M₂ += w·m²` (one pass for
 //!    `Σ_i Σ_{j<i} w_i w_j (m_i − m_j)²`); median depth: when the transmittance *before* the
 //!    surfel is `T > 0.5` (strict), `median = z` and the median contributor is this list
@@ -258,9 +258,12 @@ pub fn random_surfels(rng: &mut impl Rng, n: usize) -> RefSurfels {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SurfelSettings {
     /// Surfels whose centre has camera z ≤ near are culled, and a (surfel, pixel) hit with
-    /// depth < near is skipped; also the near plane of the distortion's depth mapping (0.2).
+    /// depth < near is skipped; also the near plane of the distortion's depth mapping. The
+    /// official 0.2 world units, in scenes whose cameras' extent is about 4 (DTU as the
+    /// official code normalises it, Mip-NeRF 360's COLMAP models), is 0.05 of the extent:
+    /// the default here, in the unit-extent training frame (`crate::scene::frame`).
     pub near: f64,
-    /// The far plane of the distortion's depth mapping (100).
+    /// The far plane of the distortion's depth mapping (100 extents).
     pub far: f64,
     /// Tile side in pixels.
     pub tile_size: u32,
@@ -281,7 +284,7 @@ pub struct SurfelSettings {
 impl Default for SurfelSettings {
     fn default() -> Self {
         Self {
-            near: 0.2,
+            near: 0.05,
             far: 100.0,
             tile_size: 16,
             alpha_min: 1.0 / 255.0,

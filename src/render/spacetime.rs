@@ -33,13 +33,15 @@ pub fn extra_groups() -> Vec<crate::splats::ExtraGroup> {
         .collect()
 }
 
-/// The near plane of SpacetimeGaussians' renders, in world units. The official code draws with
-/// the Inria rasterizer, which culls every Gaussian whose camera z is at most 0.2
-/// (`in_frustum`); the engine's still models use gsplat's 0.01. On multi-camera video the
-/// difference is not cosmetic: Panoptic's cameras sit in the dome's wall, which the scene's
-/// other cameras see and the model reconstructs, so with 0.01 the wall's Gaussians a centimetre
-/// from a held-out camera covered its whole view (test camera 15 at 6 dB).
-pub const SPACETIME_NEAR: f32 = 0.2;
+/// The near plane of SpacetimeGaussians' renders, in the training frame (a fraction of the
+/// scene's extent, [`crate::scene::frame`]). The official code draws with the Inria rasterizer,
+/// which culls every Gaussian whose camera z is at most 0.2 world units (`in_frustum`); on
+/// Panoptic, whose cameras' extent is 3.4 units, that is 0.06 of the extent, the value here
+/// (the engine's still models use gsplat's 0.01 of it). On multi-camera video the difference is
+/// not cosmetic: Panoptic's cameras sit in the dome's wall, which the scene's other cameras see
+/// and the model reconstructs, so with 0.01 the wall's Gaussians a few centimetres from a
+/// held-out camera covered its whole view (test camera 15 at 6 dB).
+pub const SPACETIME_NEAR: f32 = 0.06;
 
 /// Floats per Gaussian of each temporal group.
 pub const MOTION_STRIDE: usize = 9;

@@ -65,8 +65,17 @@ impl Image {
 /// Decodes a PNG or JPEG (the format is guessed from the content) into [0, 1] floats, keeping
 /// alpha when the file has it.
 pub fn decode_image(path: &Path) -> anyhow::Result<Image> {
-    let decoded = image::ImageReader::open(path)
-        .and_then(|r| r.with_guessed_format())
+    let bytes = std::fs::read(path).map_err(|e| {
+        crate::error::InputError::new(
+            path,
+            "image file",
+            format!("cannot be read: {e}"),
+            "check that the file exists and is readable",
+        )
+    })?;
+    check_complete(path, &bytes)?;
+    let decoded = image::ImageReader::new(std::io::Cursor::new(&bytes))
+        .with_guessed_format()
         .map_err(anyhow::Error::from)
         .and_then(|r| r.decode().map_err(anyhow::Error::from));
     let img = match decoded {
@@ -103,6 +112,64 @@ pub fn decode_image(path: &Path) -> anyhow::Result<Image> {
             alpha: None,
         })
     }
+}
+
+/// Refuses an image file that ends before its data does (an interrupted copy or download),
+/// which decoders fill in silently: a JPEG must hold an end-of-image marker (`FF D9`) after
+/// its last start-of-scan (`FF DA`; inside the entropy-coded data a `FF` byte is always
+/// followed by `00` or a restart marker, so neither pair occurs there, and an EXIF
+/// thumbnail's own end marker comes before the main image's scan), and a PNG must end its
+/// chunks with `IEND` (whose CRC is fixed). Other formats are left to their decoder. Bytes
+/// after the end marker (a camera's trailer, a second picture) are accepted.
+pub fn check_complete(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
+    let last = |pair: [u8; 2]| bytes.windows(2).rposition(|w| w == pair);
+    if bytes.starts_with(&[0xFF, 0xD8]) {
+        let sos = last([0xFF, 0xDA]);
+        let eoi = last([0xFF, 0xD9]);
+        let complete = match (sos, eoi) {
+            (Some(s), Some(e)) => e > s,
+            _ => false,
+        };
+        if !complete {
+            return bad_input(
+                path,
+                "JPEG data",
+                format!(
+                    "ends after {} bytes without the end-of-image marker (FF D9): the file is \
+                     truncated",
+                    bytes.len()
+                ),
+                "copy the image again from its source",
+            );
+        }
+    } else if bytes.starts_with(b"\x89PNG\r\n\x1a\n") {
+        const IEND: [u8; 12] = [0, 0, 0, 0, b'I', b'E', b'N', b'D', 0xAE, 0x42, 0x60, 0x82];
+        if !bytes.windows(12).rev().take(1 << 16).any(|w| w == IEND) {
+            return bad_input(
+                path,
+                "PNG data",
+                format!(
+                    "ends after {} bytes without its IEND chunk: the file is truncated",
+                    bytes.len()
+                ),
+                "copy the image again from its source",
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Reads `path` and checks it with [`check_complete`] (without decoding it).
+pub fn check_file_complete(path: &Path) -> anyhow::Result<()> {
+    let bytes = std::fs::read(path).map_err(|e| {
+        crate::error::InputError::new(
+            path,
+            "image file",
+            format!("cannot be read: {e}"),
+            "check that the file exists and is readable",
+        )
+    })?;
+    check_complete(path, &bytes)
 }
 
 /// The training image of one view: decoded, checked against the size the scene declares,

@@ -7,6 +7,7 @@
 
 pub mod camera;
 pub mod colmap;
+pub mod frame;
 pub mod image_source;
 pub mod images;
 pub mod orbit;
@@ -18,6 +19,7 @@ pub mod video;
 use std::path::{Path, PathBuf};
 
 pub use camera::{CameraModel, PinholeCamera, Pose};
+pub use frame::SceneFrame;
 pub use images::Image;
 
 /// 2D keypoints of one view, in the pixels of the view's undistorted, resized [`PinholeCamera`].
@@ -172,6 +174,10 @@ pub struct Scene {
     /// loaded frames, or the segment of the model they are loaded for
     /// ([`LoadOptions::time_base`]). A video model's PLY records it.
     pub time_base: Option<video::Segment>,
+    /// The similarity from the files' frame to the one the scene is held in: poses, points,
+    /// `center` and `extent` above are in the training frame ([`frame`]); identity for a scene
+    /// built by hand.
+    pub frame: SceneFrame,
 }
 
 impl Scene {
@@ -188,7 +194,11 @@ impl Scene {
     /// mean view at that depth.
     pub fn random_init_box(&self) -> ([f64; 3], f64) {
         if self.format == SceneFormat::NerfSynthetic {
-            return ([0.0; 3], NERF_SYNTHETIC_INIT_HALF_SIDE);
+            // The reference's box is in the dataset's own frame.
+            return (
+                self.frame.to_train([0.0; 3]),
+                self.frame.length_to_train(NERF_SYNTHETIC_INIT_HALF_SIDE),
+            );
         }
         let half = self.extent / 1.1 * 0.5;
         let Some(p) = split::axes_convergence_point(&self.views, &self.train) else {
@@ -220,8 +230,34 @@ impl Scene {
         (p, seen.max(half))
     }
 
-    /// Loads the scene in `root`, detecting its format.
+    /// Loads the scene in `root`, detecting its format, in the training frame ([`frame`]).
     pub fn load(root: &Path, opts: &LoadOptions) -> anyhow::Result<Scene> {
+        Ok(Self::load_in_file_frame(root, opts)?.into_training_frame())
+    }
+
+    /// Moves a scene loaded in its files' frame into the training frame ([`frame`]): the
+    /// frame is fitted to every view's camera centre, and the poses, points, centre and
+    /// extent are mapped through it.
+    pub fn into_training_frame(mut self) -> Scene {
+        let centres: Vec<[f64; 3]> = self.views.iter().map(|v| v.pose.center()).collect();
+        let fitted = SceneFrame::fit(&centres, self.points.as_ref());
+        for v in &mut self.views {
+            v.pose = fitted.pose_to_train(&v.pose);
+        }
+        if let Some(p) = &mut self.points {
+            fitted.points_to_train(p);
+        }
+        (self.center, self.extent) = split::camera_extent(&self.views, &self.train);
+        // Composed with a frame the scene may already have been given.
+        self.frame = SceneFrame {
+            origin: self.frame.to_user(fitted.origin),
+            scale: self.frame.scale * fitted.scale,
+        };
+        self
+    }
+
+    /// Loads the scene in `root` as its files give it (their frame, no normalisation).
+    pub fn load_in_file_frame(root: &Path, opts: &LoadOptions) -> anyhow::Result<Scene> {
         if !root.exists() {
             return crate::error::bad_input(
                 root,

@@ -137,6 +137,40 @@ pub struct GaussianParams {
 }
 
 impl GaussianParams {
+    /// Maps the model through a change of frame `x ↦ k·x + b` (uniform `k > 0`, no rotation;
+    /// [`crate::scene::frame`]), in f64: positions, log-scales (`+ ln k`; all three, or the
+    /// first two when `keep_third_scale`, a surfel's unused axis) and the extra groups named
+    /// in `length_groups` (`× k`: lengths, or lengths per unit time such as a motion
+    /// polynomial's coefficients). Rotations, opacities, colours and the other groups have no
+    /// length and stay.
+    pub fn map_frame(
+        &mut self,
+        (k, b): (f64, [f64; 3]),
+        length_groups: &[&str],
+        keep_third_scale: bool,
+    ) {
+        if k == 1.0 && b == [0.0; 3] {
+            return;
+        }
+        for p in &mut self.positions {
+            *p = [0, 1, 2].map(|a| (p[a] as f64 * k + b[a]) as f32);
+        }
+        let ln_k = k.ln();
+        let axes = if keep_third_scale { 2 } else { 3 };
+        for l in &mut self.log_scales {
+            for v in &mut l[..axes] {
+                *v = (*v as f64 + ln_k) as f32;
+            }
+        }
+        for e in &mut self.extra {
+            if length_groups.contains(&e.group.name.as_str()) {
+                for v in &mut e.values {
+                    *v = (*v as f64 * k) as f32;
+                }
+            }
+        }
+    }
+
     /// The values of the extra group called `name` (every Gaussian's, row after row).
     pub fn extra_values(&self, name: &str) -> Option<&[f32]> {
         self.extra

@@ -1,13 +1,15 @@
 //! Training checkpoints: everything needed to continue a run exactly where it stopped.
 //!
-//! Binary, little-endian, versioned. Layout (format version 3; version 1, without the extra
-//! groups, and 2, without the absolute-gradient statistic, are still read):
+//! Binary, little-endian, versioned. Layout (format version 4; version 1, without the extra
+//! groups, 2, without the absolute-gradient statistic, and 3, without the training frame, are
+//! still read):
 //!
 //! ```text
 //! magic "LPMSCKPT"  u32 version
 //! fingerprint: u32 sh_degree, (version 2) u32 extra groups, per group (u32 name length, name
 //!              bytes, u32 stride), u32 views, per view (u32 name length, name bytes, u32 width,
-//!              u32 height), u32 train views, u32 per train view (index into the views)
+//!              u32 height), u32 train views, u32 per train view (index into the views),
+//!              (version 4) the training frame: f64 origin x, y, z, f64 scale
 //! u32 iteration  u32 adam_step  u64 epoch  u64 position in the epoch  u32 dropped frames
 //! u64 intersection capacity
 //! u64 count
@@ -21,7 +23,8 @@
 //! ```
 //!
 //! The fingerprint ties a checkpoint to the scene it was trained on (the view names, their
-//! sizes at the chosen resolution, the training split) and to the SH degree; the hash catches
+//! sizes at the chosen resolution, the training split, the frame its Gaussians are held in,
+//! [`crate::scene::frame`]) and to the SH degree; the hash catches
 //! truncated and corrupt files before anything is uploaded. Files are written with
 //! [`write_atomic`], so a crash while saving leaves the previous checkpoint intact.
 //!
@@ -46,10 +49,10 @@ use crate::splats::gpu::{logical_group, GpuSplats, SplatShape};
 use crate::splats::{ExtraGroup, ExtraValues, GaussianParams};
 
 pub const MAGIC: &[u8; 8] = b"LPMSCKPT";
-pub const FORMAT_VERSION: u32 = 3;
+pub const FORMAT_VERSION: u32 = 4;
 
 /// What ties a checkpoint to a scene and a model layout.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct SceneFingerprint {
     pub sh_degree: u32,
     /// The model's extra parameter groups (part of the model's shape; the configuration, which
@@ -58,6 +61,9 @@ pub struct SceneFingerprint {
     /// (name, width, height) of every view at the loaded resolution.
     pub views: Vec<(String, u32, u32)>,
     pub train: Vec<u32>,
+    /// The training frame the checkpoint's Gaussians and moments are in; files before format 4
+    /// were trained in the scene files' own frame, the identity.
+    pub frame: crate::scene::SceneFrame,
 }
 
 impl SceneFingerprint {
@@ -71,6 +77,7 @@ impl SceneFingerprint {
                 .map(|v| (v.name.clone(), v.camera.width, v.camera.height))
                 .collect(),
             train: scene.train.iter().map(|&v| v as u32).collect(),
+            frame: scene.frame,
         }
     }
 
@@ -116,6 +123,27 @@ impl SceneFingerprint {
             return Some((
                 "train".into(),
                 "the training split differs (another --test-split or holdout?)".into(),
+            ));
+        }
+        let (a, b) = (&self.frame, &scene.frame);
+        let close = |x: f64, y: f64, unit: f64| (x - y).abs() <= 1e-9 * unit;
+        if !(close(a.scale, b.scale, b.scale)
+            && (0..3).all(|k| close(a.origin[k], b.origin[k], b.extent())))
+        {
+            let was = if a.is_identity() {
+                "in the scene files' own frame (a checkpoint from before scenes were trained \
+                 recentred and scaled to a unit extent)"
+                    .to_string()
+            } else {
+                format!("recentred on {:?} and scaled by {:e}", a.origin, a.scale)
+            };
+            return Some((
+                "frame".into(),
+                format!(
+                    "the checkpoint's Gaussians were trained {was}; this scene is trained \
+                     recentred on {:?} and scaled by {:e} (other camera poses?)",
+                    b.origin, b.scale
+                ),
             ));
         }
         None
@@ -268,6 +296,9 @@ impl Checkpoint {
         for &t in &f.train {
             w.u32(t);
         }
+        for v in f.frame.origin.iter().chain([&f.frame.scale]) {
+            w.u64(v.to_bits());
+        }
         w.u32(self.iteration);
         w.u32(self.adam_step);
         w.u64(self.schedule_epoch);
@@ -356,6 +387,26 @@ impl Checkpoint {
         for i in 0..ntrain {
             train.push(r.u32(&format!("train[{i}]"))?);
         }
+        let mut frame = crate::scene::SceneFrame::IDENTITY;
+        if version >= 4 {
+            for k in 0..3 {
+                frame.origin[k] = f64::from_bits(r.u64(&format!("frame.origin[{k}]"))?);
+            }
+            frame.scale = f64::from_bits(r.u64("frame.scale")?);
+            if frame.origin.iter().any(|v| !v.is_finite())
+                || !(frame.scale > 0.0 && frame.scale.is_finite())
+            {
+                return bad_input(
+                    path,
+                    "frame",
+                    format!(
+                        "origin {:?}, scale {} is not a valid frame",
+                        frame.origin, frame.scale
+                    ),
+                    corrupt,
+                );
+            }
+        }
         let iteration = r.u32("iteration")?;
         let adam_step = r.u32("adam_step")?;
         let schedule_epoch = r.u64("schedule epoch")?;
@@ -370,9 +421,17 @@ impl Checkpoint {
         let mut sets: [Vec<Vec<f32>>; 3] = Default::default();
         for (s, set_name) in ["params", "adam m", "adam v"].iter().enumerate() {
             for (group, stride) in shape.strides() {
-                let expect = (count as usize)
-                    .checked_mul(stride)
-                    .context("count overflows")?;
+                let Some(expect) = usize::try_from(count)
+                    .ok()
+                    .and_then(|c| c.checked_mul(stride))
+                else {
+                    return bad_input(
+                        path,
+                        format!("{set_name}.{group}"),
+                        format!("{count} Gaussians × {stride} floats overflows"),
+                        corrupt,
+                    );
+                };
                 sets[s].push(r.floats(&format!("{set_name}.{group}"), expect)?);
             }
         }
@@ -400,6 +459,7 @@ impl Checkpoint {
                 extra,
                 views,
                 train,
+                frame,
             },
             iteration,
             adam_step,

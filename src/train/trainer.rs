@@ -220,7 +220,9 @@ impl Trainer {
         for (k, &v) in scene.train.iter().enumerate() {
             image_of_view[v] = Some(k);
         }
-        let mut model_rules = passes::rules_for_config(&config, scene, &init)?;
+        // The passes see the configuration's world lengths in the scene's training frame.
+        let frame_config = config.in_training_frame(&scene.frame);
+        let mut model_rules = passes::rules_for_config(&frame_config, scene, &init)?;
         let mut init = init;
         if fresh {
             for rule in model_rules.iter_mut() {
@@ -245,7 +247,7 @@ impl Trainer {
         density.seed = config.seed;
         let passes = passes::for_config(
             ctx,
-            &config,
+            &frame_config,
             &cameras_host,
             &scene.train,
             scene.view_times.as_deref(),

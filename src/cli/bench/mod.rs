@@ -81,9 +81,9 @@ pub struct FpsArgs {
     /// The model the PLY was trained as: `spacetime-lite` and `spacetime-full` read their
     /// temporal groups and time every frame with the temporal step (the model at --time)
     /// before the render; the full model also its features and its decoder (NAME.decoder.json
-    /// beside the PLY) after it.
-    #[arg(long, default_value = "3dgs", value_parser = BaseModel::parse)]
-    pub model: BaseModel,
+    /// beside the PLY) after it. Default: the model the PLY's header records, else 3dgs.
+    #[arg(long, value_parser = BaseModel::parse)]
+    pub model: Option<BaseModel>,
     /// Video models: the time rendered, in the segment's [0, 1).
     #[arg(long, default_value_t = 0.0)]
     pub time: f32,
@@ -140,6 +140,10 @@ fn percentile(sorted: &[f64], q: f64) -> f64 {
 }
 
 fn fps(gpu: &GpuOptions, args: &FpsArgs) -> anyhow::Result<()> {
+    let model = match &args.ply {
+        Some(p) => BaseModel::for_ply(args.model, p)?,
+        None => args.model.unwrap_or_default(),
+    };
     anyhow::ensure!(
         args.width > 0 && args.height > 0,
         "bench fps: --width {} --height {} is an empty image. Fix: give both at least 1",
@@ -153,7 +157,7 @@ fn fps(gpu: &GpuOptions, args: &FpsArgs) -> anyhow::Result<()> {
     let ctx = GpuContext::new(gpu)?;
     let mut results = Vec::new();
     let sources: Vec<(String, lpmsplat::splats::GaussianParams)> = match &args.ply {
-        Some(path) => vec![(path.display().to_string(), args.model.read_ply(path)?)],
+        Some(path) => vec![(path.display().to_string(), model.read_ply(path)?)],
         None => args
             .gaussians
             .iter()
@@ -166,7 +170,7 @@ fn fps(gpu: &GpuOptions, args: &FpsArgs) -> anyhow::Result<()> {
             .collect::<anyhow::Result<_>>()?,
     };
     for (source, params) in sources {
-        let r = fps_one(&ctx, &source, &params, args)?;
+        let r = fps_one(&ctx, model, &source, &params, args)?;
         print_result(&r);
         results.push(r);
     }
@@ -183,6 +187,7 @@ fn fps(gpu: &GpuOptions, args: &FpsArgs) -> anyhow::Result<()> {
 /// resized to `width × height`.
 fn test_view_camera(
     dir: &std::path::Path,
+    ply: Option<&std::path::Path>,
     width: u32,
     height: u32,
 ) -> anyhow::Result<(PinholeCamera, Pose, String)> {
@@ -196,21 +201,30 @@ fn test_view_camera(
         );
     };
     let v = &scene.views[first];
+    // The model is drawn as its file stores it: the view's pose in the file's frame (the
+    // scene's own, less the shift the file records).
+    let shift = match ply {
+        Some(p) => {
+            lpmsplat::scene::frame::shift_from_comments(p, &lpmsplat::splats::ply_comments(p)?)?
+        }
+        None => [0.0; 3],
+    };
     Ok((
         v.camera.resized(width, height),
-        v.pose,
+        scene.frame.of_stored(shift).pose_to_user(&v.pose),
         format!("test view {}", v.name),
     ))
 }
 
 fn fps_one(
     ctx: &std::sync::Arc<GpuContext>,
+    base: BaseModel,
     source: &str,
     params: &lpmsplat::splats::GaussianParams,
     args: &FpsArgs,
 ) -> anyhow::Result<FpsResult> {
     let (camera, pose, placed) = match (&args.scene, &args.ply) {
-        (Some(dir), _) => test_view_camera(dir, args.width, args.height)?,
+        (Some(dir), ply) => test_view_camera(dir, ply.as_deref(), args.width, args.height)?,
         (None, Some(_)) => {
             let (c, p) = synthetic::camera_for_model(params, args.width, args.height);
             (c, p, "outside the model".to_string())
@@ -226,7 +240,7 @@ fn fps_one(
     // A video model: every frame first writes the model at --time as still Gaussians (what a
     // player does per displayed time), so the temporal step is part of the frame time.
     // The full model also writes its features at --time, and its decoder makes the RGB.
-    let decoder = match (&args.model, &args.ply) {
+    let decoder = match (&base, &args.ply) {
         (BaseModel::SpacetimeFull, Some(p)) => Some(lpmsplat::splats::decoder_json::read_for(p)?),
         (BaseModel::SpacetimeFull, None) => anyhow::bail!(
             "bench fps --model spacetime-full times a trained model: pass --ply with its \
@@ -234,7 +248,7 @@ fn fps_one(
         ),
         _ => None,
     };
-    let temporal = if args.model.is_spacetime() {
+    let temporal = if base.is_spacetime() {
         Some(TimedModel::new(ctx, &model, decoder.as_deref())?)
     } else {
         None

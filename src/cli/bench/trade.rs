@@ -504,7 +504,8 @@ fn evaluate_run(
             format!("{name}.ply")
         };
         let ply = args.out.join(file);
-        crate::cli::model_segment::write_model_ply(&ply, &model, scene)?;
+        let base = lpmsplat::models::BaseModel::of(&t.config);
+        crate::cli::model_segment::write_model_ply(&ply, &model, base, scene)?;
         if let Some(w) = &decoder {
             let path = lpmsplat::splats::decoder_json::path_for(&ply);
             std::fs::write(&path, lpmsplat::splats::decoder_json::to_json(w)?)?;

@@ -172,6 +172,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
             crate::cli::model_segment::write_model_ply(
                 &args.out.join("point_cloud.ply"),
                 &trainer.export_model()?,
+                lpmsplat::models::BaseModel::of(&trainer.config),
                 &scene,
             )?;
             anyhow::bail!(
@@ -213,6 +214,13 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         lpips.as_ref(),
         &args.out,
     )?;
+    if let Some(e) = lpmsplat::train::trainer::ViewMetrics::invalid(&per_view) {
+        // No metrics.json, training.png or summary: nothing that reads as a finished run.
+        return Err(e.context(format!(
+            "training finished but its evaluation failed; {} holds the model",
+            args.out.join("point_cloud.ply").display()
+        )));
+    }
     let finished = Finished {
         args,
         config: &config,

@@ -21,13 +21,22 @@ use std::path::Path;
 /// Writes the model into `out`: point_cloud.ply, the model's own files beside it, a .splat for
 /// still models, and the checkpoint. Returns the model's Gaussian count.
 pub fn export(trainer: &mut Trainer, scene: &Scene, out: &Path) -> anyhow::Result<usize> {
-    let model = trainer.export_model()?;
-    crate::cli::model_segment::write_model_ply(&out.join("point_cloud.ply"), &model, scene)?;
+    let base = lpmsplat::models::BaseModel::of(&trainer.config);
+    let (model, shift) =
+        crate::cli::model_segment::in_output_frame(&trainer.export_model()?, base, scene);
+    crate::cli::model_segment::write_stored_ply(
+        &out.join("point_cloud.ply"),
+        &model,
+        shift,
+        base,
+        scene,
+    )?;
     for (ext, contents) in trainer.export_files()? {
         let path = out.join("point_cloud.ply").with_extension(&ext);
         std::fs::write(&path, contents).with_context(|| format!("writing {}", path.display()))?;
     }
     // A .splat holds still Gaussians: a video model's would show it at no time at all.
+    // It holds what the PLY holds: positions less the PLY's shift, when it has one.
     if model.extra.is_empty() {
         write_splat(&out.join("point_cloud.splat"), &model)?;
     }

@@ -58,7 +58,11 @@ pub fn initial_model(
     };
     if let Some(p) = init_ply {
         ignored(&format!("--init-ply {}", p.display()));
-        return Ok(model.initialise(read_ply(p)?, seed));
+        // Another trainer's model, or one of ours, in the user's frame (less its shift).
+        let mut init = read_ply(p)?;
+        let shift = lpmsplat::scene::frame::shift_from_comments(p, &splats::ply_comments(p)?)?;
+        init.map_frame(scene.frame.stored_to_train(shift), &[], false);
+        return Ok(model.initialise(init, seed));
     }
     if let Some(points) = scene.points.as_ref().filter(|p| !p.is_empty()) {
         ignored("the scene's SfM points");
@@ -154,10 +158,10 @@ pub(super) fn save_after_oom(
         );
     }
     let ply = args.out.join("point_cloud.ply");
-    let ply_note = match trainer
-        .export_model()
-        .and_then(|m| crate::cli::model_segment::write_model_ply(&ply, &m, scene))
-    {
+    let ply_note = match trainer.export_model().and_then(|m| {
+        let base = lpmsplat::models::BaseModel::of(&trainer.config);
+        crate::cli::model_segment::write_model_ply(&ply, &m, base, scene)
+    }) {
         Ok(()) => format!(" and {}", ply.display()),
         Err(e) => format!(" (the PLY could not be exported: {e:#})"),
     };

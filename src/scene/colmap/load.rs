@@ -162,6 +162,7 @@ fn check_image_file(
             "replace the file with a readable JPEG or PNG",
         )
     })?;
+    crate::scene::images::check_file_complete(path)?;
     if (w, h) != (cam.width, cam.height) {
         return bad_input(
             path,
@@ -177,6 +178,68 @@ fn check_image_file(
         );
     }
     Ok(())
+}
+
+/// The scene's own downscaled copy of an image for `-r N`, as Mip-NeRF 360 and LLFF scenes
+/// ship them (`images_2/`, `images_4/`, `images_8/` beside `images/`, each image at 1/N of
+/// the size, rounded either way): its path, the camera scaled to it and its size. `None`
+/// without `-r N` or without such a folder; a folder that lacks the image, or holds it at
+/// another size, is an error naming the file (a stale or partial copy would train on the
+/// wrong pixels).
+fn downscaled_copy(
+    root: &Path,
+    im: &ColmapImage,
+    cam: &Camera,
+    opts: &LoadOptions,
+) -> anyhow::Result<Option<(PathBuf, crate::scene::CameraModel, u32, u32)>> {
+    let Some(r) = opts.resolution_factor.filter(|&r| r > 1) else {
+        return Ok(None);
+    };
+    let dir = root.join(format!("images_{r}"));
+    if !dir.is_dir() {
+        return Ok(None);
+    }
+    let path = dir.join(&im.name);
+    let fix = format!(
+        "regenerate {} from images/ at 1/{r} of the size, or remove the folder to downscale \
+         images/ on loading",
+        dir.display()
+    );
+    if !path.is_file() {
+        return bad_input(
+            &path,
+            format!("image {} '{}'", im.id, im.name),
+            format!("is in images/ but missing from images_{r}/, which -r {r} reads"),
+            fix,
+        );
+    }
+    let (w, h) = image::image_dimensions(&path).map_err(|e| {
+        InputError::new(
+            &path,
+            "image header",
+            format!("cannot be read: {e}"),
+            "replace the file with a readable JPEG or PNG",
+        )
+    })?;
+    let near = |got: u32, full: u32| (got as f64 - full as f64 / r as f64).abs() <= 1.0;
+    if !(near(w, cam.width) && near(h, cam.height)) {
+        return bad_input(
+            &path,
+            "width x height",
+            format!(
+                "is {w}x{h}, but 1/{r} of the camera's {}x{} is {:.1}x{:.1}",
+                cam.width,
+                cam.height,
+                cam.width as f64 / r as f64,
+                cam.height as f64 / r as f64
+            ),
+            fix,
+        );
+    }
+    let model = cam
+        .model
+        .scaled(w as f64 / cam.width as f64, h as f64 / cam.height as f64);
+    Ok(Some((path, model, w, h)))
 }
 
 /// Keypoints in the view's pixels, and for each COLMAP point2D index the keypoint index it
@@ -269,8 +332,13 @@ pub fn build_scene(
                     FIX_EXPORT,
                 );
             }
-            let image_path: PathBuf = images_dir.join(&im.name);
-            check_image_file(im, cam, &image_path, &files)?;
+            let full_size: PathBuf = images_dir.join(&im.name);
+            check_image_file(im, cam, &full_size, &files)?;
+            let (image_path, source_model, source_width, source_height) =
+                match downscaled_copy(root, im, cam, opts)? {
+                    Some(copy) => copy,
+                    None => (full_size, cam.model, cam.width, cam.height),
+                };
             let (fx, fy, cx, cy) = cam.model.pinhole_part();
             let (tw, th) = target_size(cam.width, cam.height, opts);
             let pinhole = PinholeCamera {
@@ -291,9 +359,9 @@ pub fn build_scene(
                 name: im.name.clone(),
                 stem,
                 image_path,
-                source_model: cam.model,
-                source_width: cam.width,
-                source_height: cam.height,
+                source_model,
+                source_width,
+                source_height,
                 camera,
                 pose: Pose::from_qvec_tvec(im.qvec, im.tvec),
                 colmap_image_id: Some(im.id),
@@ -329,6 +397,7 @@ pub fn build_scene(
         has_alpha: false,
         view_times: None,
         time_base: None,
+        frame: crate::scene::SceneFrame::IDENTITY,
     })
 }
 

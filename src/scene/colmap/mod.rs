@@ -79,6 +79,40 @@ pub struct ColmapModel {
     pub points: Vec<ColmapPoint>,
 }
 
+impl ColmapModel {
+    /// The same reconstruction in another world frame, `x' = scale · rotate(x) + offset`
+    /// (`rotation` a quaternion (w, x, y, z), normalised here): points move with the world,
+    /// poses follow so that every keypoint projects where it did (camera space is scaled with
+    /// the world; `R' = R·Qᵀ`, `t' = scale·t − R'·offset`). What a georeferenced or
+    /// survey-unit export of the same model is; tests and `examples/reframe_colmap.rs` use it.
+    pub fn reframed(&self, scale: f64, rotation: [f64; 4], offset: [f64; 3]) -> ColmapModel {
+        let n = rotation.iter().map(|v| v * v).sum::<f64>().sqrt();
+        let q = rotation.map(|v| v / n);
+        let rot = super::Pose::from_qvec_tvec(q, [0.0; 3]);
+        let mut out = self.clone();
+        for p in &mut out.points {
+            let r = rot.transform(p.xyz);
+            p.xyz = [0, 1, 2].map(|k| scale * r[k] + offset[k]);
+        }
+        // The conjugate of the world rotation, composed on the right of each camera's.
+        let qc = [q[0], -q[1], -q[2], -q[3]];
+        for im in &mut out.images {
+            let a = im.qvec;
+            let b = qc;
+            im.qvec = [
+                a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
+                a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
+                a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
+                a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0],
+            ];
+            let r = super::Pose::from_qvec_tvec(im.qvec, [0.0; 3]);
+            let ro = r.transform(offset);
+            im.tvec = [0, 1, 2].map(|k| scale * im.tvec[k] - ro[k]);
+        }
+        out
+    }
+}
+
 /// The three files of a model in one form.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ModelFiles {

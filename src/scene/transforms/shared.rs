@@ -115,6 +115,7 @@ pub(super) fn finish(
         has_alpha,
         view_times: None,
         time_base: None,
+        frame: crate::scene::SceneFrame::IDENTITY,
     })
 }
 
@@ -252,7 +253,86 @@ pub(super) fn matrix_of(
             }
         }
     }
+    check_rotation(&mut m, file, &field)?;
     Ok(m)
+}
+
+/// How far a camera-to-world matrix's rotation may be from orthonormal, once a uniform scale
+/// is taken out (`max |RᵀR − I|`): exports round to 6–9 digits, a broken pose is off by far
+/// more.
+const ORTHONORMAL_TOLERANCE: f64 = 1e-3;
+
+/// Checks the upper-left 3×3 of a camera-to-world matrix: a rotation, possibly times a
+/// uniform scale (some exporters fold the scene scale in), which is divided out with a
+/// warning. A singular matrix (all zeros, a collapsed axis), a reflection or a shear has no
+/// camera orientation and is refused, naming the frame, as is a bottom row other than
+/// `0 0 0 1`.
+pub(super) fn check_rotation(
+    m: &mut [[f64; 4]; 4],
+    file: &Path,
+    field: &str,
+) -> anyhow::Result<()> {
+    if m[3] != [0.0, 0.0, 0.0, 1.0] {
+        return bad_input(
+            file,
+            field,
+            format!("the bottom row is {:?}, not [0, 0, 0, 1]", m[3]),
+            "write the camera-to-world matrix as [R | t] over [0, 0, 0, 1]",
+        );
+    }
+    let r = |i: usize, j: usize| m[i][j];
+    let det = r(0, 0) * (r(1, 1) * r(2, 2) - r(1, 2) * r(2, 1))
+        - r(0, 1) * (r(1, 0) * r(2, 2) - r(1, 2) * r(2, 0))
+        + r(0, 2) * (r(1, 0) * r(2, 1) - r(1, 1) * r(2, 0));
+    let largest = (0..3)
+        .flat_map(|i| (0..3).map(move |j| (i, j)))
+        .map(|(i, j)| m[i][j].abs())
+        .fold(0.0f64, f64::max);
+    // A determinant tiny against the entries' own scale is a collapsed matrix.
+    if !(det > 1e-9 * largest.powi(3)) || largest == 0.0 {
+        let problem = if det < 0.0 && det.abs() > 1e-9 * largest.powi(3) {
+            format!("its rotation part has determinant {det:.3e} < 0: a reflection, not a camera orientation")
+        } else {
+            format!("its rotation part is singular (determinant {det:.3e}): it gives the camera no orientation")
+        };
+        return bad_input(
+            file,
+            field,
+            problem,
+            "export the frame's pose again (a failed registration often writes zeros); or              remove the frame",
+        );
+    }
+    let scale = det.cbrt();
+    let mut worst = 0.0f64;
+    for i in 0..3 {
+        for j in 0..3 {
+            let dot: f64 = (0..3).map(|k| m[k][i] * m[k][j]).sum::<f64>() / (scale * scale);
+            worst = worst.max((dot - if i == j { 1.0 } else { 0.0 }).abs());
+        }
+    }
+    if worst > ORTHONORMAL_TOLERANCE {
+        return bad_input(
+            file,
+            field,
+            format!(
+                "its rotation part is not a rotation times a uniform scale (columns off                  orthonormal by {worst:.3e}; a shear or per-axis scale)"
+            ),
+            "export the frame's pose again as a rigid camera-to-world matrix",
+        );
+    }
+    if (scale - 1.0).abs() > 1e-6 {
+        eprintln!(
+            "warning: {}: {field}: the rotation part carries a uniform scale of {scale:.6}; \
+             divided out (a camera's orientation has no scale)",
+            file.display()
+        );
+        for row in m.iter_mut().take(3) {
+            for v in row.iter_mut().take(3) {
+                *v /= scale;
+            }
+        }
+    }
+    Ok(())
 }
 
 /// The image a frame names: the path as given, else with `.png` appended (NeRF-synthetic
@@ -295,6 +375,7 @@ pub(super) fn probe_image(path: &Path, file: &Path, i: usize) -> anyhow::Result<
             "replace it with a valid PNG or JPEG",
         )
     };
+    crate::scene::images::check_file_complete(path)?;
     let reader = match image::ImageReader::open(path).and_then(|r| r.with_guessed_format()) {
         Ok(r) => r,
         Err(e) => return unreadable(&e),

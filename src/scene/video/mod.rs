@@ -171,7 +171,7 @@ impl VideoScene {
     pub fn detect(root: &Path) -> Option<VideoLayout> {
         if root.join("train_meta.json").exists() {
             Some(VideoLayout::Panoptic)
-        } else if root.join("poses_bounds.npy").exists() {
+        } else if root.join("poses_bounds.npy").exists() && !is_llff_still(root) {
             Some(VideoLayout::NeuralVideo)
         } else {
             None
@@ -282,6 +282,7 @@ impl VideoScene {
             has_alpha: false,
             view_times: Some(times),
             time_base: Some(self.time_base),
+            frame: crate::scene::SceneFrame::IDENTITY,
         }
     }
 
@@ -303,8 +304,29 @@ impl VideoScene {
             has_alpha: false,
             view_times: None,
             time_base: None,
+            frame: crate::scene::SceneFrame::IDENTITY,
         }
     }
+}
+
+/// Whether a folder with `poses_bounds.npy` is a still scene in the layout Mip-NeRF 360 and
+/// LLFF are distributed in (`images/`, `sparse/0/` and `poses_bounds.npy` side by side, the
+/// latter for NeRF codes that read LLFF poses): a COLMAP model and no camera video or frame
+/// folder (`cam*`). Only such folders make a Neural 3D Video scene.
+fn is_llff_still(root: &Path) -> bool {
+    let has_cameras = std::fs::read_dir(root)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .any(|e| {
+            let name = e.file_name().to_string_lossy().to_string();
+            name.starts_with("cam")
+                && (e.path().is_dir()
+                    || e.path()
+                        .extension()
+                        .is_some_and(|x| x.eq_ignore_ascii_case("mp4")))
+        });
+    !has_cameras && crate::scene::colmap::find_sparse_dir(root).is_some()
 }
 
 /// Checks the segment against the frames every camera has and returns (start, count).

@@ -19,6 +19,34 @@ pub struct ViewMetrics {
 }
 
 impl ViewMetrics {
+    /// An error naming every view of `metrics` whose score is not a number (NaN, or a PSNR
+    /// of −∞; +∞ is an exact render): a run whose scores cannot be trusted must not end as
+    /// if it had succeeded. `None` when every score is valid.
+    pub fn invalid(metrics: &[ViewMetrics]) -> Option<anyhow::Error> {
+        let bad: Vec<String> = metrics
+            .iter()
+            .filter(|m| {
+                m.psnr.is_nan()
+                    || m.psnr == f64::NEG_INFINITY
+                    || !m.ssim.is_finite()
+                    || m.lpips.is_some_and(|l| !l.is_finite())
+            })
+            .map(|m| format!("{} (PSNR {}, SSIM {})", m.view, m.psnr, m.ssim))
+            .collect();
+        (!bad.is_empty()).then(|| {
+            anyhow::anyhow!(
+                "the evaluation gave scores that are not numbers for {} of {} views: {}. The \
+                 renders or the images of those views hold NaN (a camera whose pose or \
+                 intrinsics are degenerate, or a model that diverged). Fix: check those views \
+                 with `lpmsplat info SCENE` and the model with `lpmsplat info --ply`; rerun \
+                 with --nan-check to find the iteration a NaN appears",
+                bad.len(),
+                metrics.len(),
+                bad[..bad.len().min(8)].join(", ")
+            )
+        })
+    }
+
     /// PSNR and SSIM of a clamped render against its composited truth (RGB interleaved).
     pub fn of(view: &str, render: &[f32], truth: &Image) -> anyhow::Result<ViewMetrics> {
         let (w, h) = (truth.width as usize, truth.height as usize);
