@@ -582,7 +582,7 @@ fn video_models_cull_at_the_official_near_plane() {
         tiles: cam.tile_count() as usize,
     };
     let dl = GpuBuffer::from_slice(&ctx, "dl", &vec![0.0f32; (3 * w * h) as usize]).unwrap();
-    for (z, drawn) in [(0.1, false), (0.5, true)] {
+    for (z, drawn) in [(0.03, false), (0.5, true)] {
         let still = one_on_axis(&pose, z);
         let video = BaseModel::SpacetimeLite.initialise(still.clone(), 3);
         // Training: the model's passes.

@@ -65,6 +65,7 @@ fn scene(views: Vec<View>, points: Option<SfmPoints>) -> Scene {
         has_alpha: false,
         view_times: None,
         time_base: None,
+        frame: lpmsplat::scene::SceneFrame::IDENTITY,
     }
 }
 

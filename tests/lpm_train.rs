@@ -93,6 +93,7 @@ fn scene() -> Scene {
         has_alpha: false,
         view_times: None,
         time_base: None,
+        frame: lpmsplat::scene::SceneFrame::IDENTITY,
     }
 }
 

@@ -618,3 +618,137 @@ fn model_helpers() {
     bad.sh_degree = 4;
     assert!(bad.validate().is_err());
 }
+
+/// The bytes of `model` written by [`write_ply`], split into header text and body.
+fn written(model: &GaussianParams) -> (String, Vec<u8>) {
+    let dir = tmp();
+    let path = dir.path().join("m.ply");
+    write_ply(&path, model).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    let end = bytes
+        .windows(11)
+        .position(|w| w == b"end_header\n")
+        .unwrap()
+        + 11;
+    (
+        String::from_utf8(bytes[..end].to_vec()).unwrap(),
+        bytes[end..].to_vec(),
+    )
+}
+
+#[test]
+fn a_body_longer_than_the_header_declares_is_refused() {
+    let dir = tmp();
+    let d = dir.path();
+    // The reported case: `element vertex 1` over a body of 11,384 rows was read as one
+    // Gaussian, silently dropping the other 11,383.
+    let n = 11_384;
+    let model = random_model(n, 0, 71);
+    let (header, body) = written(&model);
+    let row = property_names(0).len() * 4;
+    assert_eq!(body.len(), n * row);
+    for format in ["binary_little_endian", "binary_big_endian"] {
+        let h = header
+            .replace(&format!("element vertex {n}\n"), "element vertex 1\n")
+            .replace("binary_little_endian", format);
+        let p = write_bytes(d, &format!("one_{format}.ply"), &[h.as_bytes(), &body]);
+        let err = read_ply(&p).unwrap_err();
+        assert_input_error(&err, &p, "element vertex 1");
+        let text = format!("{err:#}");
+        assert!(
+            text.contains(&format!("{} vertex rows) more", n - 1)),
+            "{text}"
+        );
+        assert!(text.contains(&format!("{} bytes", (n - 1) * row)), "{text}");
+        assert!(text.contains("Fix: the header's count is wrong"), "{text}");
+    }
+    // The right count reads every row; one stray byte after the last row is refused, and so
+    // is a missing one (truncated, the other direction).
+    let p = write_bytes(d, "exact.ply", &[header.as_bytes(), &body]);
+    assert_eq!(read_ply(&p).unwrap().len(), n);
+    let p = write_bytes(d, "stray.ply", &[header.as_bytes(), &body, b"\n"]);
+    let err = read_ply(&p).unwrap_err();
+    assert_input_error(&err, &p, &format!("element vertex {n}"));
+    assert!(format!("{err:#}").contains("1 bytes"), "{err:#}");
+    let p = write_bytes(
+        d,
+        "short.ply",
+        &[header.as_bytes(), &body[..body.len() - 1]],
+    );
+    assert_input_error(&read_ply(&p).unwrap_err(), &p, &format!("vertex {}", n - 1));
+
+    // An element declared after the vertices is part of the expected size: exactly its bytes
+    // read, one more is refused.
+    let small = random_model(3, 1, 72);
+    let (header, body) = written(&small);
+    let h = header.replace(
+        "end_header\n",
+        "element flags 2\nproperty ushort f\nend_header\n",
+    );
+    let p = write_bytes(d, "after.ply", &[h.as_bytes(), &body, &[1, 2, 3, 4]]);
+    assert_eq!(read_ply(&p).unwrap().len(), 3);
+    let p = write_bytes(
+        d,
+        "after_more.ply",
+        &[h.as_bytes(), &body, &[1, 2, 3, 4, 5]],
+    );
+    let err = read_ply(&p).unwrap_err();
+    assert_input_error(&err, &p, "element vertex 3");
+    assert!(format!("{err:#}").contains("1 bytes"), "{err:#}");
+    let p = write_bytes(d, "after_short.ply", &[h.as_bytes(), &body, &[1, 2, 3]]);
+    assert_input_error(&read_ply(&p).unwrap_err(), &p, "element flags row 1");
+}
+
+#[test]
+fn an_ascii_body_with_undeclared_rows_is_refused_but_trailing_whitespace_is_not() {
+    let dir = tmp();
+    let d = dir.path();
+    let names = property_names(0);
+    let header = |n: usize, after: &str| {
+        format!(
+            "ply\nformat ascii 1.0\nelement vertex {n}\n{}{after}end_header\n",
+            names
+                .iter()
+                .map(|p| format!("property float {p}\n"))
+                .collect::<String>()
+        )
+    };
+    let rows: Vec<String> = (0..3)
+        .map(|i| {
+            (0..names.len())
+                .map(|k| format!("{}", 0.25 * (i * names.len() + k) as f32))
+                .collect::<Vec<_>>()
+                .join(" ")
+        })
+        .collect();
+    let body = rows.join("\n");
+    // Three rows under `element vertex 1`: refused, naming the two undeclared rows.
+    let p = write_bytes(d, "one.ply", &[header(1, "").as_bytes(), body.as_bytes()]);
+    let err = read_ply(&p).unwrap_err();
+    assert_input_error(&err, &p, "element vertex 1");
+    let text = format!("{err:#}");
+    assert!(text.contains("2 vertex rows) more"), "{text}");
+    assert!(text.contains("Fix: the header's count is wrong"), "{text}");
+    // Half a row too many is refused as well.
+    let half = format!("{body}\n1 2 3");
+    let p = write_bytes(d, "half.ply", &[header(3, "").as_bytes(), half.as_bytes()]);
+    let err = read_ply(&p).unwrap_err();
+    assert_input_error(&err, &p, "element vertex 3");
+    assert!(format!("{err:#}").contains("3 values more"), "{err:#}");
+    // The true count, with any trailing whitespace, reads every row.
+    for tail in ["", "\n", "\r\n", "\n\n  \t\n"] {
+        let b = format!("{body}{tail}");
+        let p = write_bytes(d, "exact.ply", &[header(3, "").as_bytes(), b.as_bytes()]);
+        let m = read_ply(&p).unwrap();
+        assert_eq!(m.len(), 3);
+        assert_eq!(m.positions[2][0], 0.25 * (2 * names.len()) as f32);
+    }
+    // A declared element after the vertices is read past, then nothing more is allowed.
+    let h = header(3, "element edge 2\nproperty list uchar int v\n");
+    let b = format!("{body}\n2 5 6\n1 7\n");
+    let p = write_bytes(d, "edges.ply", &[h.as_bytes(), b.as_bytes()]);
+    assert_eq!(read_ply(&p).unwrap().len(), 3);
+    let b = format!("{body}\n2 5 6\n1 7\n9\n");
+    let p = write_bytes(d, "edges_more.ply", &[h.as_bytes(), b.as_bytes()]);
+    assert_input_error(&read_ply(&p).unwrap_err(), &p, "element vertex 3");
+}

@@ -14,6 +14,10 @@ use rand_pcg::Pcg64;
 
 type V3 = [f64; 3];
 
+/// The near plane of the default settings (0.05 of the unit-extent training frame), which the
+/// independent per-ray renderer below applies the same way.
+const NEAR: f64 = 0.05;
+
 fn dot(a: V3, b: V3) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
@@ -136,7 +140,7 @@ fn brute_setup(
     let to_cam = |p: V3| add(rot(pose, p), pose.translation);
     let mu = s.positions[i];
     let t = to_cam(mu);
-    if t[2] <= 0.2 {
+    if t[2] <= NEAR {
         return None;
     }
     let ax = axes(s.rotations[i]);
@@ -259,7 +263,7 @@ fn brute_pixel(
             continue;
         }
         let z = dot(nrm, sub(b.mu, origin)) / denom;
-        if !z.is_finite() || z < 0.2 {
+        if !z.is_finite() || z < NEAR {
             continue;
         }
         let hit = add(origin, mul(dir, z));
@@ -285,7 +289,7 @@ fn brute_pixel(
             out.median = z;
             out.median_contributor = k as u32 + 1;
         }
-        blended.push((w, 100.0 / 99.8 * (1.0 - 0.2 / z)));
+        blended.push((w, 100.0 / (100.0 - NEAR) * (1.0 - NEAR / z)));
         t *= 1.0 - alpha;
         out.last_contributor = k as u32 + 1;
     }
@@ -707,7 +711,12 @@ fn round_trip(q: [f64; 4]) {
 fn behind_the_camera_is_culled() {
     let cam = camera(40, 30, 40.0, 40.0, 20.3, 15.1);
     let q = [0.9, 0.1, -0.2, 0.3];
-    for (z, culled) in [(-1.0, true), (0.0, true), (0.2, true), (0.2 + 1e-9, false)] {
+    for (z, culled) in [
+        (-1.0, true),
+        (0.0, true),
+        (NEAR, true),
+        (NEAR + 1e-9, false),
+    ] {
         let out = render(
             &one([0.0, 0.0, z], [-2.0, -2.0], q, 1.0),
             &cam,
@@ -798,7 +807,7 @@ fn median_and_expected_depth_of_two_stacked_surfels() {
     let cam = camera(40, 30, 40.0, 42.0, 20.5, 15.5);
     let pix = 15 * 40 + 20;
     let st = SurfelSettings::default();
-    let m = |z: f64| 100.0 / (100.0 - 0.2) * (1.0 - 0.2 / z);
+    let m = |z: f64| 100.0 / (100.0 - NEAR) * (1.0 - NEAR / z);
     for (a1, a2, median) in [
         (0.3, 0.6, 3.0), // T before the second = 0.7 > 0.5
         (0.6, 0.3, 2.0), // T before the second = 0.4

@@ -398,7 +398,14 @@ fn each_output_alone_matches_finite_differences() {
     {
         let mut stats = [GroupStats::default(); 5];
         for seed in 0..4u64 {
-            let case = random_case(20 + 4 * k as u64 + seed, 5, SurfelSettings::smooth(), which);
+            // The random scenes lie 2–6 units away, the scale the official near plane (0.2)
+            // was set for; at the training frame's 0.05 the distortion's depth map crowds
+            // near 1 and its central differences lose the digits the check needs.
+            let settings = SurfelSettings {
+                near: 0.2,
+                ..SurfelSettings::smooth()
+            };
+            let case = random_case(20 + 4 * k as u64 + seed, 5, settings, which);
             check_case(&case, &format!("{which:?} seed {seed}"), &mut stats);
         }
         eprintln!("{which:?}");

@@ -51,11 +51,13 @@ fn config(model: BaseModel, iterations: u32) -> TrainConfig {
 
 /// 3,000 Gaussians wide enough to cover most of lego's 49 tiles: up to 147k intersections,
 /// past the ~98k the renderer starts with at this count, so the first frame overflows.
-fn big_gaussians() -> GaussianParams {
+fn big_gaussians(scene: &Scene) -> GaussianParams {
     let mut p = random_init(3_000, [0.0; 3], [0.9; 3], 11, 1).unwrap();
     for s in p.log_scales.iter_mut().flatten() {
         *s = 0.4f32.ln();
     }
+    // Placed in lego's own frame (around its object at the origin), trained in the scene's.
+    p.map_frame(scene.frame.stored_to_train([0.0; 3]), &[], false);
     p
 }
 
@@ -73,7 +75,7 @@ struct Run {
 
 fn train(ctx: &Arc<GpuContext>, scene: &Scene, gt: &[Image], model: BaseModel, ahead: bool) -> Run {
     let n = 24;
-    let init = model.initialise(big_gaussians(), 11);
+    let init = model.initialise(big_gaussians(scene), 11);
     let mut t = Trainer::new(ctx, scene, gt, &init, config(model, n)).unwrap();
     let (mut losses, mut prepared) = (Vec::new(), 0);
     for k in 1..=n {

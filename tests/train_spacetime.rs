@@ -262,7 +262,9 @@ fn spacetime_lite_learns_the_motion_a_still_model_cannot() {
         serde_json::from_slice(&std::fs::read(out.join("fps.json")).unwrap()).unwrap();
     assert!(f[0]["fps_median"].as_f64().unwrap() > 0.0, "{f}");
     assert!(f[0]["intersections"].as_u64().unwrap() > 0, "{f}");
-    // The still model read as a video model lacks the temporal groups: named.
+    // The still model read as a video model: its header says it is a 3DGS model, named with
+    // the --model that contradicts it. (A PLY without the header comment is refused for its
+    // missing temporal groups, `motion_0`: `tests/ply_models.rs`.)
     let o = lpmsplat()
         .args([
             "eval",
@@ -276,7 +278,10 @@ fn spacetime_lite_learns_the_motion_a_still_model_cannot() {
         .unwrap();
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(
-        !o.status.success() && e.contains("motion_0") && e.contains("Fix:"),
+        !o.status.success()
+            && e.contains("3dgs")
+            && e.contains("--model spacetime-lite")
+            && e.contains("Fix:"),
         "{e}"
     );
 }

@@ -105,6 +105,7 @@ fn plane_scene(dir: &std::path::Path, times: &[f64]) -> Scene {
         has_alpha: false,
         view_times: (times.len() > 1).then_some(view_times),
         time_base: None,
+        frame: lpmsplat::scene::SceneFrame::IDENTITY,
     }
 }
 

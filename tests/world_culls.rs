@@ -172,6 +172,8 @@ fn training_culls_before_after_densification_and_outside_the_initial_box() {
     let mut zs: Vec<f32> = init.positions.iter().map(|p| p[2]).collect();
     zs.sort_by(f32::total_cmp);
     let below_z = zs[zs.len() / 3] as f64;
+    // Given in the scene's own units, as a user (or the official config) gives it.
+    let user_below_z = scene.frame.to_user([0.0, 0.0, below_z])[2];
     let mut cfg = TrainConfig {
         iterations: 40,
         ..Default::default()
@@ -190,7 +192,7 @@ fn training_culls_before_after_densification_and_outside_the_initial_box() {
     st.guided = None;
     st.omega_freeze = None;
     st.world_culls = Some(WorldCulls {
-        below_z,
+        below_z: user_below_z,
         later: Some(later),
     });
     let mut t = Trainer::new(&ctx, &scene, &images, &init, cfg.clone()).unwrap();

@@ -201,16 +201,18 @@ impl SafeTensors {
                 format!("has dtype {}, expected F32 (float32)", e.dtype),
             ));
         }
-        let count: usize = e.shape.iter().product();
-        if e.end - e.begin != count * 4 {
+        // Checked: a shape such as [2^62, 4] must not wrap around to a size the data matches
+        // (the caller would then index past the values it got).
+        let needed = e.shape.iter().try_fold(4usize, |n, &d| n.checked_mul(d));
+        if needed != Some(e.end - e.begin) {
+            let needed = needed.map_or_else(|| "more than 2^64".to_string(), |n| n.to_string());
             return Err(bad(
                 &self.path,
                 &field,
                 format!(
-                    "holds {} bytes but shape {:?} of F32 needs {}",
+                    "holds {} bytes but shape {:?} of F32 needs {needed}",
                     e.end - e.begin,
                     e.shape,
-                    count * 4
                 ),
             ));
         }

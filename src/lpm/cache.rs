@@ -229,6 +229,10 @@ pub fn read_cache(
             "checksum mismatch (file damaged or truncated)".into(),
         ));
     }
+    // From here on the reader stops at the checksum: a pair whose fields run into it is
+    // truncated, and `body - r.at` below cannot wrap around (it did, and a match count of
+    // 2^31 then passed the size check and was allocated).
+    r.b = &bytes[..body];
     let sh = r.u64("scene hash").map_err(corrupt)?;
     let st = r.u64("settings hash").map_err(corrupt)?;
     if sh != scene_hash {

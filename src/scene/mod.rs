@@ -144,6 +144,9 @@ impl Default for LoadOptions {
     }
 }
 
+/// The largest camera or point coordinate a scene may hold ([`Scene::check_coordinates`]).
+pub const MAX_COORDINATE: f64 = 1e12;
+
 /// Half side of the reference's random-initialisation box for NeRF-synthetic scenes.
 pub const NERF_SYNTHETIC_INIT_HALF_SIDE: f64 = 1.3;
 
@@ -232,7 +235,44 @@ impl Scene {
 
     /// Loads the scene in `root`, detecting its format, in the training frame ([`frame`]).
     pub fn load(root: &Path, opts: &LoadOptions) -> anyhow::Result<Scene> {
-        Ok(Self::load_in_file_frame(root, opts)?.into_training_frame())
+        let scene = Self::load_in_file_frame(root, opts)?;
+        scene.check_coordinates()?;
+        Ok(scene.into_training_frame())
+    }
+
+    /// Refuses camera centres and SfM points past [`MAX_COORDINATE`] from the origin: finite,
+    /// but no survey or georeferenced frame reaches them (Earth-centred coordinates in
+    /// millimetres stay below 10¹⁰), and their squares and the scene's extent overflow or lose
+    /// every digit of the scene itself.
+    pub fn check_coordinates(&self) -> anyhow::Result<()> {
+        let far = |p: &[f64; 3]| p.iter().any(|v| !(v.abs() <= MAX_COORDINATE));
+        let fix = "the reconstruction diverged or the file is corrupt: export the model again, or \
+                   remove the record";
+        if let Some(v) = self.views.iter().find(|v| far(&v.pose.center())) {
+            return crate::error::bad_input(
+                &self.root,
+                format!("view {} pose", v.name),
+                format!(
+                    "puts its camera at {:?}, beyond {MAX_COORDINATE:e} units from the origin",
+                    v.pose.center()
+                ),
+                fix,
+            );
+        }
+        if let Some(points) = &self.points {
+            if let Some(i) = points.positions.iter().position(far) {
+                return crate::error::bad_input(
+                    &self.root,
+                    format!("SfM point {}", points.ids.get(i).map_or(i as u64, |&id| id)),
+                    format!(
+                        "lies at {:?}, beyond {MAX_COORDINATE:e} units from the origin",
+                        points.positions[i]
+                    ),
+                    fix,
+                );
+            }
+        }
+        Ok(())
     }
 
     /// Moves a scene loaded in its files' frame into the training frame ([`frame`]): the

@@ -61,9 +61,10 @@ pub struct SceneFingerprint {
     /// (name, width, height) of every view at the loaded resolution.
     pub views: Vec<(String, u32, u32)>,
     pub train: Vec<u32>,
-    /// The training frame the checkpoint's Gaussians and moments are in; files before format 4
-    /// were trained in the scene files' own frame, the identity.
-    pub frame: crate::scene::SceneFrame,
+    /// The training frame the checkpoint's Gaussians and moments are in; `None` for a file
+    /// before format 4, trained in the scene files' own frame, which
+    /// [`Checkpoint::into_frame`] moves into the scene's training frame on resuming.
+    pub frame: Option<crate::scene::SceneFrame>,
 }
 
 impl SceneFingerprint {
@@ -77,7 +78,7 @@ impl SceneFingerprint {
                 .map(|v| (v.name.clone(), v.camera.width, v.camera.height))
                 .collect(),
             train: scene.train.iter().map(|&v| v as u32).collect(),
-            frame: scene.frame,
+            frame: Some(scene.frame),
         }
     }
 
@@ -125,26 +126,21 @@ impl SceneFingerprint {
                 "the training split differs (another --test-split or holdout?)".into(),
             ));
         }
-        let (a, b) = (&self.frame, &scene.frame);
-        let close = |x: f64, y: f64, unit: f64| (x - y).abs() <= 1e-9 * unit;
-        if !(close(a.scale, b.scale, b.scale)
-            && (0..3).all(|k| close(a.origin[k], b.origin[k], b.extent())))
-        {
-            let was = if a.is_identity() {
-                "in the scene files' own frame (a checkpoint from before scenes were trained \
-                 recentred and scaled to a unit extent)"
-                    .to_string()
-            } else {
-                format!("recentred on {:?} and scaled by {:e}", a.origin, a.scale)
-            };
-            return Some((
-                "frame".into(),
-                format!(
-                    "the checkpoint's Gaussians were trained {was}; this scene is trained \
-                     recentred on {:?} and scaled by {:e} (other camera poses?)",
-                    b.origin, b.scale
-                ),
-            ));
+        if let (Some(a), Some(b)) = (&self.frame, &scene.frame) {
+            let close = |x: f64, y: f64, unit: f64| (x - y).abs() <= 1e-9 * unit;
+            if !(close(a.scale, b.scale, b.scale)
+                && (0..3).all(|k| close(a.origin[k], b.origin[k], b.extent())))
+            {
+                return Some((
+                    "frame".into(),
+                    format!(
+                        "the checkpoint's Gaussians were trained recentred on {:?} and scaled \
+                         by {:e}; this scene is trained recentred on {:?} and scaled by {:e} \
+                         (other camera poses?)",
+                        a.origin, a.scale, b.origin, b.scale
+                    ),
+                ));
+            }
         }
         None
     }
@@ -296,7 +292,8 @@ impl Checkpoint {
         for &t in &f.train {
             w.u32(t);
         }
-        for v in f.frame.origin.iter().chain([&f.frame.scale]) {
+        let frame = f.frame.unwrap_or(crate::scene::SceneFrame::IDENTITY);
+        for v in frame.origin.iter().chain([&frame.scale]) {
             w.u64(v.to_bits());
         }
         w.u32(self.iteration);
@@ -387,25 +384,25 @@ impl Checkpoint {
         for i in 0..ntrain {
             train.push(r.u32(&format!("train[{i}]"))?);
         }
-        let mut frame = crate::scene::SceneFrame::IDENTITY;
+        let mut frame = None;
         if version >= 4 {
+            let mut f = crate::scene::SceneFrame::IDENTITY;
             for k in 0..3 {
-                frame.origin[k] = f64::from_bits(r.u64(&format!("frame.origin[{k}]"))?);
+                f.origin[k] = f64::from_bits(r.u64(&format!("frame.origin[{k}]"))?);
             }
-            frame.scale = f64::from_bits(r.u64("frame.scale")?);
-            if frame.origin.iter().any(|v| !v.is_finite())
-                || !(frame.scale > 0.0 && frame.scale.is_finite())
-            {
+            f.scale = f64::from_bits(r.u64("frame.scale")?);
+            if f.origin.iter().any(|v| !v.is_finite()) || !(f.scale > 0.0 && f.scale.is_finite()) {
                 return bad_input(
                     path,
                     "frame",
                     format!(
                         "origin {:?}, scale {} is not a valid frame",
-                        frame.origin, frame.scale
+                        f.origin, f.scale
                     ),
                     corrupt,
                 );
             }
+            frame = Some(f);
         }
         let iteration = r.u32("iteration")?;
         let adam_step = r.u32("adam_step")?;
@@ -444,6 +441,33 @@ impl Checkpoint {
         } else {
             vec![0.0; count as usize]
         };
+        // A NaN or infinity anywhere (a run that diverged before it was saved) would poison
+        // the resumed run from its first step: refused here, naming the array and the entry.
+        let arrays = sets
+            .iter()
+            .zip(["params", "adam m", "adam v"])
+            .flat_map(|(set, s)| {
+                set.iter()
+                    .zip(shape.strides())
+                    .map(move |(v, (g, _))| (format!("{s}.{g}"), v))
+            })
+            .chain(
+                ["grad_accum", "denom", "max_radii", "abs_accum"]
+                    .iter()
+                    .zip(&stats)
+                    .map(|(n, v)| (format!("density.{n}"), v)),
+            );
+        for (field, values) in arrays {
+            if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+                return bad_input(
+                    path,
+                    format!("{field}[{i}]"),
+                    format!("{} is not finite", values[i]),
+                    "the run diverged before this checkpoint was saved: resume from an \
+                     earlier checkpoint or start a fresh run",
+                );
+            }
+        }
         let config_json = r.string("config")?;
         if r.at != body.len() {
             return bad_input(
@@ -491,6 +515,50 @@ impl Checkpoint {
     }
 
     /// The Gaussians of the checkpoint.
+    /// Moves a checkpoint from before format 4, whose model and moments are in the scene files'
+    /// own frame, into `to`, the training frame (`x' = k·x + b`, [`crate::scene::frame`]):
+    /// positions and the length groups named in `length_extras` scale by `k` (their Adam
+    /// moments, running means of gradients and of their squares, by `1/k` and `1/k²`, so
+    /// that every Adam step is the old one scaled by `k`), log-scales shift by `ln k`
+    /// (the first two only with `keep_third_scale`, a surfel's unused axis; their moments
+    /// stay), and nothing else has a length. A checkpoint that has a frame is left alone.
+    pub fn into_frame(
+        &mut self,
+        to: &crate::scene::SceneFrame,
+        keep_third_scale: bool,
+        length_extras: &[&str],
+    ) {
+        if self.fingerprint.frame.is_some() {
+            return;
+        }
+        let (k, b) = to.stored_to_train([0.0; 3]);
+        let [params, m, v] = &mut self.sets;
+        for (i, x) in params[0].iter_mut().enumerate() {
+            *x = (*x as f64 * k + b[i % 3]) as f32;
+        }
+        let ln_k = k.ln();
+        for (i, l) in params[1].iter_mut().enumerate() {
+            if !(keep_third_scale && i % 3 == 2) {
+                *l = (*l as f64 + ln_k) as f32;
+            }
+        }
+        let mut lengths = vec![0];
+        for (g, group) in self.fingerprint.extra.iter().enumerate() {
+            if length_extras.contains(&group.name.as_str()) {
+                lengths.push(6 + g);
+                for x in &mut params[6 + g] {
+                    *x = (*x as f64 * k) as f32;
+                }
+            }
+        }
+        for g in lengths {
+            m[g].iter_mut().for_each(|x| *x = (*x as f64 / k) as f32);
+            v[g].iter_mut()
+                .for_each(|x| *x = (*x as f64 / (k * k)) as f32);
+        }
+        self.fingerprint.frame = Some(*to);
+    }
+
     pub fn params(&self) -> GaussianParams {
         let s = &self.sets[0];
         let mut p = GaussianParams::empty(self.fingerprint.sh_degree);
@@ -707,6 +775,20 @@ impl Trainer {
                 extra: ck.fingerprint.extra.clone(),
             },
         );
+        // A checkpoint from before scenes were trained in a normalised frame, moved into it.
+        let mut moved;
+        let ck = if ck.fingerprint.frame.is_none() {
+            moved = ck.clone();
+            let lengths: &[&str] = if config.spacetime.is_some() {
+                &["motion"]
+            } else {
+                &[]
+            };
+            moved.into_frame(&scene.frame, config.surfels.is_some(), lengths);
+            &moved
+        } else {
+            ck
+        };
         if let Some((field, problem)) = ck.fingerprint.difference(&here) {
             return bad_input(
                 path,

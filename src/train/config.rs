@@ -88,16 +88,14 @@ impl Default for TrainConfig {
 }
 
 impl TrainConfig {
-    /// This configuration with its lengths in world units (the official Neural 3D Video cull's
-    /// z, the angular-velocity split's motion and scale thresholds) moved into a scene's
-    /// training frame ([`crate::scene::frame`]). The configuration a run records keeps the
-    /// user's units; the passes are built from this one.
+    /// This configuration with its lengths in world units (the angular-velocity split's
+    /// motion and scale thresholds) moved into a scene's training frame
+    /// ([`crate::scene::frame`]; the world culls' z is moved by their pass, which reports it
+    /// in the user's units). The configuration a run records keeps the user's units; the
+    /// passes are built from this one.
     pub fn in_training_frame(&self, frame: &crate::scene::SceneFrame) -> TrainConfig {
         let mut c = self.clone();
         if let Some(st) = c.spacetime.as_mut() {
-            if let Some(w) = st.world_culls.as_mut() {
-                w.below_z = frame.to_train([0.0, 0.0, w.below_z])[2];
-            }
             if let Some(f) = st.omega_freeze.as_mut() {
                 f.motion_above = frame.length_to_train(f.motion_above);
                 f.scale_between = f.scale_between.map(|l| frame.length_to_train(l));

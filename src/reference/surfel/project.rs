@@ -351,7 +351,8 @@ mod tests {
         let cam = camera();
         let st = SurfelSettings::default();
         let pose = Pose::IDENTITY;
-        let behind = one([0.0, 0.0, 0.2], [-1.0, -1.0], [1.0, 0.0, 0.0, 0.0]);
+        // At the near plane itself: culled (z ≤ near).
+        let behind = one([0.0, 0.0, st.near], [-1.0, -1.0], [1.0, 0.0, 0.0, 0.0]);
         let p = project_surfel(&behind, 0, &cam, &pose, 0, &st);
         assert_eq!(p.cull, Some(SurfelCull::Near));
         // Exactly edge-on: a camera at the origin looking along world +x (a permutation

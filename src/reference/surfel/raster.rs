@@ -433,7 +433,7 @@ mod tests {
         let err = sample_surfel(&tiny, 7.0, 9.0, &st).unwrap_err();
         assert_eq!(err, SurfelSkip::NonFinite);
         let mut near = disk();
-        near.transform[2][2] = 0.1;
+        near.transform[2][2] = 0.5 * st.near;
         assert_eq!(
             sample_surfel(&near, 0.5, 0.5, &st).unwrap_err(),
             SurfelSkip::Near

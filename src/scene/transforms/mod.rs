@@ -19,7 +19,6 @@ mod shared;
 
 use super::{LoadOptions, Scene};
 use crate::error::{bad_input, InputError};
-use anyhow::Context;
 use nerf_synthetic::load_nerf_synthetic;
 use nerfstudio::load_nerfstudio;
 use serde_json::Value;
@@ -46,11 +45,23 @@ pub fn load_scene(root: &Path, opts: &LoadOptions) -> anyhow::Result<Scene> {
 /// `Infinity` (which Python's json module writes) are read as the strings "NaN" / "Infinity" so
 /// that the field holding them can be named in the error.
 pub fn read_json(path: &Path) -> anyhow::Result<Value> {
-    let text = std::fs::read_to_string(path).with_context(|| {
-        format!(
-            "{}: cannot read the file (does it exist and is it UTF-8 text?)",
-            path.display()
-        )
+    let text = std::fs::read_to_string(path).map_err(|e| {
+        let (problem, fix) = match e.kind() {
+            std::io::ErrorKind::InvalidData => (
+                "is not UTF-8 text".to_string(),
+                "write the file as UTF-8 JSON (it may be truncated or another file under this \
+                 name)",
+            ),
+            std::io::ErrorKind::NotFound => (
+                "does not exist".to_string(),
+                "check the path, or point at the scene's top folder",
+            ),
+            _ => (
+                format!("cannot be read ({e})"),
+                "check that the file is readable",
+            ),
+        };
+        InputError::new(path, "file", problem, fix)
     })?;
     serde_json::from_str(&text).or_else(|e| {
         if let Ok(v) = serde_json::from_str(&quote_non_finite(&text)) {

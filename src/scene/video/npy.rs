@@ -89,14 +89,16 @@ pub fn parse_array2(path: &Path, bytes: &[u8]) -> anyhow::Result<Array2> {
         );
     };
     let body = &bytes[header_start + header_len..];
-    if body.len() != rows * cols * width {
+    // Checked: a shape such as (2^62, 4) must not wrap around to a size the body matches.
+    let needed = rows.checked_mul(cols).and_then(|n| n.checked_mul(width));
+    if needed != Some(body.len()) {
+        let needed = needed.map_or_else(|| "more than 2^64".to_string(), |n| n.to_string());
         return bad_input(
             path,
             "data",
             format!(
-                "holds {} bytes where shape ({rows}, {cols}) needs {}",
+                "holds {} bytes where shape ({rows}, {cols}) needs {needed}",
                 body.len(),
-                rows * cols * width
             ),
             FIX,
         );

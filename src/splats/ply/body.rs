@@ -262,9 +262,30 @@ pub(super) fn parse_ply(
                 );
             }
             rows = &data[..needed];
+            // The elements after the vertex rows, then nothing: a body longer than the header
+            // declares means a wrong count (e.g. `element vertex 1` over 11,384 rows), and
+            // reading only the declared rows would silently drop the rest of the model.
+            let mut end = start + needed;
+            for e in &header.elements[vi + 1..] {
+                end = skip_binary_element(path, body, end, e, big)?;
+            }
+            if end < body.len() {
+                return Err(excess_error(
+                    path,
+                    vertex,
+                    body.len() - end,
+                    (vi + 1 == header.elements.len()).then_some(stride),
+                ));
+            }
         }
         Format::Ascii => {
-            owned = ascii_to_rows(path, body, &header.elements[..vi], vertex, &indices)?;
+            owned = ascii_to_rows(
+                path,
+                body,
+                (&header.elements[..vi], &header.elements[vi + 1..]),
+                vertex,
+                &indices,
+            )?;
             stride = indices.len() * 4;
             let slots: Vec<Slot> = (0..indices.len())
                 .map(|k| Slot {
@@ -316,6 +337,33 @@ pub(super) fn parse_ply(
         );
     }
     Ok(params)
+}
+
+/// The error for a body that holds `extra` bytes more than the header's elements need;
+/// `vertex_stride` is the row size when the vertex element is the last one (the extra bytes are
+/// then most likely undeclared vertex rows).
+fn excess_error(
+    path: &Path,
+    vertex: &Element,
+    extra: usize,
+    vertex_stride: Option<usize>,
+) -> anyhow::Error {
+    let n = vertex.count;
+    let rows = match vertex_stride {
+        Some(s) if extra.is_multiple_of(s) => format!(" ({} vertex rows)", extra / s),
+        Some(s) => format!(" ({} vertex rows and {} bytes)", extra / s, extra % s),
+        None => String::new(),
+    };
+    crate::error::InputError::new(
+        path,
+        format!("element vertex {n}"),
+        format!(
+            "the file holds {extra} bytes{rows} more than the header declares (`element vertex \
+             {n}` and the other elements' counts and property types)"
+        ),
+        "the header's count is wrong: write the true count, or re-export the model",
+    )
+    .into()
 }
 
 /// Returns the body offset just past element `e`, which starts at `start`.
@@ -392,7 +440,7 @@ fn skip_binary_element(
 fn ascii_to_rows(
     path: &Path,
     body: &[u8],
-    before: &[Element],
+    (before, after): (&[Element], &[Element]),
     vertex: &Element,
     indices: &[usize],
 ) -> anyhow::Result<Vec<u8>> {
@@ -405,7 +453,45 @@ fn ascii_to_rows(
         );
     };
     let mut tok = text.split_ascii_whitespace();
-    for e in before {
+    skip_ascii_elements(path, &mut tok, before)?;
+    let out = ascii_vertex_rows(path, body.len(), &mut tok, vertex, indices)?;
+    skip_ascii_elements(path, &mut tok, after)?;
+    // Whitespace after the last row is fine (most writers end with a newline); anything else
+    // is content the header does not declare.
+    if let Some(t) = tok.next() {
+        let more = 1 + tok.count();
+        let per_row = vertex.props.len();
+        let rows = if after.is_empty() && more.is_multiple_of(per_row) {
+            format!(" ({} vertex rows)", more / per_row)
+        } else {
+            String::new()
+        };
+        return bad_input(
+            path,
+            format!("element vertex {}", vertex.count),
+            format!(
+                "the file holds {more} values{rows} more than the header declares, from {t:?} \
+                 on (`element vertex {}` and the other elements' counts)",
+                vertex.count
+            ),
+            "the header's count is wrong: write the true count, or re-export the model",
+        );
+    }
+    Ok(out)
+}
+
+/// Consumes the tokens of ASCII elements `elements`.
+fn skip_ascii_elements(
+    path: &Path,
+    tok: &mut std::str::SplitAsciiWhitespace<'_>,
+    elements: &[Element],
+) -> anyhow::Result<()> {
+    for e in elements {
+        // An element without properties has no tokens, whatever its (untrusted) count: no
+        // loop over a count of 2^40 that reads nothing.
+        if e.props.is_empty() {
+            continue;
+        }
         for r in 0..e.count {
             for p in &e.props {
                 let field = || format!("element {} row {r}, property {}", e.name, p.name);
@@ -440,6 +526,18 @@ fn ascii_to_rows(
             }
         }
     }
+    Ok(())
+}
+
+/// Parses the vertex rows of an ASCII body (`body_len` bytes) into little-endian f32 rows of the
+/// `indices` properties.
+fn ascii_vertex_rows(
+    path: &Path,
+    body_len: usize,
+    tok: &mut std::str::SplitAsciiWhitespace<'_>,
+    vertex: &Element,
+    indices: &[usize],
+) -> anyhow::Result<Vec<u8>> {
     // Where each vertex property goes in the output row, if anywhere (twice for a property
     // that stands in for a missing one).
     let mut dest = vec![Vec::new(); vertex.props.len()];
@@ -451,7 +549,7 @@ fn ascii_to_rows(
     // allocate more than the file could hold.
     let cap = vertex
         .count
-        .min(body.len() / (2 * vertex.props.len()).max(1) + 1);
+        .min(body_len / (2 * vertex.props.len()).max(1) + 1);
     let mut out = Vec::with_capacity(cap * row_bytes);
     let mut row = vec![0u8; row_bytes];
     for v in 0..vertex.count {

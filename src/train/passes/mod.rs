@@ -275,7 +275,11 @@ pub fn rules_for_config(
         )?));
     }
     if let Some(w) = config.spacetime.as_ref().and_then(|s| s.world_culls) {
-        rules.push(Box::new(world_culls::WorldCuller::new(w, initial)?));
+        rules.push(Box::new(world_culls::WorldCuller::new(
+            w,
+            &scene.frame,
+            initial,
+        )?));
     }
     Ok(rules)
 }

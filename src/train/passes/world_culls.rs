@@ -114,14 +114,26 @@ struct State {
 }
 
 pub struct WorldCuller {
+    /// The settings in the training frame.
     settings: WorldCulls,
+    /// The z threshold in the scene's own units, as the user (and the official config) gave it.
+    user_below_z: f64,
     state: State,
 }
 
 impl WorldCuller {
     /// For a run starting from `initial` (the bounding box is taken from it; a resumed run
-    /// restores the original one from its checkpoint).
-    pub fn new(settings: WorldCulls, initial: &GaussianParams) -> anyhow::Result<Self> {
+    /// restores the original one from its checkpoint), on a scene held in `frame`: the z
+    /// threshold, in the scene's own units, is moved into the training frame (the frame has
+    /// no rotation, so a z plane stays a z plane).
+    pub fn new(
+        settings: WorldCulls,
+        frame: &crate::scene::SceneFrame,
+        initial: &GaussianParams,
+    ) -> anyhow::Result<Self> {
+        let user_below_z = settings.below_z;
+        let mut settings = settings;
+        settings.below_z = frame.to_train([0.0, 0.0, user_below_z])[2];
         anyhow::ensure!(
             settings.below_z.is_finite(),
             "world culls: the z threshold {} is not finite",
@@ -147,6 +159,7 @@ impl WorldCuller {
         }
         Ok(Self {
             settings,
+            user_below_z,
             state: State {
                 lo,
                 hi,
@@ -212,9 +225,10 @@ impl ModelRule for WorldCuller {
         anyhow::ensure!(
             !kept.is_empty(),
             "world culls: all {} initial Gaussians have world z below {} (the official Neural \
-             3D Video cull): this scene's world frame is not N3DV's. Fix: --n3dv-culls off",
+             3D Video cull, in the scene's own units): this scene's world frame is not N3DV's. \
+             Fix: --n3dv-culls off",
             init.len(),
-            self.settings.below_z
+            self.user_below_z
         );
         self.state.unreported = Some((init.len(), init.len() - kept.len()));
         Ok(kept)
