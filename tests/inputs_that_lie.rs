@@ -14,7 +14,7 @@ use lpmsplat::train::trainer::ViewMetrics;
 const DOOR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/lund_door_small");
 
 fn err(r: anyhow::Result<Scene>) -> String {
-    format!("{:#}", r.err().expect("the load must fail"))
+    format!("{:#}", r.expect_err("the load must fail"))
 }
 
 /// A copy of the door scene: its model, and its images linked one by one (so a test can spoil

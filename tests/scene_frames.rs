@@ -246,8 +246,10 @@ fn models_are_read_back_into_the_training_frame_through_their_shift() {
 
 #[test]
 fn a_camera_rig_without_spread_takes_the_points_spread() {
-    let mut points = lpmsplat::scene::SfmPoints::default();
-    points.positions = vec![[10.0, 0.0, 0.0], [-10.0, 0.0, 0.0], [0.0, 5.0, 0.0]];
+    let points = lpmsplat::scene::SfmPoints {
+        positions: vec![[10.0, 0.0, 0.0], [-10.0, 0.0, 0.0], [0.0, 5.0, 0.0]],
+        ..Default::default()
+    };
     let f = SceneFrame::fit(&[[0.0; 3], [0.0; 3]], Some(&points));
     assert!((f.scale - 1.0 / 11.0).abs() < 1e-12, "{f:?}");
     // Neither: only recentred.

@@ -245,7 +245,7 @@ impl Scene {
     /// millimetres stay below 10¹⁰), and their squares and the scene's extent overflow or lose
     /// every digit of the scene itself.
     pub fn check_coordinates(&self) -> anyhow::Result<()> {
-        let far = |p: &[f64; 3]| p.iter().any(|v| !(v.abs() <= MAX_COORDINATE));
+        let far = |p: &[f64; 3]| p.iter().any(|v| v.is_nan() || v.abs() > MAX_COORDINATE);
         let fix = "the reconstruction diverged or the file is corrupt: export the model again, or \
                    remove the record";
         if let Some(v) = self.views.iter().find(|v| far(&v.pose.center())) {

@@ -289,7 +289,7 @@ pub(super) fn check_rotation(
         .map(|(i, j)| m[i][j].abs())
         .fold(0.0f64, f64::max);
     // A determinant tiny against the entries' own scale is a collapsed matrix.
-    if !(det > 1e-9 * largest.powi(3)) || largest == 0.0 {
+    if det.is_nan() || det <= 1e-9 * largest.powi(3) || largest == 0.0 {
         let problem = if det < 0.0 && det.abs() > 1e-9 * largest.powi(3) {
             format!("its rotation part has determinant {det:.3e} < 0: a reflection, not a camera orientation")
         } else {
