@@ -279,6 +279,32 @@ fn neural_3d_video_refusals_name_the_file_and_the_fix() {
     write_frame(&dir.path().join("cam02/0.png"), 17, 12, 0.0);
     let e = load("0..");
     assert!(e.contains("0.png") && e.contains("17x12"), "{e}");
+    // A camera matrix that is no rotation (a registration that failed wrote zeros; a scaled
+    // one), named by its row.
+    write_frame(&dir.path().join("cam02/0.png"), 16, 12, 0.0);
+    let npy = dir.path().join("poses_bounds.npy");
+    let poses = npy::read_array2(&npy).unwrap();
+    for (spoil, want) in [(0.0, "not a rotation"), (2.0, "not a rotation")] {
+        let mut data = poses.data.clone();
+        for r in 0..3 {
+            for c in 0..3 {
+                data[poses.cols + r * 5 + c] *= spoil;
+            }
+        }
+        npy::write_array2(&npy, poses.rows, poses.cols, &data).unwrap();
+        let e = load("0..");
+        assert!(
+            e.contains("poses_bounds.npy") && e.contains("row 1") && e.contains(want),
+            "{spoil}: {e}"
+        );
+    }
+    // A reflection: one axis flipped.
+    let mut data = poses.data.clone();
+    for r in 0..3 {
+        data[poses.cols + r * 5] *= -1.0;
+    }
+    npy::write_array2(&npy, poses.rows, poses.cols, &data).unwrap();
+    assert!(load("0..").contains("reflection"));
 }
 
 /// A Panoptic scene: cameras 1, 3 (train) and 2 (test), `frames` frames.

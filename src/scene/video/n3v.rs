@@ -87,6 +87,15 @@ pub fn load(root: &Path, opts: &LoadOptions, range: FrameRange) -> anyhow::Resul
             [m(1, 1), m(1, 0), -m(1, 2), m(1, 3)],
             [m(2, 1), m(2, 0), -m(2, 2), m(2, 3)],
         ];
+        if let Some(problem) = rotation_problem(&c2w) {
+            return bad_input(
+                &npy_path,
+                format!("row {i} ({name}) rotation"),
+                problem,
+                "use the poses_bounds.npy that came with the scene (its rotations are \
+                 orthonormal), or export the poses again",
+            );
+        }
         let pose = pose_from_opencv_c2w(c2w);
         let f = focal * scale;
         let (source_model, camera) =
@@ -104,6 +113,35 @@ pub fn load(root: &Path, opts: &LoadOptions, range: FrameRange) -> anyhow::Resul
     }
     let test = vec![names[0].clone()];
     finish(root, VideoLayout::NeuralVideo, cameras, &test, start, count)
+}
+
+/// What is wrong with a camera-to-world matrix's rotation part, if anything: a rotation has
+/// orthonormal columns (within 1e-3: files store 6–9 digits) and determinant +1; a singular
+/// matrix (all zeros: a failed registration), a reflection or a scaled or sheared one gives
+/// the camera no orientation.
+fn rotation_problem(c2w: &[[f64; 4]; 3]) -> Option<String> {
+    let mut worst = 0.0f64;
+    for i in 0..3 {
+        for j in 0..3 {
+            let dot: f64 = (0..3).map(|k| c2w[k][i] * c2w[k][j]).sum();
+            worst = worst.max((dot - if i == j { 1.0 } else { 0.0 }).abs());
+        }
+    }
+    let r = |i: usize, j: usize| c2w[i][j];
+    let det = r(0, 0) * (r(1, 1) * r(2, 2) - r(1, 2) * r(2, 1))
+        - r(0, 1) * (r(1, 0) * r(2, 2) - r(1, 2) * r(2, 0))
+        + r(0, 2) * (r(1, 0) * r(2, 1) - r(1, 1) * r(2, 0));
+    if worst.is_nan() || worst > 1e-3 {
+        Some(format!(
+            "is not a rotation (columns off orthonormal by {worst:.3e}; determinant {det:.3e})"
+        ))
+    } else if det < 0.0 {
+        Some(format!(
+            "is a reflection (determinant {det:.3e}), not a rotation"
+        ))
+    } else {
+        None
+    }
 }
 
 /// The world-to-camera pose of an OpenCV-axes camera-to-world matrix. The rotation is used as
