@@ -164,10 +164,12 @@ fn eval_matches(scene: &Path, run: &Run, extra: &[&str]) {
     );
 }
 
-#[test]
-fn gaussians_3d_train_alike_in_every_frame() {
-    let tmp = tempfile::tempdir().unwrap();
-    let args = [
+/// The short door run of the still models' tests: `-r 8`, 200 iterations, densifying from 100
+/// every 50.
+fn door_run(model: &str) -> [&str; 10] {
+    [
+        "--model",
+        model,
         "-r",
         "8",
         "--iterations",
@@ -176,7 +178,13 @@ fn gaussians_3d_train_alike_in_every_frame() {
         "100",
         "--densify-interval",
         "50",
-    ];
+    ]
+}
+
+#[test]
+fn gaussians_3d_train_alike_in_every_frame() {
+    let tmp = tempfile::tempdir().unwrap();
+    let args = door_run("3dgs");
     let base = train(Path::new(DOOR), &tmp.path().join("base"), &args);
     let frames: [(&str, f64, [f64; 4], [f64; 3]); 3] = [
         ("kilometres", 0.001, [1.0, 0.0, 0.0, 0.0], [0.0; 3]),
@@ -226,18 +234,7 @@ fn gaussians_3d_train_alike_in_every_frame() {
 #[test]
 fn surfels_train_alike_far_from_the_origin() {
     let tmp = tempfile::tempdir().unwrap();
-    let args = [
-        "--model",
-        "2dgs",
-        "-r",
-        "8",
-        "--iterations",
-        "200",
-        "--densify-from",
-        "100",
-        "--densify-interval",
-        "50",
-    ];
+    let args = door_run("2dgs");
     let base = train(Path::new(DOOR), &tmp.path().join("base"), &args);
     let dir = tmp.path().join("geo");
     std::fs::create_dir_all(&dir).unwrap();
