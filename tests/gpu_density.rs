@@ -10,11 +10,12 @@ use lpmsplat::splats::{ExtraGroup, ExtraValues, GaussianParams};
 use lpmsplat::train::adam::SplatState;
 use lpmsplat::train::density::abs_quantile::abs_grad_threshold;
 use lpmsplat::train::density::budget::{self, BudgetCut};
+use lpmsplat::train::density::growth::{BudgetCurve, Growth};
 use lpmsplat::train::density::reference::{self, HostState, HostStats};
 use lpmsplat::train::density::rng::fold_seed;
 use lpmsplat::train::density::{
     reset_logit, DensifyArgs, DensifyPhase, DensityConfig, DensityControl, Statistic, Thresholds,
-    DECIDE_CLONE, DECIDE_REMOVE, DECIDE_SPLIT,
+    DECIDE_CLONE, DECIDE_LOWERED, DECIDE_REMOVE, DECIDE_SPLIT,
 };
 use rand::{Rng, SeedableRng};
 use std::sync::Arc;
@@ -445,13 +446,16 @@ fn random_steps_match_the_host_reference_and_grow_past_the_capacity() {
 /// (within the division's ULP allowance; bit for bit on lavapipe), the decisions after `record_decide` are the reference's with the host's cut
 /// applied (the kernel's tie rule included: half the Gaussians share one statistic, where the
 /// cut falls), the step ends at the cap, and every dropped addition scores no higher than
-/// every kept one; a cap the step does not reach changes nothing.
+/// every kept one; a cap the step does not reach changes nothing. Steps 4–6 take the guided
+/// and exact modes: 4 the exact budget (every seen Gaussian a candidate, the count lands on the
+/// curve's target, score weights given), 5 the paper's ranking over the lowered threshold, 6
+/// score weights on one scale under a cap.
 #[test]
 fn a_gaussian_budget_keeps_the_additions_furthest_over_their_threshold() {
     let ctx = ctx();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(91);
     let (n, degree, extent) = (3_000usize, 1u32, 3.0f32);
-    for step in 0..4u32 {
+    for step in 0..7u32 {
         let params = random_params(&mut rng, n, degree, extent);
         let m = random_moments(&mut rng, n, degree, false);
         let v = random_moments(&mut rng, n, degree, true);
@@ -463,20 +467,34 @@ fn a_gaussian_budget_keeps_the_additions_furthest_over_their_threshold() {
                 stats.denom[i] = 1.0;
             }
         }
+        // The exact budget's curve: step 2 of 4 from n to 1.5 n (taming: 0.75 of the room).
+        let exact = (step == 4).then_some(BudgetCurve {
+            target: n + n / 2,
+            growth: Growth::Taming,
+            initial: n,
+            window: (0, 500, 100),
+        });
         let mut cfg = DensityConfig {
             seed: 7,
             abs_grad: step == 2,
+            exact_budget: exact,
+            rank_lowered: step == 5,
             ..Default::default()
         };
         let args = DensifyArgs {
             extent: extent as f64,
             prune_large: step % 2 == 1,
-            iteration: 700 + step,
+            iteration: 200 + step,
             phase: DensifyPhase::Both,
         };
-        let scale: Option<Vec<f32>> = (step == 1).then(|| {
+        let scale: Option<Vec<f32>> = matches!(step, 1 | 5 | 6).then(|| {
             (0..n)
                 .map(|_| if rng.gen_bool(0.3) { 0.5 } else { 1.0 })
+                .collect()
+        });
+        let weight: Option<Vec<f32>> = matches!(step, 4 | 6).then(|| {
+            (0..n)
+                .map(|_| if rng.gen_bool(0.3) { 1.5 } else { 1.0 })
                 .collect()
         });
         let t = Thresholds::new(&cfg, &args).unwrap();
@@ -491,12 +509,17 @@ fn a_gaussian_budget_keeps_the_additions_furthest_over_their_threshold() {
         let free = reference::decide_with_abs(&t, &stats, &host.params, scale.as_deref(), q);
         let natural = budget::after_count(&free);
         // Step 3: a cap above what the step reaches.
-        let cap = if step == 3 {
-            natural + 10
-        } else {
-            n + (natural - n) / 3
+        let cap = match step {
+            3 => natural + 10,
+            4 => exact.unwrap().target_at(args.iteration, n),
+            _ => n + (natural - n) / 3,
         };
-        cfg.max_gaussians = Some(cap);
+        if step == 4 {
+            assert_eq!(cap, n + 3 * (n / 2) / 4, "the curve's target at step 2 of 4");
+            assert!(natural > cap, "every seen Gaussian is a candidate");
+        } else {
+            cfg.max_gaussians = Some(cap);
+        }
         let label = format!("step {step} (cap {cap}, {natural} without it)");
 
         let mut state = upload_state(&ctx, &host, n);
@@ -505,10 +528,19 @@ fn a_gaussian_budget_keeps_the_additions_furthest_over_their_threshold() {
         let scale_buf = scale
             .as_ref()
             .map(|s| GpuBuffer::from_slice(&ctx, "threshold scale", s).unwrap());
+        let weight_buf = weight
+            .as_ref()
+            .map(|s| GpuBuffer::from_slice(&ctx, "score weight", s).unwrap());
         let mut rec = Recorder::new(&ctx).unwrap();
         rec.begin().unwrap();
-        dc.record_decide(&mut rec, &state, &args, scale_buf.as_ref())
-            .unwrap();
+        dc.record_decide(
+            &mut rec,
+            &state,
+            &args,
+            scale_buf.as_ref(),
+            weight_buf.as_ref(),
+        )
+        .unwrap();
         rec.submit_and_wait().unwrap();
         rec.begin().unwrap();
 
@@ -516,7 +548,8 @@ fn a_gaussian_budget_keeps_the_additions_furthest_over_their_threshold() {
         // and the host divide exactly), and a score is two divisions: within 6 ULP of the
         // reference, and 0 or +inf exactly where it is. The cut and the decisions follow the
         // GPU's own scores, which the budget pass ranks.
-        let want_scores = reference::scores(&t, &stats, scale.as_deref(), q);
+        let want_scores =
+            reference::scores(&t, &stats, scale.as_deref(), weight.as_deref(), q);
         let scores = dc.scores().read_range(0, n).unwrap();
         for (i, (&g, &w)) in scores.iter().zip(&want_scores).enumerate() {
             let ulps = (g.to_bits() as i64 - w.to_bits() as i64).abs();
@@ -568,6 +601,11 @@ fn a_gaussian_budget_keeps_the_additions_furthest_over_their_threshold() {
                     dropped
                 );
                 assert!(dropped > 0 && dropped_max <= kept_min, "{label}");
+                if step == 4 {
+                    // Exact: the count is the target (a split pruned anyway may save 2).
+                    assert!(after == cap || after + 1 == cap, "{label}: ended at {after}");
+                    assert!(!got.iter().any(|&d| d & DECIDE_LOWERED != 0), "{label}");
+                }
                 if step == 0 {
                     // The shared statistic is where this cut falls: the tie rule decided.
                     assert_eq!(dropped_max, kept_min, "{label}: the cut is not on the tie");
@@ -1012,7 +1050,7 @@ fn pixel_weighting_densifies_large_gaussians_adc_averages_away() {
             }
         }
         let mut rec = Recorder::new(&ctx).unwrap();
-        dc.record_decide(&mut rec, &state, &args, None).unwrap();
+        dc.record_decide(&mut rec, &state, &args, None, None).unwrap();
         rec.submit_and_wait().unwrap();
         let gpu = dc.decisions().read_range(0, n).unwrap();
         let want = reference::decide(
@@ -1158,7 +1196,7 @@ fn decisions_can_be_edited_between_decide_and_apply() {
         phase: DensifyPhase::Both,
     };
     let mut rec = Recorder::new(&ctx).unwrap();
-    dc.record_decide(&mut rec, &state, &args, None).unwrap();
+    dc.record_decide(&mut rec, &state, &args, None, None).unwrap();
     rec.submit_and_wait().unwrap();
     rec.begin().unwrap();
     let mut d = dc.decisions().read_range(0, n).unwrap();
@@ -1187,7 +1225,7 @@ fn decisions_can_be_edited_between_decide_and_apply() {
         extent: 0.0,
         ..args
     };
-    assert!(dc.record_decide(&mut rec, &state, &bad, None).is_err());
+    assert!(dc.record_decide(&mut rec, &state, &bad, None, None).is_err());
     ctx.check_validation().unwrap();
 }
 

@@ -9,9 +9,13 @@
 // split children have scale / 1.6), so a new Gaussian that would be pruned at once is never
 // emitted. Scale and opacity tests compare in the log / logit domain against thresholds formed
 // on the host (monotone, so equivalent up to the threshold's rounding).
-// scores[i]: how far a candidate is over the threshold it crossed (statistic / threshold, the
-// larger of the gradient's and the absolute gradient's ratio; +∞ over a threshold ≤ 0), 0 for
-// the others; the Gaussian budget ranks additions by it (src/train/density/budget.rs).
+// scores[i]: how far a candidate is over the threshold, all on one scale: statistic /
+// grad_threshold (flag 32: over its own scaled threshold, the paper's LPM ranking), the larger
+// of that and the absolute gradient's ratio, +∞ over a threshold ≤ 0, times score_weight[i]
+// with flag 16 (a strategy's guide); 0 for the others. The Gaussian budget ranks additions by
+// it (src/train/density/budget.rs). Flag 8 (the exact budget, src/train/density/growth.rs):
+// every Gaussian with a positive statistic is a candidate and the budget chooses among them
+// (nothing is then "lowered").
 layout(local_size_x_id = 0) in;
 #include "decisions.glsl"
 layout(std430, set = 0, binding = 0) readonly buffer Accum { float grad_accum[]; };
@@ -23,9 +27,11 @@ layout(std430, set = 0, binding = 5) readonly buffer ThresholdScale { float thre
 layout(std430, set = 0, binding = 6) writeonly buffer Decisions { uint decisions[]; };
 layout(std430, set = 0, binding = 7) readonly buffer AbsAccum { float abs_accum[]; };
 layout(std430, set = 0, binding = 8) writeonly buffer Scores { float scores[]; };
+layout(std430, set = 0, binding = 9) readonly buffer ScoreWeight { float score_weight[]; };
 layout(push_constant) uniform Push {
     uint count;
-    uint flags;  // 1: prune large (world size); 2: use threshold_scale; 4: absolute-gradient test
+    uint flags;  // 1: prune large (world size); 2: use threshold_scale; 4: absolute-gradient test;
+                 // 8: every seen Gaussian a candidate; 16: use score_weight; 32: rank lowered
     float grad_threshold;
     float log_clone_max;      // ln(percent_dense · extent)
     float min_opacity_logit;  // logit(min_opacity)
@@ -44,12 +50,16 @@ void main() {
     precise float thr = grad_threshold;
     if ((flags & 2u) != 0u) thr = grad_threshold * threshold_scale[i];
     precise float abs_stat = dn > 0.0 ? abs_accum[i] / dn : 0.0;
-    bool by_abs = (flags & 4u) != 0u && abs_stat >= abs_threshold;
-    bool densify = stat >= thr || by_abs;
-    bool by_grad = stat >= thr;
-    precise float grad_ratio = by_grad ? (thr > 0.0 ? stat / thr : INF) : 0.0;
+    bool rank_all = (flags & 8u) != 0u;
+    bool by_abs = (flags & 4u) != 0u && (rank_all ? abs_stat > 0.0 : abs_stat >= abs_threshold);
+    bool by_grad = rank_all ? (stat > 0.0 && grad_threshold < INF) : stat >= thr;
+    bool densify = by_grad || by_abs;
+    precise float over = (flags & 32u) != 0u ? thr : grad_threshold;
+    precise float grad_ratio = by_grad ? (over > 0.0 ? stat / over : INF) : 0.0;
     precise float abs_ratio = by_abs ? (abs_threshold > 0.0 ? abs_stat / abs_threshold : INF) : 0.0;
-    scores[i] = max(grad_ratio, abs_ratio);
+    precise float score = max(grad_ratio, abs_ratio);
+    if ((flags & 16u) != 0u && densify) score = score * score_weight[i];
+    scores[i] = score;
     float ls = max(max(log_scales[3u * i], log_scales[3u * i + 1u]), log_scales[3u * i + 2u]);
     bool clone = densify && ls <= log_clone_max;
     bool split = densify && ls > log_clone_max;
@@ -64,6 +74,6 @@ void main() {
     if (faint || big || big_screen) d |= DECIDE_REMOVE;
     if (clone && !faint && !big) d |= DECIDE_CLONE;
     if (split) d |= (faint || child_big) ? DECIDE_REMOVE : DECIDE_SPLIT;
-    if ((clone || split) && !(stat >= grad_threshold) && !by_abs) d |= DECIDE_LOWERED;
+    if ((clone || split) && !(stat >= grad_threshold) && !by_abs && !rank_all) d |= DECIDE_LOWERED;
     decisions[i] = d;
 }

@@ -19,6 +19,11 @@ pub struct LpmConfig {
     pub until: u32,
     /// Gradient-threshold multiplier inside zones.
     pub threshold_ratio: f32,
+    /// What a zone's candidate's score is multiplied by when a budget ranks the candidates
+    /// (every score on one scale, the statistic over ADC's own threshold): LPM's say in *where*
+    /// a budget goes, never in how big it is. 1: zones do not rank; the paper's rule (ranking
+    /// over the lowered threshold, `DensityConfig::rank_lowered`) is `1 / threshold_ratio`.
+    pub zone_weight: f32,
     /// Add a Gaussian at the centre of sparse zones.
     pub add_points: bool,
     /// Reset the opacity of the Gaussians in front of zones.
@@ -109,6 +114,7 @@ impl Default for LpmConfig {
             from: 500,
             until: 15_000,
             threshold_ratio: 0.5,
+            zone_weight: 1.5,
             add_points: true,
             reset: true,
             add_below: 3,
@@ -184,6 +190,13 @@ impl LpmConfig {
             self.threshold_ratio
         );
         anyhow::ensure!(
+            self.zone_weight > 0.0 && self.zone_weight.is_finite(),
+            "LPM zone weight {} (--lpm-zone-weight) must be positive and finite. Fix: pass e.g. \
+             1.5 (a zone's candidate counts half as much again under a budget) or 1 (zones do \
+             not rank)",
+            self.zone_weight
+        );
+        anyhow::ensure!(
             self.add_opacity > 0.0 && self.add_opacity < 1.0,
             "LPM added-point opacity {} must lie in (0, 1)",
             self.add_opacity
@@ -233,7 +246,8 @@ impl LpmConfig {
     pub fn to_json(&self) -> serde_json::Value {
         serde_json::json!({
             "interval": self.interval, "from": self.from, "until": self.until,
-            "threshold_ratio": self.threshold_ratio, "add_points": self.add_points,
+            "threshold_ratio": self.threshold_ratio, "zone_weight": self.zone_weight,
+            "add_points": self.add_points,
             "reset": self.reset, "add_below": self.add_below, "add_opacity": self.add_opacity,
             "error_quantile": self.regions.quantile, "block": self.regions.block,
             "keep_fraction": self.regions.keep_fraction,

@@ -9,7 +9,8 @@
 //! 2. a neighbour V' of V at random, the cached correspondences of (V, V') → paired regions →
 //!    zones ([`zones_for_step`]) → zone records uploaded;
 //! 3. membership of the current Gaussians, a threshold scale (× `threshold_ratio` inside zones,
-//!    `glsl/lpm/threshold_scale.comp`) given to ADC's own `record_decide`, so densification
+//!    `glsl/lpm/threshold_scale.comp`) and a score weight (× `zone_weight` inside zones: where a
+//!    budget's room goes) given to ADC's own `record_decide`, so densification
 //!    inside zones goes through the same clone / split code; then density-aware pruning: as many
 //!    of the lowest-opacity plain survivors as the lowered threshold added
 //!    (`glsl/lpm/lowered_count.comp`, an exact rank selection, `glsl/lpm/prune_lowest.comp`)
@@ -51,6 +52,7 @@ const WG: u32 = 256;
 struct ScalePush {
     count: u32,
     ratio: f32,
+    weight: f32,
 }
 
 #[repr(C)]
@@ -90,6 +92,8 @@ pub struct LpmStrategy {
     zone_inside: GpuBuffer<u32>,
     flags: GpuBuffer<u32>,
     scale: GpuBuffer<f32>,
+    /// Each Gaussian's score weight for a budget's ranking (`zone_weight` inside zones).
+    weight: GpuBuffer<f32>,
     candidates: GpuBuffer<u32>,
     /// The centres at the frame's time, for a model whose Gaussians move (LPM in time).
     frame_positions: GpuBuffer<f32>,
@@ -143,7 +147,7 @@ impl LpmStrategy {
             threshold_scale: pipe(
                 "lpm/threshold_scale",
                 shaders::LPM_THRESHOLD_SCALE,
-                2,
+                3,
                 size_of::<ScalePush>(),
             )?,
             lowered_count: pipe(
@@ -168,6 +172,7 @@ impl LpmStrategy {
             zone_inside: per("lpm zone inside")?,
             flags: per("lpm flags")?,
             scale: GpuBuffer::new(ctx, "lpm threshold scale", 1024, BufferKind::DeviceLocal)?,
+            weight: GpuBuffer::new(ctx, "lpm score weight", 1024, BufferKind::DeviceLocal)?,
             candidates: per("lpm prune candidates")?,
             frame_positions: GpuBuffer::new(
                 ctx,
@@ -192,6 +197,7 @@ impl LpmStrategy {
         let ctx = &self.ctx;
         self.flags = GpuBuffer::new(ctx, "lpm flags", cap, BufferKind::DeviceLocal)?;
         self.scale = GpuBuffer::new(ctx, "lpm threshold scale", cap, BufferKind::DeviceLocal)?;
+        self.weight = GpuBuffer::new(ctx, "lpm score weight", cap, BufferKind::DeviceLocal)?;
         self.candidates =
             GpuBuffer::new(ctx, "lpm prune candidates", cap, BufferKind::DeviceLocal)?;
         self.frame_positions =
@@ -465,15 +471,16 @@ impl LpmStrategy {
         self.record_zone_membership(t, &records)?;
         t.rec.dispatch(
             &self.threshold_scale,
-            &[&self.flags, &self.scale],
+            &[&self.flags, &self.scale, &self.weight],
             &ScalePush {
                 count: count as u32,
                 ratio: self.config.threshold_ratio,
+                weight: self.config.zone_weight,
             },
             self.ctx.groups_1d(count as u64, WG),
         );
         t.density
-            .record_decide(t.rec, t.state, args, Some(&self.scale))?;
+            .record_decide(t.rec, t.state, args, Some(&self.scale), Some(&self.weight))?;
         t.rec.fill(&self.counters, 0);
         t.rec.barrier();
         let authors = self.config.prune == PruneMode::Authors;

@@ -207,6 +207,13 @@ impl TrainConfig {
         if let Some(n) = d.max_gaussians {
             j["density"]["max_gaussians"] = serde_json::json!(n);
         }
+        // Only when set, so checkpoints from before the keys still resume.
+        if let Some(b) = d.exact_budget {
+            j["density"]["exact_budget"] = b.to_json();
+        }
+        if d.rank_lowered {
+            j["density"]["rank_lowered"] = serde_json::json!(true);
+        }
         // Only when on, so checkpoints from before the key still resume.
         if d.abs_grad {
             j["density"]["abs_grad"] = serde_json::json!(true);

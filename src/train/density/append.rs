@@ -51,7 +51,8 @@ pub fn new_point_shape(primitive: Primitive, row: &NewGaussian) -> ([f32; 3], [f
 /// state and the density statistics when the capacity is short (the trainer grows its own
 /// buffers after the strategy's call). Their
 /// Adam moments and density statistics are zero. Under a Gaussian budget
-/// (`DensityConfig::max_gaussians`) only the first rows that fit are appended. Returns how many
+/// ([`DensityConfig::ceiling`](super::DensityConfig::ceiling)) only the first rows that fit are
+/// appended. Returns how many
 /// were. `t.rec` must be begun and empty; it is left so.
 pub fn append_gaussians(t: &mut DensityContext, rows: &[NewGaussian]) -> anyhow::Result<usize> {
     append_with_extras(t, rows, None)
@@ -68,7 +69,7 @@ pub fn append_with_extras(
     let room = t
         .density
         .config
-        .max_gaussians
+        .ceiling()
         .map_or(rows.len(), |cap| cap.saturating_sub(n));
     let all = rows.len();
     let rows = &rows[..all.min(room)];

@@ -46,6 +46,7 @@
 pub mod abs_quantile;
 pub mod append;
 pub mod budget;
+pub mod growth;
 mod move_in_place;
 pub mod reference;
 pub mod rng;
@@ -229,7 +230,7 @@ impl DensityControl {
             decide: pipe(
                 "density/decide",
                 shaders::DENSITY_DECIDE,
-                9,
+                10,
                 size_of::<DecidePush>(),
             )?,
             budget: pipe(
@@ -431,15 +432,18 @@ impl DensityControl {
     }
 
     /// Records the decision kernel for `state` (see the module docs). `threshold_scale`, when
-    /// given, multiplies the gradient threshold per Gaussian (e.g. 0.5 inside LPM zones).
-    /// May reallocate the scratch buffers (decisions, slots) when the state outgrew them, so
-    /// record it once per step and follow it with [`DensityControl::apply`].
+    /// given, multiplies the gradient threshold per Gaussian (e.g. 0.5 inside LPM zones);
+    /// `score_weight` multiplies each candidate's score, the ranking a budget keeps the best of
+    /// (a guide's preference, e.g. LPM's zones). May reallocate the scratch buffers (decisions,
+    /// slots) when the state outgrew them, so record it once per step and follow it with
+    /// [`DensityControl::apply`].
     pub fn record_decide(
         &mut self,
         rec: &mut Recorder,
         state: &SplatState,
         args: &DensifyArgs,
         threshold_scale: Option<&GpuBuffer<f32>>,
+        score_weight: Option<&GpuBuffer<f32>>,
     ) -> anyhow::Result<()> {
         let t = Thresholds::new(&self.config, args)?;
         let count = state.count();
@@ -452,12 +456,14 @@ impl DensityControl {
             count < (u32::MAX / 3) as usize,
             "density control: {count} Gaussians exceed the 32-bit slot scan"
         );
-        if let Some(s) = threshold_scale {
-            ensure!(
-                s.len() >= count,
-                "density control: threshold scale buffer has {} entries for {count} Gaussians",
-                s.len()
-            );
+        for (what, b) in [("threshold scale", threshold_scale), ("score weight", score_weight)] {
+            if let Some(s) = b {
+                ensure!(
+                    s.len() >= count,
+                    "density control: {what} buffer has {} entries for {count} Gaussians",
+                    s.len()
+                );
+            }
         }
         self.ensure_scratch(state.capacity().max(count))?;
         self.decided = Some(count);
@@ -484,7 +490,10 @@ impl DensityControl {
             abs_threshold: abs_threshold.unwrap_or(f32::INFINITY),
             flags: t.prune_large as u32
                 | ((threshold_scale.is_some() as u32) << 1)
-                | ((abs_threshold.is_some() as u32) << 2),
+                | ((abs_threshold.is_some() as u32) << 2)
+                | ((t.rank_all as u32) << 3)
+                | ((score_weight.is_some() as u32) << 4)
+                | ((t.rank_lowered as u32) << 5),
             grad_threshold: t.grad_threshold,
             log_clone_max: t.log_clone_max,
             min_opacity_logit: t.min_opacity_logit,
@@ -505,15 +514,29 @@ impl DensityControl {
                 &self.decisions,
                 &self.stats.abs_accum,
                 &self.scores,
+                score_weight.unwrap_or(&self.dummy),
             ],
             &push,
             self.ctx.groups_1d(count as u64, WG),
         );
         rec.barrier();
-        if let Some(cap) = self.config.max_gaussians {
+        if let Some(cap) = self.step_cap(args.iteration, count) {
             self.record_budget(rec, count, cap)?;
         }
         Ok(())
+    }
+
+    /// The most Gaussians the density step at `iteration` may end with, for a model of
+    /// `count`: the cap and the exact budget's target there, whichever is lower.
+    pub fn step_cap(&self, iteration: u32, count: usize) -> Option<usize> {
+        let exact = self
+            .config
+            .exact_budget
+            .map(|b| b.target_at(iteration, count));
+        match (self.config.max_gaussians, exact) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
     }
 
     /// The Gaussian budget after `decide` (see [`budget`]): submits what `rec` holds, reads
@@ -701,7 +724,7 @@ impl DensityControl {
         args: &DensifyArgs,
         threshold_scale: Option<&GpuBuffer<f32>>,
     ) -> anyhow::Result<DensifyOutcome> {
-        self.record_decide(rec, state, args, threshold_scale)?;
+        self.record_decide(rec, state, args, threshold_scale, None)?;
         self.apply(rec, state, args)
     }
 

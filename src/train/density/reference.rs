@@ -124,11 +124,9 @@ pub fn decide_with_abs(
 ) -> Vec<u32> {
     (0..params.len())
         .map(|i| {
-            let dn = stats.denom[i];
             let (stat, thr) = statistic_and_threshold(t, stats, threshold_scale, i);
-            let by_abs = abs_threshold
-                .is_some_and(|q| super::abs_quantile::average(stats.abs_accum[i], dn) >= q);
-            let densify = stat >= thr || by_abs;
+            let (by_grad, by_abs) = candidacy(t, stats, stat, thr, abs_threshold, i);
+            let densify = by_grad || by_abs;
             let s = params.log_scales[i];
             let ls = s[0].max(s[1]).max(s[2]);
             let clone = densify && ls <= t.log_clone_max;
@@ -153,7 +151,7 @@ pub fn decide_with_abs(
             }
             // Written as the kernel does (a NaN statistic never densifies, so it is never `lowered`).
             let at_global = stat >= t.grad_threshold;
-            if (clone || split) && !at_global && !by_abs {
+            if (clone || split) && !at_global && !by_abs && !t.rank_all {
                 d |= DECIDE_LOWERED;
             }
             d
@@ -161,13 +159,36 @@ pub fn decide_with_abs(
         .collect()
 }
 
+/// Whether Gaussian `i` is a candidate by the gradient test and by the absolute-gradient test,
+/// as `decide.comp` forms them: over the (scaled) threshold, or under the exact budget
+/// ([`Thresholds::rank_all`]) any positive statistic on a step that grows.
+fn candidacy(
+    t: &Thresholds,
+    stats: &HostStats,
+    stat: f32,
+    thr: f32,
+    abs_threshold: Option<f32>,
+    i: usize,
+) -> (bool, bool) {
+    let abs_stat = super::abs_quantile::average(stats.abs_accum[i], stats.denom[i]);
+    match t.rank_all {
+        false => (stat >= thr, abs_threshold.is_some_and(|q| abs_stat >= q)),
+        true => (
+            stat > 0.0 && t.grad_threshold < f32::INFINITY,
+            abs_threshold.is_some() && abs_stat > 0.0,
+        ),
+    }
+}
+
 /// Every Gaussian's score as `decide.comp` writes it (the same f32 operations): a candidate's
-/// statistic over the threshold it crossed (the larger ratio when both tests pass; +∞ over a
-/// threshold ≤ 0), 0 for the others ([`super::budget`] ranks additions by it).
+/// statistic over `grad_threshold` (over its own scaled threshold with
+/// [`Thresholds::rank_lowered`]), the larger ratio when both tests pass, +∞ over a threshold
+/// ≤ 0, times its `score_weight`; 0 for the others ([`super::budget`] ranks additions by it).
 pub fn scores(
     t: &Thresholds,
     stats: &HostStats,
     threshold_scale: Option<&[f32]>,
+    score_weight: Option<&[f32]>,
     abs_threshold: Option<f32>,
 ) -> Vec<f32> {
     let ratio = |pass: bool, v: f32, thr: f32| match (pass, thr > 0.0) {
@@ -180,10 +201,19 @@ pub fn scores(
             let dn = stats.denom[i];
             let (stat, thr) = statistic_and_threshold(t, stats, threshold_scale, i);
             let abs_stat = super::abs_quantile::average(stats.abs_accum[i], dn);
-            let by_abs = abs_threshold.is_some_and(|q| abs_stat >= q);
-            let grad = ratio(stat >= thr, stat, thr);
+            let (by_grad, by_abs) = candidacy(t, stats, stat, thr, abs_threshold, i);
+            let over = if t.rank_lowered {
+                thr
+            } else {
+                t.grad_threshold
+            };
+            let grad = ratio(by_grad, stat, over);
             let abs = ratio(by_abs, abs_stat, abs_threshold.unwrap_or(f32::INFINITY));
-            grad.max(abs)
+            let score = grad.max(abs);
+            match score_weight {
+                Some(w) if by_grad || by_abs => score * w[i],
+                _ => score,
+            }
         })
         .collect()
 }

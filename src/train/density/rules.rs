@@ -3,6 +3,7 @@
 //! the f32 numbers both the kernels and the host reference compare against), the phase, and the
 //! outcome.
 
+use super::growth::BudgetCurve;
 use anyhow::{bail, ensure};
 
 /// What the densification statistic averages over the views that saw a Gaussian.
@@ -85,6 +86,17 @@ pub struct DensityConfig {
     /// At most this many Gaussians after a density step ([`budget`](super::budget)): the additions that
     /// exceed their threshold the most are kept, as many as fit. `None`: no cap.
     pub max_gaussians: Option<usize>,
+    /// The exact-budget selection ([`growth`](super::growth)): every Gaussian seen since the
+    /// last step is a candidate, ranked by its statistic over `grad_threshold` (× a strategy's
+    /// per-Gaussian score weight), and each step keeps as many of the best as its curve's target
+    /// leaves room for, so the count follows the curve to the budget whatever the threshold.
+    /// `None`: candidates are those over the threshold (ADC).
+    pub exact_budget: Option<BudgetCurve>,
+    /// Rank candidates under a cap by their statistic over their own (scaled) threshold,
+    /// the paper's LPM rule: a Gaussian in a zone at 0.6 τ (score 1.2 over τ/2) beats one
+    /// outside at 1.1 τ. `false` (the default): one scale for all, the statistic over
+    /// `grad_threshold`, times the strategy's score weight.
+    pub rank_lowered: bool,
 }
 
 impl Default for DensityConfig {
@@ -101,6 +113,20 @@ impl Default for DensityConfig {
             statistic: Statistic::Gradient,
             abs_grad: false,
             max_gaussians: None,
+            exact_budget: None,
+            rank_lowered: false,
+        }
+    }
+}
+
+impl DensityConfig {
+    /// The most Gaussians the model may ever hold: the cap, or the exact budget's target,
+    /// whichever is lower (`None`: no limit).
+    pub fn ceiling(&self) -> Option<usize> {
+        let exact = self.exact_budget.map(|b| b.target);
+        match (self.max_gaussians, exact) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
         }
     }
 }
@@ -151,6 +177,11 @@ pub struct Thresholds {
     /// Negative when screen-size pruning is off.
     pub screen_max: f32,
     pub prune_large: bool,
+    /// Every seen Gaussian is a candidate, for the exact budget to choose from
+    /// ([`DensityConfig::exact_budget`], on a step that grows).
+    pub rank_all: bool,
+    /// Scores over the scaled threshold ([`DensityConfig::rank_lowered`]).
+    pub rank_lowered: bool,
 }
 
 impl Thresholds {
@@ -217,6 +248,8 @@ impl Thresholds {
             // nothing, a prune-only round (SpacetimeGaussians' later rounds) only the faint.
             screen_max: if grows && prunes { screen_max } else { -1.0 },
             prune_large: args.prune_large && grows && prunes,
+            rank_all: cfg.exact_budget.is_some() && grows,
+            rank_lowered: cfg.rank_lowered,
         })
     }
 }
