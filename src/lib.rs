@@ -10,6 +10,7 @@ pub mod gpu;
 pub mod kernel_fixtures;
 pub mod lpips;
 pub mod lpm;
+pub mod mcmc;
 pub mod mesh;
 pub mod metrics;
 pub mod models;

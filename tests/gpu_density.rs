@@ -515,7 +515,11 @@ fn a_gaussian_budget_keeps_the_additions_furthest_over_their_threshold() {
             _ => n + (natural - n) / 3,
         };
         if step == 4 {
-            assert_eq!(cap, n + 3 * (n / 2) / 4, "the curve's target at step 2 of 4");
+            assert_eq!(
+                cap,
+                n + 3 * (n / 2) / 4,
+                "the curve's target at step 2 of 4"
+            );
             assert!(natural > cap, "every seen Gaussian is a candidate");
         } else {
             cfg.max_gaussians = Some(cap);
@@ -548,8 +552,7 @@ fn a_gaussian_budget_keeps_the_additions_furthest_over_their_threshold() {
         // and the host divide exactly), and a score is two divisions: within 6 ULP of the
         // reference, and 0 or +inf exactly where it is. The cut and the decisions follow the
         // GPU's own scores, which the budget pass ranks.
-        let want_scores =
-            reference::scores(&t, &stats, scale.as_deref(), weight.as_deref(), q);
+        let want_scores = reference::scores(&t, &stats, scale.as_deref(), weight.as_deref(), q);
         let scores = dc.scores().read_range(0, n).unwrap();
         for (i, (&g, &w)) in scores.iter().zip(&want_scores).enumerate() {
             let ulps = (g.to_bits() as i64 - w.to_bits() as i64).abs();
@@ -603,7 +606,10 @@ fn a_gaussian_budget_keeps_the_additions_furthest_over_their_threshold() {
                 assert!(dropped > 0 && dropped_max <= kept_min, "{label}");
                 if step == 4 {
                     // Exact: the count is the target (a split pruned anyway may save 2).
-                    assert!(after == cap || after + 1 == cap, "{label}: ended at {after}");
+                    assert!(
+                        after == cap || after + 1 == cap,
+                        "{label}: ended at {after}"
+                    );
                     assert!(!got.iter().any(|&d| d & DECIDE_LOWERED != 0), "{label}");
                 }
                 if step == 0 {
@@ -1050,7 +1056,8 @@ fn pixel_weighting_densifies_large_gaussians_adc_averages_away() {
             }
         }
         let mut rec = Recorder::new(&ctx).unwrap();
-        dc.record_decide(&mut rec, &state, &args, None, None).unwrap();
+        dc.record_decide(&mut rec, &state, &args, None, None)
+            .unwrap();
         rec.submit_and_wait().unwrap();
         let gpu = dc.decisions().read_range(0, n).unwrap();
         let want = reference::decide(
@@ -1196,7 +1203,8 @@ fn decisions_can_be_edited_between_decide_and_apply() {
         phase: DensifyPhase::Both,
     };
     let mut rec = Recorder::new(&ctx).unwrap();
-    dc.record_decide(&mut rec, &state, &args, None, None).unwrap();
+    dc.record_decide(&mut rec, &state, &args, None, None)
+        .unwrap();
     rec.submit_and_wait().unwrap();
     rec.begin().unwrap();
     let mut d = dc.decisions().read_range(0, n).unwrap();
@@ -1225,7 +1233,9 @@ fn decisions_can_be_edited_between_decide_and_apply() {
         extent: 0.0,
         ..args
     };
-    assert!(dc.record_decide(&mut rec, &state, &bad, None, None).is_err());
+    assert!(dc
+        .record_decide(&mut rec, &state, &bad, None, None)
+        .is_err());
     ctx.check_validation().unwrap();
 }
 

@@ -689,6 +689,29 @@ impl DensityStrategy for LpmStrategy {
         !self.config.resets_at(iteration) && self.inner.quiet_after(iteration)
     }
 
+    fn record_gradient_terms(
+        &self,
+        rec: &mut crate::gpu::Recorder,
+        state: &crate::train::adam::SplatState,
+        grads: &crate::splats::gpu::GpuSplats,
+        iteration: u32,
+    ) -> anyhow::Result<()> {
+        self.inner
+            .record_gradient_terms(rec, state, grads, iteration)
+    }
+
+    fn record_after_optimizer(
+        &self,
+        rec: &mut crate::gpu::Recorder,
+        state: &crate::train::adam::SplatState,
+        iteration: u32,
+        position_lr: f64,
+        extent: f64,
+    ) -> anyhow::Result<()> {
+        self.inner
+            .record_after_optimizer(rec, state, iteration, position_lr, extent)
+    }
+
     fn settings_json(&self) -> serde_json::Value {
         let mut s = serde_json::json!({ "lpm": self.config.checkpoint_json() });
         // A wrapped strategy with settings of its own is part of the run's settings too.

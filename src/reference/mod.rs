@@ -76,6 +76,7 @@
 pub mod backward;
 pub mod decoder;
 pub mod linalg;
+pub mod mcmc;
 pub mod mip;
 pub mod project;
 pub mod raster;

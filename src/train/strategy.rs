@@ -174,6 +174,34 @@ pub trait DensityStrategy: Any {
         false
     }
 
+    /// Records work into the iteration's own command buffer once its gradients are complete,
+    /// before the optimizer step: terms the strategy adds to them (MCMC's regularisers). Runs
+    /// on every iteration with an optimizer step; record barriers around the work. Default:
+    /// nothing.
+    fn record_gradient_terms(
+        &self,
+        _rec: &mut Recorder,
+        _state: &SplatState,
+        _grads: &GpuSplats,
+        _iteration: u32,
+    ) -> anyhow::Result<()> {
+        Ok(())
+    }
+
+    /// Records work into the same command buffer after the optimizer step (MCMC's position
+    /// noise); `position_lr` is that step's position learning rate (world units), `extent`
+    /// the scene's. Default: nothing.
+    fn record_after_optimizer(
+        &self,
+        _rec: &mut Recorder,
+        _state: &SplatState,
+        _iteration: u32,
+        _position_lr: f64,
+        _extent: f64,
+    ) -> anyhow::Result<()> {
+        Ok(())
+    }
+
     /// The settings that decide results (saved in checkpoints; a resumed run must match).
     /// `Null` for plain ADC, whose settings are part of the trainer's config.
     fn settings_json(&self) -> serde_json::Value {

@@ -771,6 +771,8 @@ impl Trainer {
         lrs.0.extend(self.passes.extra_lrs(it, self.extent));
         self.passes
             .record_before_step(&mut self.rec, &self.state, &self.grads, it)?;
+        self.strategy
+            .record_gradient_terms(&mut self.rec, &self.state, &self.grads, it)?;
         // The render used SH up to this degree, so the planes above it have had zero
         // gradients since the start (the degree only grows): Adam skips them, exactly.
         let sh = sh_degree_at(it, self.config.sh_degree);
@@ -785,7 +787,9 @@ impl Trainer {
             Some(active_rest),
         )?;
         self.passes
-            .record_model_step(&self.ctx, &mut self.rec, self.adam_step, it)
+            .record_model_step(&self.ctx, &mut self.rec, self.adam_step, it)?;
+        self.strategy
+            .record_after_optimizer(&mut self.rec, &self.state, it, lrs.0[0], self.extent)
     }
 
     /// The base model's own parameters and optimizer state (a checkpoint's; waits).

@@ -1,5 +1,6 @@
 //! `train`'s command line: the flags, their checks, and the training configuration they make.
 
+use super::strategy_args::{StrategyArgs, StrategyName};
 use crate::cli::image_cache_args::ImageCacheArgs;
 use crate::cli::lpips_scores::LpipsArgs;
 use crate::cli::render::parse_rgb;
@@ -219,6 +220,8 @@ pub struct TrainArgs {
     pub batch_views: Option<u32>,
     #[command(flatten)]
     pub lpm: Box<LpmArgs>,
+    #[command(flatten)]
+    pub density_strategy: StrategyArgs,
 }
 
 /// Localized Point Management (LPM.md), fused into the density steps.
@@ -249,6 +252,15 @@ pub struct LpmArgs {
     /// Gradient-threshold multiplier inside zones.
     #[arg(long, default_value_t = 0.5)]
     pub lpm_threshold_ratio: f32,
+    /// Under a budget (--budget, --max-gaussians): a zone's candidate's score, on the one
+    /// scale every candidate is ranked on, is multiplied by this (1: zones do not rank).
+    #[arg(long, value_name = "W", default_value_t = 1.5)]
+    pub lpm_zone_weight: f32,
+    /// Under a budget: rank candidates on one scale times --lpm-zone-weight (weighted), or
+    /// each over its own lowered threshold (lowered: the paper's rule, where a zone's
+    /// candidate at 0.6 τ outranks one outside at 1.1 τ).
+    #[arg(long, default_value = "weighted", value_parser = ["weighted", "lowered"])]
+    pub lpm_rank: String,
     /// Error pixels: above this quantile of the error map.
     #[arg(long, default_value_t = 0.4)]
     pub lpm_error_quantile: f32,
@@ -357,6 +369,7 @@ impl LpmArgs {
         c.from = self.lpm_from.unwrap_or(schedule.densify_from);
         c.until = self.lpm_until.unwrap_or(schedule.densify_until);
         c.threshold_ratio = self.lpm_threshold_ratio;
+        c.zone_weight = self.lpm_zone_weight;
         c.add_points &= !self.lpm_no_add;
         c.reset = !self.lpm_no_reset;
         c.seed = seed;
@@ -542,6 +555,15 @@ impl TrainArgs {
             }
         }
         c.density.max_gaussians = self.max_gaussians;
+        c.density.rank_lowered = self.lpm.lpm && self.lpm.lpm_rank == "lowered";
+        if self.density_strategy.strategy == StrategyName::Mcmc {
+            // MCMC refines to the peers' 25 000 (of 30 000) and never resets opacities.
+            if self.densify_until.is_none() {
+                c.schedule.densify_until = 25_000;
+            }
+            c.schedule.opacity_reset_interval = 0;
+            c.schedule.white_background = false;
+        }
         if self.densify_abs_grad {
             anyhow::ensure!(
                 matches!(

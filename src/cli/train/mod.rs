@@ -7,9 +7,11 @@ mod args;
 mod outputs;
 mod progress;
 mod setup;
+mod strategy_args;
 
 pub use args::{background_from, parse_max_gaussians, InitSource, TrainArgs};
 pub use setup::{build_lpm, initial_model, prepare_output};
+pub use strategy_args::{parse_budget, Budget, StrategyArgs, StrategyName};
 
 use super::lpips_scores;
 use args::{check_flags, RecordAhead};
@@ -25,6 +27,7 @@ use std::time::Instant;
 
 pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     check_flags(args)?;
+    args.density_strategy.check(args.lpm.lpm, args.model)?;
     let scene = Scene::load(&args.scene.scene, &args.scene.load_options()?)?;
     let config = args.config(&scene)?;
     let lpm_config = args.lpm.config(&config.schedule, args.seed)?;
@@ -75,6 +78,26 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         config.background.describe(),
         ctx.info.name
     );
+    // The budget's curve starts from the initial count (a resumed run's from its first run's).
+    let mut config = config;
+    let initial = resumed
+        .as_ref()
+        .and_then(|ck| strategy_args::initial_from_checkpoint(&ck.config_json))
+        .unwrap_or(init.len());
+    let strategy_args = &args.density_strategy;
+    let curve = strategy_args.curve(initial, &config.schedule, config.iterations);
+    match (strategy_args.strategy, curve) {
+        (StrategyName::Adc, Some(c)) => {
+            config.density.max_gaussians = Some(
+                config
+                    .density
+                    .max_gaussians
+                    .map_or(c.target, |m| m.min(c.target)),
+            );
+        }
+        (StrategyName::AdcExact, c) => config.density.exact_budget = c,
+        _ => {}
+    }
     let trainer = match (&resumed, &args.resume) {
         (Some(ck), Some(p)) => {
             Trainer::restore(&ctx, &scene, train_images.clone(), config.clone(), ck, p)
@@ -96,6 +119,17 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         Some(_) => Some(NonFiniteCheck::new(&ctx)?),
         None => None,
     };
+    if let (StrategyName::Mcmc, Some(c)) = (strategy_args.strategy, curve) {
+        let primitive = match config.surfels.is_some() {
+            true => lpmsplat::train::strategy::Primitive::Surfel,
+            false => lpmsplat::train::strategy::Primitive::Gaussian,
+        };
+        trainer.set_strategy(Box::new(lpmsplat::mcmc::McmcStrategy::new(
+            &ctx,
+            strategy_args.mcmc(c, args.seed),
+            primitive,
+        )?));
+    }
     if let Some(c) = lpm_config.clone() {
         trainer.set_strategy(Box::new(build_lpm(
             &ctx,

@@ -162,7 +162,10 @@ mod tests {
             let mut prev = 1_000;
             for k in 1..=n {
                 let t = c.step_target(k, n, prev);
-                assert!(t >= prev && t <= 10_000, "{growth:?} step {k}: {t} after {prev}");
+                assert!(
+                    t >= prev && t <= 10_000,
+                    "{growth:?} step {k}: {t} after {prev}"
+                );
                 prev = t;
             }
             assert_eq!(prev, 10_000);
@@ -231,6 +234,9 @@ mod tests {
         let e = BudgetCurve::from_json(&serde_json::json!({"target": 1, "window": [1, 2, 3]}))
             .unwrap_err();
         assert!(e.to_string().contains("initial"), "{e}");
-        assert!(Growth::parse("cubic").unwrap_err().to_string().contains("taming"));
+        assert!(Growth::parse("cubic")
+            .unwrap_err()
+            .to_string()
+            .contains("taming"));
     }
 }

@@ -456,7 +456,10 @@ impl DensityControl {
             count < (u32::MAX / 3) as usize,
             "density control: {count} Gaussians exceed the 32-bit slot scan"
         );
-        for (what, b) in [("threshold scale", threshold_scale), ("score weight", score_weight)] {
+        for (what, b) in [
+            ("threshold scale", threshold_scale),
+            ("score weight", score_weight),
+        ] {
             if let Some(s) = b {
                 ensure!(
                     s.len() >= count,

@@ -1,0 +1,189 @@
+//! `train`'s density-strategy flags: which strategy, the Gaussian budget and its curve, MCMC's
+//! settings. Parsing only; the strategies and their rules live in the library.
+
+use clap::{Args, ValueEnum};
+use lpmsplat::mcmc::McmcConfig;
+use lpmsplat::train::density::growth::{BudgetCurve, Growth};
+use lpmsplat::train::schedule::DensitySchedule;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum StrategyName {
+    /// Adaptive density control: clone and split what crosses the gradient threshold.
+    Adc,
+    /// ADC at an exact budget: every densify step keeps the best-scoring candidates (the
+    /// statistic over the threshold) the budget curve has room for, whatever the threshold.
+    AdcExact,
+    /// 3DGS as Markov chain Monte Carlo: dead Gaussians move onto live ones, growth to the
+    /// budget by 5 % a refinement, position noise, opacity and scale regularisers.
+    Mcmc,
+}
+
+/// A budget: a count, or a multiple of the initial model's (`2.5x`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Budget {
+    Count(usize),
+    TimesInitial(f64),
+}
+
+impl Budget {
+    pub fn resolve(self, initial: usize) -> usize {
+        match self {
+            Budget::Count(n) => n,
+            Budget::TimesInitial(f) => ((initial as f64) * f).round().max(1.0) as usize,
+        }
+    }
+}
+
+/// `--budget`: `500000`, `500k`, `2.5M`, or `3x` (times the initial Gaussians).
+pub fn parse_budget(s: &str) -> Result<Budget, String> {
+    let t = s.trim();
+    let bad = || {
+        format!(
+            "'{s}' is not a Gaussian budget. Fix: give a count (500000, 500k, 2.5M) or a \
+             multiple of the initial model's count (3x)"
+        )
+    };
+    if let Some(f) = t.strip_suffix('x') {
+        return match f.parse::<f64>() {
+            Ok(v) if v > 0.0 && v.is_finite() => Ok(Budget::TimesInitial(v)),
+            _ => Err(bad()),
+        };
+    }
+    let (num, mult) = match t.chars().last() {
+        Some('k' | 'K') => (&t[..t.len() - 1], 1e3),
+        Some('M' | 'm') => (&t[..t.len() - 1], 1e6),
+        _ => (t, 1.0),
+    };
+    match num.parse::<f64>() {
+        Ok(v) if v > 0.0 && (v * mult).is_finite() && (v * mult).round() >= 1.0 => {
+            Ok(Budget::Count((v * mult).round() as usize))
+        }
+        _ => Err(bad()),
+    }
+}
+
+#[derive(Args, Debug, Clone)]
+pub struct StrategyArgs {
+    /// The density strategy (--lpm guides adc and adc-exact).
+    #[arg(long, value_enum, default_value_t = StrategyName::Adc)]
+    pub strategy: StrategyName,
+    /// Gaussians at the end of densification: a count (500000, 500k, 2.5M) or a multiple of
+    /// the initial model's (3x). adc-exact and mcmc end exactly there; adc treats it as a
+    /// cap (as --max-gaussians).
+    #[arg(long, value_name = "N", value_parser = parse_budget)]
+    pub budget: Option<Budget>,
+    /// How the count grows to the budget: taming (quadratic, most growth early; adc-exact's
+    /// default), linear, or mcmc (5 % a step; mcmc's default).
+    #[arg(long, value_name = "CURVE", value_parser = Growth::parse)]
+    pub budget_growth: Option<Growth>,
+    /// mcmc: the position noise's learning rate (× the position learning rate).
+    #[arg(long, default_value_t = 5e5)]
+    pub mcmc_noise_lr: f64,
+    /// mcmc: weight of the mean opacity in the loss.
+    #[arg(long, default_value_t = 0.01)]
+    pub mcmc_opacity_reg: f64,
+    /// mcmc: weight of the mean scale in the loss.
+    #[arg(long, default_value_t = 0.01)]
+    pub mcmc_scale_reg: f64,
+}
+
+impl StrategyArgs {
+    /// The budget's curve for a model starting at `initial` Gaussians, spanning the densify
+    /// steps of `schedule` that run in `iterations` (`None` without --budget).
+    pub fn curve(
+        &self,
+        initial: usize,
+        schedule: &DensitySchedule,
+        iterations: u32,
+    ) -> Option<BudgetCurve> {
+        let budget = self.budget?;
+        let growth = self.budget_growth.unwrap_or(match self.strategy {
+            StrategyName::Mcmc => Growth::Mcmc,
+            _ => Growth::Taming,
+        });
+        Some(BudgetCurve {
+            target: budget.resolve(initial),
+            growth,
+            initial,
+            window: (
+                schedule.densify_from,
+                schedule.densify_until.min(iterations.saturating_add(1)),
+                schedule.interval,
+            ),
+        })
+    }
+
+    /// MCMC's settings around `curve`.
+    pub fn mcmc(&self, curve: BudgetCurve, seed: u64) -> McmcConfig {
+        McmcConfig {
+            noise_lr: self.mcmc_noise_lr,
+            opacity_reg: self.mcmc_opacity_reg,
+            scale_reg: self.mcmc_scale_reg,
+            seed,
+            ..McmcConfig::with_budget(curve)
+        }
+    }
+}
+
+/// The initial count a budget curve of the run that wrote `config_json` (a checkpoint's) started
+/// from, so a resumed run follows the same curve.
+pub fn initial_from_checkpoint(config_json: &str) -> Option<usize> {
+    let j: serde_json::Value = serde_json::from_str(config_json).ok()?;
+    [
+        &j["density"]["exact_budget"]["initial"],
+        &j["strategy"]["mcmc"]["budget"]["initial"],
+    ]
+    .iter()
+    .find_map(|v| v.as_u64())
+    .map(|v| v as usize)
+}
+
+impl StrategyArgs {
+    /// Checks the flags against each other and the model (`lpm`: --lpm is on).
+    pub fn check(&self, lpm: bool, model: lpmsplat::models::BaseModel) -> anyhow::Result<()> {
+        use anyhow::ensure;
+        ensure!(
+            self.budget.is_some() || self.strategy == StrategyName::Adc,
+            "--strategy {}: needs --budget N (the count at the end of densification). Fix: pass \
+             e.g. --budget 500k or --budget 3x",
+            self.strategy.to_possible_value().unwrap().get_name()
+        );
+        ensure!(
+            self.budget_growth.is_none() || self.budget.is_some(),
+            "--budget-growth without --budget: there is no budget to grow to. Fix: pass --budget"
+        );
+        if self.strategy == StrategyName::Mcmc {
+            ensure!(
+                !lpm,
+                "--strategy mcmc with --lpm: LPM guides ADC's candidates (adc, adc-exact); as a \
+                 guide of MCMC's relocation it is not built yet. Fix: drop --lpm, or use \
+                 --strategy adc-exact"
+            );
+            ensure!(
+                !model.is_spacetime(),
+                "--strategy mcmc: {} Gaussians live in time, and MCMC's relocation and noise \
+                 are defined for still ones. Fix: --strategy adc or adc-exact",
+                model.name()
+            );
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn budgets_parse_as_counts_or_multiples_and_a_bad_one_says_the_forms() {
+        assert_eq!(parse_budget("500000"), Ok(Budget::Count(500_000)));
+        assert_eq!(parse_budget("500k"), Ok(Budget::Count(500_000)));
+        assert_eq!(parse_budget("2.5M"), Ok(Budget::Count(2_500_000)));
+        assert_eq!(parse_budget("3x"), Ok(Budget::TimesInitial(3.0)));
+        assert_eq!(Budget::TimesInitial(0.5).resolve(1001), 501);
+        for bad in ["", "0", "-3", "x", "1e400", "2.5Q", "0.0001"] {
+            let e = parse_budget(bad).unwrap_err();
+            assert!(e.contains("500k") && e.contains("3x"), "{bad}: {e}");
+        }
+    }
+}

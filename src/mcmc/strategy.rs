@@ -1,0 +1,233 @@
+//! [`McmcStrategy`]: the refinement, the regularisers and the noise as a density strategy.
+
+use std::any::Any;
+use std::sync::Arc;
+
+use super::config::McmcConfig;
+use super::gpu::McmcKernels;
+use super::plan::{plan_growth, plan_relocation, plan_rng};
+use crate::gpu::{GpuContext, Recorder};
+use crate::splats::gpu::{grown_capacity, GpuSplats};
+use crate::train::adam::SplatState;
+use crate::train::density::rng::fold_seed;
+use crate::train::density::{DensifyArgs, DensifyOutcome};
+use crate::train::strategy::{
+    DensityContext, DensityStrategy, IterationView, Primitive, StrategyEvent,
+};
+
+/// What one refinement did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct McmcEvent {
+    pub iteration: u32,
+    /// Dead Gaussians moved onto live ones.
+    pub relocated: usize,
+    /// New Gaussians (copies of live ones).
+    pub added: usize,
+    /// The count after the refinement.
+    pub gaussians: usize,
+}
+
+impl StrategyEvent for McmcEvent {
+    fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "iteration": self.iteration, "relocated": self.relocated, "added": self.added,
+            "gaussians": self.gaussians,
+        })
+    }
+    fn describe(&self) -> String {
+        format!(
+            "mcmc: {} relocated, {} added, {} Gaussians",
+            self.relocated, self.added, self.gaussians
+        )
+    }
+    fn as_any(&self) -> &dyn Any {
+        self
+    }
+}
+
+/// Totals over a run (metrics.json).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct McmcTotals {
+    pub refinements: usize,
+    pub relocated: usize,
+    pub added: usize,
+}
+
+pub struct McmcStrategy {
+    pub config: McmcConfig,
+    kernels: McmcKernels,
+    /// Log-scales the corrections and the regulariser act on (3; 2 for surfels).
+    axes: u32,
+    last: Option<McmcEvent>,
+    pub totals: McmcTotals,
+}
+
+impl McmcStrategy {
+    pub fn new(
+        ctx: &Arc<GpuContext>,
+        config: McmcConfig,
+        primitive: Primitive,
+    ) -> anyhow::Result<Self> {
+        config.validate()?;
+        Ok(Self {
+            config,
+            kernels: McmcKernels::new(ctx)?,
+            axes: match primitive {
+                Primitive::Gaussian => 3,
+                Primitive::Surfel => 2,
+            },
+            last: None,
+            totals: McmcTotals::default(),
+        })
+    }
+
+    fn noise_seed(&self) -> u32 {
+        // Apart from the split samples' stream of the same seed.
+        fold_seed(self.config.seed) ^ 0x6d63_6d63
+    }
+}
+
+impl DensityStrategy for McmcStrategy {
+    fn name(&self) -> &'static str {
+        "mcmc"
+    }
+
+    fn densify(
+        &mut self,
+        t: &mut DensityContext,
+        _at: &IterationView,
+        args: &DensifyArgs,
+    ) -> anyhow::Result<DensifyOutcome> {
+        let it = args.iteration;
+        let n = t.state.count();
+        // The iteration's work has completed (density control runs after it was waited for):
+        // the opacities are final.
+        t.rec.submit_and_wait()?;
+        t.rec.begin()?;
+        let mut logits = t.state.params.opacity_logits.read_range(0, n)?;
+        let min = self.config.min_opacity;
+        let seed = self.config.seed;
+        let relocation = plan_relocation(&mut logits, None, min, &mut plan_rng(seed, it, 0));
+        let moved = self.kernels.upload(&relocation)?;
+        self.kernels
+            .record_plan(t.rec, t.state, &moved, self.axes)?;
+        let target = self.config.budget.target_at(it, n);
+        let growth = plan_growth(
+            &mut logits,
+            None,
+            target.saturating_sub(n),
+            min,
+            &mut plan_rng(seed, it, 1),
+        );
+        let added = growth.copies.len();
+        let after = n + added;
+        let grew = after > t.state.capacity();
+        if added > 0 {
+            if grew {
+                // The relocation first, then bigger buffers, rows kept (one at a time).
+                t.rec.submit_and_wait()?;
+                let capacity = grown_capacity(after);
+                t.state.grow(t.ctx, t.rec, capacity)?;
+                t.rec.begin()?;
+                t.density.ensure_capacity(capacity)?;
+            }
+            t.state.set_count(after);
+            let new = self.kernels.upload(&growth)?;
+            self.kernels.record_plan(t.rec, t.state, &new, self.axes)?;
+            t.density.record_reset_stats(t.rec);
+            t.rec.submit_and_wait()?;
+            t.rec.begin()?;
+        } else {
+            t.density.record_reset_stats(t.rec);
+            t.rec.submit_and_wait()?;
+            t.rec.begin()?;
+        }
+        drop(moved);
+        let event = McmcEvent {
+            iteration: it,
+            relocated: relocation.copies.len(),
+            added,
+            gaussians: after,
+        };
+        self.totals.refinements += 1;
+        self.totals.relocated += event.relocated;
+        self.totals.added += added;
+        self.last = Some(event);
+        Ok(DensifyOutcome {
+            before: n,
+            after,
+            kept: n,
+            clones: added,
+            split_children: 0,
+            grew,
+            capacity: t.state.capacity(),
+            skipped: false,
+            budget_dropped: 0,
+        })
+    }
+
+    fn after_density(
+        &mut self,
+        _t: &mut DensityContext,
+        _at: &IterationView,
+    ) -> anyhow::Result<Option<Arc<dyn StrategyEvent>>> {
+        Ok(self
+            .last
+            .take()
+            .map(|e| Arc::new(e) as Arc<dyn StrategyEvent>))
+    }
+
+    fn quiet_after(&self, _iteration: u32) -> bool {
+        true
+    }
+
+    fn record_gradient_terms(
+        &self,
+        rec: &mut Recorder,
+        state: &SplatState,
+        grads: &GpuSplats,
+        _iteration: u32,
+    ) -> anyhow::Result<()> {
+        self.kernels.record_regularise(
+            rec,
+            &state.params,
+            grads,
+            state.count(),
+            (self.config.opacity_reg, self.config.scale_reg),
+            self.axes,
+        );
+        Ok(())
+    }
+
+    fn record_after_optimizer(
+        &self,
+        rec: &mut Recorder,
+        state: &SplatState,
+        iteration: u32,
+        position_lr: f64,
+        extent: f64,
+    ) -> anyhow::Result<()> {
+        let amount = position_lr * self.config.noise_lr / (extent * extent);
+        self.kernels.record_noise(
+            rec,
+            &state.params,
+            state.count(),
+            self.noise_seed(),
+            iteration,
+            amount as f32,
+            (self.config.gate_k as f32, self.config.gate_t as f32),
+        );
+        Ok(())
+    }
+
+    fn settings_json(&self) -> serde_json::Value {
+        serde_json::json!({ "mcmc": self.config.to_json() })
+    }
+
+    fn as_any(&self) -> &dyn Any {
+        self
+    }
+    fn as_any_mut(&mut self) -> &mut dyn Any {
+        self
+    }
+}
