@@ -32,7 +32,8 @@ fn random_params(rng: &mut impl Rng, n: usize, degree: u32) -> GaussianParams {
     let mut p = GaussianParams::empty(degree);
     for i in 0..n {
         p.positions.push([(); 3].map(|_| rng.gen_range(-1.0..1.0)));
-        p.log_scales.push([(); 3].map(|_| rng.gen_range(-6.0..-1.0)));
+        p.log_scales
+            .push([(); 3].map(|_| rng.gen_range(-6.0..-1.0)));
         p.rotations.push([(); 4].map(|_| normal(rng)));
         p.opacity_logits.push(if i % 4 == 0 {
             rng.gen_range(-12.0..-5.4)
@@ -151,12 +152,25 @@ fn relocation_and_growth_on_the_gpu_are_the_plans_applied_on_the_host() {
         let mut want = params.clone();
         let (m0, m1) = mom.split_at_mut(1);
         for plan in [&reloc, &grow] {
-            oracle::apply_plan(&mut want, &mut [&mut m0[0], &mut m1[0]], plan, axes as usize);
+            oracle::apply_plan(
+                &mut want,
+                &mut [&mut m0[0], &mut m1[0]],
+                plan,
+                axes as usize,
+            );
         }
         let got = state.params.download().unwrap();
         assert_eq!(bits(&got), bits(&want), "degree {degree}: parameters");
-        assert_eq!(bits(&state.m.download().unwrap()), bits(&m0[0]), "first moments");
-        assert_eq!(bits(&state.v.download().unwrap()), bits(&m1[0]), "second moments");
+        assert_eq!(
+            bits(&state.m.download().unwrap()),
+            bits(&m0[0]),
+            "first moments"
+        );
+        assert_eq!(
+            bits(&state.v.download().unwrap()),
+            bits(&m1[0]),
+            "second moments"
+        );
         assert!(got.opacity_logits.iter().all(|l| l.is_finite()));
         // The opacities the host planned with are the GPU's.
         assert_eq!(&got.opacity_logits[..n], &logits[..]);
@@ -168,7 +182,10 @@ fn relocation_and_growth_on_the_gpu_are_the_plans_applied_on_the_host() {
         if axes == 2 {
             // A surfel's third log-scale is no scale: never corrected.
             for &(d, s) in &reloc.copies {
-                assert_eq!(got.log_scales[d as usize][2], params.log_scales[s as usize][2]);
+                assert_eq!(
+                    got.log_scales[d as usize][2],
+                    params.log_scales[s as usize][2]
+                );
             }
         }
     }
@@ -184,7 +201,11 @@ fn the_noise_is_the_covariance_shaped_gated_step_of_the_reference() {
     let mut params = random_params(&mut rng, n, 0);
     // Opacities across the gate: most near 0, some opaque.
     for (i, l) in params.opacity_logits.iter_mut().enumerate() {
-        *l = if i % 3 == 0 { 4.0 } else { rng.gen_range(-9.0..-2.0) };
+        *l = if i % 3 == 0 {
+            4.0
+        } else {
+            rng.gen_range(-9.0..-2.0)
+        };
     }
     let gpu = GpuSplats::upload(&ctx, &params, n).unwrap();
     let (seed, step, amount, k, t) = (99u32, 1234u32, 80.0f32, 100.0f32, 0.005f32);
@@ -237,7 +258,10 @@ fn the_regulariser_gradients_are_the_references_and_its_finite_differences() {
         let (_, gl, gs) = oracle::regulariser(&params, weights.0, weights.1, axes as usize);
         for i in 0..n {
             let d = got.opacity_logits[i] as f64 - start.opacity_logits[i] as f64;
-            assert!((d - gl[i]).abs() <= 1e-6 * start.opacity_logits[i].abs() as f64 + 1e-9 * gl[i].abs() + 1e-12);
+            assert!(
+                (d - gl[i]).abs()
+                    <= 1e-6 * start.opacity_logits[i].abs() as f64 + 1e-9 * gl[i].abs() + 1e-12
+            );
             for a in 0..3 {
                 let d = got.log_scales[i][a] as f64 - start.log_scales[i][a] as f64;
                 let tol = 1e-6 * start.log_scales[i][a].abs() as f64 + 1e-5 * gs[i][a].abs();
@@ -261,7 +285,11 @@ fn the_regulariser_gradients_are_the_references_and_its_finite_differences() {
             let span = |x: f32| ((x + h) as f64) - ((x - h) as f64);
             let fd_l = (f(h, 0.0) - f(-h, 0.0)) / span(l);
             let fd_s = (f(0.0, h) - f(0.0, -h)) / span(ls);
-            assert!((fd_l - gl[i]).abs() <= 1e-5 * gl[i].abs() + 1e-12, "{fd_l} {}", gl[i]);
+            assert!(
+                (fd_l - gl[i]).abs() <= 1e-5 * gl[i].abs() + 1e-12,
+                "{fd_l} {}",
+                gl[i]
+            );
             assert!(
                 (fd_s - gs[i][0]).abs() <= 1e-5 * gs[i][0].abs() + 1e-12,
                 "{fd_s} {}",

@@ -6,11 +6,13 @@ use super::progress::TrainingLog;
 use crate::cli::lpips_scores;
 use crate::cli::train_plot::{write_training_plot, EvalPoint};
 use anyhow::Context;
+use clap::ValueEnum;
 use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuContext, StageTimes};
 use lpmsplat::lpips::Lpips;
 use lpmsplat::lpm::config::LpmConfig;
 use lpmsplat::lpm::strategy::LpmStrategy;
+use lpmsplat::mcmc::McmcStrategy;
 use lpmsplat::scene::image_source::ViewImages;
 use lpmsplat::scene::{images, Image, Scene};
 use lpmsplat::splats::write_splat;
@@ -186,6 +188,13 @@ impl Finished<'_> {
                 j["per_step"] = l.steps.iter().map(|r| r.to_json()).collect();
                 j
             }),
+            "mcmc": trainer.strategy_as::<McmcStrategy>().map(|m| serde_json::json!({
+                "settings": m.config.to_json(),
+                "refinements": m.totals.refinements,
+                "relocated": m.totals.relocated,
+                "added": m.totals.added,
+            })),
+            "exact_budget": config.density.exact_budget.map(|b| b.to_json()),
         })
     }
 
@@ -196,6 +205,11 @@ impl Finished<'_> {
         cfg["scene"] = serde_json::json!(args.scene.scene.display().to_string());
         cfg["resolution"] = serde_json::json!(args.scene.resolution);
         cfg["model"] = serde_json::json!(args.model.name());
+        cfg["strategy"] = serde_json::json!(args
+            .density_strategy
+            .strategy
+            .to_possible_value()
+            .map(|v| v.get_name().to_string()));
         match (self.resumed_at, &args.resume) {
             // The checkpoint's model is not the run's initialisation: say where the run resumed.
             (Some((iteration, gaussians)), Some(p)) => {

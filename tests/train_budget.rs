@@ -1,0 +1,117 @@
+//! `train --strategy adc-exact | mcmc --budget`: the count each strategy reaches through the
+//! CLI on the bundled door (short runs with the validation layer on), and the flags it refuses.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn data(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(name)
+}
+
+fn lpmsplat() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_lpmsplat"));
+    c.env("LPMSPLAT_VALIDATION", "1");
+    c
+}
+
+/// 70 iterations, density steps at 40 and 60; the counts in the history every 10.
+fn train(out: &Path, extra: &[&str]) -> std::process::Output {
+    lpmsplat()
+        .arg("train")
+        .arg(data("lund_door_small"))
+        .args(["-r", "2", "--sh-degree", "0"])
+        .args(["--iterations", "70", "--densify-from", "20"])
+        .args(["--densify-interval", "20", "-o"])
+        .arg(out)
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+fn history_counts(out: &Path) -> Vec<(u64, u64)> {
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
+    m["history"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|h| {
+            (
+                h["iteration"].as_u64().unwrap(),
+                h["gaussians"].as_u64().unwrap(),
+            )
+        })
+        .collect()
+}
+
+fn count_at(h: &[(u64, u64)], it: u64) -> u64 {
+    h.iter().find(|e| e.0 == it).unwrap().1
+}
+
+/// The exact budget follows its curve: the first of two steps ends three quarters of the way
+/// (taming: 2x − x² at x = ½), the last at the budget itself, where plain ADC, free, ends
+/// elsewhere.
+#[test]
+fn the_exact_budget_lands_on_its_curve_and_mcmc_grows_five_percent_a_step() {
+    let dir = tempfile::tempdir().unwrap();
+    let exact = dir.path().join("exact");
+    let o = train(&exact, &["--strategy", "adc-exact", "--budget", "1.3x"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let h = history_counts(&exact);
+    let initial = count_at(&h, 10);
+    let target = (1.3 * initial as f64).round() as u64;
+    let first = initial + (0.75 * (target - initial) as f64).round() as u64;
+    // A split whose original is pruned anyway frees two rows: one short at most.
+    let near = |got: u64, want: u64| got == want || got + 1 == want;
+    assert!(near(count_at(&h, 50), first), "{h:?}: step one to {first}");
+    assert!(
+        near(count_at(&h, 70), target),
+        "{h:?}: to the budget {target}"
+    );
+
+    let mcmc = dir.path().join("mcmc");
+    let o = train(&mcmc, &["--strategy", "mcmc", "--budget", "1.08x"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let h = history_counts(&mcmc);
+    assert_eq!(count_at(&h, 10), initial);
+    let one = (initial as f64 * 1.05).floor() as u64;
+    assert_eq!(count_at(&h, 50), one, "{h:?}");
+    assert_eq!(
+        count_at(&h, 70),
+        (1.08 * initial as f64).round() as u64,
+        "{h:?}"
+    );
+    let config: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(mcmc.join("config.json")).unwrap()).unwrap();
+    assert_eq!(config["strategy"], "mcmc");
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(mcmc.join("metrics.json")).unwrap()).unwrap();
+    assert_eq!(m["mcmc"]["refinements"], 2, "{}", m["mcmc"]);
+    assert_eq!(m["mcmc"]["settings"]["budget"]["growth"], "mcmc");
+}
+
+#[test]
+fn a_strategy_without_its_budget_or_with_a_guide_it_cannot_take_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    for (flags, says) in [
+        (&["--strategy", "mcmc"][..], "--budget"),
+        (&["--strategy", "adc-exact"][..], "--budget"),
+        (
+            &["--strategy", "mcmc", "--budget", "2x", "--lpm"][..],
+            "--lpm",
+        ),
+        (&["--budget-growth", "linear"][..], "--budget"),
+        (&["--budget", "12q"][..], "3x"),
+    ] {
+        let out = dir.path().join("refused");
+        let o = train(&out, flags);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            !o.status.success() && err.contains(says),
+            "{flags:?}: {err}"
+        );
+        assert!(!out.join("metrics.json").exists());
+    }
+}
