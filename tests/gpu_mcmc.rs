@@ -215,6 +215,7 @@ fn the_noise_is_the_covariance_shaped_gated_step_of_the_reference() {
     rec.submit_and_wait().unwrap();
     let got = gpu.download().unwrap();
     let mut moved = 0;
+    #[allow(clippy::needless_range_loop)]
     for i in 0..n {
         let eps = [0, 1, 2].map(|a| rng_normal(seed, step, i as u32, a));
         let d = oracle::noise_displacement(&params, i, eps, amount as f64, k as f64, t as f64);
@@ -256,6 +257,7 @@ fn the_regulariser_gradients_are_the_references_and_its_finite_differences() {
         rec.submit_and_wait().unwrap();
         let got = g.download().unwrap();
         let (_, gl, gs) = oracle::regulariser(&params, weights.0, weights.1, axes as usize);
+        #[allow(clippy::needless_range_loop)]
         for i in 0..n {
             let d = got.opacity_logits[i] as f64 - start.opacity_logits[i] as f64;
             assert!(

@@ -83,7 +83,8 @@ pub fn sample_weighted(weights: &[f64], m: usize, rng: &mut impl Rng) -> Vec<u32
         total += w.max(0.0);
         cumulative.push(total);
     }
-    if !(total > 0.0) {
+    // NaN-explicit: a NaN total (never: weights are clamped at 0) draws nothing.
+    if total.is_nan() || total <= 0.0 {
         return Vec::new();
     }
     (0..m)
@@ -146,7 +147,8 @@ pub fn plan_relocation(
 ) -> Plan {
     let opacity: Vec<f64> = logits.iter().map(|&l| sigmoid(l as f64)).collect();
     let dead: Vec<u32> = (0..logits.len() as u32)
-        .filter(|&i| !(opacity[i as usize] > min_opacity))
+        // A NaN opacity counts as dead (moved onto a live one).
+        .filter(|&i| opacity[i as usize].is_nan() || opacity[i as usize] <= min_opacity)
         .collect();
     if dead.is_empty() || dead.len() == logits.len() {
         return Plan::default();
