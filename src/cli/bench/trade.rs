@@ -8,7 +8,9 @@
 
 use super::trade_args::{settings_json, TradeArgs};
 use super::trade_report;
-use super::trade_runs::{abs_grad_applies, calendar_config, run_lpm_config, selected_runs, RUNS};
+use super::trade_runs::{
+    abs_grad_applies, calendar_config, fills_budget, run_lpm_config, selected_runs, RUNS,
+};
 use super::trade_summary::{
     column_header, paired_table, plot, summarize, table_rows, Summary, TradeRow,
 };
@@ -21,12 +23,14 @@ use lpmsplat::lpips::Lpips;
 use lpmsplat::lpm::config::LpmConfig;
 use lpmsplat::lpm::regions::RegionSettings;
 use lpmsplat::lpm::strategy::LpmStrategy;
+use lpmsplat::mcmc::{McmcConfig, McmcStrategy};
 use lpmsplat::render::forward::{FrameSettings, Renderer};
 use lpmsplat::render::layout::CameraGpu;
 use lpmsplat::render::spacetime::TimedModel;
 use lpmsplat::scene::image_source::{ImageSource, ViewImages};
 use lpmsplat::scene::Scene;
 use lpmsplat::splats::gpu::GpuSplats;
+use lpmsplat::train::density::growth::{BudgetCurve, Growth};
 use lpmsplat::train::trainer::{TrainConfig, Trainer, ViewMetrics};
 use std::io::Write;
 use std::time::Instant;
@@ -137,12 +141,14 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
             if let Some(c) = &lpm {
                 c.validate()?;
             }
+            let mcmc = apply_budget(name, &mut cfg, args, inits[si].len(), calendar)?;
             runs.push(Run {
                 k,
                 seed,
                 init: si,
                 cfg,
                 lpm,
+                mcmc,
                 trainer: None,
                 seconds: 0.0,
                 count_sum: 0.0,
@@ -178,6 +184,13 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
             let r = &mut runs[i];
             let init = &inits[r.init];
             let mut t = Trainer::new(&ctx, &scene, train_images.clone(), init, r.cfg.clone())?;
+            if let Some(c) = r.mcmc {
+                let primitive = match r.cfg.surfels.is_some() {
+                    true => lpmsplat::train::strategy::Primitive::Surfel,
+                    false => lpmsplat::train::strategy::Primitive::Gaussian,
+                };
+                t.set_strategy(Box::new(McmcStrategy::new(&ctx, c, primitive)?));
+            }
             if let Some(c) = r.lpm.clone() {
                 t.set_strategy(Box::new(build_lpm(
                     &ctx,
@@ -443,12 +456,78 @@ struct Run {
     init: usize,
     cfg: TrainConfig,
     lpm: Option<LpmConfig>,
+    /// MCMC's settings, for the mcmc run.
+    mcmc: Option<McmcConfig>,
     trainer: Option<Trainer>,
     seconds: f64,
     /// The Gaussian counts after each iteration so far, summed (for the mean model size).
     count_sum: f64,
     /// The base model's own rules' events so far.
     model_events: Vec<serde_json::Value>,
+}
+
+/// The budget of run `name` on `cfg` (its initial model of `initial` Gaussians, its calendar):
+/// a cap for ADC and its LPM runs, the exact budget for adc-exact* (adc's count under
+/// --match-adc-count when no --budget is given), and MCMC's settings for mcmc (returned).
+fn apply_budget(
+    name: &str,
+    cfg: &mut TrainConfig,
+    args: &TradeArgs,
+    initial: usize,
+    calendar: u32,
+) -> anyhow::Result<Option<McmcConfig>> {
+    anyhow::ensure!(
+        !fills_budget(name) || args.budget.is_some() || (args.match_adc_count && name != "mcmc"),
+        "bench trade: run {name} fills a Gaussian budget. Fix: pass --budget N (e.g. adc's final \
+         count), or --match-adc-count for the adc-exact runs"
+    );
+    if name == "mcmc" {
+        // The peers' refinement window (to 25 000 of 30 000) on the calendar, no opacity reset.
+        cfg.schedule.densify_until = ((25_000u64 * calendar as u64) / 30_000) as u32;
+        cfg.schedule.opacity_reset_interval = 0;
+        cfg.schedule.white_background = false;
+    }
+    if name.ends_with("lpm-lowered") {
+        cfg.density.rank_lowered = true;
+    }
+    let window = (
+        cfg.schedule.densify_from,
+        cfg.schedule
+            .densify_until
+            .min(args.iterations.saturating_add(1)),
+        cfg.schedule.interval,
+    );
+    let curve = |default: Growth| {
+        args.budget.map(|b| BudgetCurve {
+            target: b.resolve(initial),
+            growth: args.budget_growth.unwrap_or(default),
+            initial,
+            window,
+        })
+    };
+    if name == "mcmc" {
+        let c = curve(Growth::Mcmc).expect("checked above");
+        return Ok(Some(McmcConfig {
+            seed: cfg.seed,
+            ..McmcConfig::with_budget(c)
+        }));
+    }
+    if name.starts_with("adc-exact") {
+        // Without a budget the cap (adc's count, moved every iteration) decides each step.
+        cfg.density.exact_budget = Some(curve(Growth::Taming).unwrap_or(BudgetCurve {
+            target: usize::MAX / 4,
+            growth: Growth::Linear,
+            initial,
+            window,
+        }));
+    } else if let Some(c) = curve(Growth::Taming) {
+        cfg.density.max_gaussians = Some(
+            cfg.density
+                .max_gaussians
+                .map_or(c.target, |m| m.min(c.target)),
+        );
+    }
+    Ok(None)
 }
 
 /// What every run is scored on: the scene's test views, their images, and LPIPS if loaded.

@@ -106,6 +106,20 @@ pub struct TradeArgs {
     /// --max-gaussians`): at the cap the runs compare at one count.
     #[arg(long, value_name = "N", value_parser = crate::cli::train::parse_max_gaussians)]
     pub max_gaussians: Option<usize>,
+    /// The Gaussian budget: a count (500k, 2.5M) or a multiple of the initial model's (3x).
+    /// adc-exact* and mcmc end densification exactly there (their curves: --budget-growth);
+    /// every other run trains under it as a cap (ADC at the budget). The Taming protocol takes
+    /// the budgets from adc's own final counts (0.25×, 0.5×, 1×).
+    #[arg(long, value_name = "N", value_parser = crate::cli::train::parse_budget)]
+    pub budget: Option<crate::cli::train::Budget>,
+    /// How adc-exact* and mcmc grow to the budget: taming (adc-exact's default), linear, mcmc
+    /// (5 % a step; mcmc's default).
+    #[arg(long, value_name = "CURVE", value_parser = lpmsplat::train::density::growth::Growth::parse)]
+    pub budget_growth: Option<lpmsplat::train::density::growth::Growth>,
+    /// LPM runs: a zone's candidate's score weight under a budget (as `train
+    /// --lpm-zone-weight`; default 1.5).
+    #[arg(long, value_name = "W")]
+    pub lpm_zone_weight: Option<f32>,
     /// Every run but adc trains under a Gaussian budget that follows adc's count at the same
     /// seed and iteration (at most --max-gaussians too), so the runs compare at adc's count at
     /// every evaluation without knowing it beforehand. Needs adc in --runs.
@@ -135,6 +149,9 @@ pub fn settings_json(args: &TradeArgs) -> serde_json::Value {
         "densify_abs_grad": args.densify_abs_grad,
         "max_gaussians": args.max_gaussians,
         "match_adc_count": args.match_adc_count,
+        "budget": args.budget.map(|b| format!("{b:?}")),
+        "budget_growth": args.budget_growth.map(|g| g.name()),
+        "lpm_zone_weight": args.lpm_zone_weight,
         "init": format!("{:?}", args.init).to_lowercase(),
         "init_points": args.init_points,
         "n3dv_culls": format!("{:?}", args.n3dv_culls).to_lowercase(),

@@ -11,7 +11,7 @@ use lpmsplat::models::BaseModel;
 use lpmsplat::scene::Scene;
 use lpmsplat::train::trainer::TrainConfig;
 
-pub const RUNS: [(&str, [u8; 3]); 17] = [
+pub const RUNS: [(&str, [u8; 3]); 21] = [
     ("adc", [40, 40, 40]),
     ("adc-threshold-1e-4", [200, 120, 0]),
     ("adc+lpm", [220, 30, 30]),
@@ -49,7 +49,21 @@ pub const RUNS: [(&str, [u8; 3]); 17] = [
     // Our rules with zones wider than the scene kept but ignored by the opacity reset
     // (`train --lpm --lpm-reset-max-zone-radius 1`).
     ("lpm-local-resets", [120, 40, 120]),
+    // ADC at an exact budget (`train --strategy adc-exact --budget N`): the best-scoring
+    // candidates the curve has room for at every step; under --match-adc-count, adc's count.
+    ("adc-exact", [20, 130, 130]),
+    // The same with LPM as its guide: zones weight the candidates' scores (count-neutral).
+    ("adc-exact+lpm", [240, 60, 120]),
+    // The same with the paper's ranking over the lowered threshold (`--lpm-rank lowered`).
+    ("adc-exact+lpm-lowered", [140, 20, 60]),
+    // 3DGS as MCMC (`train --strategy mcmc --budget N`).
+    ("mcmc", [0, 90, 200]),
 ];
+
+/// Whether run `name` fills an exact budget (the exact-budget ADC runs and MCMC).
+pub fn fills_budget(name: &str) -> bool {
+    name.starts_with("adc-exact") || name == "mcmc"
+}
 
 /// The configuration every run starts from: the base model's defaults with every iteration
 /// its official code names on a 30k calendar (densification, opacity resets, the position
@@ -175,6 +189,9 @@ pub fn run_lpm_config(name: &str, cfg: &TrainConfig, args: &TradeArgs) -> Option
     }
     if let Some(r) = args.lpm_threshold_ratio {
         c.threshold_ratio = r;
+    }
+    if let Some(w) = args.lpm_zone_weight {
+        c.zone_weight = w;
     }
     c.regions.block = args.lpm_block;
     c.regions.keep_fraction = if name == "lpm-loose-blocks" {

@@ -11,7 +11,7 @@ mod strategy_args;
 
 pub use args::{background_from, parse_max_gaussians, InitSource, TrainArgs};
 pub use setup::{build_lpm, initial_model, prepare_output};
-pub use strategy_args::StrategyName;
+pub use strategy_args::{parse_budget, Budget, StrategyName};
 
 use super::lpips_scores;
 use args::{check_flags, RecordAhead};
