@@ -90,18 +90,30 @@ fn the_exact_budget_lands_on_its_curve_and_mcmc_grows_five_percent_a_step() {
         serde_json::from_slice(&std::fs::read(mcmc.join("metrics.json")).unwrap()).unwrap();
     assert_eq!(m["mcmc"]["refinements"], 2, "{}", m["mcmc"]);
     assert_eq!(m["mcmc"]["settings"]["budget"]["growth"], "mcmc");
+
+    // Guided by LPM: the same refinements, LPM's steps recorded, never past the budget.
+    let guided = dir.path().join("mcmc_lpm");
+    let o = train(
+        &guided,
+        &["--strategy", "mcmc", "--budget", "1.08x", "--lpm"],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let h = history_counts(&guided);
+    let budget = (1.08 * initial as f64).round() as u64;
+    assert!(h.iter().all(|e| e.1 <= budget), "{h:?}");
+    assert_eq!(count_at(&h, 70), budget, "{h:?}");
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(guided.join("metrics.json")).unwrap()).unwrap();
+    assert_eq!(m["mcmc"]["refinements"], 2, "{}", m["mcmc"]);
+    assert!(m["lpm"].is_object(), "{}", m["lpm"]);
 }
 
 #[test]
-fn a_strategy_without_its_budget_or_with_a_guide_it_cannot_take_is_refused() {
+fn a_strategy_without_its_budget_or_a_bad_budget_is_refused() {
     let dir = tempfile::tempdir().unwrap();
     for (flags, says) in [
         (&["--strategy", "mcmc"][..], "--budget"),
         (&["--strategy", "adc-exact"][..], "--budget"),
-        (
-            &["--strategy", "mcmc", "--budget", "2x", "--lpm"][..],
-            "--lpm",
-        ),
         (&["--budget-growth", "linear"][..], "--budget"),
         (&["--budget", "12q"][..], "3x"),
     ] {

@@ -466,9 +466,33 @@ impl LpmStrategy {
             return Ok(outcome);
         }
 
-        // 3. Membership, lowered threshold inside zones, density-aware pruning.
+        // 3. Membership, lowered threshold inside zones, density-aware pruning; or, for a
+        // strategy that takes a guide (MCMC), the zone weights alone, and its own step.
         let count = t.state.count();
         self.record_zone_membership(t, &records)?;
+        if self.inner.takes_guide() {
+            t.rec.dispatch(
+                &self.threshold_scale,
+                &[&self.flags, &self.scale, &self.weight],
+                &ScalePush {
+                    count: count as u32,
+                    ratio: 1.0,
+                    weight: self.config.zone_weight,
+                },
+                self.ctx.groups_1d(count as u64, WG),
+            );
+            t.rec.barrier();
+            let a0 = Instant::now();
+            let outcome = self.inner.densify_guided(t, at, args, &self.weight)?;
+            report.inside = self.inside_total(records.len())?;
+            self.pending = Some(Pending {
+                report,
+                records,
+                start,
+                adc_seconds: a0.elapsed().as_secs_f64(),
+            });
+            return Ok(outcome);
+        }
         t.rec.dispatch(
             &self.threshold_scale,
             &[&self.flags, &self.scale, &self.weight],
@@ -639,6 +663,11 @@ impl LpmStrategy {
     pub fn wrapping(mut self, inner: Box<dyn DensityStrategy>) -> Self {
         self.inner = inner;
         self
+    }
+
+    /// The strategy LPM guides.
+    pub fn inner(&self) -> &dyn DensityStrategy {
+        self.inner.as_ref()
     }
 }
 

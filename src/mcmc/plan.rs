@@ -233,6 +233,32 @@ mod tests {
         assert!(logits.iter().all(|&l| sigmoid(l as f64) >= 0.005 - 1e-9));
     }
 
+    /// A guide's weights steer the draws: a live Gaussian of weight 0 is never a source, and
+    /// sources follow opacity × weight.
+    #[test]
+    fn a_guides_weights_steer_relocation_and_growth() {
+        let n = 1_000;
+        let mut logits: Vec<f32> = (0..n).map(|i| if i < 200 { -9.0 } else { 1.0 }).collect();
+        // Live Gaussians 200..600 weigh 0, 600..1000 weigh 3 (the zone).
+        let weight: Vec<f32> = (0..n).map(|i| if i < 600 { 0.0 } else { 3.0 }).collect();
+        let mut l = logits.clone();
+        let plan = plan_relocation(&mut l, Some(&weight), 0.005, &mut plan_rng(0, 1, 0));
+        assert_eq!(plan.copies.len(), 200);
+        assert!(
+            plan.copies.iter().all(|&(_, s)| s >= 600),
+            "{:?}",
+            plan.copies
+        );
+        let grow = plan_growth(
+            &mut logits,
+            Some(&weight),
+            50,
+            0.005,
+            &mut plan_rng(0, 1, 1),
+        );
+        assert!(grow.copies.iter().all(|&(d, s)| s >= 600 && d >= n as u32));
+    }
+
     #[test]
     fn sampling_follows_the_weights() {
         let mut rng = plan_rng(1, 2, 3);

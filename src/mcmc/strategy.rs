@@ -6,7 +6,7 @@ use std::sync::Arc;
 use super::config::McmcConfig;
 use super::gpu::McmcKernels;
 use super::plan::{plan_growth, plan_relocation, plan_rng};
-use crate::gpu::{GpuContext, Recorder};
+use crate::gpu::{GpuBuffer, GpuContext, Recorder};
 use crate::splats::gpu::{grown_capacity, GpuSplats};
 use crate::train::adam::SplatState;
 use crate::train::density::rng::fold_seed;
@@ -81,40 +81,36 @@ impl McmcStrategy {
         })
     }
 
-    fn noise_seed(&self) -> u32 {
-        // Apart from the split samples' stream of the same seed.
-        fold_seed(self.config.seed) ^ 0x6d63_6d63
-    }
-}
-
-impl DensityStrategy for McmcStrategy {
-    fn name(&self) -> &'static str {
-        "mcmc"
-    }
-
-    fn densify(
+    /// One refinement: relocation, then growth to the curve's target, sources drawn ∝
+    /// opacity × `weight` (a guide's, read back with the opacities).
+    fn refine(
         &mut self,
         t: &mut DensityContext,
-        _at: &IterationView,
         args: &DensifyArgs,
+        weight: Option<&GpuBuffer<f32>>,
     ) -> anyhow::Result<DensifyOutcome> {
         let it = args.iteration;
         let n = t.state.count();
-        // The iteration's work has completed (density control runs after it was waited for):
-        // the opacities are final.
+        // The iteration's work (and a guide's, recorded into `t.rec`) completes here: the
+        // opacities and weights are final.
         t.rec.submit_and_wait()?;
         t.rec.begin()?;
         let mut logits = t.state.params.opacity_logits.read_range(0, n)?;
+        let weight = match weight {
+            Some(w) => Some(w.read_range(0, n)?),
+            None => None,
+        };
+        let weight = weight.as_deref();
         let min = self.config.min_opacity;
         let seed = self.config.seed;
-        let relocation = plan_relocation(&mut logits, None, min, &mut plan_rng(seed, it, 0));
+        let relocation = plan_relocation(&mut logits, weight, min, &mut plan_rng(seed, it, 0));
         let moved = self.kernels.upload(&relocation)?;
         self.kernels
             .record_plan(t.rec, t.state, &moved, self.axes)?;
         let target = self.config.budget.target_at(it, n);
         let growth = plan_growth(
             &mut logits,
-            None,
+            weight,
             target.saturating_sub(n),
             min,
             &mut plan_rng(seed, it, 1),
@@ -164,6 +160,41 @@ impl DensityStrategy for McmcStrategy {
             skipped: false,
             budget_dropped: 0,
         })
+    }
+
+    fn noise_seed(&self) -> u32 {
+        // Apart from the split samples' stream of the same seed.
+        fold_seed(self.config.seed) ^ 0x6d63_6d63
+    }
+}
+
+impl DensityStrategy for McmcStrategy {
+    fn name(&self) -> &'static str {
+        "mcmc"
+    }
+
+    fn densify(
+        &mut self,
+        t: &mut DensityContext,
+        _at: &IterationView,
+        args: &DensifyArgs,
+    ) -> anyhow::Result<DensifyOutcome> {
+        self.refine(t, args, None)
+    }
+
+    fn takes_guide(&self) -> bool {
+        true
+    }
+
+    /// Relocation targets and growth sources drawn ∝ opacity × the guide's weight.
+    fn densify_guided(
+        &mut self,
+        t: &mut DensityContext,
+        _at: &IterationView,
+        args: &DensifyArgs,
+        weight: &GpuBuffer<f32>,
+    ) -> anyhow::Result<DensifyOutcome> {
+        self.refine(t, args, Some(weight))
     }
 
     fn after_density(

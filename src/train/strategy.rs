@@ -143,6 +143,25 @@ pub trait DensityStrategy: Any {
         args: &DensifyArgs,
     ) -> anyhow::Result<DensifyOutcome>;
 
+    /// Whether the strategy takes a guide's per-Gaussian weights
+    /// ([`DensityStrategy::densify_guided`]): LPM then steers it by its zones.
+    fn takes_guide(&self) -> bool {
+        false
+    }
+
+    /// [`DensityStrategy::densify`] with a guide's weight for each of the current Gaussians
+    /// (`weight[i] ≥ 0`, 1 where the guide has no preference): where the strategy's room goes,
+    /// never how much there is. Only called when [`DensityStrategy::takes_guide`].
+    fn densify_guided(
+        &mut self,
+        _t: &mut DensityContext,
+        _at: &IterationView,
+        _args: &DensifyArgs,
+        _weight: &GpuBuffer<f32>,
+    ) -> anyhow::Result<DensifyOutcome> {
+        anyhow::bail!("density strategy {}: takes no guide", self.name())
+    }
+
     /// After [`DensityStrategy::densify`] and the global opacity reset (recorded, not yet
     /// submitted). `t.rec` is begun; leave it begun.
     fn after_density(

@@ -184,21 +184,26 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
             let r = &mut runs[i];
             let init = &inits[r.init];
             let mut t = Trainer::new(&ctx, &scene, train_images.clone(), init, r.cfg.clone())?;
-            if let Some(c) = r.mcmc {
-                let primitive = match r.cfg.surfels.is_some() {
-                    true => lpmsplat::train::strategy::Primitive::Surfel,
-                    false => lpmsplat::train::strategy::Primitive::Gaussian,
-                };
-                t.set_strategy(Box::new(McmcStrategy::new(&ctx, c, primitive)?));
-            }
-            if let Some(c) = r.lpm.clone() {
-                t.set_strategy(Box::new(build_lpm(
-                    &ctx,
-                    &scene,
-                    &train_images,
-                    c,
-                    &args.out,
-                )?));
+            let mcmc = match r.mcmc {
+                Some(c) => {
+                    let primitive = match r.cfg.surfels.is_some() {
+                        true => lpmsplat::train::strategy::Primitive::Surfel,
+                        false => lpmsplat::train::strategy::Primitive::Gaussian,
+                    };
+                    Some(McmcStrategy::new(&ctx, c, primitive)?)
+                }
+                None => None,
+            };
+            match (r.lpm.clone(), mcmc) {
+                (Some(c), mcmc) => {
+                    let lpm = build_lpm(&ctx, &scene, &train_images, c, &args.out)?;
+                    t.set_strategy(match mcmc {
+                        Some(m) => Box::new(lpm.wrapping(Box::new(m))),
+                        None => Box::new(lpm),
+                    });
+                }
+                (None, Some(m)) => t.set_strategy(Box::new(m)),
+                (None, None) => {}
             }
             r.trainer = Some(t);
         }
@@ -477,11 +482,14 @@ fn apply_budget(
     calendar: u32,
 ) -> anyhow::Result<Option<McmcConfig>> {
     anyhow::ensure!(
-        !fills_budget(name) || args.budget.is_some() || (args.match_adc_count && name != "mcmc"),
+        !fills_budget(name)
+            || args.budget.is_some()
+            || (args.match_adc_count && !name.starts_with("mcmc")),
         "bench trade: run {name} fills a Gaussian budget. Fix: pass --budget N (e.g. adc's final \
          count), or --match-adc-count for the adc-exact runs"
     );
-    if name == "mcmc" {
+    let mcmc = name.starts_with("mcmc");
+    if mcmc {
         // The peers' refinement window (to 25 000 of 30 000) on the calendar, no opacity reset.
         cfg.schedule.densify_until = ((25_000u64 * calendar as u64) / 30_000) as u32;
         cfg.schedule.opacity_reset_interval = 0;
@@ -505,8 +513,10 @@ fn apply_budget(
             window,
         })
     };
-    if name == "mcmc" {
+    if mcmc {
         let c = curve(Growth::Mcmc).expect("checked above");
+        // The cap stops a guide's added points at the budget too.
+        cfg.density.max_gaussians = Some(c.target);
         return Ok(Some(McmcConfig {
             seed: cfg.seed,
             ..McmcConfig::with_budget(c)

@@ -74,7 +74,11 @@ pub struct TradeArgs {
     /// through the region and the depths of its matches), lpm-loose-blocks (our rules with error
     /// blocks kept above 70 % error pixels, whatever --lpm-block-fraction says),
     /// lpm-local-resets (our rules with the zones wider than the scene kept but ignored by the
-    /// opacity reset) (aliases: adc-1e-4, lpm). Default: the first five.
+    /// opacity reset), adc-exact (ADC at an exact budget: --budget, or adc's count under
+    /// --match-adc-count), adc-exact+lpm (the same guided by LPM's zone weights),
+    /// adc-exact+lpm-lowered (the same ranked over LPM's lowered threshold, the paper's rule),
+    /// mcmc and mcmc+lpm (MCMC at --budget, alone and guided) (aliases: adc-1e-4, lpm).
+    /// Default: the first five.
     #[arg(long, value_delimiter = ',')]
     pub runs: Vec<String>,
     /// Run the variants one after another instead of interleaving their iterations. Interleaving

@@ -11,7 +11,7 @@ use lpmsplat::models::BaseModel;
 use lpmsplat::scene::Scene;
 use lpmsplat::train::trainer::TrainConfig;
 
-pub const RUNS: [(&str, [u8; 3]); 21] = [
+pub const RUNS: [(&str, [u8; 3]); 22] = [
     ("adc", [40, 40, 40]),
     ("adc-threshold-1e-4", [200, 120, 0]),
     ("adc+lpm", [220, 30, 30]),
@@ -58,11 +58,14 @@ pub const RUNS: [(&str, [u8; 3]); 21] = [
     ("adc-exact+lpm-lowered", [140, 20, 60]),
     // 3DGS as MCMC (`train --strategy mcmc --budget N`).
     ("mcmc", [0, 90, 200]),
+    // MCMC guided by LPM: relocation targets and growth sources drawn ∝ opacity × the zone
+    // weight, LPM's in-front resets and added points as usual.
+    ("mcmc+lpm", [250, 170, 0]),
 ];
 
 /// Whether run `name` fills an exact budget (the exact-budget ADC runs and MCMC).
 pub fn fills_budget(name: &str) -> bool {
-    name.starts_with("adc-exact") || name == "mcmc"
+    name.starts_with("adc-exact") || name.starts_with("mcmc")
 }
 
 /// The configuration every run starts from: the base model's defaults with every iteration

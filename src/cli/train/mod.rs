@@ -27,7 +27,7 @@ use std::time::Instant;
 
 pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     check_flags(args)?;
-    args.density_strategy.check(args.lpm.lpm, args.model)?;
+    args.density_strategy.check(args.model)?;
     let scene = Scene::load(&args.scene.scene, &args.scene.load_options()?)?;
     let config = args.config(&scene)?;
     let lpm_config = args.lpm.config(&config.schedule, args.seed)?;
@@ -96,6 +96,15 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
             );
         }
         (StrategyName::AdcExact, c) => config.density.exact_budget = c,
+        // MCMC keeps its own budget; the cap stops a guide's added points there too.
+        (StrategyName::Mcmc, Some(c)) => {
+            config.density.max_gaussians = Some(
+                config
+                    .density
+                    .max_gaussians
+                    .map_or(c.target, |m| m.min(c.target)),
+            );
+        }
         _ => {}
     }
     let trainer = match (&resumed, &args.resume) {
@@ -119,25 +128,30 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         Some(_) => Some(NonFiniteCheck::new(&ctx)?),
         None => None,
     };
-    if let (StrategyName::Mcmc, Some(c)) = (strategy_args.strategy, curve) {
-        let primitive = match config.surfels.is_some() {
-            true => lpmsplat::train::strategy::Primitive::Surfel,
-            false => lpmsplat::train::strategy::Primitive::Gaussian,
-        };
-        trainer.set_strategy(Box::new(lpmsplat::mcmc::McmcStrategy::new(
-            &ctx,
-            strategy_args.mcmc(c, args.seed),
-            primitive,
-        )?));
-    }
-    if let Some(c) = lpm_config.clone() {
-        trainer.set_strategy(Box::new(build_lpm(
-            &ctx,
-            &scene,
-            &train_images,
-            c,
-            &args.out,
-        )?));
+    let mcmc = match (strategy_args.strategy, curve) {
+        (StrategyName::Mcmc, Some(c)) => {
+            let primitive = match config.surfels.is_some() {
+                true => lpmsplat::train::strategy::Primitive::Surfel,
+                false => lpmsplat::train::strategy::Primitive::Gaussian,
+            };
+            Some(lpmsplat::mcmc::McmcStrategy::new(
+                &ctx,
+                strategy_args.mcmc(c, args.seed),
+                primitive,
+            )?)
+        }
+        _ => None,
+    };
+    match (lpm_config.clone(), mcmc) {
+        (Some(c), mcmc) => {
+            let lpm = build_lpm(&ctx, &scene, &train_images, c, &args.out)?;
+            trainer.set_strategy(match mcmc {
+                Some(m) => Box::new(lpm.wrapping(Box::new(m))),
+                None => Box::new(lpm),
+            });
+        }
+        (None, Some(m)) => trainer.set_strategy(Box::new(m)),
+        (None, None) => {}
     }
     if let Some(p) = &args.resume {
         trainer.check_resumed_strategy(p)?;

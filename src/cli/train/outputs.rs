@@ -188,7 +188,13 @@ impl Finished<'_> {
                 j["per_step"] = l.steps.iter().map(|r| r.to_json()).collect();
                 j
             }),
-            "mcmc": trainer.strategy_as::<McmcStrategy>().map(|m| serde_json::json!({
+            "mcmc": trainer
+                .strategy_as::<McmcStrategy>()
+                .or_else(|| {
+                    let lpm = trainer.strategy_as::<LpmStrategy>()?;
+                    lpm.inner().as_any().downcast_ref::<McmcStrategy>()
+                })
+                .map(|m| serde_json::json!({
                 "settings": m.config.to_json(),
                 "refinements": m.totals.refinements,
                 "relocated": m.totals.relocated,

@@ -64,7 +64,8 @@ pub fn parse_budget(s: &str) -> Result<Budget, String> {
 
 #[derive(Args, Debug, Clone)]
 pub struct StrategyArgs {
-    /// The density strategy (--lpm guides adc and adc-exact).
+    /// The density strategy (--lpm guides any of them: ADC's candidates by a lowered threshold
+    /// and a score weight in its zones, MCMC's draws by the weight).
     #[arg(long, value_enum, default_value_t = StrategyName::Adc)]
     pub strategy: StrategyName,
     /// Gaussians at the end of densification: a count (500000, 500k, 2.5M) or a multiple of
@@ -139,8 +140,8 @@ pub fn initial_from_checkpoint(config_json: &str) -> Option<usize> {
 }
 
 impl StrategyArgs {
-    /// Checks the flags against each other and the model (`lpm`: --lpm is on).
-    pub fn check(&self, lpm: bool, model: lpmsplat::models::BaseModel) -> anyhow::Result<()> {
+    /// Checks the flags against each other and the model.
+    pub fn check(&self, model: lpmsplat::models::BaseModel) -> anyhow::Result<()> {
         use anyhow::ensure;
         ensure!(
             self.budget.is_some() || self.strategy == StrategyName::Adc,
@@ -153,12 +154,6 @@ impl StrategyArgs {
             "--budget-growth without --budget: there is no budget to grow to. Fix: pass --budget"
         );
         if self.strategy == StrategyName::Mcmc {
-            ensure!(
-                !lpm,
-                "--strategy mcmc with --lpm: LPM guides ADC's candidates (adc, adc-exact); as a \
-                 guide of MCMC's relocation it is not built yet. Fix: drop --lpm, or use \
-                 --strategy adc-exact"
-            );
             ensure!(
                 !model.is_spacetime(),
                 "--strategy mcmc: {} Gaussians live in time, and MCMC's relocation and noise \
