@@ -318,11 +318,40 @@ impl Finished<'_> {
                 r.dropped
             );
         }
-        if let Some(cap) = config.density.max_gaussians {
-            println!(
-                "  Gaussian budget {cap}: {} clones and splits dropped on {} density steps",
-                self.log.budget.0, self.log.budget.1
-            );
+        let mcmc = trainer.strategy_as::<McmcStrategy>().or_else(|| {
+            let lpm = trainer.strategy_as::<LpmStrategy>()?;
+            lpm.inner().as_any().downcast_ref::<McmcStrategy>()
+        });
+        match (mcmc, config.density.max_gaussians) {
+            (Some(m), _) => println!(
+                "  MCMC to {} Gaussians ({} growth): {} refinements, {} dead Gaussians relocated, \
+                 {} added",
+                m.config.budget.target,
+                m.config.budget.growth.name(),
+                m.totals.refinements,
+                m.totals.relocated,
+                m.totals.added
+            ),
+            (None, Some(cap)) => println!(
+                "  Gaussian budget {cap}{}: {} clones and splits dropped on {} density steps",
+                match config.density.exact_budget {
+                    Some(b) => format!(" (exact, {} growth)", b.growth.name()),
+                    None => String::new(),
+                },
+                self.log.budget.0,
+                self.log.budget.1
+            ),
+            (None, None) => {
+                if let Some(b) = config.density.exact_budget {
+                    println!(
+                        "  exact budget {} ({} growth): {} candidates dropped on {} density steps",
+                        b.target,
+                        b.growth.name(),
+                        self.log.budget.0,
+                        self.log.budget.1
+                    );
+                }
+            }
         }
         if let Some(l) = trainer.strategy_as::<LpmStrategy>() {
             let t = &l.totals;
