@@ -21,7 +21,7 @@ fn train(out: &Path, extra: &[&str]) -> std::process::Output {
     lpmsplat()
         .arg("train")
         .arg(data("lund_door_small"))
-        .args(["-r", "2", "--sh-degree", "0"])
+        .args(["-r", "4", "--sh-degree", "0"])
         .args(["--iterations", "70", "--densify-from", "20"])
         .args(["--densify-interval", "20", "-o"])
         .arg(out)
