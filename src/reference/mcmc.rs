@@ -3,6 +3,7 @@
 //! parameters, the position noise, and the opacity and scale regularisers' gradients.
 
 use crate::mcmc::plan::{sigmoid, Plan};
+use crate::reference::project::{normalize_quat, quat_to_rotation};
 use crate::splats::GaussianParams;
 
 /// `o / D` with `D = ∫ 1 − (1 − o'·g(x))^n dx / √(2π)`, `g(x) = exp(−x²/2)`: the profile of `n`
@@ -98,31 +99,11 @@ pub fn noise_displacement(
     k: f64,
     t: f64,
 ) -> [f64; 3] {
-    let q = p.rotations[i].map(|v| v as f64);
-    let n2: f64 = q.iter().map(|v| v * v).sum();
-    let (w, x, y, z) = if n2 >= 1e-24 {
-        let n = n2.sqrt();
-        (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
-    } else {
-        (1.0, 0.0, 0.0, 0.0)
+    // A quaternion too small to normalise reads as the identity (as the kernel does).
+    let r = match normalize_quat(p.rotations[i].map(|v| v as f64)) {
+        Some((u, _)) => quat_to_rotation(u),
+        None => quat_to_rotation([1.0, 0.0, 0.0, 0.0]),
     };
-    let r = [
-        [
-            1.0 - 2.0 * (y * y + z * z),
-            2.0 * (x * y - w * z),
-            2.0 * (x * z + w * y),
-        ],
-        [
-            2.0 * (x * y + w * z),
-            1.0 - 2.0 * (x * x + z * z),
-            2.0 * (y * z - w * x),
-        ],
-        [
-            2.0 * (x * z - w * y),
-            2.0 * (y * z + w * x),
-            1.0 - 2.0 * (x * x + y * y),
-        ],
-    ];
     let s2 = p.log_scales[i].map(|l| (2.0 * l as f64).exp());
     let gate = noise_gate(sigmoid(p.opacity_logits[i] as f64), k, t);
     // Σ ε = R (s² ⊙ (Rᵀ ε)).
