@@ -14,6 +14,7 @@ pub mod mcmc;
 pub mod mesh;
 pub mod metrics;
 pub mod models;
+pub mod partition;
 pub mod plot;
 pub mod reference;
 pub mod render;

@@ -9,8 +9,10 @@ mod info;
 mod interrupt;
 mod lpips_scores;
 mod matching;
+mod merge;
 mod mesh;
 mod model_segment;
+mod partition;
 mod render;
 
 mod train;
@@ -73,6 +75,11 @@ pub enum Command {
     Export(export::ExportArgs),
     /// A triangle mesh (PLY) of a trained 2DGS model: its rendered depth fused into a TSDF.
     Mesh(mesh::MeshArgs),
+    /// Cut a COLMAP scene into overlapping blocks on its ground plane: a plan, each block a
+    /// scene folder `train` reads, and (--slurm) a job array that trains them and a merge job.
+    Partition(Box<partition::PartitionArgs>),
+    /// The blocks' trained models of a plan, each cropped to its core, as one model.
+    Merge(merge::MergeArgs),
 }
 
 /// Scene-loading flags shared by the subcommands that read a scene.
@@ -137,5 +144,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Eval(a) => eval::run(&gpu, &a),
         Command::Export(a) => export::run(&a),
         Command::Mesh(a) => mesh::run(&gpu, &a),
+        Command::Partition(a) => partition::run(&a),
+        Command::Merge(a) => merge::run(&a),
     }
 }

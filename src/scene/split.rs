@@ -1,6 +1,72 @@
 //! Train/test split and scene extent.
 
+use std::path::Path;
+
 use super::View;
+use crate::error::bad_input;
+
+/// A scene folder may name its test views in this file, one view name a line (blank lines and
+/// lines starting with `#` skipped): every other view trains. `partition` writes one into each
+/// block, so a block holds out exactly the whole scene's test views it sees, whatever its own
+/// holdout order would pick.
+pub const TEST_VIEWS_FILE: &str = "test_views.txt";
+
+/// The split `root/test_views.txt` lists, if the file exists (`eval == false` puts every view
+/// in train). A name that is no view, or one listed twice, is an error naming the line.
+pub fn listed_split(
+    root: &Path,
+    views: &[View],
+    eval: bool,
+) -> anyhow::Result<Option<(Vec<usize>, Vec<usize>)>> {
+    let path = root.join(TEST_VIEWS_FILE);
+    if !path.is_file() {
+        return Ok(None);
+    }
+    let text = match std::fs::read_to_string(&path) {
+        Ok(t) => t,
+        Err(e) => {
+            return bad_input(
+                &path,
+                "file",
+                format!("cannot be read as text: {e}"),
+                "write one view name a line, or remove the file to hold out every 8th view",
+            )
+        }
+    };
+    let index: std::collections::HashMap<&str, usize> = views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| (v.name.as_str(), i))
+        .collect();
+    let mut is_test = vec![false; views.len()];
+    for (k, line) in text.lines().enumerate() {
+        let name = line.trim();
+        if name.is_empty() || name.starts_with('#') {
+            continue;
+        }
+        let Some(&i) = index.get(name) else {
+            return bad_input(
+                &path,
+                format!("line {}", k + 1),
+                format!("'{name}' is not a view of the scene"),
+                "name views as the scene lists them (e.g. images.txt's NAME column), or remove                  the line",
+            );
+        };
+        if std::mem::replace(&mut is_test[i], true) {
+            return bad_input(
+                &path,
+                format!("line {}", k + 1),
+                format!("'{name}' is listed twice"),
+                "remove the repeated line",
+            );
+        }
+    }
+    let mut order: Vec<usize> = (0..views.len()).collect();
+    order.sort_by(|&a, &b| views[a].name.cmp(&views[b].name));
+    let (test, train): (Vec<usize>, Vec<usize>) =
+        order.into_iter().partition(|&i| eval && is_test[i]);
+    Ok(Some((train, test)))
+}
 
 /// Indices of train and test views when the scene has no explicit split: views sorted by name,
 /// every `every`-th one (index % every == 0) held out, as in the Inria reference.

@@ -7,7 +7,7 @@ mod args;
 mod outputs;
 mod progress;
 mod setup;
-mod strategy_args;
+pub(crate) mod strategy_args;
 
 pub use args::{background_from, parse_max_gaussians, InitSource, TrainArgs};
 pub use setup::{build_lpm, initial_model, prepare_output};

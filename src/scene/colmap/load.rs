@@ -379,7 +379,10 @@ pub fn build_scene(
     }
 
     let points = build_points(model, &files, &view_of_image, &keypoint_index)?;
-    let (train, test) = split::holdout_split(&views, opts.holdout_every, opts.eval_split);
+    let (train, test) = match split::listed_split(root, &views, opts.eval_split)? {
+        Some(listed) => listed,
+        None => split::holdout_split(&views, opts.holdout_every, opts.eval_split),
+    };
     let (center, extent) = split::camera_extent(&views, &train);
     Ok(Scene {
         root: root.to_path_buf(),

@@ -1,0 +1,234 @@
+//! `partition`: cuts a scene into overlapping blocks on its ground plane, writes the plan, each
+//! block as a scene folder, and (with `--slurm`) the job scripts that train and merge them.
+
+use std::path::PathBuf;
+
+use clap::Args;
+use lpmsplat::partition::{self, blocks, slurm, GridChoice, PartitionOptions, Plan, Targets};
+use lpmsplat::scene::{colmap, Scene, SceneFormat};
+
+use super::train::strategy_args::{parse_budget, Budget};
+use super::SceneArgs;
+
+#[derive(Args, Debug)]
+pub struct PartitionArgs {
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// The plan's folder: plan.json, blocks/<name>/ (scene folders), slurm/ with --slurm; the
+    /// blocks' runs go to runs/<name>/ and the merge to merged/. Must not hold a plan yet.
+    #[arg(long, short = 'o')]
+    pub out: PathBuf,
+    /// The grid, COLUMNSxROWS (e.g. 2x2), columns along the scene's longest ground axis.
+    /// Default: the coarsest grid whose every block meets --max-views / --max-gaussians /
+    /// --memory (one of them is needed without --blocks).
+    #[arg(long, value_name = "CxR", value_parser = parse_grid)]
+    pub blocks: Option<(usize, usize)>,
+    /// Per-block target: at most this many training views.
+    #[arg(long, value_name = "N")]
+    pub max_views: Option<usize>,
+    /// Per-block target: at most this many expected Gaussians.
+    #[arg(long, value_name = "N", value_parser = parse_count)]
+    pub max_gaussians: Option<u64>,
+    /// Per-block target: at most this much estimated device memory (MiB).
+    #[arg(long, value_name = "MIB")]
+    pub memory: Option<f64>,
+    /// Margin on each side of a block's core, as a share of the core's size: the views over
+    /// it train the block, its Gaussians are dropped in the merge.
+    #[arg(long, default_value_t = 0.2)]
+    pub margin: f64,
+    /// A view outside a block's region joins the block when this share of what it sees (its
+    /// SfM observations; its image cells without them) lies in the block's core.
+    #[arg(long, default_value_t = 0.25)]
+    pub visibility: f64,
+    /// The merged model's Gaussian budget (500k, 2.5M, or 3x the SfM points), shared among
+    /// the blocks by the points of their regions: each block's run gets `--budget` its share.
+    /// Pair it with a strategy that fills a budget (`-- --strategy mcmc`), or it is a cap.
+    #[arg(long, value_name = "N", value_parser = parse_budget)]
+    pub budget: Option<Budget>,
+    /// Without --budget: the Gaussians expected per SfM point of a block's region, for the
+    /// plan's estimates (a rough figure; a budget makes them exact).
+    #[arg(long, default_value_t = 20.0)]
+    pub growth: f64,
+    /// The image cache the block runs will use (MiB; train's --image-cache), for the memory
+    /// estimates.
+    #[arg(long, value_name = "MIB", default_value_t = 2048.0)]
+    pub image_cache: f64,
+    /// Write slurm/task.sh (a job array, one task a block), slurm/merge.sh (after the array,
+    /// afterok) and slurm/submit.sh (submits what has not finished).
+    #[arg(long)]
+    pub slurm: bool,
+    /// Generic resource of each task (`gpu:1`; `none` for none, e.g. a CPU cluster).
+    #[arg(long, default_value = "gpu:1")]
+    pub gres: String,
+    /// CPUs of each task.
+    #[arg(long, default_value_t = 8)]
+    pub cpus_per_task: u32,
+    /// The Slurm partition to submit to.
+    #[arg(long)]
+    pub partition: Option<String>,
+    /// Each task's time limit (Slurm's forms: 4:00:00, 1-00:00:00).
+    #[arg(long)]
+    pub time: Option<String>,
+    /// More #SBATCH lines for every job (repeatable): --sbatch=--account=lab.
+    #[arg(long = "sbatch", value_name = "FLAG", allow_hyphen_values = true)]
+    pub sbatch: Vec<String>,
+    /// Tasks save a checkpoint this often (unless the train arguments say), so a lost node
+    /// loses at most this many iterations.
+    #[arg(long, default_value_t = 1000)]
+    pub checkpoint_every: u32,
+    /// `train` arguments for every block, after `--` (e.g. `-- --iterations 30000 --lpm`).
+    /// `-r` is passed on from the scene flags.
+    #[arg(last = true, allow_hyphen_values = true)]
+    pub train_args: Vec<String>,
+}
+
+fn parse_grid(s: &str) -> Result<(usize, usize), String> {
+    let bad = || format!("'{s}' is not a grid. Fix: give COLUMNSxROWS, e.g. 2x2 or 4x1");
+    let (c, r) = s.split_once(['x', 'X']).ok_or_else(bad)?;
+    let (c, r): (usize, usize) = (
+        c.trim().parse().map_err(|_| bad())?,
+        r.trim().parse().map_err(|_| bad())?,
+    );
+    if c == 0 || r == 0 {
+        return Err(bad());
+    }
+    Ok((c, r))
+}
+
+fn parse_count(s: &str) -> Result<u64, String> {
+    match parse_budget(s)? {
+        Budget::Count(n) => Ok(n as u64),
+        Budget::TimesInitial(_) => Err(format!("'{s}': give a count (2M, 500k), not a multiple")),
+    }
+}
+
+pub fn run(args: &PartitionArgs) -> anyhow::Result<()> {
+    let plan_path = args.out.join("plan.json");
+    anyhow::ensure!(
+        !plan_path.exists(),
+        "{}: the folder holds a plan already (and perhaps its runs). Fix: choose another -o, \
+         or remove the folder to plan again",
+        plan_path.display()
+    );
+    let targets = Targets {
+        max_views: args.max_views,
+        max_gaussians: args.max_gaussians,
+        memory_mib: args.memory,
+    };
+    let grid = match args.blocks {
+        Some((columns, rows)) => {
+            anyhow::ensure!(
+                targets == Targets::default(),
+                "--blocks with --max-views / --max-gaussians / --memory: give a grid or targets, \
+                 not both"
+            );
+            GridChoice::Fixed { columns, rows }
+        }
+        None => {
+            anyhow::ensure!(
+                targets != Targets::default(),
+                "partition needs --blocks CxR, or a per-block target (--max-views, \
+                 --max-gaussians or --memory) to choose the grid by"
+            );
+            GridChoice::Fit(targets)
+        }
+    };
+    let opts = args.scene.load_options()?;
+    let scene = Scene::load_in_file_frame(&args.scene.scene, &opts)?;
+    scene.check_coordinates()?;
+    let SceneFormat::Colmap { sparse_dir, binary } = &scene.format else {
+        anyhow::bail!(
+            "{}: partition reads COLMAP scenes (sparse/ with images/); this one is {:?}. Fix: \
+             convert it to a COLMAP model",
+            args.scene.scene.display(),
+            scene.format
+        );
+    };
+    let model = colmap::read_model(sparse_dir, *binary)?;
+    let frame = scene.clone().into_training_frame().frame;
+    let points = scene.points.as_ref().map_or(0, |p| p.len());
+    let budget = args.budget.map(|b| b.resolve(points) as u64);
+    let mut train_args = Vec::new();
+    if let Some(r) = args.scene.resolution {
+        train_args.extend(["-r".to_string(), r.to_string()]);
+    }
+    train_args.extend(args.train_args.iter().cloned());
+    let popts = PartitionOptions {
+        grid,
+        margin: args.margin,
+        visibility: args.visibility,
+        budget,
+        growth: args.growth,
+        image_cache_mib: args.image_cache,
+    };
+    let plan = partition::make_plan(&scene, frame, &popts, train_args)?;
+    std::fs::create_dir_all(&args.out)?;
+    let out = std::path::absolute(&args.out)?;
+    blocks::write_block_folders(&out, &plan, &model, &scene.root)?;
+    if args.slurm {
+        let sopts = slurm::SlurmOptions {
+            gres: (args.gres != "none").then(|| args.gres.clone()),
+            cpus_per_task: args.cpus_per_task,
+            partition: args.partition.clone(),
+            time: args.time.clone(),
+            extra: args.sbatch.clone(),
+            checkpoint_every: args.checkpoint_every,
+            binary: std::env::current_exe()?,
+        };
+        slurm::write_scripts(&plan, &out, &sopts)?;
+    }
+    // The plan last: a folder with plan.json is a complete one.
+    plan.write(&plan_path)?;
+    print_plan(&plan);
+    println!("wrote {}", plan_path.display());
+    if args.slurm {
+        println!(
+            "submit: bash {}/slurm/submit.sh   (again after a failure: only what is missing)",
+            out.display()
+        );
+    } else {
+        println!(
+            "train each block: lpmsplat train {}/blocks/<name> -o {}/runs/<name> {}; then \
+             lpmsplat merge {} --runs {}/runs -o {}/merged",
+            out.display(),
+            out.display(),
+            plan.train_args.join(" "),
+            plan_path.display(),
+            out.display(),
+            out.display()
+        );
+    }
+    Ok(())
+}
+
+fn print_plan(plan: &Plan) {
+    println!(
+        "{}x{} blocks (margin {}, visibility {}); the whole scene: {} training views, {} test \
+         views, {} SfM points, ~{} Gaussians, ~{:.0} MiB",
+        plan.columns,
+        plan.rows,
+        plan.margin,
+        plan.visibility,
+        plan.whole.train_views,
+        plan.whole.test_views,
+        plan.whole.points,
+        plan.whole.expected_gaussians,
+        plan.whole.memory_mib
+    );
+    println!(
+        "{:<8} {:>6} {:>5} {:>9} {:>9} {:>11} {:>9}",
+        "block", "train", "test", "core pts", "region", "Gaussians", "MiB"
+    );
+    for b in &plan.blocks {
+        println!(
+            "{:<8} {:>6} {:>5} {:>9} {:>9} {:>11} {:>9.0}",
+            b.name,
+            b.train_views.len(),
+            b.test_views.len(),
+            b.core_points,
+            b.region_points,
+            b.expected_gaussians,
+            b.memory_mib
+        );
+    }
+}

@@ -1,0 +1,116 @@
+//! Each block as an ordinary scene folder: a COLMAP text model filtered to the block's views
+//! and the points of its region, its images by reference (a link to the scene's `images/`
+//! and its downscaled copies, never a copy), and `test_views.txt` naming its test views, so
+//! `train` reads it like any other scene and holds out exactly the whole scene's test views.
+
+use std::collections::{HashMap, HashSet};
+use std::path::Path;
+
+use super::plan::{Block, Plan};
+use crate::scene::colmap::{self, ColmapModel};
+use crate::scene::split::TEST_VIEWS_FILE;
+
+/// The block's COLMAP model: its views' images and cameras, the points whose ground position
+/// lies in its region with their tracks cut to those images, and the images' keypoints
+/// pointing at no point where theirs was left out.
+pub fn block_model(model: &ColmapModel, plan: &Plan, block: &Block) -> ColmapModel {
+    let names: HashSet<&str> = block
+        .train_views
+        .iter()
+        .chain(&block.test_views)
+        .map(String::as_str)
+        .collect();
+    let images: Vec<_> = model
+        .images
+        .iter()
+        .filter(|im| names.contains(im.name.as_str()))
+        .cloned()
+        .collect();
+    let image_ids: HashSet<u32> = images.iter().map(|im| im.id).collect();
+    let camera_ids: HashSet<u32> = images.iter().map(|im| im.camera_id).collect();
+    let points: Vec<_> = model
+        .points
+        .iter()
+        .filter(|p| block.region.contains(plan.ground.coordinates(p.xyz).0))
+        .map(|p| {
+            let mut p = p.clone();
+            p.track.retain(|(im, _)| image_ids.contains(im));
+            p
+        })
+        .collect();
+    let kept: HashSet<u64> = points.iter().map(|p| p.id).collect();
+    let images = images
+        .into_iter()
+        .map(|mut im| {
+            for id in &mut im.point3d_ids {
+                if *id >= 0 && !kept.contains(&(*id as u64)) {
+                    *id = -1;
+                }
+            }
+            im
+        })
+        .collect();
+    ColmapModel {
+        cameras: model
+            .cameras
+            .iter()
+            .filter(|c| camera_ids.contains(&c.id))
+            .cloned()
+            .collect(),
+        images,
+        points,
+    }
+}
+
+/// Writes every block's folder under `out` (the plan's folder) from the scene's COLMAP model.
+pub fn write_block_folders(
+    out: &Path,
+    plan: &Plan,
+    model: &ColmapModel,
+    scene_root: &Path,
+) -> anyhow::Result<()> {
+    let scene_root = std::path::absolute(scene_root)?;
+    // The scene's image folders: images/ and the downscaled copies -r reads.
+    let mut image_dirs = Vec::new();
+    for entry in std::fs::read_dir(&scene_root)? {
+        let name = entry?.file_name().to_string_lossy().into_owned();
+        let is_copy = name
+            .strip_prefix("images_")
+            .is_some_and(|r| !r.is_empty() && r.bytes().all(|b| b.is_ascii_digit()));
+        if name == "images" || is_copy {
+            image_dirs.push(name);
+        }
+    }
+    let by_name: HashMap<&str, ()> = model.images.iter().map(|i| (i.name.as_str(), ())).collect();
+    for block in &plan.blocks {
+        let dir = out.join(&block.folder);
+        std::fs::create_dir_all(&dir)?;
+        if let Some(missing) = block
+            .train_views
+            .iter()
+            .chain(&block.test_views)
+            .find(|n| !by_name.contains_key(n.as_str()))
+        {
+            anyhow::bail!(
+                "block {}: view '{missing}' is not in the scene's model (the plan is not this \
+                 scene's)",
+                block.name
+            );
+        }
+        colmap::write_text(
+            &dir.join("sparse").join("0"),
+            &block_model(model, plan, block),
+        )?;
+        for name in &image_dirs {
+            let link = dir.join(name);
+            if link.symlink_metadata().is_ok() {
+                std::fs::remove_file(&link)?;
+            }
+            std::os::unix::fs::symlink(scene_root.join(name), &link)?;
+        }
+        let mut test = block.test_views.join("\n");
+        test.push('\n');
+        std::fs::write(dir.join(TEST_VIEWS_FILE), test)?;
+    }
+    Ok(())
+}
