@@ -39,6 +39,13 @@ pub fn task_memory_mib(plan: &Plan) -> u64 {
     ((2.0 * largest).ceil() as u64 + 1024).max(4096)
 }
 
+/// Host memory the merge asks for, MiB: the whole model a few times over (each block's model
+/// read, its cropped copy, the merged one), at least 2 GiB.
+pub fn merge_memory_mib(plan: &Plan) -> u64 {
+    let model_mib = plan.whole.expected_gaussians as f64 * 248.0 / (1u64 << 20) as f64;
+    ((4.0 * model_mib).ceil() as u64 + 512).max(2048)
+}
+
 /// A word for the shell: as is when it is plainly safe, else in single quotes.
 pub fn quote(s: &str) -> String {
     let safe = !s.is_empty()
@@ -131,7 +138,7 @@ exec "$LPMSPLAT" train "$DIR/blocks/$name" -o "$run" {args}{ck} "${{extra[@]}}"
     );
 
     let mut merge = header("lpmsplat-merge", opts, &format!("{d}/slurm/logs/merge.out"));
-    merge += "#SBATCH --mem=8192\n";
+    merge += &format!("#SBATCH --mem={}\n", merge_memory_mib(plan));
     merge += &format!(
         r#"# Merges the blocks' runs into merged/ once every block has finished (the job depends
 # on the array with afterok); refuses, naming it, a block that is missing or broken.
