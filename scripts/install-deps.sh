@@ -3,11 +3,14 @@
 # Mesa's lavapipe (a CPU Vulkan driver, so a machine without a GPU runs everything), the
 # Khronos validation layer (the tests turn it on) and shaderc with the static glslang /
 # SPIRV-Tools archives the build links (see .cargo/config.toml), and g++ (shaderc-sys's build
-# needs a C++ compiler; a minimal Debian 12 has none). Both README commands call this
-# script first, so they work in either order. Idempotent: installs only missing packages.
+# needs a C++ compiler; a minimal Debian 12 has none), and Slurm with munge (the partition
+# tests start a single-node cluster of their own, scripts/slurm-node.sh; nothing is started
+# here). Both README commands call this script first, so they work in either order.
+# Idempotent: installs only missing packages.
 set -euo pipefail
 
-PACKAGES=(g++ libvulkan1 libvulkan-dev mesa-vulkan-drivers vulkan-validationlayers libshaderc-dev glslang-dev spirv-tools)
+PACKAGES=(g++ libvulkan1 libvulkan-dev mesa-vulkan-drivers vulkan-validationlayers libshaderc-dev glslang-dev spirv-tools
+  slurmctld slurmd slurm-client munge)
 
 need=()
 if command -v dpkg >/dev/null 2>&1; then

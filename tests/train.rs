@@ -879,8 +879,15 @@ fn cli_train_resume_eval_end_to_end() {
     }
 }
 
+/// Ctrl-C, and SIGTERM (what Slurm sends a pre-empted or timed-out task first), alike.
 #[test]
 fn ctrl_c_saves_a_checkpoint_and_says_how_to_resume() {
+    for signal in [libc::SIGINT, libc::SIGTERM] {
+        stopped_by(signal);
+    }
+}
+
+fn stopped_by(signal: libc::c_int) {
     use std::io::{BufRead, BufReader};
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
@@ -908,12 +915,15 @@ fn ctrl_c_saves_a_checkpoint_and_says_how_to_resume() {
     assert!(text.contains("initial Gaussians"), "{text}");
     std::thread::sleep(std::time::Duration::from_millis(1500));
     unsafe {
-        libc::kill(child.id() as libc::pid_t, libc::SIGINT);
+        libc::kill(child.id() as libc::pid_t, signal);
     }
     let status = child.wait().unwrap();
     let mut rest = String::new();
     std::io::Read::read_to_string(&mut err, &mut rest).unwrap();
-    assert!(!status.success(), "an interrupted run must exit non-zero");
+    assert!(
+        !status.success(),
+        "an interrupted run must exit non-zero (signal {signal})"
+    );
     assert!(
         rest.contains("interrupted") && rest.contains("--resume"),
         "{rest}"

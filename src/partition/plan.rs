@@ -264,16 +264,43 @@ impl Plan {
                 return bad_input(path, field("train_views"), "is empty", again);
             }
         }
-        // The cores must tile the ground: probe each core's own corners and centre.
-        for (k, b) in self.blocks.iter().enumerate() {
-            let [[u0, u1], [v0, v1]] = b.core.clipped(self.bounds);
-            for g in [[u0, v0], [(u0 + u1) / 2.0, (v0 + v1) / 2.0]] {
-                let owners = self.blocks.iter().filter(|o| o.core.contains(g)).count();
+        // The cores must tile the ground: every cell between their edges (and beyond the
+        // outermost, and on each edge itself: the intervals are half-open) in exactly one.
+        let probes = |axis: fn(&Rect) -> super::grid::Interval| {
+            let mut e: Vec<f64> = self
+                .blocks
+                .iter()
+                .flat_map(|b| [axis(&b.core).lo, axis(&b.core).hi])
+                .flatten()
+                .collect();
+            e.sort_by(f64::total_cmp);
+            e.dedup();
+            let mut p: Vec<f64> = e.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect();
+            p.extend(e.iter().copied());
+            match (e.first(), e.last()) {
+                (Some(a), Some(b)) => p.extend([a - 1.0 - a.abs(), b + 1.0 + b.abs()]),
+                _ => p.push(0.0),
+            }
+            p
+        };
+        let (pu, pv) = (probes(|r| r.u), probes(|r| r.v));
+        if pu.len() * pv.len() * self.blocks.len() > 50_000_000 {
+            return bad_input(path, "blocks", "too many blocks to check", again);
+        }
+        for &u in &pu {
+            for &v in &pv {
+                let owners = self
+                    .blocks
+                    .iter()
+                    .filter(|o| o.core.contains([u, v]))
+                    .count();
                 if owners != 1 {
                     return bad_input(
                         path,
-                        format!("blocks[{k}] ({}) core", b.name),
-                        format!("the point {g:?} of the ground lies in {owners} cores, not one"),
+                        "blocks' cores",
+                        format!(
+                            "the point ({u}, {v}) of the ground lies in {owners} cores, not one"
+                        ),
                         again,
                     );
                 }
@@ -447,6 +474,13 @@ pub fn make_plan(
 /// Whether every block meets the targets; the first block and target that does not, if any.
 fn misfit(blocks: &[Block], t: &Targets) -> Option<String> {
     for b in blocks {
+        if b.train_views.len() < MIN_BLOCK_VIEWS {
+            return Some(format!(
+                "block {} has {} training view(s), fewer than {MIN_BLOCK_VIEWS}",
+                b.name,
+                b.train_views.len()
+            ));
+        }
         if let Some(m) = t.max_views.filter(|&m| b.train_views.len() > m) {
             return Some(format!(
                 "block {} has {} training views (--max-views {m})",

@@ -224,7 +224,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
                 &scene,
             )?;
             anyhow::bail!(
-                "interrupted (Ctrl-C) after iteration {}: wrote {} and {}. To continue: {}",
+                "interrupted (Ctrl-C or SIGTERM) after iteration {}: wrote {} and {}. To continue: {}",
                 r.iteration,
                 checkpoint_path.display(),
                 args.out.join("point_cloud.ply").display(),
