@@ -174,7 +174,7 @@ fn a_plan_trains_as_a_slurm_job_array_and_merges_after_it() {
     run_ok(
         lpmsplat()
             .args(["partition", SCENE, "-r", "4", "--blocks", "2x1", "--slurm"])
-            .args(["--gres", "gpu:1", "--cpus-per-task", "1"])
+            .args(["--slurm-gres", "gpu:1", "--slurm-cpus", "1"])
             .arg("-o")
             .arg(&plan_dir)
             .args(["--", "--iterations", "60", "--densify-from", "20"])
@@ -293,7 +293,7 @@ fn a_plan_trains_as_a_slurm_job_array_and_merges_after_it() {
 
     // Everything finished: a third submission submits no block, only a merge.
     let (text, merge_job) = submit(&cluster, &plan_dir);
-    assert!(text.contains("every block has finished"), "{text}");
+    assert!(text.contains("every task has finished"), "{text}");
     cluster.wait_idle(Duration::from_secs(120));
     assert_eq!(
         cluster.job_state(&merge_job),
@@ -301,4 +301,42 @@ fn a_plan_trains_as_a_slurm_job_array_and_merges_after_it() {
         "{}",
         logs(&plan_dir)
     );
+
+    // A benchmark sweep on the same cluster: one task a seed, then bench merge of both.
+    let sweep = tmp.path().join("sweep");
+    run_ok(
+        lpmsplat()
+            .args(["bench", "trade", SCENE, "-r", "8", "--iterations", "10"])
+            .args([
+                "--runs",
+                "adc,adc-1e-4",
+                "--fps-frames",
+                "1",
+                "--seeds",
+                "2",
+            ])
+            .args(["--slurm", "--slurm-cpus", "1", "--slurm-gres", "none", "-o"])
+            .arg(&sweep),
+    );
+    let (text, merge_job) = submit(&cluster, &sweep);
+    assert!(text.contains("tasks 0,1 of 2"), "{text}");
+    cluster.wait_idle(Duration::from_secs(600));
+    assert_eq!(
+        cluster.job_state(&merge_job),
+        "COMPLETED",
+        "{}",
+        logs(&sweep)
+    );
+    let merged: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(sweep.join("merged/trade.json")).unwrap())
+            .unwrap();
+    let mut seeds: Vec<u64> = merged["runs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["seed"].as_u64().unwrap())
+        .collect();
+    seeds.sort();
+    seeds.dedup();
+    assert_eq!(seeds, [0, 1], "{merged}");
 }

@@ -14,6 +14,7 @@ mod mesh;
 mod model_segment;
 mod partition;
 mod render;
+mod slurm_args;
 
 mod train;
 mod train_plot;

@@ -53,29 +53,8 @@ pub struct PartitionArgs {
     /// estimates.
     #[arg(long, value_name = "MIB", default_value_t = 2048.0)]
     pub image_cache: f64,
-    /// Write slurm/task.sh (a job array, one task a block), slurm/merge.sh (after the array,
-    /// afterok) and slurm/submit.sh (submits what has not finished).
-    #[arg(long)]
-    pub slurm: bool,
-    /// Generic resource of each task (`gpu:1`; `none` for none, e.g. a CPU cluster).
-    #[arg(long, default_value = "gpu:1")]
-    pub gres: String,
-    /// CPUs of each task.
-    #[arg(long, default_value_t = 8)]
-    pub cpus_per_task: u32,
-    /// The Slurm partition to submit to.
-    #[arg(long)]
-    pub partition: Option<String>,
-    /// Each task's time limit (Slurm's forms: 4:00:00, 1-00:00:00).
-    #[arg(long)]
-    pub time: Option<String>,
-    /// More #SBATCH lines for every job (repeatable): --sbatch=--account=lab.
-    #[arg(long = "sbatch", value_name = "FLAG", allow_hyphen_values = true)]
-    pub sbatch: Vec<String>,
-    /// Tasks save a checkpoint this often (unless the train arguments say), so a lost node
-    /// loses at most this many iterations.
-    #[arg(long, default_value_t = 1000)]
-    pub checkpoint_every: u32,
+    #[command(flatten)]
+    pub slurm: super::slurm_args::SlurmArgs,
     /// `train` arguments for every block, after `--` (e.g. `-- --iterations 30000 --lpm`).
     /// `-r` is passed on from the scene flags.
     #[arg(last = true, allow_hyphen_values = true)]
@@ -165,23 +144,15 @@ pub fn run(args: &PartitionArgs) -> anyhow::Result<()> {
     std::fs::create_dir_all(&args.out)?;
     let out = std::path::absolute(&args.out)?;
     blocks::write_block_folders(&out, &plan, &model, &scene.root)?;
-    if args.slurm {
-        let sopts = slurm::SlurmOptions {
-            gres: (args.gres != "none").then(|| args.gres.clone()),
-            cpus_per_task: args.cpus_per_task,
-            partition: args.partition.clone(),
-            time: args.time.clone(),
-            extra: args.sbatch.clone(),
-            checkpoint_every: args.checkpoint_every,
-            binary: std::env::current_exe()?,
-        };
-        slurm::write_scripts(&plan, &out, &sopts)?;
+    if args.slurm.slurm {
+        let sopts = args.slurm.options()?;
+        slurm::write_scripts(&slurm::block_array(&plan, &out, &sopts), &sopts)?;
     }
     // The plan last: a folder with plan.json is a complete one.
     plan.write(&plan_path)?;
     print_plan(&plan);
     println!("wrote {}", plan_path.display());
-    if args.slurm {
+    if args.slurm.slurm {
         println!(
             "submit: bash {}/slurm/submit.sh   (again after a failure: only what is missing)",
             out.display()

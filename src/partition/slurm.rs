@@ -1,8 +1,9 @@
-//! Slurm job scripts for a plan: a job array with one task a block, and a merge job that
-//! waits for the array (`afterok`). Slurm is the scheduler; these are its ordinary batch
-//! scripts, nothing of ours runs between the jobs.
+//! Slurm job scripts: a job array and a job that collects it after the array (`afterok`), for
+//! a plan's blocks (one task a block, then `merge`) and for `bench trade` sweeps (one task a
+//! seed, then `bench merge`). Slurm is the scheduler; these are its ordinary batch scripts,
+//! nothing of ours runs between the jobs.
 //!
-//! A task trains its block into `runs/<block>/` and writes nothing else. It is idempotent and
+//! A block's task trains its block into `runs/<block>/` and writes nothing else. It is idempotent and
 //! restartable: a block whose run finished (`metrics.json`) is skipped, one that stopped
 //! (pre-empted, timed out: Slurm's SIGTERM makes `train` save a checkpoint, as Ctrl-C does;
 //! out of memory; a node lost after a periodic checkpoint) resumes from `checkpoint.bin`. So
@@ -74,109 +75,136 @@ fn header(name: &str, opts: &SlurmOptions, log: &str) -> String {
     h
 }
 
-/// The three scripts (`task.sh`, `merge.sh`, `submit.sh`) for the plan in `dir` (absolute).
-pub fn scripts(plan: &Plan, dir: &Path, opts: &SlurmOptions) -> Vec<(&'static str, String)> {
-    let d = quote(&dir.display().to_string());
+/// One task of an array: its name (its output folder is `runs/<name>/`) and the `lpmsplat`
+/// arguments it runs with.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Cell {
+    pub name: String,
+    pub args: Vec<String>,
+}
+
+/// A job array and the job that collects it, as scripts.
+#[derive(Debug, Clone, PartialEq)]
+pub struct JobArray {
+    /// Slurm's job name of the tasks (the collecting job gets `<name>-merge`).
+    pub job_name: String,
+    /// The folder the scripts, runs and results live in (absolute).
+    pub dir: std::path::PathBuf,
+    pub cells: Vec<Cell>,
+    /// The file a finished cell's run folder holds (what `submit.sh` skips by).
+    pub done_file: String,
+    /// Whether a cell whose folder holds `checkpoint.bin` resumes from it (`--resume`).
+    pub resumes: bool,
+    pub cell_mem_mib: u64,
+    /// The collecting job's `lpmsplat` arguments.
+    pub merge_args: Vec<String>,
+    pub merge_mem_mib: u64,
+}
+
+/// The three scripts (`task.sh`, `merge.sh`, `submit.sh`) of `array`.
+pub fn scripts(array: &JobArray, opts: &SlurmOptions) -> Vec<(&'static str, String)> {
+    let d = quote(&array.dir.display().to_string());
     let bin = quote(&opts.binary.display().to_string());
-    let names: Vec<String> = plan.blocks.iter().map(|b| quote(&b.name)).collect();
-    let budgets: Vec<String> = plan
-        .blocks
+    let names: String = array
+        .cells
         .iter()
-        .map(|b| match plan.budget {
-            Some(_) => b.expected_gaussians.to_string(),
-            None => "-".into(),
-        })
+        .map(|c| quote(&c.name))
+        .collect::<Vec<_>>()
+        .join(" ");
+    let words = |args: &[String]| args.iter().map(|a| quote(a)).collect::<Vec<_>>().join(" ");
+    let cases: String = array
+        .cells
+        .iter()
+        .enumerate()
+        .map(|(k, c)| format!("  {k}) args=({}) ;;\n", words(&c.args)))
         .collect();
-    let args: Vec<String> = plan.train_args.iter().map(|a| quote(a)).collect();
-    let has_checkpoint_flag = plan
-        .train_args
-        .iter()
-        .any(|a| a.starts_with("--checkpoint-every"));
+    let done = quote(&array.done_file);
 
     let mut task = header(
-        "lpmsplat-block",
+        &array.job_name,
         opts,
-        &format!("{d}/slurm/logs/block-%a.out"),
+        &format!("{d}/slurm/logs/task-%a.out"),
     );
-    task += &format!("#SBATCH --mem={}\n", task_memory_mib(plan));
+    task += &format!("#SBATCH --mem={}\n", array.cell_mem_mib);
     if let Some(g) = &opts.gres {
         task += &format!("#SBATCH --gres={g}\n");
     }
     task += &format!(
-        r#"# One block of the plan: Slurm's array index (or the first argument) picks it. Trains it
-# into runs/<block>/, resuming from its checkpoint when an earlier attempt stopped, and does
-# nothing when its run has finished.
+        r#"# One task of the array: Slurm's array index (or the first argument) picks it. It writes
+# only runs/<name>/, does nothing when that holds a finished run{resume_note}.
 set -euo pipefail
 DIR={d}
 LPMSPLAT=${{LPMSPLAT:-{bin}}}
-BLOCKS=({names})
-BUDGETS=({budgets})
-k=${{SLURM_ARRAY_TASK_ID:-${{1:?give the block index}}}}
-name=${{BLOCKS[$k]}}
+CELLS=({names})
+k=${{SLURM_ARRAY_TASK_ID:-${{1:?give the task index}}}}
+name=${{CELLS[$k]}}
 run="$DIR/runs/$name"
-if [ -f "$run/metrics.json" ]; then
-  echo "block $name: finished before, nothing to do"
+if [ -f "$run"/{done} ]; then
+  echo "$name: finished before, nothing to do"
   exit 0
 fi
 mkdir -p "$run"
-extra=()
-if [ "${{BUDGETS[$k]}}" != - ]; then extra+=(--budget "${{BUDGETS[$k]}}"); fi
-if [ -f "$run/checkpoint.bin" ]; then
-  echo "block $name: resuming from $run/checkpoint.bin"
-  extra+=(--resume "$run/checkpoint.bin")
-fi
-exec "$LPMSPLAT" train "$DIR/blocks/$name" -o "$run" {args}{ck} "${{extra[@]}}"
+case $k in
+{cases}  *) echo "no task $k" >&2; exit 2 ;;
+esac
+{resume}"$LPMSPLAT" "${{args[@]}}"
+touch "$run"/{done}
 "#,
-        names = names.join(" "),
-        budgets = budgets.join(" "),
-        args = args.join(" "),
-        ck = if has_checkpoint_flag {
-            String::new()
+        resume_note = if array.resumes {
+            ", and resumes from its checkpoint when an earlier attempt stopped"
         } else {
-            format!(" --checkpoint-every {}", opts.checkpoint_every)
+            " (a stopped one starts again)"
+        },
+        resume = if array.resumes {
+            "if [ -f \"$run/checkpoint.bin\" ]; then\n  echo \"$name: resuming from $run/checkpoint.bin\"\n  args+=(--resume \"$run/checkpoint.bin\")\nfi\n"
+        } else {
+            ""
         },
     );
 
-    let mut merge = header("lpmsplat-merge", opts, &format!("{d}/slurm/logs/merge.out"));
-    merge += &format!("#SBATCH --mem={}\n", merge_memory_mib(plan));
+    let mut merge = header(
+        &format!("{}-merge", array.job_name),
+        opts,
+        &format!("{d}/slurm/logs/merge.out"),
+    );
+    merge += &format!("#SBATCH --mem={}\n", array.merge_mem_mib);
     merge += &format!(
-        r#"# Merges the blocks' runs into merged/ once every block has finished (the job depends
-# on the array with afterok); refuses, naming it, a block that is missing or broken.
+        r#"# Collects the tasks' runs once every task has finished (the job depends on the array with
+# afterok); refuses, naming it, a run that is missing or broken.
 set -euo pipefail
-DIR={d}
 LPMSPLAT=${{LPMSPLAT:-{bin}}}
-exec "$LPMSPLAT" merge "$DIR/plan.json" --runs "$DIR/runs" -o "$DIR/merged"
-"#
+exec "$LPMSPLAT" {merge}
+"#,
+        merge = words(&array.merge_args)
     );
 
     let submit = format!(
         r#"#!/usr/bin/env bash
-# Submits the blocks that have no finished run as one job array, then the merge after them
-# (afterok). Run it again after a failure: only what is missing is submitted. Extra arguments
-# go to both sbatch calls (e.g. --partition=gpu).
+# Submits the tasks that have no finished run as one job array, then the collecting job after
+# them (afterok). Run it again after a failure: only what is missing is submitted. Extra
+# arguments go to both sbatch calls (e.g. --partition=gpu).
 set -euo pipefail
 DIR={d}
-BLOCKS=({names})
+CELLS=({names})
 mkdir -p "$DIR/slurm/logs"
 missing=()
-for k in "${{!BLOCKS[@]}}"; do
-  [ -f "$DIR/runs/${{BLOCKS[$k]}}/metrics.json" ] || missing+=("$k")
+for k in "${{!CELLS[@]}}"; do
+  [ -f "$DIR/runs/${{CELLS[$k]}}"/{done} ] || missing+=("$k")
 done
 dependency=()
 if [ ${{#missing[@]}} -gt 0 ]; then
   list=$(IFS=,; echo "${{missing[*]}}")
   array=$(sbatch --parsable "$@" --array="$list" "$DIR/slurm/task.sh")
   array=${{array%%;*}}
-  echo "blocks: job array $array (tasks $list of {n})"
+  echo "tasks: job array $array (tasks $list of {n})"
   dependency=(--dependency="afterok:$array")
 else
-  echo "blocks: every block has finished"
+  echo "tasks: every task has finished"
 fi
 merge=$(sbatch --parsable "$@" "${{dependency[@]}}" "$DIR/slurm/merge.sh")
 echo "merge: job ${{merge%%;*}}"
 "#,
-        names = names.join(" "),
-        n = plan.blocks.len(),
+        n = array.cells.len(),
     );
     vec![
         ("task.sh", task),
@@ -185,12 +213,66 @@ echo "merge: job ${{merge%%;*}}"
     ]
 }
 
-/// Writes the scripts into `dir/slurm/` (executable).
-pub fn write_scripts(plan: &Plan, dir: &Path, opts: &SlurmOptions) -> anyhow::Result<()> {
+/// The job array that trains `plan`'s blocks (in `dir`, absolute) and merges them: a task a
+/// block, `train <block folder> -o runs/<block>` with the plan's train arguments, the block's
+/// budget when the plan shares one out, and a checkpoint every `opts.checkpoint_every`.
+pub fn block_array(plan: &Plan, dir: &Path, opts: &SlurmOptions) -> JobArray {
+    let has_checkpoint_flag = plan
+        .train_args
+        .iter()
+        .any(|a| a.starts_with("--checkpoint-every"));
+    let cells = plan
+        .blocks
+        .iter()
+        .map(|b| {
+            let mut args = vec![
+                "train".to_string(),
+                dir.join(&b.folder).display().to_string(),
+                "-o".into(),
+                dir.join("runs").join(&b.name).display().to_string(),
+            ];
+            args.extend(plan.train_args.iter().cloned());
+            if plan.budget.is_some() {
+                args.extend(["--budget".into(), b.expected_gaussians.to_string()]);
+            }
+            if !has_checkpoint_flag {
+                args.extend([
+                    "--checkpoint-every".into(),
+                    opts.checkpoint_every.to_string(),
+                ]);
+            }
+            Cell {
+                name: b.name.clone(),
+                args,
+            }
+        })
+        .collect();
+    let s = |p: std::path::PathBuf| p.display().to_string();
+    JobArray {
+        job_name: "lpmsplat-block".into(),
+        dir: dir.to_path_buf(),
+        cells,
+        done_file: super::merge::BLOCK_DONE.into(),
+        resumes: true,
+        cell_mem_mib: task_memory_mib(plan),
+        merge_args: vec![
+            "merge".into(),
+            s(dir.join("plan.json")),
+            "--runs".into(),
+            s(dir.join("runs")),
+            "-o".into(),
+            s(dir.join("merged")),
+        ],
+        merge_mem_mib: merge_memory_mib(plan),
+    }
+}
+
+/// Writes `array`'s scripts into `dir/slurm/` (executable).
+pub fn write_scripts(array: &JobArray, opts: &SlurmOptions) -> anyhow::Result<()> {
     use std::os::unix::fs::PermissionsExt;
-    let slurm = dir.join("slurm");
+    let slurm = array.dir.join("slurm");
     std::fs::create_dir_all(slurm.join("logs"))?;
-    for (name, text) in scripts(plan, dir, opts) {
+    for (name, text) in scripts(array, opts) {
         let path = slurm.join(name);
         std::fs::write(&path, text)?;
         std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o755))?;

@@ -25,6 +25,7 @@ mod trade_merge;
 mod trade_report;
 mod trade_runs;
 mod trade_summary;
+mod trade_sweep;
 
 #[derive(Args, Debug)]
 pub struct BenchArgs {

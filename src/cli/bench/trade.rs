@@ -45,6 +45,9 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
         "bench trade: --seeds 0. Fix: pass at least 1"
     );
     let selected = selected_runs(&args.runs)?;
+    if args.slurm.slurm {
+        return super::trade_sweep::write(args, &args.slurm);
+    }
     anyhow::ensure!(
         !args.match_adc_count || selected.first().is_some_and(|&k| RUNS[k].0 == "adc"),
         "bench trade --match-adc-count: the other runs follow adc's Gaussian count, but --runs \

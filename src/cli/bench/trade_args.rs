@@ -17,6 +17,9 @@ fn parse_prune(s: &str) -> anyhow::Result<PruneMode> {
 pub struct TradeArgs {
     #[command(flatten)]
     pub scene: SceneArgs,
+    /// `--slurm`: the seeds as a Slurm job array, one task a seed, and `bench merge` after it.
+    #[command(flatten)]
+    pub slurm: crate::cli::slurm_args::SlurmArgs,
     #[command(flatten)]
     pub images: crate::cli::image_cache_args::ImageCacheArgs,
     /// Iterations per run.
