@@ -38,7 +38,7 @@ pub enum BenchKind {
     /// Rendering frames per second and per-stage GPU time.
     Fps(FpsArgs),
     /// ADC vs ADC+LPM (and ablations) side by side: PSNR, SSIM, size, time, FPS.
-    Trade(trade_args::TradeArgs),
+    Trade(Box<trade_args::TradeArgs>),
     /// Several `bench trade` results (more seeds, other machines, other settings) as one
     /// table, paired seed by seed with a baseline run; no device needed.
     Merge(trade_merge::MergeArgs),
