@@ -22,7 +22,7 @@ pub const MIN_OBSERVATIONS: usize = 20;
 const CELLS: usize = 16;
 
 /// At most this many of a core's points are projected into each view (an even subsample).
-const MAX_PROJECTED: usize = 4096;
+const MAX_PROJECTED: usize = 2048;
 
 /// Per-scene geometry the assignment works on, in the files' frame.
 pub struct Geometry<'a> {
@@ -64,21 +64,31 @@ impl<'a> Geometry<'a> {
         }
     }
 
-    /// The share of view `view`'s sight that lies in `core`: of its observed points, or of its
-    /// image cells that `core_points` (indices of the core's points) project into.
+    /// The share of view `view`'s sight that lies in `core`: the larger of the share of its
+    /// observed points there (when it has [`MIN_OBSERVATIONS`]) and the share of its image
+    /// cells that `core_points` (indices of the core's points) project into. Both, because
+    /// SfM points crowd on textured foreground: a view whose background (sky line, a
+    /// building across the street) lies in the core matches few points there, yet the core
+    /// fills half of its image, and the block that owns that background needs the view.
     pub fn seen_share(&self, view: usize, core: &Rect, core_points: &[u32]) -> f64 {
         let obs = &self.observed[view];
-        if obs.len() >= MIN_OBSERVATIONS {
+        let tracked = if obs.len() >= MIN_OBSERVATIONS {
             let inside = obs
                 .iter()
                 .filter(|&&p| core.contains(self.point_ground[p as usize]))
                 .count();
-            return inside as f64 / obs.len() as f64;
-        }
-        let Some(points) = &self.scene.points else {
-            return 0.0;
+            inside as f64 / obs.len() as f64
+        } else {
+            0.0
         };
-        projected_coverage(&self.scene.views[view], &points.positions, core_points)
+        let Some(points) = &self.scene.points else {
+            return tracked;
+        };
+        tracked.max(projected_coverage(
+            &self.scene.views[view],
+            &points.positions,
+            core_points,
+        ))
     }
 
     /// Indices of the SfM points whose ground position lies in `rect`.
