@@ -23,10 +23,12 @@ pub const MIN_BLOCK_VIEWS: usize = 3;
 /// The most blocks along one side the automatic grid tries.
 pub const MAX_SIDE: usize = 16;
 
-/// Device bytes one Gaussian takes at a training run's peak, headroom included: 2,046 MiB for a
-/// 1.1 M-Gaussian degree-3 model and 136.7 MiB for 81k (`train tests/data/lund_door_small -r 2`
-/// on lavapipe, README "memory"): (2046 − 136.7) MiB / 1.02 M ≈ 1.96 kB.
-pub const BYTES_PER_GAUSSIAN: f64 = 1960.0;
+/// Device bytes one Gaussian takes at a training run's peak, growth headroom included:
+/// measured on Truck at `-r 4` (2,000 iterations, SH degree 3, lavapipe): a 405.9 MiB peak at
+/// 301,854 Gaussians, less its 219 images (111.5 MiB) and one step's render targets (~20 MiB),
+/// is 952 bytes a Gaussian (docs/partition.md). On an H100 Truck at full size peaks at 4.9 GB
+/// with 2.5 M Gaussians and 2.1 GB of images: ~1.1 kB.
+pub const BYTES_PER_GAUSSIAN: f64 = 1000.0;
 /// Device bytes a training image pixel takes (8 bits a channel, RGBA) while the image cache
 /// holds them all.
 pub const BYTES_PER_IMAGE_PIXEL: f64 = 4.0;
