@@ -9,7 +9,9 @@ use lpmsplat::lpm::neighbours::{
     NeighbourSettings,
 };
 use lpmsplat::lpm::pairing::RegionPair;
-use lpmsplat::lpm::pairing::{pair_regions, pair_regions_on, PixelBox, RegionKeypoints};
+use lpmsplat::lpm::pairing::{
+    pair_regions, pair_regions_on, pair_regions_whole, PixelBox, RegionKeypoints,
+};
 use lpmsplat::lpm::regions::RegionSettings;
 use lpmsplat::lpm::regions::{
     block_mask, error_map, quantile, regions_and_owners, regions_from_blocks, BlockMask, Region,
@@ -1684,4 +1686,127 @@ fn slab_zone_holds_what_is_drawn_over_the_region_at_the_matches_depths() {
         }
     }
     assert!(inside > 100, "{inside}");
+}
+
+/// `--lpm-zone local`: the matches of a region lie on a surface running 4 units in depth. The
+/// slab's band spans every depth; the local zone's is the 20–80 % quantiles of the distances,
+/// each end moved out by 5 % of its distance: it holds the points inside that band and not the
+/// nearest and farthest. A point seen at under 2° of parallax is not triangulated (the slab,
+/// at 0.5°, takes it).
+#[test]
+fn local_zone_is_the_quantile_band_of_the_points_seen_with_parallax() {
+    use lpmsplat::lpm::membership::ZoneTest;
+    let cams = small_baseline(10.0);
+    let cv = |v: usize| CameraView {
+        camera: &cams[v].0,
+        pose: &cams[v].1,
+    };
+    let pts: Vec<DVec3> = (0..21)
+        .map(|k| {
+            let a = k as f64;
+            DVec3::new(0.02 * a.sin(), -1.5 + a / 5.0, 0.02 * a.cos())
+        })
+        .collect();
+    let pixels = |ps: &[DVec3]| {
+        let m: Vec<([f64; 2], [f64; 2])> = ps
+            .iter()
+            .map(|p| {
+                let m = [0, 1].map(|v| project(&cams[v].0, &cams[v].1, *p).unwrap());
+                (m[0], m[1])
+            })
+            .collect();
+        f32_pixels(&m)
+    };
+    let (xy_v, xy_r) = pixels(&pts);
+    let (lo, hi) = xy_v
+        .iter()
+        .fold(([f32::MAX; 2], [f32::MIN; 2]), |(lo, hi), p| {
+            (
+                [lo[0].min(p[0]), lo[1].min(p[1])],
+                [hi[0].max(p[0]), hi[1].max(p[1])],
+            )
+        });
+    let region = Region {
+        x0: lo[0].floor() as u32 - 2,
+        y0: lo[1].floor() as u32 - 2,
+        x1: hi[0].ceil() as u32 + 2,
+        y1: hi[1].ceil() as u32 + 2,
+    };
+    let (pairs, _) = pair_regions(&[region], &xy_v, &xy_r);
+    assert_eq!(pairs[0].matched.len(), 21);
+    // A local zone's cone is the region's own box, and one match pairs it.
+    let (whole, _) = pair_regions_whole(&[region], None, &xy_v, &xy_r);
+    assert_eq!(whole[0].matched, pairs[0].matched);
+    assert_eq!(
+        (whole[0].in_view.x0, whole[0].in_view.x1),
+        (region.x0 as f64, region.x1 as f64)
+    );
+    let local = ZoneSettings {
+        geometry: ZoneGeometry::Local,
+        ..ZoneSettings::default()
+    };
+    let slab_settings = ZoneSettings {
+        geometry: ZoneGeometry::Slab,
+        ..ZoneSettings::default()
+    };
+    let out = zone_for_pair(cv(0), cv(1), &whole[0], &xy_v, &xy_r, &local);
+    assert_eq!((out.points, out.rejected), (21, 0), "{out:?}");
+    let Some(
+        zone @ Zone::Slab {
+            center, half_depth, ..
+        },
+    ) = out.zone
+    else {
+        panic!("not a slab: {out:?}")
+    };
+    let o = DVec3::from(cams[0].1.center());
+    let mut d: Vec<f64> = pts.iter().map(|p| p.distance(o)).collect();
+    d.sort_by(|a, b| a.total_cmp(b));
+    // Quantiles with linear interpolation over the 21 distances: positions 4 and 16.
+    let (near, far) = (d[4] * 0.95, d[16] * 1.05);
+    let dc = DVec3::from(center).distance(o);
+    assert!((dc - 0.5 * (near + far)).abs() < 2e-3, "{dc} vs {near}..{far}");
+    assert!((half_depth - 0.5 * (far - near)).abs() < 2e-3, "{half_depth}");
+    let rec = ZoneRecord::with_cone(&zone, o.to_array(), [0.0; 3], ConeRadius::Region);
+    let test = ZoneTest::new(&rec);
+    let f = |p: DVec3| p.as_vec3().to_array();
+    let (mut held, mut out_of_band) = (0, 0);
+    for &p in &pts {
+        let dp = p.distance(o);
+        if dp > near + 5e-3 && dp < far - 5e-3 {
+            assert!(zone.contains(p.to_array(), 0.0) && test.contains(f(p)), "{p}");
+            held += 1;
+        } else if dp < near - 5e-3 || dp > far + 5e-3 {
+            assert!(!zone.contains(p.to_array(), 0.0) && !test.contains(f(p)), "{p}");
+            out_of_band += 1;
+        }
+    }
+    assert!(held >= 12 && out_of_band >= 2, "{held} held, {out_of_band} out");
+    // The slab of the same matches holds every point.
+    let slab = zone_for_pair(cv(0), cv(1), &pairs[0], &xy_v, &xy_r, &slab_settings);
+    let slab = slab.zone.unwrap();
+    assert!(pts.iter().all(|p| slab.contains(p.to_array(), 0.0)));
+    // One point alone: a band of ± 5 % around it (above the 4-pixel floor at this depth).
+    let (xy1, xr1) = pixels(&pts[10..11]);
+    assert!(pair_regions(&[region], &xy1, &xr1).0.is_empty(), "zero area");
+    let one = pair_regions_whole(&[region], None, &xy1, &xr1).0;
+    let z = zone_for_pair(cv(0), cv(1), &one[0], &xy1, &xr1, &local);
+    let Some(Zone::Slab { half_depth, .. }) = z.zone else {
+        panic!("{z:?}")
+    };
+    let d10 = pts[10].distance(o);
+    assert!((half_depth - 0.05 * d10).abs() < 1e-3, "{half_depth} vs {}", 0.05 * d10);
+    // 60 units away the two rays meet at about 0.7 / 64 rad, 0.6°: no local zone; a slab.
+    let (xyf, xrf) = pixels(&[DVec3::new(0.0, 60.0, 0.02)]);
+    let image = Region {
+        x0: 0,
+        y0: 0,
+        x1: 640,
+        y1: 480,
+    };
+    let far_pair = pair_regions_whole(&[image], None, &xyf, &xrf).0;
+    let z = zone_for_pair(cv(0), cv(1), &far_pair[0], &xyf, &xrf, &local);
+    assert!(z.zone.is_none() && z.rejected == 1, "{z:?}");
+    let z = zone_for_pair(cv(0), cv(1), &far_pair[0], &xyf, &xrf, &slab_settings);
+    assert!(z.zone.is_some(), "{z:?}");
 }

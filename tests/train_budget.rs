@@ -127,3 +127,55 @@ fn a_strategy_without_its_budget_or_a_bad_budget_is_refused() {
         assert!(!out.join("metrics.json").exists());
     }
 }
+
+/// `--lpm-zone local` through the CLI with a share cap small enough to bite: every step's kept
+/// zones hold at most that share of the model (counted on the GPU), some zones were dropped for
+/// holding more, the settings are recorded, and the exact budget still lands where it did
+/// without LPM. The random-blocks control trains the same way.
+#[test]
+fn local_zones_never_hold_more_than_their_share_of_the_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let runs = [
+        ("local", vec!["--lpm-zone", "local", "--lpm-max-zone-share", "0.002"]),
+        (
+            "random",
+            vec!["--lpm-zone", "local", "--lpm-regions", "random-blocks"],
+        ),
+    ];
+    for (name, flags) in runs {
+        let out = dir.path().join(name);
+        let mut args = vec!["--strategy", "adc-exact", "--budget", "1.3x", "--lpm"];
+        args.extend(["--lpm-from", "10", "--lpm-interval", "20"]);
+        args.extend(flags.iter().copied());
+        let o = train(&out, &args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let h = history_counts(&out);
+        let target = (1.3 * count_at(&h, 10) as f64).round() as u64;
+        let at_end = count_at(&h, 70);
+        assert!(at_end == target || at_end + 1 == target, "{h:?}");
+        let m: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
+        let steps = m["lpm"]["per_step"].as_array().unwrap();
+        assert!(!steps.is_empty(), "{}", m["lpm"]);
+        let share = if name == "local" { 0.002 } else { 0.01 };
+        let mut dropped = 0;
+        for s in steps {
+            let most = s["inside_max_share"].as_f64().unwrap();
+            assert!(most <= share + 1e-12, "{s}");
+            dropped += s["too_full_dropped"].as_u64().unwrap();
+        }
+        let c: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("config.json")).unwrap()).unwrap();
+        let lpm = c.pointer("/lpm").unwrap_or(&serde_json::Value::Null);
+        let text = lpm.to_string();
+        assert!(text.contains("\"Local\"") && text.contains("max_zone_share"), "{c}");
+        if name == "local" {
+            assert!(dropped > 0, "the cap never bit: {}", m["lpm"]["per_step"]);
+            assert!(text.contains("\"blocks\""), "{text}");
+            let zones: u64 = steps.iter().map(|s| s["zones"].as_u64().unwrap()).sum();
+            assert!(zones > 0, "no zone was kept");
+        } else {
+            assert!(text.contains("random-blocks"), "{text}");
+        }
+    }
+}

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use crate::lpm::membership::{OpacityResetSettings, FLAG_IN_BALL};
 use crate::lpm::pairing::RegionKeypoints;
+use crate::lpm::region_units::RegionUnit;
 use crate::lpm::{
     ConeRadius, MatchSettings, NeighbourChoice, RegionSettings, ZoneGeometry, ZoneSettings,
 };
@@ -70,7 +71,16 @@ pub struct LpmConfig {
     /// opacities and cost 1.46 dB for a while (docs/lpm-results.md); dropping such zones
     /// altogether (`max_zone_radius`) also loses what their lowered threshold adds.
     pub reset_max_zone_radius: Option<f64>,
+    /// What one zone is built from: a connected component of error blocks (the paper), one
+    /// block, or the random-blocks control.
+    pub region_unit: RegionUnit,
+    /// Zones holding more than this share of the model's Gaussians are dropped (counted by the
+    /// membership pass; `None`: no limit). A zone that holds a tenth of the model is not local.
+    pub max_zone_share: Option<f64>,
 }
+
+/// The largest share of the model one local zone may hold ([`LpmConfig::with_local_zones`]).
+pub const LOCAL_MAX_ZONE_SHARE: f64 = 0.01;
 
 /// Density-aware pruning (LPM.md step 8).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Hash)]
@@ -141,6 +151,8 @@ impl Default for LpmConfig {
             region_keypoints: RegionKeypoints::Box,
             max_zone_radius: None,
             reset_max_zone_radius: None,
+            region_unit: RegionUnit::Components,
+            max_zone_share: None,
         }
     }
 }
@@ -162,6 +174,16 @@ impl LpmConfig {
         c.reset_settings.threshold_set = FLAG_IN_BALL;
         c.matching.neighbours.choice = NeighbourChoice::Random;
         c
+    }
+
+    /// Zones local by construction (`--lpm-zone local`): one zone per error block, the
+    /// [`ZoneGeometry::Local`] slab (depths of matches seen at ≥ 2° of parallax, their 20–80 %
+    /// quantiles ± 5 %), and no zone holding more than 1 % of the model.
+    pub fn with_local_zones(mut self) -> LpmConfig {
+        self.zones.geometry = ZoneGeometry::Local;
+        self.region_unit = RegionUnit::Blocks;
+        self.max_zone_share = Some(LOCAL_MAX_ZONE_SHARE);
+        self
     }
 
     /// Whether LPM's density part runs at `iteration` (the trainer also requires a densify
@@ -238,6 +260,13 @@ impl LpmConfig {
                  positive number of scene extents (1: zones wider than the scene reset nothing)"
             );
         }
+        if let Some(share) = self.max_zone_share {
+            anyhow::ensure!(
+                share > 0.0 && share <= 1.0,
+                "LPM largest zone share {share} (--lpm-max-zone-share) must lie in (0, 1]. Fix: \
+                 pass e.g. 0.01 (no zone holds more than 1 % of the model's Gaussians)"
+            );
+        }
         self.reset_settings.top_basis_points()?;
         self.reset_settings.reset_logit()?;
         Ok(())
@@ -269,6 +298,11 @@ impl LpmConfig {
             "region_keypoints": self.region_keypoints.name(),
             "max_zone_radius": self.max_zone_radius,
             "reset_max_zone_radius": self.reset_max_zone_radius,
+            "region_unit": self.region_unit.name(),
+            "max_zone_share": self.max_zone_share,
+            "min_parallax_deg": self.zones.min_parallax_deg,
+            "band_quantiles": [self.zones.band_quantiles.0, self.zones.band_quantiles.1],
+            "band_margin": self.zones.band_margin,
         })
     }
 }
@@ -293,6 +327,18 @@ impl LpmConfig {
             }
             if self.reset_max_zone_radius.is_none() {
                 o.remove("reset_max_zone_radius");
+            }
+            // Settings of 2026-12-02: absent from older checkpoints, which ran with these values.
+            if self.region_unit == RegionUnit::Components {
+                o.remove("region_unit");
+            }
+            if self.max_zone_share.is_none() {
+                o.remove("max_zone_share");
+            }
+            if self.zones.geometry != ZoneGeometry::Local {
+                for k in ["min_parallax_deg", "band_quantiles", "band_margin"] {
+                    o.remove(k);
+                }
             }
         }
         j

@@ -24,6 +24,7 @@ pub mod membership;
 pub mod neighbours;
 pub mod pairing;
 pub mod record;
+pub mod region_units;
 pub mod regions;
 pub mod report;
 pub mod strategy;

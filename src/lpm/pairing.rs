@@ -121,6 +121,29 @@ pub fn pair_regions_on(
     xy_view: &[[f32; 2]],
     xy_ref: &[[f32; 2]],
 ) -> (Vec<RegionPair>, PairingStats) {
+    pair(regions, owners, xy_view, xy_ref, false)
+}
+
+/// [`pair_regions_on`] for zones built from the region itself
+/// ([`crate::lpm::ZoneGeometry::Local`]): R_e is the region's own box (the pixels that had the
+/// error), and one match is enough (a single error block often holds one keypoint); R_e' is the
+/// box of the matches in V', of zero area for one match.
+pub fn pair_regions_whole(
+    regions: &[Region],
+    owners: Option<&BlockOwners>,
+    xy_view: &[[f32; 2]],
+    xy_ref: &[[f32; 2]],
+) -> (Vec<RegionPair>, PairingStats) {
+    pair(regions, owners, xy_view, xy_ref, true)
+}
+
+fn pair(
+    regions: &[Region],
+    owners: Option<&BlockOwners>,
+    xy_view: &[[f32; 2]],
+    xy_ref: &[[f32; 2]],
+    whole: bool,
+) -> (Vec<RegionPair>, PairingStats) {
     let mut stats = PairingStats {
         regions: regions.len(),
         ..Default::default()
@@ -138,10 +161,18 @@ pub fn pair_regions_on(
             continue;
         }
         let to64 = |p: [f32; 2]| [p[0] as f64, p[1] as f64];
-        let bv = PixelBox::bounding(inside.iter().map(|&i| to64(xy_view[i])));
+        let bv = match whole {
+            true => Some(PixelBox {
+                x0: r.x0 as f64,
+                y0: r.y0 as f64,
+                x1: r.x1 as f64,
+                y1: r.y1 as f64,
+            }),
+            false => PixelBox::bounding(inside.iter().map(|&i| to64(xy_view[i]))),
+        };
         let br = PixelBox::bounding(inside.iter().map(|&i| to64(xy_ref[i])));
         match (bv, br) {
-            (Some(bv), Some(br)) if bv.area() > 0.0 && br.area() > 0.0 => {
+            (Some(bv), Some(br)) if whole || (bv.area() > 0.0 && br.area() > 0.0) => {
                 stats.paired += 1;
                 out.push(RegionPair {
                     region: *r,

@@ -1,9 +1,9 @@
 //! Zone records for the GPU, and one LPM step's CPU work (regions → pairs → zones → records).
 
-use super::pairing::{pair_regions_on, PairingStats, PixelBox};
+use super::pairing::{pair_regions_on, pair_regions_whole, PairingStats, PixelBox};
 use super::regions::{BlockOwners, Region};
 pub use super::zones::region_tan_half_angle;
-use super::zones::{zone_for_pair, CameraView, Zone, ZoneSettings};
+use super::zones::{zone_for_pair, CameraView, Zone, ZoneGeometry, ZoneSettings};
 use crate::scene::{Image, View};
 
 /// Shape code in [`ZoneRecord::shape`].
@@ -250,7 +250,10 @@ pub fn zones_for_step(
     s: &ZoneSettings,
     cone: ConeRadius,
 ) -> StepZones {
-    let (pairs, pairing) = pair_regions_on(regions, owners, xy_view, xy_ref);
+    let (pairs, pairing) = match s.geometry {
+        ZoneGeometry::Local => pair_regions_whole(regions, owners, xy_view, xy_ref),
+        _ => pair_regions_on(regions, owners, xy_view, xy_ref),
+    };
     let v = CameraView {
         camera: &view.camera,
         pose: &view.pose,

@@ -300,6 +300,36 @@ pub fn regions_and_owners(mask: &BlockMask) -> (Vec<Region>, BlockOwners) {
     (out, owners)
 }
 
+/// Every kept block as a region of its own (its pixel box, clipped to the image), in row-major
+/// order, with the owners that say so: the unit of [`RegionUnit::Blocks`]. A connected component
+/// of error blocks can run across the image (the ground under a truck, a sky line), and its box,
+/// and the zone of its matches, then spans near and far surfaces; a block is as local as the
+/// error map is.
+///
+/// [`RegionUnit::Blocks`]: crate::lpm::region_units::RegionUnit::Blocks
+pub fn block_regions(mask: &BlockMask) -> (Vec<Region>, BlockOwners) {
+    let mut label = vec![0u32; mask.kept.len()];
+    let mut out = Vec::new();
+    let b = mask.block;
+    for (i, _) in mask.kept.iter().enumerate().filter(|(_, &k)| k) {
+        let (bx, by) = (i as u32 % mask.blocks_x, i as u32 / mask.blocks_x);
+        out.push(Region {
+            x0: bx * b,
+            y0: by * b,
+            x1: ((bx + 1) * b).min(mask.width),
+            y1: ((by + 1) * b).min(mask.height),
+        });
+        label[i] = out.len() as u32;
+    }
+    let owners = BlockOwners {
+        block: mask.block,
+        blocks_x: mask.blocks_x,
+        blocks_y: mask.blocks_y,
+        label,
+    };
+    (out, owners)
+}
+
 /// Steps 1–2 in one call: render and ground truth (3 floats per pixel) → error regions.
 pub fn error_regions(
     render: &[f32],

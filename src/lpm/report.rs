@@ -22,6 +22,10 @@ pub struct LpmStepReport {
     pub wide: usize,
     /// Zones kept but ignored by the opacity reset, as wider than `reset_max_zone_radius`.
     pub no_reset: usize,
+    /// Zones dropped as holding more than `max_zone_share` of the model.
+    pub too_full: usize,
+    /// The largest share of the model one kept zone holds.
+    pub inside_max_share: f64,
     /// Gaussian centres inside zones, summed over the zones (before densification).
     pub inside: u64,
     /// Gaussians densified only because of the lowered threshold.
@@ -39,13 +43,27 @@ pub struct LpmStepReport {
 }
 
 impl LpmStepReport {
+    /// The count and the radii (relative to the scene extent) of the zones kept.
+    pub fn set_zone_sizes(&mut self, radii: impl Iterator<Item = f32>, extent: f64) {
+        let rel: Vec<f64> = radii.map(|r| r as f64 / extent.max(1e-30)).collect();
+        self.zones = rel.len();
+        (self.radius_mean, self.radius_max) = match rel.len() {
+            0 => (0.0, 0.0),
+            n => (
+                rel.iter().sum::<f64>() / n as f64,
+                rel.iter().copied().fold(0.0, f64::max),
+            ),
+        };
+    }
+
     pub fn to_json(&self) -> serde_json::Value {
         serde_json::json!({
             "iteration": self.iteration, "view": self.view, "reference": self.reference,
             "regions": self.regions, "paired": self.paired, "zones": self.zones,
             "block": self.block, "radius_mean_rel": self.radius_mean,
             "radius_max_rel": self.radius_max, "wide_dropped": self.wide,
-            "no_reset_zones": self.no_reset, "inside": self.inside,
+            "no_reset_zones": self.no_reset, "too_full_dropped": self.too_full,
+            "inside_max_share": self.inside_max_share, "inside": self.inside,
             "lowered": self.lowered, "pruned_extra": self.pruned, "opacity_reset": self.reset,
             "added": self.added, "skipped_adc": self.skipped_adc, "reset_only": self.reset_only,
             "seconds": self.seconds,
@@ -85,6 +103,10 @@ pub struct LpmTotals {
     pub wide: u64,
     /// Zones the opacity reset ignored (wider than `reset_max_zone_radius`).
     pub no_reset: u64,
+    /// Zones dropped as holding more than `max_zone_share` of the model.
+    pub too_full: u64,
+    /// The largest share of the model one kept zone held, over the run.
+    pub inside_max_share: f64,
     /// Density steps whose ADC was skipped (no zone).
     pub skipped_adc: u32,
     pub seconds: f64,
@@ -100,7 +122,8 @@ impl LpmTotals {
             "lowered": self.lowered, "pruned_extra": self.pruned, "opacity_reset": self.reset,
             "added": self.added, "inside": self.inside, "radius_mean_rel": self.radius_mean,
             "radius_max_rel": self.radius_max, "wide_dropped": self.wide,
-            "no_reset_zones": self.no_reset, "skipped_adc": self.skipped_adc, "seconds": self.seconds,
+            "no_reset_zones": self.no_reset, "too_full_dropped": self.too_full,
+            "inside_max_share": self.inside_max_share, "skipped_adc": self.skipped_adc, "seconds": self.seconds,
             "share_of_training": self.seconds / train_seconds.max(1e-12),
             "ms_per_iteration": 1e3 * self.seconds / iterations.max(1) as f64,
         })
@@ -122,6 +145,8 @@ impl LpmTotals {
         self.zones += r.zones as u64;
         self.wide += r.wide as u64;
         self.no_reset += r.no_reset as u64;
+        self.too_full += r.too_full as u64;
+        self.inside_max_share = self.inside_max_share.max(r.inside_max_share);
         self.lowered += r.lowered as u64;
         self.pruned += r.pruned as u64;
         self.reset += r.reset as u64;

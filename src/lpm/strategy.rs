@@ -36,6 +36,7 @@ use crate::lpm::config::{LpmConfig, PruneMode};
 use crate::lpm::gpu::{block_grid, ErrorImages, FilteredOpacity, LpmGpu};
 use crate::lpm::pairing::RegionKeypoints;
 use crate::lpm::record::ZONE_NO_RESET;
+use crate::lpm::region_units::step_regions;
 use crate::lpm::report::{LpmStepReport, LpmTotals};
 use crate::lpm::{regions, zones_for_step, Correspondences, ZoneRecord};
 use crate::scene::image_source::{ImageSource, TrainImages};
@@ -264,21 +265,23 @@ impl LpmStrategy {
             &counts,
             settings.keep_fraction,
         )?;
-        let (regions, owners) = regions::regions_and_owners(&mask);
+        // 2. Neighbour, regions, pairing, zones.
+        // Drawn from (seed, iteration) rather than a running stream, so a run resumed from a
+        // checkpoint makes the same picks without saving generator state.
+        let step_seed = self.config.seed
+            ^ 0x4c50_4d5f_7374_6570
+            ^ (iteration as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(step_seed);
+        let reference = self.corr.neighbours.pick(view, &mut rng);
+        report.reference = reference;
+        let matched_in_view = reference
+            .and_then(|r| self.corr.oriented(view, r))
+            .map_or(&[][..], |(xy_v, _)| xy_v);
+        let (regions, owners) =
+            step_regions(self.config.region_unit, &mask, matched_in_view, step_seed);
         let owners =
             (self.config.region_keypoints == RegionKeypoints::ErrorBlocks).then_some(&owners);
         report.regions = regions.len();
-
-        // 2. Neighbour, pairing, zones.
-        // Drawn from (seed, iteration) rather than a running stream, so a run resumed from a
-        // checkpoint makes the same picks without saving generator state.
-        let mut rng = rand_pcg::Pcg64::seed_from_u64(
-            self.config.seed
-                ^ 0x4c50_4d5f_7374_6570
-                ^ (iteration as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15),
-        );
-        let reference = self.corr.neighbours.pick(view, &mut rng);
-        report.reference = reference;
         let step = match reference {
             Some(r) if !regions.is_empty() => {
                 let (xy_v, xy_r) = self.corr.oriented(view, r).unwrap_or((&[], &[]));
@@ -320,15 +323,7 @@ impl LpmStrategy {
                 report.no_reset += 1;
             }
         }
-        report.zones = records.len();
-        if !records.is_empty() {
-            let rel: Vec<f64> = records
-                .iter()
-                .map(|z| z.radius as f64 / extent.max(1e-30))
-                .collect();
-            report.radius_mean = rel.iter().sum::<f64>() / rel.len() as f64;
-            report.radius_max = rel.iter().copied().fold(0.0, f64::max);
-        }
+        report.set_zone_sizes(records.iter().map(|z| z.radius), extent);
         if let Some(dir) = self.config.debug_dir.clone() {
             let gt_view = self.ground_truth(view)?;
             let gt_reference = match reference {
@@ -403,14 +398,53 @@ impl LpmStrategy {
         )
     }
 
-    /// Gaussian centres inside the first `zones` zones, summed (after a completed membership).
-    fn inside_total(&self, zones: usize) -> anyhow::Result<u64> {
-        Ok(self
-            .zone_inside
-            .read_range(0, zones)?
+    /// Gaussian centres inside the first `zones` zones of a completed membership of `count`
+    /// Gaussians: their sum and the largest share of the model one zone holds, into `report`.
+    fn note_inside(
+        &self,
+        report: &mut LpmStepReport,
+        zones: usize,
+        count: usize,
+    ) -> anyhow::Result<()> {
+        let inside = self.zone_inside.read_range(0, zones)?;
+        report.inside = inside.iter().map(|&n| n as u64).sum();
+        let most = inside.iter().copied().max().unwrap_or(0);
+        report.inside_max_share = most as f64 / count.max(1) as f64;
+        Ok(())
+    }
+
+    /// Uploads `records` and records their membership. With `max_zone_share`, the zones that
+    /// hold more than that share of the model are dropped first (one readback of the per-zone
+    /// counts, once a step) and the membership of the rest recorded again. Returns the zones
+    /// kept; `report` gets their count and sizes.
+    fn record_kept_membership(
+        &mut self,
+        t: &mut DensityContext,
+        records: Vec<ZoneRecord>,
+        report: &mut LpmStepReport,
+        extent: f64,
+    ) -> anyhow::Result<Vec<ZoneRecord>> {
+        self.record_zone_membership(t, &records)?;
+        let Some(share) = self.config.max_zone_share else {
+            return Ok(records);
+        };
+        t.rec.submit_and_wait()?;
+        t.rec.begin()?;
+        let count = t.state.count();
+        let inside = self.zone_inside.read_range(0, records.len())?;
+        let most = share * count as f64;
+        let kept: Vec<ZoneRecord> = records
             .iter()
-            .map(|&n| n as u64)
-            .sum())
+            .zip(&inside)
+            .filter(|(_, &n)| n as f64 <= most)
+            .map(|(z, _)| *z)
+            .collect();
+        report.too_full = records.len() - kept.len();
+        report.set_zone_sizes(kept.iter().map(|z| z.radius), extent);
+        if report.too_full > 0 && !kept.is_empty() {
+            self.record_zone_membership(t, &kept)?;
+        }
+        Ok(kept)
     }
 
     /// Uploads `records` and records the membership of the first `count` Gaussians.
@@ -449,6 +483,11 @@ impl LpmStrategy {
         let start = Instant::now();
         let (mut report, records) =
             self.find_zones(t, at.view, at.background, args.iteration, args.extent)?;
+        // Membership of the current Gaussians (the zones too full for a local zone dropped).
+        let records = match records.is_empty() {
+            true => records,
+            false => self.record_kept_membership(t, records, &mut report, args.extent)?,
+        };
         if records.is_empty() {
             let a0 = Instant::now();
             let outcome = if self.config.skip_adc_without_zone {
@@ -469,7 +508,6 @@ impl LpmStrategy {
         // 3. Membership, lowered threshold inside zones, density-aware pruning; or, for a
         // strategy that takes a guide (MCMC), the zone weights alone, and its own step.
         let count = t.state.count();
-        self.record_zone_membership(t, &records)?;
         if self.inner.takes_guide() {
             t.rec.dispatch(
                 &self.threshold_scale,
@@ -484,7 +522,7 @@ impl LpmStrategy {
             t.rec.barrier();
             let a0 = Instant::now();
             let outcome = self.inner.densify_guided(t, at, args, &self.weight)?;
-            report.inside = self.inside_total(records.len())?;
+            self.note_inside(&mut report, records.len(), count)?;
             self.pending = Some(Pending {
                 report,
                 records,
@@ -520,7 +558,7 @@ impl LpmStrategy {
         t.rec.submit_and_wait()?;
         t.rec.begin()?;
         let c = self.counters.read_range(0, 2)?;
-        report.inside = self.inside_total(records.len())?;
+        self.note_inside(&mut report, records.len(), count)?;
         report.lowered = c[0];
         let k = c[0].min(c[1]);
         let prunes = self.config.prune != PruneMode::Off && k > 0;
@@ -641,11 +679,14 @@ impl LpmStrategy {
         let (mut report, records) =
             self.find_zones(t, at.view, at.background, at.iteration, extent)?;
         report.reset_only = true;
+        let records = match records.is_empty() {
+            true => records,
+            false => self.record_kept_membership(t, records, &mut report, extent)?,
+        };
         if !records.is_empty() {
-            self.record_zone_membership(t, &records)?;
             self.record_reset(t)?;
             t.rec.submit_and_wait()?;
-            report.inside = self.inside_total(records.len())?;
+            self.note_inside(&mut report, records.len(), t.state.count())?;
             report.reset = self.gpu.read_opacity_reset_stats()?.reset;
         } else {
             t.rec.submit_and_wait()?;

@@ -28,6 +28,14 @@
 //!   far outside the region's pixels, and at full size such zones made 84 % of LPM's resets.
 //!   The slab holds only what is drawn over the region, at the depths the matches found; "in
 //!   front" is the same cone nearer than the band.
+//! * [`ZoneGeometry::Local`] (ours, 2026-12-02): a slab made local by construction. Only
+//!   matches whose two rays meet at `min_parallax_deg` or more are triangulated (below that a
+//!   pixel of error moves the point along the ray by more than the zone is deep), and the band
+//!   is the `band_quantiles` of their distances from V's centre, each end moved out by
+//!   `band_margin` of its distance, instead of their whole span: one mismatch no longer
+//!   stretches the zone to the far background. Used with one zone per error block
+//!   ([`crate::lpm::region_units::RegionUnit::Blocks`]) and a cap on the share of the model a
+//!   zone may hold (`LpmConfig::max_zone_share`), as `LpmConfig::with_local_zones` sets them.
 //! * [`ZoneGeometry::Sphere`] (the paper read literally): the zone is the minimum enclosing sphere of
 //!   the intersection of the two cones. The intersection is convex and its extreme points lie on
 //!   both cone surfaces, so we sample `circle_rays` rays on each cone's surface (plus its axis
@@ -61,6 +69,7 @@ pub enum ZoneGeometry {
     #[default]
     Triangulated,
     Slab,
+    Local,
     Sphere,
     SphereRayPairs,
     AuthorsBox,
@@ -84,6 +93,13 @@ pub struct ZoneSettings {
     /// `Triangulated`: a point farther from the points' coordinate-wise median than this many
     /// times their median distance to it is dropped as a mismatch.
     pub outlier_factor: f64,
+    /// `Local`: matches whose rays meet at a smaller angle (degrees) are not triangulated.
+    pub min_parallax_deg: f64,
+    /// `Local`: the band of distances from V's centre runs from this lower to this upper
+    /// quantile of the kept points' distances ...
+    pub band_quantiles: (f64, f64),
+    /// ... each end moved outwards by this fraction of its own distance.
+    pub band_margin: f64,
 }
 
 impl Default for ZoneSettings {
@@ -95,6 +111,9 @@ impl Default for ZoneSettings {
             margin: 0.1,
             min_radius_px: 4.0,
             outlier_factor: 3.0,
+            min_parallax_deg: 2.0,
+            band_quantiles: (0.2, 0.8),
+            band_margin: 0.05,
         }
     }
 }
@@ -265,7 +284,10 @@ pub fn zone_for_pair(
     xy_ref: &[[f32; 2]],
     s: &ZoneSettings,
 ) -> ZoneOutcome {
-    if !matches!(s.geometry, ZoneGeometry::Triangulated | ZoneGeometry::Slab) {
+    if !matches!(
+        s.geometry,
+        ZoneGeometry::Triangulated | ZoneGeometry::Slab | ZoneGeometry::Local
+    ) {
         return zone_from_boxes(v, &pair.in_view, r, &pair.in_reference, s);
     }
     let pts: Vec<([f64; 2], [f64; 2])> = pair
@@ -278,6 +300,7 @@ pub fn zone_for_pair(
         .collect();
     match s.geometry {
         ZoneGeometry::Slab => slab_zone(v, r, &pair.in_view, &pts, s),
+        ZoneGeometry::Local => local_zone(v, r, &pair.in_view, &pts, s),
         _ => triangulated_zone(v, r, &pts, s),
     }
 }
@@ -293,7 +316,9 @@ pub fn zone_from_boxes(
     s: &ZoneSettings,
 ) -> ZoneOutcome {
     match s.geometry {
-        ZoneGeometry::Triangulated | ZoneGeometry::Slab => ZoneOutcome::none(0),
+        ZoneGeometry::Triangulated | ZoneGeometry::Slab | ZoneGeometry::Local => {
+            ZoneOutcome::none(0)
+        }
         ZoneGeometry::Sphere => cone_clip_zone(v, box_v, r, box_r, s),
         ZoneGeometry::SphereRayPairs => ray_pair_zone(v, box_v, r, box_r, s),
         ZoneGeometry::AuthorsBox => authors_box_zone(v, box_v, r, box_r),
@@ -610,11 +635,29 @@ pub fn slab_zone(
     if points.is_empty() || !(far > 0.0 && far.is_finite() && axis.is_finite()) {
         return ZoneOutcome::none(rejected);
     }
+    band_slab(v, region, axis, (near, far), 1.0 + s.margin, s, points.len(), rejected)
+}
+
+/// The slab of V's cone through `region` (axis `axis`, unit) cut to the distances `near..far`
+/// from V's centre, its half-depth `grow` times the band's and at least `min_radius_px` pixels
+/// of V at the band's middle.
+#[allow(clippy::too_many_arguments)] // the band and the outcome's two counts, each used once
+fn band_slab(
+    v: CameraView,
+    region: &PixelBox,
+    axis: DVec3,
+    (near, far): (f64, f64),
+    grow: f64,
+    s: &ZoneSettings,
+    points: usize,
+    rejected: usize,
+) -> ZoneOutcome {
+    let o = v.center();
     let middle = 0.5 * (near + far);
     let center = o + middle * axis;
     // The band stops short of the apex: what lies between the camera and the band is what is in
     // front of the zone, and a band reaching the camera would leave nothing there.
-    let half_depth = (0.5 * (far - near) * (1.0 + s.margin))
+    let half_depth = (0.5 * (far - near) * grow)
         .max(radius_floor(v, center, s))
         .min(middle * (1.0 - 1e-6));
     let tan_half_angle = region_tan_half_angle(v.camera, region);
@@ -628,9 +671,51 @@ pub fn slab_zone(
             tan_half_angle,
             half_depth,
         }),
-        points: points.len(),
+        points,
         rejected,
         unbounded_rays: 0,
+    }
+}
+
+/// [`ZoneGeometry::Local`]: as [`slab_zone`], from the matches whose rays meet at
+/// `min_parallax_deg` or more, the band from the `band_quantiles` of their distances from V's
+/// centre, each end moved out by `band_margin` of its distance.
+pub fn local_zone(
+    v: CameraView,
+    r: CameraView,
+    region: &PixelBox,
+    matches: &[([f64; 2], [f64; 2])],
+    s: &ZoneSettings,
+) -> ZoneOutcome {
+    let strict = ZoneSettings {
+        min_ray_angle_deg: s.min_ray_angle_deg.max(s.min_parallax_deg),
+        ..*s
+    };
+    let (points, rejected) = triangulated_points(v, r, matches, &strict);
+    let o = v.center();
+    let [cu, cv] = region.center();
+    let axis = v.ray(cu, cv).normalize();
+    let mut dist: Vec<f64> = points.iter().map(|p| p.distance(o)).collect();
+    dist.sort_by(|a, b| a.total_cmp(b));
+    let Some(&last) = dist.last() else {
+        return ZoneOutcome::none(rejected);
+    };
+    if !(last > 0.0 && last.is_finite() && axis.is_finite()) {
+        return ZoneOutcome::none(rejected);
+    }
+    let (ql, qh) = s.band_quantiles;
+    let near = quantile_sorted(&dist, ql) * (1.0 - s.band_margin);
+    let far = quantile_sorted(&dist, qh) * (1.0 + s.band_margin);
+    band_slab(v, region, axis, (near, far), 1.0, s, points.len(), rejected)
+}
+
+/// The `q`-quantile of sorted, non-empty `xs`, linear between order statistics.
+fn quantile_sorted(xs: &[f64], q: f64) -> f64 {
+    let pos = q.clamp(0.0, 1.0) * (xs.len() - 1) as f64;
+    let (lo, frac) = (pos.floor() as usize, pos.fract());
+    match xs.get(lo + 1) {
+        Some(&b) if frac > 0.0 => xs[lo] + frac * (b - xs[lo]),
+        _ => xs[lo],
     }
 }
 

@@ -6,12 +6,13 @@ use crate::cli::train::background_from;
 use anyhow::Context;
 use lpmsplat::lpm::config::{LpmConfig, PruneMode};
 use lpmsplat::lpm::pairing::RegionKeypoints;
+use lpmsplat::lpm::region_units::RegionUnit;
 use lpmsplat::lpm::{ConeRadius, NeighbourChoice, ZoneGeometry};
 use lpmsplat::models::BaseModel;
 use lpmsplat::scene::Scene;
 use lpmsplat::train::trainer::TrainConfig;
 
-pub const RUNS: [(&str, [u8; 3]); 22] = [
+pub const RUNS: [(&str, [u8; 3]); 25] = [
     ("adc", [40, 40, 40]),
     ("adc-threshold-1e-4", [200, 120, 0]),
     ("adc+lpm", [220, 30, 30]),
@@ -61,6 +62,13 @@ pub const RUNS: [(&str, [u8; 3]); 22] = [
     // MCMC guided by LPM: relocation targets and growth sources drawn ∝ opacity × the zone
     // weight, LPM's in-front resets and added points as usual.
     ("mcmc+lpm", [250, 170, 0]),
+    // The exact budget and MCMC guided by zones local by construction (`--lpm-zone local`: one
+    // zone per error block, the quantile band of depths seen with parallax, ≤ 1 % of the model).
+    ("adc-exact+lpm-local", [180, 0, 90]),
+    ("mcmc+lpm-local", [200, 120, 0]),
+    // The control: the same local zones on as many blocks drawn at random
+    // (`--lpm-zone local --lpm-regions random-blocks`): what the error map adds.
+    ("adc-exact+lpm-random", [130, 130, 130]),
 ];
 
 /// Whether run `name` fills an exact budget (the exact-budget ADC runs and MCMC).
@@ -186,6 +194,12 @@ pub fn run_lpm_config(name: &str, cfg: &TrainConfig, args: &TradeArgs) -> Option
     }
     if name == "lpm-local-resets" {
         c.reset_max_zone_radius = Some(1.0);
+    }
+    if name.ends_with("+lpm-local") || name.ends_with("+lpm-random") {
+        c = c.with_local_zones();
+    }
+    if name.ends_with("+lpm-random") {
+        c.region_unit = RegionUnit::RandomBlocks;
     }
     if let Some(p) = args.lpm_prune {
         c.prune = p;
@@ -332,7 +346,20 @@ mod tests {
         let mut same = slab.clone();
         same.zones.geometry = ZoneGeometry::Triangulated;
         assert_eq!(same, default, "only the zone geometry differs");
-        // lpm-loose-blocks: our rules but for the block fraction, whatever the flag says.
+        // The local zones, and the control that differs from them only in where the blocks are.
+        let local = run_lpm_config("adc-exact+lpm-local", &cfg, &plain.trade).unwrap();
+        let random = run_lpm_config("adc-exact+lpm-random", &cfg, &plain.trade).unwrap();
+        let mcmc_local = run_lpm_config("mcmc+lpm-local", &cfg, &plain.trade).unwrap();
+        assert_eq!(local, default.clone().with_local_zones());
+        assert_eq!(mcmc_local, local);
+        assert_eq!(
+            (local.region_unit, random.region_unit),
+            (RegionUnit::Blocks, RegionUnit::RandomBlocks)
+        );
+        let mut same = random.clone();
+        same.region_unit = RegionUnit::Blocks;
+        assert_eq!(same, local, "only the blocks' choice differs");
+                // lpm-loose-blocks: our rules but for the block fraction, whatever the flag says.
         let loose = run_lpm_config("lpm-loose-blocks", &cfg, &plain.trade).unwrap();
         assert_eq!(loose.regions.keep_fraction, 0.7);
         let mut same = loose.clone();

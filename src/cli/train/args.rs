@@ -9,6 +9,7 @@ use crate::cli::SceneArgs;
 use clap::Args;
 use lpmsplat::lpm::config::{LpmConfig, PruneMode};
 use lpmsplat::lpm::pairing::RegionKeypoints;
+use lpmsplat::lpm::region_units::RegionUnit;
 use lpmsplat::lpm::{ConeRadius, NeighbourChoice, ZoneGeometry};
 use lpmsplat::models::BaseModel;
 use lpmsplat::scene::Scene;
@@ -310,10 +311,23 @@ pub struct LpmArgs {
     pub lpm_region_keypoints: Option<String>,
     /// Zone geometry: triangulated (ours: the enclosing sphere of the triangulated matches),
     /// slab (the view's cone through the region, cut to the distances the triangulated matches
-    /// span: only what is drawn over the region), sphere (the paper: the cone intersection's
+    /// span: only what is drawn over the region), local (zones local by construction: one per
+    /// error block, the slab cut to the 20–80 % quantiles ± 5 % of the depths of matches seen
+    /// at ≥ 2° of parallax, none holding more than 1 % of the model; --lpm-regions and
+    /// --lpm-max-zone-share override the last two), sphere (the paper: the cone intersection's
     /// enclosing sphere), ray-pairs, authors-box.
-    #[arg(long, value_parser = ["triangulated", "slab", "sphere", "ray-pairs", "authors-box"])]
+    #[arg(long, value_parser = ["triangulated", "slab", "local", "sphere", "ray-pairs", "authors-box"])]
     pub lpm_zone: Option<String>,
+    /// What a zone is built from: components (the paper: a connected component of error
+    /// blocks, as its box), blocks (each error block alone), random-blocks (the control: as many
+    /// blocks drawn at random among those holding a match, each alone). Default: blocks under
+    /// --lpm-zone local, components otherwise.
+    #[arg(long, value_parser = ["components", "blocks", "random-blocks"])]
+    pub lpm_regions: Option<String>,
+    /// Drop the zones that hold more than this share of the model's Gaussians (0.01 under
+    /// --lpm-zone local; default otherwise: no limit). Counted on the GPU at each step.
+    #[arg(long, value_name = "SHARE")]
+    pub lpm_max_zone_share: Option<f64>,
     /// The cone whose Gaussians count as in front of a zone (the opacity reset's candidates):
     /// region (default under ours: the view's cone through its error region, capped at the
     /// bounding sphere), bounding (the cone to the zone's bounding sphere, LPM.md step 7), or
@@ -397,6 +411,15 @@ impl LpmArgs {
         }
         if let Some(z) = &self.lpm_zone {
             c.zones.geometry = parse_zone(z)?;
+            if c.zones.geometry == ZoneGeometry::Local {
+                c = c.with_local_zones();
+            }
+        }
+        if let Some(u) = &self.lpm_regions {
+            c.region_unit = RegionUnit::parse(u)?;
+        }
+        if let Some(share) = self.lpm_max_zone_share {
+            c.max_zone_share = Some(share);
         }
         if let Some(k) = &self.lpm_cone {
             c.cone = ConeRadius::parse(k)?;
@@ -413,12 +436,13 @@ pub fn parse_zone(name: &str) -> anyhow::Result<ZoneGeometry> {
     Ok(match name {
         "triangulated" => ZoneGeometry::Triangulated,
         "slab" => ZoneGeometry::Slab,
+        "local" => ZoneGeometry::Local,
         "sphere" => ZoneGeometry::Sphere,
         "ray-pairs" => ZoneGeometry::SphereRayPairs,
         "authors-box" => ZoneGeometry::AuthorsBox,
         other => anyhow::bail!(
-            "LPM zone geometry {other:?} is unknown. Fix: choose triangulated, slab, sphere, \
-             ray-pairs or authors-box"
+            "LPM zone geometry {other:?} is unknown. Fix: choose triangulated, slab, local, \
+             sphere, ray-pairs or authors-box"
         ),
     })
 }
@@ -691,6 +715,7 @@ mod tests {
         for (name, g) in [
             ("triangulated", ZoneGeometry::Triangulated),
             ("slab", ZoneGeometry::Slab),
+            ("local", ZoneGeometry::Local),
             ("sphere", ZoneGeometry::Sphere),
             ("ray-pairs", ZoneGeometry::SphereRayPairs),
             ("authors-box", ZoneGeometry::AuthorsBox),
