@@ -1810,3 +1810,76 @@ fn local_zone_is_the_quantile_band_of_the_points_seen_with_parallax() {
     let z = zone_for_pair(cv(0), cv(1), &far_pair[0], &xyf, &xrf, &slab_settings);
     assert!(z.zone.is_some(), "{z:?}");
 }
+
+/// Local zones from the SfM points a view observes: every error block holding points gets the
+/// slab of its own cone around their depths (no neighbour needed), a block without a point gets
+/// none, and a block whose points' depths spread gets the quantile band, not the whole span.
+#[test]
+fn local_zones_take_their_depths_from_the_points_the_view_observes() {
+    use lpmsplat::lpm::record::local_zones_for_step;
+    // A long focal length, so the 4-pixel floor of a band (0.03 units here) does not bite.
+    let cam = camera(64, 48, 600.0);
+    let pose = look_at(DVec3::new(0.0, -4.0, 0.0), DVec3::ZERO);
+    let v = view("v", cam, pose);
+    let o = DVec3::from(pose.center());
+    // Points on the ray through a pixel, at the given distances from the camera.
+    let along = |u: f64, w: f64, d: &[f64]| -> Vec<(DVec3, [f32; 2])> {
+        let ray = DVec3::from(pose.rotation[0]) * ((u - cam.cx) / cam.fx)
+            + DVec3::from(pose.rotation[1]) * ((w - cam.cy) / cam.fy)
+            + DVec3::from(pose.rotation[2]);
+        d.iter()
+            .map(|&t| (o + t * ray.normalize(), [u as f32, w as f32]))
+            .collect()
+    };
+    // Block (0, 0) of 8 px: one point 4 units away; block (2, 1): eleven from 3 to 5 units.
+    let spread: Vec<f64> = (0..11).map(|k| 3.0 + 0.2 * k as f64).collect();
+    let pts: Vec<(DVec3, [f32; 2])> = along(3.5, 4.5, &[4.0])
+        .into_iter()
+        .chain(along(20.5, 12.5, &spread))
+        .collect();
+    let xy: Vec<[f32; 2]> = pts.iter().map(|p| p.1).collect();
+    let world: Vec<[f64; 3]> = pts.iter().map(|p| p.0.to_array()).collect();
+    let block = |bx: u32, by: u32| Region {
+        x0: 8 * bx,
+        y0: 8 * by,
+        x1: 8 * bx + 8,
+        y1: 8 * by + 8,
+    };
+    let regions = [block(0, 0), block(2, 1), block(5, 5)];
+    let gt = Image {
+        width: 64,
+        height: 48,
+        rgb: vec![0.5; 64 * 48 * 3],
+        alpha: None,
+    };
+    let s = ZoneSettings {
+        geometry: ZoneGeometry::Local,
+        ..ZoneSettings::default()
+    };
+    let step = local_zones_for_step(&v, &regions, None, &xy, &world, &gt, [0.0; 3], &s);
+    assert_eq!((step.pairing.paired, step.pairing.no_matches), (2, 1));
+    assert_eq!(step.zones.len(), 2);
+    let band = |z: &Zone| match *z {
+        Zone::Slab {
+            center, half_depth, ..
+        } => {
+            let d = DVec3::from(center).distance(o);
+            (d - half_depth, d + half_depth)
+        }
+        _ => panic!("{z:?}"),
+    };
+    let (near, far) = band(&step.zones[0]);
+    assert!((near - 3.8).abs() < 1e-9 && (far - 4.2).abs() < 1e-9, "{near}..{far}");
+    // Eleven distances 3.0..5.0: quantiles 20 % and 80 % are 3.4 and 4.6.
+    let (near, far) = band(&step.zones[1]);
+    assert!((near - 3.4 * 0.95).abs() < 1e-9, "{near}");
+    assert!((far - 4.6 * 1.05).abs() < 1e-9, "{far}");
+    for (k, z) in step.zones.iter().enumerate() {
+        let p = &pts[if k == 0 { 0 } else { 6 }].0;
+        assert!(z.contains(p.to_array(), 1e-9), "zone {k} holds its middle point");
+    }
+    // The nearest and farthest of the spread lie outside the band, on the same ray.
+    assert!(!step.zones[1].contains(pts[1].0.to_array(), 0.0));
+    assert!(!step.zones[1].contains(pts[11].0.to_array(), 0.0));
+    assert_eq!(step.records[1].shape & 0xFF, lpmsplat::lpm::record::ZONE_SLAB);
+}

@@ -3,7 +3,7 @@
 use super::pairing::{pair_regions_on, pair_regions_whole, PairingStats, PixelBox};
 use super::regions::{BlockOwners, Region};
 pub use super::zones::region_tan_half_angle;
-use super::zones::{zone_for_pair, CameraView, Zone, ZoneGeometry, ZoneSettings};
+use super::zones::{band_zone, zone_for_pair, CameraView, Zone, ZoneGeometry, ZoneSettings};
 use crate::scene::{Image, View};
 
 /// Shape code in [`ZoneRecord::shape`].
@@ -278,6 +278,80 @@ pub fn zones_for_step(
                 out.records.push(record);
                 out.zones.push(z);
                 out.pairs.push(p.clone());
+            }
+            None => out.no_zone += 1,
+        }
+    }
+    out
+}
+
+/// The zones of one step from the SfM points `view` observes ([`ZoneGeometry::Local`] with
+/// tracks): `xy[i]` is the pixel of the keypoint of point `world[i]`. Every region holding one
+/// of them gets the band of its points' depths ([`band_zone`]) in the cone through the region's
+/// own box; no neighbour view is needed. `owners`, when given, keeps to each region's own
+/// blocks. The pairs record the region's box on both sides.
+#[allow(clippy::too_many_arguments)] // as zones_for_step, the step's inputs, each used once
+pub fn local_zones_for_step(
+    view: &View,
+    regions: &[Region],
+    owners: Option<&BlockOwners>,
+    xy: &[[f32; 2]],
+    world: &[[f64; 3]],
+    gt: &Image,
+    background: [f32; 3],
+    s: &ZoneSettings,
+) -> StepZones {
+    let v = CameraView {
+        camera: &view.camera,
+        pose: &view.pose,
+    };
+    let mut out = StepZones {
+        pairing: PairingStats {
+            regions: regions.len(),
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    for (k, r) in regions.iter().enumerate() {
+        let inside: Vec<u32> = (0..xy.len().min(world.len()))
+            .filter(|&i| {
+                let (x, y) = (xy[i][0] as f64, xy[i][1] as f64);
+                r.contains(x, y) && owners.is_none_or(|o| o.owner(x, y) == Some(k))
+            })
+            .map(|i| i as u32)
+            .collect();
+        if inside.is_empty() {
+            out.pairing.no_matches += 1;
+            continue;
+        }
+        out.pairing.paired += 1;
+        let own = PixelBox {
+            x0: r.x0 as f64,
+            y0: r.y0 as f64,
+            x1: r.x1 as f64,
+            y1: r.y1 as f64,
+        };
+        let points: Vec<glam::DVec3> = inside
+            .iter()
+            .map(|&i| glam::DVec3::from(world[i as usize]))
+            .collect();
+        match band_zone(v, &own, &points, 0, s).zone {
+            Some(z) => {
+                let record = ZoneRecord::with_cone(
+                    &z,
+                    view.pose.center(),
+                    center_color(gt, &own, background),
+                    ConeRadius::Region,
+                );
+                out.records.push(record);
+                out.zones.push(z);
+                out.pairs.push(super::pairing::RegionPair {
+                    region: *r,
+                    in_view: own,
+                    in_reference: own,
+                    matches: inside.len(),
+                    matched: inside,
+                });
             }
             None => out.no_zone += 1,
         }

@@ -38,7 +38,9 @@ use crate::lpm::pairing::RegionKeypoints;
 use crate::lpm::record::ZONE_NO_RESET;
 use crate::lpm::region_units::step_regions;
 use crate::lpm::report::{LpmStepReport, LpmTotals};
-use crate::lpm::{regions, zones_for_step, Correspondences, ZoneRecord};
+use crate::lpm::record::local_zones_for_step;
+use crate::lpm::view_points::ViewPoints;
+use crate::lpm::{regions, zones_for_step, Correspondences, ZoneGeometry, ZoneRecord};
 use crate::scene::image_source::{ImageSource, TrainImages};
 use crate::scene::{Image, Scene, View};
 use crate::shaders;
@@ -80,6 +82,8 @@ pub struct LpmStrategy {
     ctx: Arc<GpuContext>,
     gpu: LpmGpu,
     corr: Correspondences,
+    /// The SfM points each view observes (the local zones' depths).
+    view_points: ViewPoints,
     views: Vec<View>,
     /// The training images (read at LPM steps, for zone colours and debug images) and the
     /// image number of each scene view (training views only).
@@ -142,6 +146,7 @@ impl LpmStrategy {
             inner: Box::new(Adc),
             gpu: LpmGpu::new(ctx, max_px)?,
             corr,
+            view_points: ViewPoints::new(scene),
             views: scene.views.clone(),
             images,
             image_of_view,
@@ -274,15 +279,37 @@ impl LpmStrategy {
         let mut rng = rand_pcg::Pcg64::seed_from_u64(step_seed);
         let reference = self.corr.neighbours.pick(view, &mut rng);
         report.reference = reference;
-        let matched_in_view = reference
-            .and_then(|r| self.corr.oriented(view, r))
-            .map_or(&[][..], |(xy_v, _)| xy_v);
+        // Local zones take their depths from the SfM points the view observes, when it has
+        // tracks; otherwise (and for every other geometry) from the matches with V'.
+        let sfm = self.view_points.of(view);
+        let from_sfm = self.config.zones.geometry == ZoneGeometry::Local && !sfm.0.is_empty();
+        let matched_in_view = match from_sfm {
+            true => sfm.0,
+            false => reference
+                .and_then(|r| self.corr.oriented(view, r))
+                .map_or(&[][..], |(xy_v, _)| xy_v),
+        };
         let (regions, owners) =
             step_regions(self.config.region_unit, &mask, matched_in_view, step_seed);
         let owners =
             (self.config.region_keypoints == RegionKeypoints::ErrorBlocks).then_some(&owners);
         report.regions = regions.len();
         let step = match reference {
+            _ if from_sfm && !regions.is_empty() => {
+                let gt = self
+                    .ground_truth(view)?
+                    .context("LPM: the current view has no ground truth")?;
+                local_zones_for_step(
+                    &self.views[view],
+                    &regions,
+                    owners,
+                    sfm.0,
+                    sfm.1,
+                    &gt,
+                    bg,
+                    &self.config.zones,
+                )
+            }
             Some(r) if !regions.is_empty() => {
                 let (xy_v, xy_r) = self.corr.oriented(view, r).unwrap_or((&[], &[]));
                 let gt = self

@@ -692,6 +692,19 @@ pub fn local_zone(
         ..*s
     };
     let (points, rejected) = triangulated_points(v, r, matches, &strict);
+    band_zone(v, region, &points, rejected, s)
+}
+
+/// The [`ZoneGeometry::Local`] slab of V's cone through `region` around `points` (world): the
+/// band from the `band_quantiles` of their distances from V's centre, each end moved out by
+/// `band_margin` of its distance. `rejected` is passed through to the outcome.
+pub fn band_zone(
+    v: CameraView,
+    region: &PixelBox,
+    points: &[DVec3],
+    rejected: usize,
+    s: &ZoneSettings,
+) -> ZoneOutcome {
     let o = v.center();
     let [cu, cv] = region.center();
     let axis = v.ray(cu, cv).normalize();
