@@ -1765,8 +1765,14 @@ fn local_zone_is_the_quantile_band_of_the_points_seen_with_parallax() {
     // Quantiles with linear interpolation over the 21 distances: positions 4 and 16.
     let (near, far) = (d[4] * 0.95, d[16] * 1.05);
     let dc = DVec3::from(center).distance(o);
-    assert!((dc - 0.5 * (near + far)).abs() < 2e-3, "{dc} vs {near}..{far}");
-    assert!((half_depth - 0.5 * (far - near)).abs() < 2e-3, "{half_depth}");
+    assert!(
+        (dc - 0.5 * (near + far)).abs() < 2e-3,
+        "{dc} vs {near}..{far}"
+    );
+    assert!(
+        (half_depth - 0.5 * (far - near)).abs() < 2e-3,
+        "{half_depth}"
+    );
     let rec = ZoneRecord::with_cone(&zone, o.to_array(), [0.0; 3], ConeRadius::Region);
     let test = ZoneTest::new(&rec);
     let f = |p: DVec3| p.as_vec3().to_array();
@@ -1774,28 +1780,44 @@ fn local_zone_is_the_quantile_band_of_the_points_seen_with_parallax() {
     for &p in &pts {
         let dp = p.distance(o);
         if dp > near + 5e-3 && dp < far - 5e-3 {
-            assert!(zone.contains(p.to_array(), 0.0) && test.contains(f(p)), "{p}");
+            assert!(
+                zone.contains(p.to_array(), 0.0) && test.contains(f(p)),
+                "{p}"
+            );
             held += 1;
         } else if dp < near - 5e-3 || dp > far + 5e-3 {
-            assert!(!zone.contains(p.to_array(), 0.0) && !test.contains(f(p)), "{p}");
+            assert!(
+                !zone.contains(p.to_array(), 0.0) && !test.contains(f(p)),
+                "{p}"
+            );
             out_of_band += 1;
         }
     }
-    assert!(held >= 12 && out_of_band >= 2, "{held} held, {out_of_band} out");
+    assert!(
+        held >= 12 && out_of_band >= 2,
+        "{held} held, {out_of_band} out"
+    );
     // The slab of the same matches holds every point.
     let slab = zone_for_pair(cv(0), cv(1), &pairs[0], &xy_v, &xy_r, &slab_settings);
     let slab = slab.zone.unwrap();
     assert!(pts.iter().all(|p| slab.contains(p.to_array(), 0.0)));
     // One point alone: a band of ± 5 % around it (above the 4-pixel floor at this depth).
     let (xy1, xr1) = pixels(&pts[10..11]);
-    assert!(pair_regions(&[region], &xy1, &xr1).0.is_empty(), "zero area");
+    assert!(
+        pair_regions(&[region], &xy1, &xr1).0.is_empty(),
+        "zero area"
+    );
     let one = pair_regions_whole(&[region], None, &xy1, &xr1).0;
     let z = zone_for_pair(cv(0), cv(1), &one[0], &xy1, &xr1, &local);
     let Some(Zone::Slab { half_depth, .. }) = z.zone else {
         panic!("{z:?}")
     };
     let d10 = pts[10].distance(o);
-    assert!((half_depth - 0.05 * d10).abs() < 1e-3, "{half_depth} vs {}", 0.05 * d10);
+    assert!(
+        (half_depth - 0.05 * d10).abs() < 1e-3,
+        "{half_depth} vs {}",
+        0.05 * d10
+    );
     // 60 units away the two rays meet at about 0.7 / 64 rad, 0.6°: no local zone; a slab.
     let (xyf, xrf) = pixels(&[DVec3::new(0.0, 60.0, 0.02)]);
     let image = Region {
@@ -1869,17 +1891,26 @@ fn local_zones_take_their_depths_from_the_points_the_view_observes() {
         _ => panic!("{z:?}"),
     };
     let (near, far) = band(&step.zones[0]);
-    assert!((near - 3.8).abs() < 1e-9 && (far - 4.2).abs() < 1e-9, "{near}..{far}");
+    assert!(
+        (near - 3.8).abs() < 1e-9 && (far - 4.2).abs() < 1e-9,
+        "{near}..{far}"
+    );
     // Eleven distances 3.0..5.0: quantiles 20 % and 80 % are 3.4 and 4.6.
     let (near, far) = band(&step.zones[1]);
     assert!((near - 3.4 * 0.95).abs() < 1e-9, "{near}");
     assert!((far - 4.6 * 1.05).abs() < 1e-9, "{far}");
     for (k, z) in step.zones.iter().enumerate() {
         let p = &pts[if k == 0 { 0 } else { 6 }].0;
-        assert!(z.contains(p.to_array(), 1e-9), "zone {k} holds its middle point");
+        assert!(
+            z.contains(p.to_array(), 1e-9),
+            "zone {k} holds its middle point"
+        );
     }
     // The nearest and farthest of the spread lie outside the band, on the same ray.
     assert!(!step.zones[1].contains(pts[1].0.to_array(), 0.0));
     assert!(!step.zones[1].contains(pts[11].0.to_array(), 0.0));
-    assert_eq!(step.records[1].shape & 0xFF, lpmsplat::lpm::record::ZONE_SLAB);
+    assert_eq!(
+        step.records[1].shape & 0xFF,
+        lpmsplat::lpm::record::ZONE_SLAB
+    );
 }

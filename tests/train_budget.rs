@@ -136,7 +136,10 @@ fn a_strategy_without_its_budget_or_a_bad_budget_is_refused() {
 fn local_zones_never_hold_more_than_their_share_of_the_model() {
     let dir = tempfile::tempdir().unwrap();
     let runs = [
-        ("local", vec!["--lpm-zone", "local", "--lpm-max-zone-share", "0.002"]),
+        (
+            "local",
+            vec!["--lpm-zone", "local", "--lpm-max-zone-share", "0.002"],
+        ),
         (
             "random",
             vec!["--lpm-zone", "local", "--lpm-regions", "random-blocks"],
@@ -168,7 +171,10 @@ fn local_zones_never_hold_more_than_their_share_of_the_model() {
             serde_json::from_slice(&std::fs::read(out.join("config.json")).unwrap()).unwrap();
         let lpm = c.pointer("/lpm").unwrap_or(&serde_json::Value::Null);
         let text = lpm.to_string();
-        assert!(text.contains("\"Local\"") && text.contains("max_zone_share"), "{c}");
+        assert!(
+            text.contains("\"Local\"") && text.contains("max_zone_share"),
+            "{c}"
+        );
         if name == "local" {
             assert!(dropped > 0, "the cap never bit: {}", m["lpm"]["per_step"]);
             assert!(text.contains("\"blocks\""), "{text}");
@@ -177,5 +183,32 @@ fn local_zones_never_hold_more_than_their_share_of_the_model() {
         } else {
             assert!(text.contains("random-blocks"), "{text}");
         }
+    }
+}
+
+/// A budget below the initial count (`0.5x`): the run starts from that many of the SfM points
+/// (drawn at random) and ends densification there, MCMC and the exact budget alike, rather
+/// than training the whole start and cutting it later.
+#[test]
+fn a_budget_below_the_start_draws_the_start_down_to_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let full = dir.path().join("full");
+    let o = train(&full, &[]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let initial = count_at(&history_counts(&full), 10);
+    let half = (0.5 * initial as f64).round() as u64;
+    for strategy in ["mcmc", "adc-exact"] {
+        let out = dir.path().join(strategy);
+        let o = train(&out, &["--strategy", strategy, "--budget", "0.5x"]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{err}");
+        assert!(
+            err.contains(&format!("budget {half} below the {initial} initial")),
+            "{err}"
+        );
+        let h = history_counts(&out);
+        assert!(h.iter().all(|e| e.1 <= half), "{strategy}: {h:?}");
+        let end = count_at(&h, 70);
+        assert!(end == half || end + 1 == half, "{strategy}: {h:?}");
     }
 }

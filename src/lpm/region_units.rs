@@ -119,14 +119,33 @@ mod tests {
         // 10×6 image, 4-px blocks: 3×2 blocks; blocks 0, 1 (touching) and 5 (clipped corner).
         let m = mask(10, 6, 4, &[0, 1, 5]);
         let (comp, _) = step_regions(RegionUnit::Components, &m, &[], 0);
-        assert_eq!(comp.len(), 1, "8-connected: 5 touches 1 diagonally: {comp:?}");
+        assert_eq!(
+            comp.len(),
+            1,
+            "8-connected: 5 touches 1 diagonally: {comp:?}"
+        );
         let (r, owners) = step_regions(RegionUnit::Blocks, &m, &[], 0);
         assert_eq!(
             r,
             vec![
-                Region { x0: 0, y0: 0, x1: 4, y1: 4 },
-                Region { x0: 4, y0: 0, x1: 8, y1: 4 },
-                Region { x0: 8, y0: 4, x1: 10, y1: 6 },
+                Region {
+                    x0: 0,
+                    y0: 0,
+                    x1: 4,
+                    y1: 4
+                },
+                Region {
+                    x0: 4,
+                    y0: 0,
+                    x1: 8,
+                    y1: 4
+                },
+                Region {
+                    x0: 8,
+                    y0: 4,
+                    x1: 10,
+                    y1: 6
+                },
             ]
         );
         assert_eq!(owners.owner(1.5, 1.5), Some(0));
@@ -145,11 +164,15 @@ mod tests {
             let r = random_blocks_like(&m, &pts, seed);
             let kept: Vec<usize> = (0..64).filter(|&i| r.kept[i]).collect();
             assert_eq!(kept.len(), 2, "two error blocks hold a match");
-            assert!(kept.iter().all(|i| [3, 5, 20, 30, 40, 50].contains(i)), "{kept:?}");
+            assert!(
+                kept.iter().all(|i| [3, 5, 20, 30, 40, 50].contains(i)),
+                "{kept:?}"
+            );
             assert_eq!(r, random_blocks_like(&m, &pts, seed), "seeded");
         }
-        let draws: std::collections::HashSet<Vec<bool>> =
-            (0..20).map(|s| random_blocks_like(&m, &pts, s).kept).collect();
+        let draws: std::collections::HashSet<Vec<bool>> = (0..20)
+            .map(|s| random_blocks_like(&m, &pts, s).kept)
+            .collect();
         assert!(draws.len() > 3, "the draw depends on the seed");
         // No match anywhere: nothing kept; points off the image are ignored.
         let r = random_blocks_like(&m, &[[-1.0, 3.0], [40.0, 1.0]], 1);
@@ -165,6 +188,9 @@ mod tests {
         ] {
             assert_eq!(RegionUnit::parse(u.name()).unwrap(), u);
         }
-        assert!(RegionUnit::parse("pixels").unwrap_err().to_string().contains("random-blocks"));
+        assert!(RegionUnit::parse("pixels")
+            .unwrap_err()
+            .to_string()
+            .contains("random-blocks"));
     }
 }

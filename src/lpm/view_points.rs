@@ -10,8 +10,11 @@ use crate::scene::Scene;
 /// positions of those tracks' points, in the scene's frame.
 #[derive(Debug, Clone, Default)]
 pub struct ViewPoints {
-    per_view: Vec<(Vec<[f32; 2]>, Vec<[f64; 3]>)>,
+    per_view: Vec<Observed>,
 }
+
+/// One view's observed points: keypoint pixels and point positions, index for index.
+type Observed = (Vec<[f32; 2]>, Vec<[f64; 3]>);
 
 impl ViewPoints {
     /// From the scene's tracks; a view without keypoints, or a track naming a view or keypoint

@@ -635,7 +635,16 @@ pub fn slab_zone(
     if points.is_empty() || !(far > 0.0 && far.is_finite() && axis.is_finite()) {
         return ZoneOutcome::none(rejected);
     }
-    band_slab(v, region, axis, (near, far), 1.0 + s.margin, s, points.len(), rejected)
+    band_slab(
+        v,
+        region,
+        axis,
+        (near, far),
+        1.0 + s.margin,
+        s,
+        points.len(),
+        rejected,
+    )
 }
 
 /// The slab of V's cone through `region` (axis `axis`, unit) cut to the distances `near..far`

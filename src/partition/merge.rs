@@ -15,7 +15,7 @@ use super::plan::Plan;
 use crate::error::bad_input;
 use crate::models::BaseModel;
 use crate::scene::frame::{shift_comment, shift_from_comments, SHIFT_COMMENT};
-use crate::splats::{ExtraValues, GaussianParams};
+use crate::splats::GaussianParams;
 
 /// The files a block's finished run holds, under `runs/<block name>/`.
 pub const BLOCK_MODEL: &str = "point_cloud.ply";
@@ -155,7 +155,7 @@ pub fn merge(plan: &Plan, runs: &Path) -> anyhow::Result<Merged> {
                 block.core.contains(plan.ground.coordinates(user).0)
             })
             .collect();
-        let mut part = select(&params, &keep);
+        let mut part = params.select_rows(&keep);
         // Stored again relative to the merged model's shift, in f64.
         for (p, &i) in part.positions.iter_mut().zip(&keep) {
             let q = params.positions[i];
@@ -204,37 +204,6 @@ pub fn merge(plan: &Plan, runs: &Path) -> anyhow::Result<Merged> {
         shift,
         comments,
     })
-}
-
-/// The Gaussians `rows` of `p`, every array and extra group alike.
-pub fn select(p: &GaussianParams, rows: &[usize]) -> GaussianParams {
-    let stride = p.rest_stride();
-    GaussianParams {
-        sh_degree: p.sh_degree,
-        positions: rows.iter().map(|&i| p.positions[i]).collect(),
-        log_scales: rows.iter().map(|&i| p.log_scales[i]).collect(),
-        rotations: rows.iter().map(|&i| p.rotations[i]).collect(),
-        opacity_logits: rows.iter().map(|&i| p.opacity_logits[i]).collect(),
-        sh_dc: rows.iter().map(|&i| p.sh_dc[i]).collect(),
-        sh_rest: rows
-            .iter()
-            .flat_map(|&i| p.sh_rest[i * stride..(i + 1) * stride].iter().copied())
-            .collect(),
-        extra: p
-            .extra
-            .iter()
-            .map(|e| {
-                let s = e.group.stride;
-                ExtraValues {
-                    group: e.group.clone(),
-                    values: rows
-                        .iter()
-                        .flat_map(|&i| e.values[i * s..(i + 1) * s].iter().copied())
-                        .collect(),
-                }
-            })
-            .collect(),
-    }
 }
 
 /// `a` followed by `b`: same SH degree and extra groups, or an error saying which differs.
@@ -291,7 +260,7 @@ mod tests {
     fn select_then_concat_keeps_every_row_whole() {
         let a = model(5, 2, 0.0);
         let b = model(4, 2, 100.0);
-        let s = select(&a, &[4, 1]);
+        let s = a.select_rows(&[4, 1]);
         let stride = a.rest_stride();
         assert_eq!(s.positions, vec![[4.0, 0.0, 0.0], [1.0, 0.0, 0.0]]);
         assert_eq!(&s.sh_rest[..stride], &a.sh_rest[4 * stride..5 * stride]);

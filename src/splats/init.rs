@@ -116,3 +116,59 @@ pub fn random_init(
     params.sh_dc = sh_dc;
     Ok(params)
 }
+
+/// The initial model of a run whose Gaussian budget `budget` is below its count: `budget` of
+/// its Gaussians drawn at random without replacement (seeded), in their order. A budget says
+/// how many Gaussians the run ends densification with; every strategy grows from its start, so
+/// a start above the budget could only be cut at the first density step, after the optimizer
+/// had fitted Gaussians that are then thrown away. A model within the budget is returned as it
+/// is. (A first pass of ADC could choose better which to keep; an SfM point cloud is what the
+/// structure-from-motion saw, so a uniform draw keeps its density everywhere alike.)
+pub fn within_budget(init: GaussianParams, budget: usize, seed: u64) -> GaussianParams {
+    let n = init.len();
+    if budget >= n || budget == 0 {
+        return init;
+    }
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(seed ^ 0x6275_6467_6574_5f69);
+    let mut rows = rand::seq::index::sample(&mut rng, n, budget).into_vec();
+    rows.sort_unstable();
+    init.select_rows(&rows)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn numbered(n: usize) -> GaussianParams {
+        // SH degree 1: nine rest coefficients a Gaussian, each its row number.
+        GaussianParams {
+            sh_degree: 1,
+            positions: (0..n).map(|i| [i as f32, 0.0, 0.0]).collect(),
+            log_scales: vec![[0.0; 3]; n],
+            rotations: vec![[1.0, 0.0, 0.0, 0.0]; n],
+            opacity_logits: vec![0.0; n],
+            sh_dc: vec![[0.0; 3]; n],
+            sh_rest: (0..n).flat_map(|i| [i as f32; 9]).collect(),
+            extra: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn a_start_above_the_budget_is_drawn_down_to_it_whole_rows_in_order() {
+        let p = numbered(100);
+        let q = within_budget(p.clone(), 30, 7);
+        assert_eq!(q.len(), 30);
+        let rows: Vec<usize> = q.positions.iter().map(|x| x[0] as usize).collect();
+        assert!(
+            rows.windows(2).all(|w| w[0] < w[1]),
+            "distinct, in order: {rows:?}"
+        );
+        for (k, &r) in rows.iter().enumerate() {
+            assert!(q.sh_rest[9 * k..9 * k + 9].iter().all(|&v| v == r as f32));
+        }
+        assert_eq!(q, within_budget(p.clone(), 30, 7), "seeded");
+        assert_ne!(q, within_budget(p.clone(), 30, 8));
+        assert_eq!(within_budget(p.clone(), 100, 7), p);
+        assert_eq!(within_budget(p.clone(), 500, 7), p);
+    }
+}

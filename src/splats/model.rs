@@ -137,6 +137,33 @@ pub struct GaussianParams {
 }
 
 impl GaussianParams {
+    /// The Gaussians `rows` of the model, in that order, every array and extra group alike.
+    pub fn select_rows(&self, rows: &[usize]) -> GaussianParams {
+        let stride = self.rest_stride();
+        let pick = |values: &[f32], s: usize| -> Vec<f32> {
+            rows.iter()
+                .flat_map(|&i| values[i * s..(i + 1) * s].iter().copied())
+                .collect()
+        };
+        GaussianParams {
+            sh_degree: self.sh_degree,
+            positions: rows.iter().map(|&i| self.positions[i]).collect(),
+            log_scales: rows.iter().map(|&i| self.log_scales[i]).collect(),
+            rotations: rows.iter().map(|&i| self.rotations[i]).collect(),
+            opacity_logits: rows.iter().map(|&i| self.opacity_logits[i]).collect(),
+            sh_dc: rows.iter().map(|&i| self.sh_dc[i]).collect(),
+            sh_rest: pick(&self.sh_rest, stride),
+            extra: self
+                .extra
+                .iter()
+                .map(|e| ExtraValues {
+                    group: e.group.clone(),
+                    values: pick(&e.values, e.group.stride),
+                })
+                .collect(),
+        }
+    }
+
     /// Maps the model through a change of frame `x ↦ k·x + b` (uniform `k > 0`, no rotation;
     /// [`crate::scene::frame`]), in f64: positions, log-scales (`+ ln k`; all three, or the
     /// first two when `keep_third_scale`, a surfel's unused axis) and the extra groups named

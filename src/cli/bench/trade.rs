@@ -97,6 +97,28 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
             )
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
+    // A budget is resolved against each seed's initial model; a start above it is drawn down
+    // to it (`within_budget`), for every run of that seed alike.
+    let targets: Vec<Option<usize>> = inits
+        .iter()
+        .map(|i| args.budget.map(|b| b.resolve(i.len())))
+        .collect();
+    let inits: Vec<_> = inits
+        .into_iter()
+        .zip(&targets)
+        .zip(&seeds)
+        .map(|((init, t), &seed)| match t {
+            Some(t) if *t < init.len() => {
+                eprintln!(
+                    "bench trade: budget {t} below the {} initial Gaussians of seed {seed}: \
+                     every run starts from {t} of them, drawn at random",
+                    init.len()
+                );
+                lpmsplat::splats::init::within_budget(init, *t, seed)
+            }
+            _ => init,
+        })
+        .collect();
     let ctx = GpuContext::new(gpu)?;
     let facts = RunFacts::new(&ctx.info.name, &scene, args.lpm_block);
     let calendar = args.calendar.unwrap_or(args.iterations);
@@ -144,7 +166,13 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
             if let Some(c) = &lpm {
                 c.validate()?;
             }
-            let mcmc = apply_budget(name, &mut cfg, args, inits[si].len(), calendar)?;
+            let mcmc = apply_budget(
+                name,
+                &mut cfg,
+                args,
+                (inits[si].len(), targets[si]),
+                calendar,
+            )?;
             runs.push(Run {
                 k,
                 seed,
@@ -474,14 +502,15 @@ struct Run {
     model_events: Vec<serde_json::Value>,
 }
 
-/// The budget of run `name` on `cfg` (its initial model of `initial` Gaussians, its calendar):
+/// The budget of run `name` on `cfg` (its initial model of `initial` Gaussians, the budget
+/// `target` resolved before the start was drawn down to it, its calendar):
 /// a cap for ADC and its LPM runs, the exact budget for adc-exact* (adc's count under
 /// --match-adc-count when no --budget is given), and MCMC's settings for mcmc (returned).
 fn apply_budget(
     name: &str,
     cfg: &mut TrainConfig,
     args: &TradeArgs,
-    initial: usize,
+    (initial, target): (usize, Option<usize>),
     calendar: u32,
 ) -> anyhow::Result<Option<McmcConfig>> {
     anyhow::ensure!(
@@ -509,8 +538,8 @@ fn apply_budget(
         cfg.schedule.interval,
     );
     let curve = |default: Growth| {
-        args.budget.map(|b| BudgetCurve {
-            target: b.resolve(initial),
+        target.map(|target| BudgetCurve {
+            target,
             growth: args.budget_growth.unwrap_or(default),
             initial,
             window,

@@ -359,7 +359,7 @@ mod tests {
         let mut same = random.clone();
         same.region_unit = RegionUnit::Blocks;
         assert_eq!(same, local, "only the blocks' choice differs");
-                // lpm-loose-blocks: our rules but for the block fraction, whatever the flag says.
+        // lpm-loose-blocks: our rules but for the block fraction, whatever the flag says.
         let loose = run_lpm_config("lpm-loose-blocks", &cfg, &plain.trade).unwrap();
         assert_eq!(loose.regions.keep_fraction, 0.7);
         let mut same = loose.clone();

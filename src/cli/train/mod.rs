@@ -64,6 +64,25 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
             config.sh_degree,
         )?,
     };
+    // The budget, resolved against the model as it starts (a resumed run's from its first
+    // run's); a start above it is drawn down to it.
+    let target = args.density_strategy.budget.map(|b| {
+        resumed
+            .as_ref()
+            .and_then(|ck| strategy_args::budget_from_checkpoint(&ck.config_json, "target"))
+            .unwrap_or_else(|| b.resolve(init.len()))
+    });
+    let init = match target {
+        Some(t) if resumed.is_none() && t < init.len() => {
+            eprintln!(
+                "budget {t} below the {} initial Gaussians: starting from {t} of them, drawn at \
+                 random",
+                init.len()
+            );
+            lpmsplat::splats::init::within_budget(init, t, args.seed)
+        }
+        _ => init,
+    };
     let ctx = GpuContext::new(gpu)?;
     // From here on Ctrl-C is polled after each iteration (and saves a checkpoint).
     super::interrupt::install();
@@ -82,10 +101,10 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     let mut config = config;
     let initial = resumed
         .as_ref()
-        .and_then(|ck| strategy_args::initial_from_checkpoint(&ck.config_json))
+        .and_then(|ck| strategy_args::budget_from_checkpoint(&ck.config_json, "initial"))
         .unwrap_or(init.len());
     let strategy_args = &args.density_strategy;
-    let curve = strategy_args.curve(initial, &config.schedule, config.iterations);
+    let curve = strategy_args.curve(initial, target, &config.schedule, config.iterations);
     match (strategy_args.strategy, curve) {
         (StrategyName::Adc, Some(c)) => {
             config.density.max_gaussians = Some(

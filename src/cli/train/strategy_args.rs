@@ -91,9 +91,12 @@ pub struct StrategyArgs {
 impl StrategyArgs {
     /// The budget's curve for a model starting at `initial` Gaussians, spanning the densify
     /// steps of `schedule` that run in `iterations` (`None` without --budget).
+    /// `target`: the budget resolved against the model before it was drawn down to it
+    /// ([`Budget::resolve`]; `None`: against `initial`).
     pub fn curve(
         &self,
         initial: usize,
+        target: Option<usize>,
         schedule: &DensitySchedule,
         iterations: u32,
     ) -> Option<BudgetCurve> {
@@ -103,7 +106,7 @@ impl StrategyArgs {
             _ => Growth::Taming,
         });
         Some(BudgetCurve {
-            target: budget.resolve(initial),
+            target: target.unwrap_or_else(|| budget.resolve(initial)),
             growth,
             initial,
             window: (
@@ -126,13 +129,13 @@ impl StrategyArgs {
     }
 }
 
-/// The initial count a budget curve of the run that wrote `config_json` (a checkpoint's) started
-/// from, so a resumed run follows the same curve.
-pub fn initial_from_checkpoint(config_json: &str) -> Option<usize> {
+/// The `field` (`initial`, `target`) of the budget curve of the run that wrote `config_json` (a
+/// checkpoint's), so a resumed run follows the same curve.
+pub fn budget_from_checkpoint(config_json: &str, field: &str) -> Option<usize> {
     let j: serde_json::Value = serde_json::from_str(config_json).ok()?;
     [
-        &j["density"]["exact_budget"]["initial"],
-        &j["strategy"]["mcmc"]["budget"]["initial"],
+        &j["density"]["exact_budget"][field],
+        &j["strategy"]["mcmc"]["budget"][field],
     ]
     .iter()
     .find_map(|v| v.as_u64())
