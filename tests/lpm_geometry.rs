@@ -1228,6 +1228,24 @@ fn small_baseline(sep_deg: f64) -> [(PinholeCamera, Pose); 2] {
     })
 }
 
+/// The pixel box of `xy` grown by 2 pixels on every side.
+fn region_around(xy: &[[f32; 2]]) -> Region {
+    let (lo, hi) = xy
+        .iter()
+        .fold(([f32::MAX; 2], [f32::MIN; 2]), |(lo, hi), p| {
+            (
+                [lo[0].min(p[0]), lo[1].min(p[1])],
+                [hi[0].max(p[0]), hi[1].max(p[1])],
+            )
+        });
+    Region {
+        x0: lo[0].floor() as u32 - 2,
+        y0: lo[1].floor() as u32 - 2,
+        x1: hi[0].ceil() as u32 + 2,
+        y1: hi[1].ceil() as u32 + 2,
+    }
+}
+
 /// The two sides of f64 matches as the f32 pixel lists the pairing reads.
 fn f32_pixels(matches: &[([f64; 2], [f64; 2])]) -> (Vec<[f32; 2]>, Vec<[f32; 2]>) {
     let f = |p: [f64; 2]| [p[0] as f32, p[1] as f32];
@@ -1577,20 +1595,7 @@ fn slab_zone_holds_what_is_drawn_over_the_region_at_the_matches_depths() {
         })
         .collect();
     let (xy_v, xy_r) = f32_pixels(&matches);
-    let (lo, hi) = xy_v
-        .iter()
-        .fold(([f32::MAX; 2], [f32::MIN; 2]), |(lo, hi), p| {
-            (
-                [lo[0].min(p[0]), lo[1].min(p[1])],
-                [hi[0].max(p[0]), hi[1].max(p[1])],
-            )
-        });
-    let region = Region {
-        x0: lo[0].floor() as u32 - 2,
-        y0: lo[1].floor() as u32 - 2,
-        x1: hi[0].ceil() as u32 + 2,
-        y1: hi[1].ceil() as u32 + 2,
-    };
+    let region = region_around(&xy_v);
     let (pairs, _) = pair_regions(&[region], &xy_v, &xy_r);
     assert_eq!(pairs[0].matched.len(), 40);
     let s = ZoneSettings {
@@ -1718,20 +1723,7 @@ fn local_zone_is_the_quantile_band_of_the_points_seen_with_parallax() {
         f32_pixels(&m)
     };
     let (xy_v, xy_r) = pixels(&pts);
-    let (lo, hi) = xy_v
-        .iter()
-        .fold(([f32::MAX; 2], [f32::MIN; 2]), |(lo, hi), p| {
-            (
-                [lo[0].min(p[0]), lo[1].min(p[1])],
-                [hi[0].max(p[0]), hi[1].max(p[1])],
-            )
-        });
-    let region = Region {
-        x0: lo[0].floor() as u32 - 2,
-        y0: lo[1].floor() as u32 - 2,
-        x1: hi[0].ceil() as u32 + 2,
-        y1: hi[1].ceil() as u32 + 2,
-    };
+    let region = region_around(&xy_v);
     let (pairs, _) = pair_regions(&[region], &xy_v, &xy_r);
     assert_eq!(pairs[0].matched.len(), 21);
     // A local zone's cone is the region's own box, and one match pairs it.

@@ -12,6 +12,18 @@ pub struct PixelBox {
     pub y1: f64,
 }
 
+impl From<Region> for PixelBox {
+    /// The region's pixel box (its pixels' edges).
+    fn from(r: Region) -> PixelBox {
+        PixelBox {
+            x0: r.x0 as f64,
+            y0: r.y0 as f64,
+            x1: r.x1 as f64,
+            y1: r.y1 as f64,
+        }
+    }
+}
+
 impl PixelBox {
     pub fn center(&self) -> [f64; 2] {
         [0.5 * (self.x0 + self.x1), 0.5 * (self.y0 + self.y1)]
@@ -162,12 +174,7 @@ fn pair(
         }
         let to64 = |p: [f32; 2]| [p[0] as f64, p[1] as f64];
         let bv = match whole {
-            true => Some(PixelBox {
-                x0: r.x0 as f64,
-                y0: r.y0 as f64,
-                x1: r.x1 as f64,
-                y1: r.y1 as f64,
-            }),
+            true => Some(PixelBox::from(*r)),
             false => PixelBox::bounding(inside.iter().map(|&i| to64(xy_view[i]))),
         };
         let br = PixelBox::bounding(inside.iter().map(|&i| to64(xy_ref[i])));

@@ -325,12 +325,7 @@ pub fn local_zones_for_step(
             continue;
         }
         out.pairing.paired += 1;
-        let own = PixelBox {
-            x0: r.x0 as f64,
-            y0: r.y0 as f64,
-            x1: r.x1 as f64,
-            y1: r.y1 as f64,
-        };
+        let own = PixelBox::from(*r);
         let points: Vec<glam::DVec3> = inside
             .iter()
             .map(|&i| glam::DVec3::from(world[i as usize]))

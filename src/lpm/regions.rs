@@ -231,6 +231,16 @@ pub struct BlockOwners {
 }
 
 impl BlockOwners {
+    /// The owners of `mask`'s blocks from their labels (region index + 1, 0: not kept).
+    fn of(mask: &BlockMask, label: Vec<u32>) -> BlockOwners {
+        BlockOwners {
+            block: mask.block,
+            blocks_x: mask.blocks_x,
+            blocks_y: mask.blocks_y,
+            label,
+        }
+    }
+
     /// The region owning the block containing pixel point (x, y) (pixel centres at +0.5);
     /// `None` outside the image or on a block that is not kept.
     pub fn owner(&self, x: f64, y: f64) -> Option<usize> {
@@ -291,13 +301,7 @@ pub fn regions_and_owners(mask: &BlockMask) -> (Vec<Region>, BlockOwners) {
             y1: (((by1 + 1) * b) as u32).min(mask.height),
         });
     }
-    let owners = BlockOwners {
-        block: mask.block,
-        blocks_x: mask.blocks_x,
-        blocks_y: mask.blocks_y,
-        label,
-    };
-    (out, owners)
+    (out, BlockOwners::of(mask, label))
 }
 
 /// Every kept block as a region of its own (its pixel box, clipped to the image), in row-major
@@ -321,13 +325,7 @@ pub fn block_regions(mask: &BlockMask) -> (Vec<Region>, BlockOwners) {
         });
         label[i] = out.len() as u32;
     }
-    let owners = BlockOwners {
-        block: mask.block,
-        blocks_x: mask.blocks_x,
-        blocks_y: mask.blocks_y,
-        label,
-    };
-    (out, owners)
+    (out, BlockOwners::of(mask, label))
 }
 
 /// Steps 1–2 in one call: render and ground truth (3 floats per pixel) → error regions.
