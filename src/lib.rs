@@ -20,6 +20,7 @@ pub mod reference;
 pub mod render;
 pub mod scene;
 pub mod splats;
+pub mod strategies;
 pub mod train;
 pub mod triangulated_init;
 

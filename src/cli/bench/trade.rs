@@ -15,7 +15,7 @@ use super::trade_summary::{
     column_header, paired_table, plot, summarize, table_rows, Summary, TradeRow,
 };
 use crate::cli::lpips_scores;
-use crate::cli::train::{build_lpm, initial_model, prepare_output};
+use crate::cli::train::{initial_model, prepare_output};
 use indicatif::{ProgressBar, ProgressStyle};
 use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder};
@@ -23,7 +23,7 @@ use lpmsplat::lpips::Lpips;
 use lpmsplat::lpm::config::LpmConfig;
 use lpmsplat::lpm::regions::RegionSettings;
 use lpmsplat::lpm::strategy::LpmStrategy;
-use lpmsplat::mcmc::{McmcConfig, McmcStrategy};
+use lpmsplat::mcmc::McmcConfig;
 use lpmsplat::render::forward::{FrameSettings, Renderer};
 use lpmsplat::render::layout::CameraGpu;
 use lpmsplat::render::spacetime::TimedModel;
@@ -215,26 +215,17 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
             let r = &mut runs[i];
             let init = &inits[r.init];
             let mut t = Trainer::new(&ctx, &scene, train_images.clone(), init, r.cfg.clone())?;
-            let mcmc = match r.mcmc {
-                Some(c) => {
-                    let primitive = match r.cfg.surfels.is_some() {
-                        true => lpmsplat::train::strategy::Primitive::Surfel,
-                        false => lpmsplat::train::strategy::Primitive::Gaussian,
-                    };
-                    Some(McmcStrategy::new(&ctx, c, primitive)?)
-                }
-                None => None,
-            };
-            match (r.lpm.clone(), mcmc) {
-                (Some(c), mcmc) => {
-                    let lpm = build_lpm(&ctx, &scene, &train_images, c, &args.out)?;
-                    t.set_strategy(match mcmc {
-                        Some(m) => Box::new(lpm.wrapping(Box::new(m))),
-                        None => Box::new(lpm),
-                    });
-                }
-                (None, Some(m)) => t.set_strategy(Box::new(m)),
-                (None, None) => {}
+            let strategy = lpmsplat::strategies::assemble(
+                &ctx,
+                &scene,
+                &train_images,
+                &r.cfg,
+                r.lpm.clone(),
+                r.mcmc,
+                &args.out,
+            )?;
+            if let Some(s) = strategy {
+                t.set_strategy(s);
             }
             r.trainer = Some(t);
         }

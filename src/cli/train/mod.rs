@@ -10,7 +10,7 @@ mod setup;
 pub(crate) mod strategy_args;
 
 pub use args::{background_from, parse_max_gaussians, InitSource, TrainArgs};
-pub use setup::{build_lpm, initial_model, prepare_output};
+pub use setup::{initial_model, prepare_output};
 pub use strategy_args::{parse_budget, Budget, StrategyName};
 
 use super::lpips_scores;
@@ -148,29 +148,20 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         None => None,
     };
     let mcmc = match (strategy_args.strategy, curve) {
-        (StrategyName::Mcmc, Some(c)) => {
-            let primitive = match config.surfels.is_some() {
-                true => lpmsplat::train::strategy::Primitive::Surfel,
-                false => lpmsplat::train::strategy::Primitive::Gaussian,
-            };
-            Some(lpmsplat::mcmc::McmcStrategy::new(
-                &ctx,
-                strategy_args.mcmc(c, args.seed),
-                primitive,
-            )?)
-        }
+        (StrategyName::Mcmc, Some(c)) => Some(strategy_args.mcmc(c, args.seed)),
         _ => None,
     };
-    match (lpm_config.clone(), mcmc) {
-        (Some(c), mcmc) => {
-            let lpm = build_lpm(&ctx, &scene, &train_images, c, &args.out)?;
-            trainer.set_strategy(match mcmc {
-                Some(m) => Box::new(lpm.wrapping(Box::new(m))),
-                None => Box::new(lpm),
-            });
-        }
-        (None, Some(m)) => trainer.set_strategy(Box::new(m)),
-        (None, None) => {}
+    let strategy = lpmsplat::strategies::assemble(
+        &ctx,
+        &scene,
+        &train_images,
+        &config,
+        lpm_config.clone(),
+        mcmc,
+        &args.out,
+    )?;
+    if let Some(s) = strategy {
+        trainer.set_strategy(s);
     }
     if let Some(p) = &args.resume {
         trainer.check_resumed_strategy(p)?;

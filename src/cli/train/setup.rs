@@ -1,39 +1,13 @@
-//! What a training run needs before its first iteration: the output folder, the initial model,
-//! LPM's correspondences; and the messages that say how to resume a run that stopped.
+//! What a training run needs before its first iteration: the output folder, the initial model;
+//! and the messages that say how to resume a run that stopped.
 
 use super::args::{InitSource, TrainArgs};
 use anyhow::Context;
-use lpmsplat::gpu::GpuContext;
-use lpmsplat::lpm;
-use lpmsplat::lpm::config::LpmConfig;
-use lpmsplat::lpm::strategy::LpmStrategy;
 use lpmsplat::models::BaseModel;
-use lpmsplat::scene::image_source::TrainImages;
-use lpmsplat::scene::{images, Image, Scene};
+use lpmsplat::scene::Scene;
 use lpmsplat::splats::{self, read_ply, GaussianParams};
 use lpmsplat::train::trainer::Trainer;
 use std::path::Path;
-
-/// Builds the LPM state for a trainer: correspondences from the cache in `cache_dir` (built and
-/// written there when missing or stale).
-pub fn build_lpm(
-    ctx: &std::sync::Arc<GpuContext>,
-    scene: &Scene,
-    train_images: &TrainImages,
-    config: LpmConfig,
-    cache_dir: &Path,
-) -> anyhow::Result<LpmStrategy> {
-    let loader = |i: usize| -> anyhow::Result<Image> {
-        match scene.train.iter().position(|&v| v == i) {
-            Some(k) => train_images.source.load(k),
-            None => Ok(images::load_images(scene, &[i])?.remove(0)),
-        }
-    };
-    let cache = cache_dir.join(lpm::CACHE_FILE_NAME);
-    let (corr, summary) = lpm::load_or_build(scene, &config.matching, &cache, &loader, None)?;
-    eprintln!("LPM correspondences: {summary}");
-    LpmStrategy::new(ctx, scene, train_images.clone(), corr, config)
-}
 
 /// Fewer triangulated points than this fall back to random points (with a message).
 const MIN_TRIANGULATED: usize = 100;
