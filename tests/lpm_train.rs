@@ -1045,6 +1045,20 @@ fn checkpoint_settings_leave_out_new_rules_at_their_old_values() {
         ..LpmConfig::default()
     };
     assert_eq!(local_resets.checkpoint_json()["reset_max_zone_radius"], 1.0);
+    // The local zones' settings (2026-12-02): absent at the values every earlier run had.
+    let new_keys = [
+        "region_unit",
+        "max_zone_share",
+        "min_parallax_deg",
+        "band_quantiles",
+        "band_margin",
+    ];
+    assert!(new_keys.iter().all(|k| ck.get(*k).is_none()), "{ck}");
+    let zoned = LpmConfig::default().with_local_zones().checkpoint_json();
+    assert_eq!(zoned["region_unit"], "blocks");
+    assert_eq!(zoned["max_zone_share"], 0.01);
+    assert_eq!(zoned["band_quantiles"], serde_json::json!([0.2, 0.8]));
+    assert_eq!(zoned["zone_geometry"], "Local");
     // Everything else is the same object.
     let mut full = plain.to_json();
     let o = full.as_object_mut().unwrap();
@@ -1052,6 +1066,9 @@ fn checkpoint_settings_leave_out_new_rules_at_their_old_values() {
     o.remove("region_keypoints");
     o.remove("max_zone_radius");
     o.remove("reset_max_zone_radius");
+    for k in new_keys {
+        o.remove(k);
+    }
     assert_eq!(full, ck);
 }
 
