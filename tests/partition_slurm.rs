@@ -127,6 +127,15 @@ fn submit(cluster: &Cluster, plan_dir: &Path) -> (String, String) {
     (text, merge)
 }
 
+/// Submits `dir`'s scripts, checks what `submit.sh` says of the tasks (`tasks`), waits up to
+/// `seconds` for the cluster to go idle, and checks the merge job completed.
+fn submit_to_completion(cluster: &Cluster, dir: &Path, tasks: &str, seconds: u64) {
+    let (text, merge_job) = submit(cluster, dir);
+    assert!(text.contains(tasks), "{text}");
+    cluster.wait_idle(Duration::from_secs(seconds));
+    assert_eq!(cluster.job_state(&merge_job), "COMPLETED", "{}", logs(dir));
+}
+
 fn logs(plan_dir: &Path) -> String {
     let mut s = String::new();
     if let Ok(rd) = std::fs::read_dir(plan_dir.join("slurm/logs")) {
@@ -185,15 +194,7 @@ fn a_plan_trains_as_a_slurm_job_array_and_merges_after_it() {
     let task = std::fs::read_to_string(plan_dir.join("slurm/task.sh")).unwrap();
     assert!(task.contains("#SBATCH --gres=gpu:1"), "{task}");
 
-    let (text, merge_job) = submit(&cluster, &plan_dir);
-    assert!(text.contains("tasks 0,1 of 2"), "{text}");
-    cluster.wait_idle(Duration::from_secs(600));
-    assert_eq!(
-        cluster.job_state(&merge_job),
-        "COMPLETED",
-        "{}",
-        logs(&plan_dir)
-    );
+    submit_to_completion(&cluster, &plan_dir, "tasks 0,1 of 2", 600);
 
     // The merged model: each block's Gaussians in its own core, recounted here from the
     // blocks' files.
@@ -265,15 +266,7 @@ fn a_plan_trains_as_a_slurm_job_array_and_merges_after_it() {
     .unwrap()
     .modified()
     .unwrap();
-    let (text, merge_job) = submit(&cluster, &plan_dir);
-    assert!(text.contains("tasks 1 of 2"), "{text}");
-    cluster.wait_idle(Duration::from_secs(600));
-    assert_eq!(
-        cluster.job_state(&merge_job),
-        "COMPLETED",
-        "{}",
-        logs(&plan_dir)
-    );
+    submit_to_completion(&cluster, &plan_dir, "tasks 1 of 2", 600);
     assert!(plan_dir
         .join("runs")
         .join(lost)
@@ -292,15 +285,7 @@ fn a_plan_trains_as_a_slurm_job_array_and_merges_after_it() {
     assert_eq!(first_other, again);
 
     // Everything finished: a third submission submits no block, only a merge.
-    let (text, merge_job) = submit(&cluster, &plan_dir);
-    assert!(text.contains("every task has finished"), "{text}");
-    cluster.wait_idle(Duration::from_secs(120));
-    assert_eq!(
-        cluster.job_state(&merge_job),
-        "COMPLETED",
-        "{}",
-        logs(&plan_dir)
-    );
+    submit_to_completion(&cluster, &plan_dir, "every task has finished", 120);
 
     // A benchmark sweep on the same cluster: one task a seed, then bench merge of both.
     let sweep = tmp.path().join("sweep");
@@ -318,15 +303,7 @@ fn a_plan_trains_as_a_slurm_job_array_and_merges_after_it() {
             .args(["--slurm", "--slurm-cpus", "1", "--slurm-gres", "none", "-o"])
             .arg(&sweep),
     );
-    let (text, merge_job) = submit(&cluster, &sweep);
-    assert!(text.contains("tasks 0,1 of 2"), "{text}");
-    cluster.wait_idle(Duration::from_secs(600));
-    assert_eq!(
-        cluster.job_state(&merge_job),
-        "COMPLETED",
-        "{}",
-        logs(&sweep)
-    );
+    submit_to_completion(&cluster, &sweep, "tasks 0,1 of 2", 600);
     let merged: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(sweep.join("merged/trade.json")).unwrap())
             .unwrap();

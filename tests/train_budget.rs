@@ -116,6 +116,11 @@ fn a_strategy_without_its_budget_or_a_bad_budget_is_refused() {
         (&["--strategy", "adc-exact"][..], "--budget"),
         (&["--budget-growth", "linear"][..], "--budget"),
         (&["--budget", "12q"][..], "3x"),
+        (
+            &["--lpm", "--lpm-max-zone-share", "0"][..],
+            "--lpm-max-zone-share",
+        ),
+        (&["--lpm", "--lpm-regions", "pixels"][..], "random-blocks"),
     ] {
         let out = dir.path().join("refused");
         let o = train(&out, flags);
