@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Generate the LPIPS test fixture in tests/data/lpips/ (run once; the output is committed
-because CI has no torch). `tests/lpips.rs` compares `lpmsplat::lpips::Lpips` against it.
+because CI has no torch). `tests/gpu/lpips.rs` compares `lpmsplat::lpips::Lpips` against it.
 
 Usage:
     python3 -m venv /tmp/lpips-venv
@@ -40,7 +40,7 @@ import convert_lpips_weights as conv  # noqa: E402
 
 import lpips  # noqa: E402
 
-# The trunk generator (mirrored in tests/lpips.rs): one splitmix64 stream from SEED, consumed in
+# The trunk generator (mirrored in tests/gpu/lpips.rs): one splitmix64 stream from SEED, consumed in
 # the order features.0.weight, features.0.bias, features.3.weight, …, features.10.bias, each
 # weight in PyTorch's row-major [out][in][ky][kx] order. A value takes the top 24 bits k of the
 # next output: (k − 2^23) · 2^(e − 23), with 2^e the power of two nearest 1/sqrt(fan_in)
@@ -209,7 +209,7 @@ def main():
         print(f"{name:24s} f64 {rec['lpips_f64']:.10f}  f32 {rec['lpips_f32']:.10f}")
 
     expected = {
-        "about": "Written by scripts/lpips_fixture.py; read by tests/lpips.rs.",
+        "about": "Written by scripts/lpips_fixture.py; read by tests/gpu/lpips.rs.",
         "model": "lpips.LPIPS(net='alex', version='0.1', lpips=True, spatial=False), normalize=True",
         "trunk": {"generator": "splitmix64", "seed": SEED,
                   "order": [f"features.{i}.{k}" for i, *_ in conv.FEATURE_CONVS for k in ("weight", "bias")],

@@ -22,7 +22,7 @@ pub enum BufferKind {
 
 /// `LPMSPLAT_BUFFER_LOG=FILE`: every device-local buffer allocated is appended to FILE as
 /// `name<TAB>bytes` (which buffers hold the memory, and how they scale with the model:
-/// `tests/buffer_widths.rs` checks that none is wider than a binding allows).
+/// `tests/cli/buffer_widths.rs` checks that none is wider than a binding allows).
 fn log_allocation(name: &str, bytes: u64) {
     use std::io::Write as _;
     use std::sync::{Mutex, OnceLock};

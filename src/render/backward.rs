@@ -90,7 +90,7 @@ pub const MAX_FEATURE_CHANNELS: u32 = 48;
 /// The most per-pixel feature gradients one invocation of the rasterizer backward holds
 /// (pixels an invocation × feature channels). Lavapipe computed wrong gradients at 16 pixels and
 /// 48 channels (768) on some random scenes, where 8 × 48 and 16 × 24 matched the reference on
-/// every scene tried (tests/gpu_backward.rs); the cause inside the driver is not known, so
+/// every scene tried (tests/gpu/backward.rs); the cause inside the driver is not known, so
 /// larger products are refused on every device.
 pub const MAX_PIXEL_FEATURES: u32 = 384;
 

@@ -7,7 +7,7 @@
 //! band: the preprocess and the depth sort once, then per band of whole tile rows the binning,
 //! the tile sort and the rasterizer, which writes only the band's pixels. Each band's tile
 //! lists are the whole frame's lists of the same tiles, in the same order, so the image is the
-//! same bit for bit (`tests/gpu_bands.rs`).
+//! same bit for bit (`tests/gpu/bands.rs`).
 //!
 //! The bands come from one planning pass that counts every tile row's pairs
 //! (`glsl/render/tile_row_pairs.comp`) and packs consecutive rows greedily ([`plan_bands`]); a

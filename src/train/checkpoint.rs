@@ -31,7 +31,7 @@
 //! Resuming restores the Gaussians, both Adam moment sets, the density statistics, the
 //! iteration and Adam step counters and the view schedule's position, so N iterations in one
 //! run and N/2 + save + load + N/2 produce the same model (bit for bit where the device's
-//! float atomics are; see `tests/train.rs`). Buffer capacities are not restored except the
+//! float atomics are; see `tests/train/end_to_end.rs`). Buffer capacities are not restored except the
 //! intersection capacity (the one that changes results: a frame that overflows it is dropped).
 
 use std::io::Write;

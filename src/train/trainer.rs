@@ -25,7 +25,7 @@
 //! runs drift apart chaotically). With `LP_NUM_THREADS=1` lavapipe runs workgroups in order and
 //! identical runs are bitwise equal. A checkpoint (`super::checkpoint`) restores everything the
 //! next iteration reads, so a resumed run is bitwise equal to a straight one wherever straight
-//! runs are reproducible (`tests/train.rs`).
+//! runs are reproducible (`tests/train/end_to_end.rs`).
 
 use std::sync::Arc;
 

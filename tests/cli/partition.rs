@@ -1,0 +1,436 @@
+//! `partition` and `merge` without a cluster: the plan (its blocks as scenes `train` reads,
+//! the same plan in a georeferenced frame, the automatic grid), the merge's crop against a
+//! recount, and the readers' refusals (plan.json fuzzed, test_views.txt, missing and broken
+//! blocks named).
+
+use std::path::{Path, PathBuf};
+
+use crate::cli_support::{lpmsplat, run, run_ok};
+use lpmsplat::error::InputError;
+use lpmsplat::partition::{self, merge, GridChoice, PartitionOptions, Plan, Targets};
+use lpmsplat::scene::{colmap, LoadOptions, Scene};
+use lpmsplat::splats::{ply::write_ply_with_comments, GaussianParams};
+
+fn data(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(name)
+}
+
+fn opts(grid: GridChoice) -> PartitionOptions {
+    PartitionOptions {
+        grid,
+        margin: 0.2,
+        visibility: 0.25,
+        budget: None,
+        growth: 20.0,
+        image_cache_mib: 2048.0,
+    }
+}
+
+fn plan_of(root: &Path, grid: GridChoice) -> Plan {
+    let scene = Scene::load_in_file_frame(root, &LoadOptions::default()).unwrap();
+    let frame = scene.clone().into_training_frame().frame;
+    partition::make_plan(&scene, frame, &opts(grid), vec![]).unwrap()
+}
+
+fn two_by_one() -> GridChoice {
+    GridChoice::Fixed {
+        columns: 2,
+        rows: 1,
+    }
+}
+
+/// A scene folder holding `model` (text) with the bundled door's images linked in.
+fn scene_with(model: &colmap::ColmapModel, dir: &Path) -> PathBuf {
+    let root = dir.join("scene");
+    colmap::write_text(&root.join("sparse/0"), model).unwrap();
+    std::os::unix::fs::symlink(data("lund_door_small").join("images"), root.join("images"))
+        .unwrap();
+    root
+}
+
+fn door_model() -> colmap::ColmapModel {
+    colmap::read_model(&data("lund_door_small").join("sparse/0"), true).unwrap()
+}
+
+#[test]
+fn blocks_are_scenes_that_hold_their_views_points_and_the_scenes_test_split() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("plan");
+    run_ok(
+        lpmsplat()
+            .args(["partition"])
+            .arg(data("lund_door_small"))
+            .args(["--blocks", "2x1", "-o"])
+            .arg(&out),
+    );
+    let plan = Plan::read(&out.join("plan.json")).unwrap();
+    let whole = Scene::load(&data("lund_door_small"), &LoadOptions::default()).unwrap();
+    let whole_test: Vec<&str> = whole
+        .test
+        .iter()
+        .map(|&i| whole.views[i].name.as_str())
+        .collect();
+    let mut core_total = 0;
+    for b in &plan.blocks {
+        let scene = Scene::load(&out.join(&b.folder), &LoadOptions::default()).unwrap();
+        let names = |ix: &[usize]| {
+            let mut v: Vec<String> = ix.iter().map(|&i| scene.views[i].name.clone()).collect();
+            v.sort();
+            v
+        };
+        assert_eq!(names(&scene.train), b.train_views, "block {}", b.name);
+        assert_eq!(names(&scene.test), b.test_views, "block {}", b.name);
+        // Test views are the whole scene's, never one of its training views.
+        assert!(b
+            .test_views
+            .iter()
+            .all(|n| whole_test.contains(&n.as_str())));
+        assert!(b
+            .train_views
+            .iter()
+            .all(|n| !whole_test.contains(&n.as_str())));
+        assert_eq!(scene.points.as_ref().unwrap().len(), b.region_points);
+        assert!(b.core_points < b.region_points, "a margin adds points");
+        core_total += b.core_points;
+        // Images by reference.
+        assert!(
+            std::fs::symlink_metadata(out.join(&b.folder).join("images"))
+                .unwrap()
+                .file_type()
+                .is_symlink()
+        );
+    }
+    assert_eq!(
+        core_total, plan.whole.points,
+        "the cores share out every point"
+    );
+
+    // A second partition into the same folder is refused: it holds a plan (and maybe runs).
+    let (ok, text) = run(lpmsplat()
+        .args(["partition"])
+        .arg(data("lund_door_small"))
+        .args(["--blocks", "2x1", "-o"])
+        .arg(&out));
+    assert!(!ok && text.contains("holds a plan already"), "{text}");
+}
+
+#[test]
+fn the_plan_is_the_same_in_a_georeferenced_kilometre_frame() {
+    let tmp = tempfile::tempdir().unwrap();
+    let near = plan_of(&data("lund_door_small"), two_by_one());
+    // The same capture in kilometres, rotated, 4,000 km from the origin.
+    let far_model = door_model().reframed(1e-3, [0.9, 0.1, -0.3, 0.2], [4.1e6, -2.3e6, 850.0]);
+    let far = plan_of(&scene_with(&far_model, tmp.path()), two_by_one());
+    let key = |p: &Plan| {
+        let mut k: Vec<(Vec<String>, usize, usize)> = p
+            .blocks
+            .iter()
+            .map(|b| (b.train_views.clone(), b.core_points, b.region_points))
+            .collect();
+        k.sort();
+        k
+    };
+    assert_eq!(key(&near), key(&far));
+    // The merged model's shift follows the frame: none near the origin, a round one far off.
+    assert_eq!(near.frame().output_shift(), [0.0; 3]);
+    assert!(far.frame().output_shift()[0].abs() > 1e6);
+}
+
+#[test]
+fn the_automatic_grid_is_the_coarsest_that_fits_and_an_unfittable_target_says_why() {
+    let fit = plan_of(
+        &data("lund_door_small"),
+        GridChoice::Fit(Targets {
+            max_gaussians: Some(150_000),
+            ..Targets::default()
+        }),
+    );
+    assert!(fit.blocks.len() > 1);
+    assert!(fit.blocks.iter().all(|b| b.expected_gaussians <= 150_000));
+    // One block fewer would not fit: the whole scene expects more than the target.
+    assert!(fit.whole.expected_gaussians > 150_000);
+
+    // Every view sees the whole door: no grid brings a block under 5 views.
+    let tmp = tempfile::tempdir().unwrap();
+    let (ok, text) = run(lpmsplat()
+        .args(["partition"])
+        .arg(data("lund_door_small"))
+        .args(["--max-views", "5", "-o"])
+        .arg(tmp.path().join("p")));
+    assert!(!ok && text.contains("no grid up to"), "{text}");
+    assert!(!tmp.path().join("p/plan.json").exists());
+    for (flags, says) in [
+        (vec!["--blocks", "0x2"], "is not a grid"),
+        (vec!["--blocks", "2x2", "--max-views", "9"], "not both"),
+        (vec![], "needs --blocks"),
+        (vec!["--blocks", "2x1", "--margin=-1"], "--margin"),
+    ] {
+        let (ok, text) = run(lpmsplat()
+            .args(["partition"])
+            .arg(data("lund_door_small"))
+            .args(&flags)
+            .arg("-o")
+            .arg(tmp.path().join("q")));
+        assert!(!ok && text.contains(says), "{flags:?}: {text}");
+    }
+}
+
+/// A block's run as `train` leaves it: a model in the user's frame and metrics.json.
+fn fake_run(runs: &Path, name: &str, params: &GaussianParams, model: &str) {
+    let dir = runs.join(name);
+    std::fs::create_dir_all(&dir).unwrap();
+    write_ply_with_comments(
+        &dir.join("point_cloud.ply"),
+        params,
+        &[format!("lpmsplat model {model}")],
+    )
+    .unwrap();
+    std::fs::write(dir.join("metrics.json"), r#"{"psnr": 20.0, "ssim": 0.5}"#).unwrap();
+}
+
+/// Gaussians spread over the SfM points' box (and beyond it), `n` of them.
+fn spread(n: usize, seed: u64, lo: [f64; 3], hi: [f64; 3]) -> GaussianParams {
+    let mut s = seed;
+    let mut next = || {
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (s >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let mut p = GaussianParams::empty(1);
+    for _ in 0..n {
+        let x = [0, 1, 2].map(|k| (lo[k] + (hi[k] - lo[k]) * (1.4 * next() - 0.2)) as f32);
+        p.positions.push(x);
+        p.log_scales.push([-3.0; 3]);
+        p.rotations.push([1.0, 0.0, 0.0, 0.0]);
+        p.opacity_logits.push(0.5);
+        p.sh_dc.push([0.2, 0.1, 0.0]);
+        p.sh_rest.extend([0.01f32; 9]);
+    }
+    p
+}
+
+#[test]
+fn merge_keeps_each_blocks_core_and_refuses_a_missing_or_broken_block_by_name() {
+    let tmp = tempfile::tempdir().unwrap();
+    let plan = plan_of(&data("lund_door_small"), two_by_one());
+    let scene =
+        Scene::load_in_file_frame(&data("lund_door_small"), &LoadOptions::default()).unwrap();
+    let pts = &scene.points.as_ref().unwrap().positions;
+    let lo = [0, 1, 2].map(|k| pts.iter().map(|p| p[k]).fold(f64::MAX, f64::min));
+    let hi = [0, 1, 2].map(|k| pts.iter().map(|p| p[k]).fold(f64::MIN, f64::max));
+    let runs = tmp.path().join("runs");
+    let models: Vec<GaussianParams> = (0..2).map(|k| spread(3000, k, lo, hi)).collect();
+    for (b, m) in plan.blocks.iter().zip(&models) {
+        fake_run(&runs, &b.name, m, "3dgs");
+    }
+    let merged = merge::merge(&plan, &runs).unwrap();
+    // Recounted here: block k keeps its own Gaussians whose centre its core holds.
+    let mut want = 0;
+    for (b, m) in plan.blocks.iter().zip(&models) {
+        let kept = m
+            .positions
+            .iter()
+            .filter(|p| {
+                b.core
+                    .contains(plan.ground.coordinates(p.map(|x| x as f64)).0)
+            })
+            .count();
+        assert!(kept > 300 && kept < 2700, "{kept}");
+        let r = merged
+            .report
+            .blocks
+            .iter()
+            .find(|r| r.name == b.name)
+            .unwrap();
+        assert_eq!((r.gaussians, r.kept), (3000, kept));
+        want += kept;
+    }
+    assert_eq!(merged.params.len(), want);
+    merged.params.validate().unwrap();
+    assert!(merged.params.positions.iter().all(|p| {
+        plan.owner(plan.ground.coordinates(p.map(|x| x as f64)).0)
+            .is_some()
+    }));
+
+    let refused = |what: &str| {
+        let e = merge::merge(&plan, &runs)
+            .err()
+            .unwrap_or_else(|| panic!("{what}: merged"));
+        format!("{e:#}")
+    };
+    let b1 = &plan.blocks[1].name;
+    let metrics = runs.join(b1).join("metrics.json");
+    std::fs::remove_file(&metrics).unwrap();
+    let e = refused("missing metrics");
+    assert!(
+        e.contains(&format!("block {b1}")) && e.contains("has not finished"),
+        "{e}"
+    );
+    std::fs::write(&metrics, "{\"psnr\": 2").unwrap();
+    let e = refused("truncated metrics");
+    assert!(
+        e.contains(&format!("block {b1}")) && e.contains("not JSON"),
+        "{e}"
+    );
+    std::fs::write(&metrics, "{}").unwrap();
+    let ply = runs.join(b1).join("point_cloud.ply");
+    let bytes = std::fs::read(&ply).unwrap();
+    std::fs::write(&ply, &bytes[..bytes.len() / 2]).unwrap();
+    let e = refused("truncated PLY");
+    assert!(e.contains(b1), "{e}");
+    fake_run(&runs, b1, &models[1], "2dgs");
+    let e = refused("another model");
+    assert!(e.contains("2dgs") && e.contains(b1), "{e}");
+    // Through the CLI: the error names the block, and nothing is written.
+    let (ok, text) = run(lpmsplat()
+        .arg("merge")
+        .arg(tmp.path().join("plan.json"))
+        .arg("-o")
+        .arg(tmp.path().join("merged")));
+    assert!(!ok && text.contains("plan.json"), "{text}");
+    assert!(!tmp.path().join("merged").exists());
+}
+
+#[test]
+fn plan_reader_fuzzed_refuses_with_the_file_named_and_never_panics() {
+    let tmp = tempfile::tempdir().unwrap();
+    let plan = plan_of(&data("lund_door_small"), two_by_one());
+    let good = serde_json::to_string_pretty(&plan).unwrap();
+    let path = tmp.path().join("plan.json");
+    std::fs::write(&path, &good).unwrap();
+    assert_eq!(Plan::read(&path).unwrap(), plan);
+
+    let check = |text: &str, must_fail: bool, what: &str| {
+        std::fs::write(&path, text).unwrap();
+        match Plan::read(&path) {
+            Ok(_) => assert!(!must_fail, "{what}: accepted"),
+            Err(e) => {
+                let i = e
+                    .downcast_ref::<InputError>()
+                    .unwrap_or_else(|| panic!("{what}: not an input error: {e:#}"));
+                assert_eq!(i.file, path, "{what}");
+            }
+        }
+    };
+    let mut j: serde_json::Value = serde_json::from_str(&good).unwrap();
+    type Edit = Box<dyn Fn(&mut serde_json::Value)>;
+    let edits: Vec<(&str, Edit)> = vec![
+        ("version", Box::new(|j| j["version"] = 2.into())),
+        ("format", Box::new(|j| j["format"] = "x".into())),
+        (
+            "no blocks",
+            Box::new(|j| j["blocks"] = serde_json::json!([])),
+        ),
+        ("grid", Box::new(|j| j["columns"] = 3.into())),
+        (
+            "up folder",
+            Box::new(|j| j["blocks"][0]["folder"] = "../elsewhere".into()),
+        ),
+        (
+            "absolute folder",
+            Box::new(|j| j["blocks"][0]["folder"] = "/tmp/x".into()),
+        ),
+        (
+            "same name",
+            Box::new(|j| j["blocks"][1]["name"] = j["blocks"][0]["name"].clone()),
+        ),
+        (
+            "overlap",
+            Box::new(|j| j["blocks"][1]["core"] = j["blocks"][0]["core"].clone()),
+        ),
+        (
+            "gap",
+            Box::new(|j| j["blocks"][1]["core"]["u"]["lo"] = 1e9.into()),
+        ),
+        ("scale", Box::new(|j| j["frame_scale"] = 0.into())),
+        (
+            "no views",
+            Box::new(|j| j["blocks"][0]["train_views"] = serde_json::json!([])),
+        ),
+        ("string", Box::new(|j| j["margin"] = "wide".into())),
+    ];
+    for (what, edit) in &edits {
+        let mut k = j.clone();
+        edit(&mut k);
+        check(&k.to_string(), true, what);
+    }
+    j["blocks"][0]["memory_mib"] = 1.0.into();
+    check(&j.to_string(), false, "a changed estimate");
+    // Truncations and byte flips: refused with the file named, or read; never a panic.
+    let bytes = good.as_bytes();
+    for cut in (0..bytes.len()).step_by(bytes.len() / 60 + 1) {
+        check(&String::from_utf8_lossy(&bytes[..cut]), true, "truncated");
+    }
+    let mut s = 1u64;
+    for _ in 0..300 {
+        s = s.wrapping_mul(6364136223846793005).wrapping_add(1);
+        let mut b = bytes.to_vec();
+        let at = (s >> 33) as usize % b.len();
+        b[at] = (s >> 17) as u8;
+        check(&String::from_utf8_lossy(&b), false, "flipped");
+    }
+    std::fs::remove_file(&path).unwrap();
+    check_missing(&path);
+}
+
+fn check_missing(path: &Path) {
+    let e = Plan::read(path).unwrap_err();
+    assert!(format!("{e:#}").contains("plan.json"), "{e:#}");
+}
+
+#[test]
+fn test_views_txt_sets_the_split_and_a_bad_line_is_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    let root = scene_with(&door_model(), tmp.path());
+    let names: Vec<String> = door_model().images.iter().map(|i| i.name.clone()).collect();
+    let list = root.join("test_views.txt");
+    std::fs::write(
+        &list,
+        format!("# the held-out views\n\n{}\n  {}  \n", names[3], names[5]),
+    )
+    .unwrap();
+    let scene = Scene::load(&root, &LoadOptions::default()).unwrap();
+    let mut test: Vec<&str> = scene
+        .test
+        .iter()
+        .map(|&i| scene.views[i].name.as_str())
+        .collect();
+    test.sort();
+    let mut want = vec![names[3].as_str(), names[5].as_str()];
+    want.sort();
+    assert_eq!(test, want);
+    assert_eq!(scene.train.len(), names.len() - 2);
+    let no_eval = Scene::load(
+        &root,
+        &LoadOptions {
+            eval_split: false,
+            ..LoadOptions::default()
+        },
+    )
+    .unwrap();
+    assert!(no_eval.test.is_empty());
+    for (text, line, says) in [
+        (
+            format!("{}\nnot_a_view.jpg\n", names[0]),
+            "line 2",
+            "is not a view",
+        ),
+        (
+            format!("{}\n{}\n", names[1], names[1]),
+            "line 2",
+            "listed twice",
+        ),
+    ] {
+        std::fs::write(&list, text).unwrap();
+        let e = Scene::load(&root, &LoadOptions::default()).unwrap_err();
+        let i = e.downcast_ref::<InputError>().unwrap();
+        assert_eq!(i.file, list);
+        assert!(i.field == line && i.problem.contains(says), "{i:?}");
+    }
+    std::fs::write(&list, [0xff, 0xfe, b'\n']).unwrap();
+    let e = Scene::load(&root, &LoadOptions::default()).unwrap_err();
+    assert!(e.downcast_ref::<InputError>().is_some(), "{e:#}");
+}
