@@ -49,7 +49,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
         return super::trade_sweep::write(args, &args.slurm);
     }
     anyhow::ensure!(
-        !args.match_adc_count || selected.first().is_some_and(|&k| RUNS[k].0 == "adc"),
+        !args.match_adc_count || selected.first().is_some_and(|&k| RUNS[k].name == "adc"),
         "bench trade --match-adc-count: the other runs follow adc's Gaussian count, but --runs \
          has no adc. Fix: add adc to --runs"
     );
@@ -152,7 +152,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
     let mut runs = Vec::new();
     for &k in &selected {
         for (si, &seed) in seeds.iter().enumerate() {
-            let name = RUNS[k].0;
+            let name = RUNS[k].name;
             let mut cfg = base.clone();
             cfg.seed = seed;
             if name == "adc-threshold-1e-4" {
@@ -233,7 +233,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
             for &i in &group {
                 let r = &mut runs[i];
                 let t = r.trainer.as_mut().expect("trainer built above");
-                let is_adc = RUNS[r.k].0 == "adc";
+                let is_adc = RUNS[r.k].name == "adc";
                 if args.match_adc_count && !is_adc {
                     let adc = adc_counts[r.init][it as usize - 1];
                     t.set_max_gaussians(Some(args.max_gaussians.map_or(adc, |cap| cap.min(adc))));
@@ -264,9 +264,9 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                         let r = &runs[i];
                         let t = r.trainer.as_ref().expect("trainer built above");
                         if seeds.len() > 1 {
-                            format!("{}/{} {}", RUNS[r.k].0, r.seed, t.state.count())
+                            format!("{}/{} {}", RUNS[r.k].name, r.seed, t.state.count())
                         } else {
-                            format!("{} {}", RUNS[r.k].0, t.state.count())
+                            format!("{} {}", RUNS[r.k].name, t.state.count())
                         }
                     })
                     .collect::<Vec<_>>()
@@ -296,7 +296,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                 rows.sort_by_key(|r| {
                     (
                         r.iteration,
-                        RUNS.iter().position(|(n, _)| *n == r.run),
+                        RUNS.iter().position(|n| n.name == r.run),
                         r.seed,
                     )
                 });
@@ -580,7 +580,7 @@ fn evaluate_run(
     args: &TradeArgs,
 ) -> anyhow::Result<TradeRow> {
     let (scene, test_images, lpips) = (test.scene, test.images, test.lpips);
-    let (name, colour) = RUNS[r.k];
+    let (name, colour) = (RUNS[r.k].name, RUNS[r.k].colour);
     // The report view's render and truth are saved at the final iteration of the first seed.
     let report = (iteration == args.iterations && r.seed == args.seed)
         .then(|| trade_report::report_view(scene, args.report_view.as_deref()))

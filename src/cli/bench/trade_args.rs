@@ -64,25 +64,8 @@ pub struct TradeArgs {
     /// Frames timed for the FPS of each result (1352×1014).
     #[arg(long, default_value_t = 20)]
     pub fps_frames: usize,
-    /// The runs to compare, comma separated, in table order: adc, adc-threshold-1e-4, adc+lpm,
-    /// lpm-no-add, lpm-no-reset, lpm-authors (the authors' rules), lpm-authors-adc (the same
-    /// with ADC on steps without a zone), lpm-sphere (the paper's cone-intersection zone),
-    /// adc-abs-grad (with the absolute-gradient test), lpm-additive (our rules with the additive
-    /// pruning: exactly as many extra prunes as lowered-threshold densifications),
-    /// lpm-overlap-neighbours (our rules with the neighbour views sharing the most tracks),
-    /// lpm-error-blocks (our rules with only the matches on a region's own error blocks speaking
-    /// for it), lpm-bounding-cone (our rules with the in-front cone to the zone's bounding
-    /// sphere, the default before 2026-11-26), lpm-local-zones (our rules without the zones
-    /// wider than the scene extent), lpm-slab (our rules with the zone cut to the view's cone
-    /// through the region and the depths of its matches), lpm-loose-blocks (our rules with error
-    /// blocks kept above 70 % error pixels, whatever --lpm-block-fraction says),
-    /// lpm-local-resets (our rules with the zones wider than the scene kept but ignored by the
-    /// opacity reset), adc-exact (ADC at an exact budget: --budget, or adc's count under
-    /// --match-adc-count), adc-exact+lpm (the same guided by LPM's zone weights),
-    /// adc-exact+lpm-lowered (the same ranked over LPM's lowered threshold, the paper's rule),
-    /// mcmc and mcmc+lpm (MCMC at --budget, alone and guided) (aliases: adc-1e-4, lpm).
-    /// Default: the first five.
-    #[arg(long, value_delimiter = ',')]
+    /// The runs to compare, comma separated (the list and what each run is: --help).
+    #[arg(long, value_delimiter = ',', long_help = super::trade_runs::runs_help())]
     pub runs: Vec<String>,
     /// Run the variants one after another instead of interleaving their iterations. Interleaving
     /// (the default) keeps every run's time measured under the same machine load, so the time

@@ -12,64 +12,57 @@ use lpmsplat::models::BaseModel;
 use lpmsplat::scene::Scene;
 use lpmsplat::train::trainer::TrainConfig;
 
-pub const RUNS: [(&str, [u8; 3]); 25] = [
-    ("adc", [40, 40, 40]),
-    ("adc-threshold-1e-4", [200, 120, 0]),
-    ("adc+lpm", [220, 30, 30]),
-    ("lpm-no-add", [30, 120, 220]),
-    ("lpm-no-reset", [30, 170, 60]),
-    // `train --lpm-rules authors`: the authors' code's rules exactly.
-    ("lpm-authors", [150, 60, 200]),
-    // The authors' rules with ADC kept on steps without a zone (`--lpm-skip-adc false`).
-    ("lpm-authors-adc", [200, 110, 230]),
-    // Our rules with the paper's cone-intersection sphere instead of the triangulated zone.
-    ("lpm-sphere", [120, 90, 40]),
-    // ADC with the absolute-gradient test as well (`train --densify-abs-grad`).
-    ("adc-abs-grad", [90, 90, 90]),
-    // Our rules with the additive pruning (`train --lpm --lpm-prune additive`), beside the
-    // default authors' pruning in one interleaved run.
-    ("lpm-additive", [240, 150, 150]),
-    // Our rules with the neighbour views sharing the most tracks
-    // (`train --lpm --lpm-neighbours overlap`).
-    ("lpm-overlap-neighbours", [60, 200, 200]),
-    // Our rules with only the matches on a region's own error blocks speaking for it
-    // (`train --lpm --lpm-region-keypoints error-blocks`).
-    ("lpm-error-blocks", [230, 190, 40]),
-    // Our rules with the in-front cone to the zone's bounding sphere
-    // (`train --lpm --lpm-cone bounding`; the default until the region cone measured better).
-    ("lpm-bounding-cone", [40, 60, 160]),
-    // Our rules without the zones wider than the scene
-    // (`train --lpm --lpm-max-zone-radius 1`).
-    ("lpm-local-zones", [160, 200, 60]),
-    // Our rules with the zone cut to the region's cone and the matches' depths
-    // (`train --lpm --lpm-zone slab`).
-    ("lpm-slab", [200, 80, 200]),
-    // Our rules with error blocks kept above 70 % error pixels instead of the paper's 85 %
-    // (`train --lpm --lpm-block-fraction 0.7`), beside the default in one interleaved run.
-    ("lpm-loose-blocks", [250, 120, 40]),
-    // Our rules with zones wider than the scene kept but ignored by the opacity reset
-    // (`train --lpm --lpm-reset-max-zone-radius 1`).
-    ("lpm-local-resets", [120, 40, 120]),
-    // ADC at an exact budget (`train --strategy adc-exact --budget N`): the best-scoring
-    // candidates the curve has room for at every step; under --match-adc-count, adc's count.
-    ("adc-exact", [20, 130, 130]),
-    // The same with LPM as its guide: zones weight the candidates' scores (count-neutral).
-    ("adc-exact+lpm", [240, 60, 120]),
-    // The same with the paper's ranking over the lowered threshold (`--lpm-rank lowered`).
-    ("adc-exact+lpm-lowered", [140, 20, 60]),
-    // 3DGS as MCMC (`train --strategy mcmc --budget N`).
-    ("mcmc", [0, 90, 200]),
-    // MCMC guided by LPM: relocation targets and growth sources drawn ∝ opacity × the zone
-    // weight, LPM's in-front resets and added points as usual.
-    ("mcmc+lpm", [250, 170, 0]),
-    // The exact budget and MCMC guided by zones local by construction (`--lpm-zone local`: one
-    // zone per error block, the quantile band of depths seen with parallax, ≤ 1 % of the model).
-    ("adc-exact+lpm-local", [180, 0, 90]),
-    ("mcmc+lpm-local", [200, 120, 0]),
-    // The control: the same local zones on as many blocks drawn at random
-    // (`--lpm-zone local --lpm-regions random-blocks`): what the error map adds.
-    ("adc-exact+lpm-random", [130, 130, 130]),
+/// A run `bench trade` can compare: its name, its colour in the plots and what it is (the
+/// `--runs` help is written from these, so the list there is always this table).
+pub struct Run {
+    pub name: &'static str,
+    pub colour: [u8; 3],
+    pub what: &'static str,
+}
+
+const fn run(name: &'static str, colour: [u8; 3], what: &'static str) -> Run {
+    Run { name, colour, what }
+}
+
+pub const RUNS: [Run; 25] = [
+    run("adc", [40, 40, 40], "ADC, the base model's own density control"),
+    run("adc-threshold-1e-4", [200, 120, 0], "ADC with its gradient threshold halved to 1e-4 (alias adc-1e-4)"),
+    run("adc+lpm", [220, 30, 30], "ADC + LPM with our rules (`train --lpm`; alias lpm)"),
+    run("lpm-no-add", [30, 120, 220], "our rules without the points added in sparse zones"),
+    run("lpm-no-reset", [30, 170, 60], "our rules without LPM's opacity reset"),
+    run("lpm-authors", [150, 60, 200], "the authors' code's rules exactly (`--lpm-rules authors`)"),
+    run("lpm-authors-adc", [200, 110, 230], "the authors' rules with ADC kept on steps without a zone (`--lpm-skip-adc false`)"),
+    run("lpm-sphere", [120, 90, 40], "our rules with the paper's cone-intersection sphere as the zone"),
+    run("adc-abs-grad", [90, 90, 90], "ADC with the absolute-gradient test as well (`--densify-abs-grad`)"),
+    run("lpm-additive", [240, 150, 150], "our rules with the additive pruning: as many extra prunes as lowered-threshold densifications (`--lpm-prune additive`)"),
+    run("lpm-overlap-neighbours", [60, 200, 200], "our rules with the neighbour views sharing the most tracks (`--lpm-neighbours overlap`)"),
+    run("lpm-error-blocks", [230, 190, 40], "our rules with only the matches on a region's own error blocks speaking for it (`--lpm-region-keypoints error-blocks`)"),
+    run("lpm-bounding-cone", [40, 60, 160], "our rules with the in-front cone to the zone's bounding sphere (`--lpm-cone bounding`, the default before 2026-11-26)"),
+    run("lpm-local-zones", [160, 200, 60], "our rules without the zones wider than the scene extent (`--lpm-max-zone-radius 1`)"),
+    run("lpm-slab", [200, 80, 200], "our rules with the zone cut to the region's cone and its matches' depths (`--lpm-zone slab`)"),
+    run("lpm-loose-blocks", [250, 120, 40], "our rules with error blocks kept above 70 % error pixels, whatever --lpm-block-fraction says"),
+    run("lpm-local-resets", [120, 40, 120], "our rules with the zones wider than the scene kept but ignored by the opacity reset (`--lpm-reset-max-zone-radius 1`)"),
+    run("adc-exact", [20, 130, 130], "ADC at an exact budget: the best-scoring candidates its growth curve has room for (`--strategy adc-exact`; --budget, or adc's count under --match-adc-count)"),
+    run("adc-exact+lpm", [240, 60, 120], "the same guided by LPM's zone weights (count-neutral)"),
+    run("adc-exact+lpm-lowered", [140, 20, 60], "the same ranked over LPM's lowered threshold, the paper's rule (`--lpm-rank lowered`)"),
+    run("mcmc", [0, 90, 200], "3DGS as MCMC at --budget (`--strategy mcmc`)"),
+    run("mcmc+lpm", [250, 170, 0], "MCMC guided by LPM: relocation targets and growth sources drawn ∝ opacity × the zone weight"),
+    run("adc-exact+lpm-local", [180, 0, 90], "the exact budget guided by zones local by construction (`--lpm-zone local`: one a block, a depth band of observed points, ≤ 1 % of the model)"),
+    run("mcmc+lpm-local", [200, 120, 0], "MCMC guided by local zones"),
+    run("adc-exact+lpm-random", [130, 130, 130], "the control: local zones on as many blocks drawn at random (`--lpm-regions random-blocks`): what the error map adds"),
 ];
+
+/// The `--runs` help: every run of [`RUNS`] with what it is, in table order.
+pub fn runs_help() -> String {
+    let mut h = String::from(
+        "The runs to compare, comma separated; they are reported in this table's order. \
+         Default: the first five.\n",
+    );
+    for r in &RUNS {
+        h.push_str(&format!("\n- {}: {}", r.name, r.what));
+    }
+    h
+}
 
 /// Whether run `name` fills an exact budget (the exact-budget ADC runs and MCMC).
 pub fn fills_budget(name: &str) -> bool {
@@ -149,7 +142,7 @@ pub fn abs_grad_applies(model: BaseModel) -> anyhow::Result<()> {
 }
 
 /// The block rule of `lpm-loose-blocks`: ahead of the paper's 0.85 at one Gaussian count on
-/// Truck `-r 4` over eleven seeds (docs/lpm-results.md), not yet measured at full size.
+/// Truck `-r 4` over eleven seeds (docs/results/lpm.md), not yet measured at full size.
 const LOOSE_BLOCK_FRACTION: f32 = 0.7;
 
 /// LPM's configuration for run `name` (None for the runs without LPM), on `cfg`'s calendar
@@ -233,11 +226,11 @@ pub fn selected_runs(names: &[String]) -> anyhow::Result<Vec<usize>> {
         };
         let k = RUNS
             .iter()
-            .position(|(r, _)| *r == canonical)
+            .position(|r| r.name == canonical)
             .with_context(|| {
                 format!(
                     "bench trade --runs: unknown run {n:?}. Fix: choose from {}",
-                    RUNS.iter().map(|r| r.0).collect::<Vec<_>>().join(", ")
+                    RUNS.iter().map(|r| r.name).collect::<Vec<_>>().join(", ")
                 )
             })?;
         anyhow::ensure!(
