@@ -1,7 +1,7 @@
 //! Base models: what a model changes in a training run, applied to the trainer's config.
 //!
 //! Today's models share the 3DGS parameter groups and PLY layout; they differ in the
-//! densification statistic (Pixel-GS, BASE_MODELS.md §3), in the renderer's filters
+//! densification statistic (Pixel-GS, docs/algorithms/base-models.md §3), in the renderer's filters
 //! (Mip-Splatting, §2: a non-optimised per-Gaussian 3D filter the trainer recomputes, and the
 //! 2D Mip filter), or in the primitive (2DGS, §1: surfels, with their own passes and
 //! regularisers, [`crate::train::passes::surfels`]), or in time (SpacetimeGaussians lite, §4:

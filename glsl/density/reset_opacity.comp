@@ -3,7 +3,7 @@
 // min(x, logit(0.01)) is the same rule without a sigmoid/logit round trip), and the opacity
 // group's Adam moments cleared, as the reference does by replacing the optimizer state.
 // With Mip-Splatting's 3D filter (`filtered`), the rule acts on the opacity the renderer uses,
-// σ(x)·ρ with ρ = sqrt(Π s² / Π (s² + f²)) (BASE_MODELS.md §2.5): where σ(x)·ρ exceeds the
+// σ(x)·ρ with ρ = sqrt(Π s² / Π (s² + f²)) (docs/algorithms/base-models.md §2.5): where σ(x)·ρ exceeds the
 // ceiling r, σ(x') = r / ρ.
 layout(local_size_x_id = 0) in;
 #include "decisions.glsl"

@@ -1,7 +1,7 @@
 #version 460
 // The logit of the opacity the renderer uses under Mip-Splatting's 3D filter, σ(x)·ρ with
 // ρ = sqrt(Π s² / Π (s² + f²)) (projected.glsl's filtered_scales), so LPM's opacity reset
-// ranks and caps what is drawn, as ADC's filter-aware reset does (BASE_MODELS.md §2.5–2.6).
+// ranks and caps what is drawn, as ADC's filter-aware reset does (docs/algorithms/base-models.md §2.5–2.6).
 // ρ ≤ 1 and σ(x) < 1 keep the product below 1; a product that rounds to 0 gives −inf, which
 // float_key orders below every finite logit.
 layout(constant_id = 0) const uint WG_SIZE = 256;

@@ -1,7 +1,7 @@
 #version 460
 #extension GL_KHR_shader_subgroup_basic : require
 #extension GL_KHR_shader_subgroup_arithmetic : require
-// LPM opacity reset (LPM.md step 8): every Gaussian in front of a zone (FLAG_IN_FRONT) whose
+// LPM opacity reset (docs/algorithms/lpm.md step 8): every Gaussian in front of a zone (FLAG_IN_FRONT) whose
 // opacity logit is at or above the selected threshold (select_pick.comp, mode 1, over the logits of
 // the Gaussians inside zones) gets `reset_logit`. Comparing logits is comparing opacities (the
 // sigmoid is increasing); both sides compare float keys, so the order is total (NaN included).

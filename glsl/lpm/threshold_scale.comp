@@ -1,5 +1,5 @@
 #version 460
-// Per-Gaussian multiplier of the densification gradient threshold (LPM.md step 8): `ratio`
+// Per-Gaussian multiplier of the densification gradient threshold (docs/algorithms/lpm.md step 8): `ratio`
 // (0.5 by default) for Gaussians whose centre lies inside an error zone, 1 elsewhere, so the
 // lowered threshold reaches ADC's decide.comp through its ordinary threshold-scale input; and
 // the score weight a budget ranks candidates by: `weight` inside zones, 1 elsewhere.

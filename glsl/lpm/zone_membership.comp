@@ -11,7 +11,7 @@
 //
 // Inside: sphere |x − c|² ≤ r², box |x_k − c_k| ≤ h_k on each axis, slab: inside the in-front
 // cone below and |a| − f ≤ |v| ≤ |a| + f (boundary included everywhere).
-// In front (LPM.md step 7), with apex o = camera_center, v = x − o, a = c − o, the cone's
+// In front (docs/algorithms/lpm.md step 7), with apex o = camera_center, v = x − o, a = c − o, the cone's
 // radius r = the zone's cone_radius at the centre (its bounding radius, the authors' smallest
 // box half-extent, or the view's cone through its error region) and f = its front_radius (where
 // "in front" ends: the bounding radius, or the authors' r): angle(v, a) ≤ atan(r / |a|) and

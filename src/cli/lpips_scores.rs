@@ -11,7 +11,7 @@ use std::path::PathBuf;
 #[derive(Args, Debug, Clone)]
 pub struct LpipsArgs {
     /// LPIPS weights (AlexNet + the v0.1 linear heads, the LPM paper's metric) as a
-    /// safetensors file; see the README's "LPIPS weights" for how to make it from the
+    /// safetensors file; see docs/lpips.md for how to make it from the
     /// official ones. Without it LPIPS is not reported. Also read from LPMSPLAT_LPIPS_WEIGHTS.
     #[arg(long, env = "LPMSPLAT_LPIPS_WEIGHTS", value_name = "FILE")]
     pub lpips_weights: Option<PathBuf>,
@@ -26,8 +26,7 @@ impl LpipsArgs {
 }
 
 /// What the JSON and tables say when LPIPS was not computed.
-pub const NOT_COMPUTED: &str =
-    "LPIPS not computed: pass --lpips-weights FILE (see the README's \"LPIPS weights\")";
+pub const NOT_COMPUTED: &str = "LPIPS not computed: pass --lpips-weights FILE (see docs/lpips.md)";
 
 /// Scores one view's render against its ground truth (already composited on the background
 /// PSNR and SSIM used) into its metrics; nothing without weights.

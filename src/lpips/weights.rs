@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 /// What to tell a user whose weight file is missing or broken.
 pub const WEIGHTS_FIX: &str = "convert the official LPIPS weights (torchvision's ImageNet \
      AlexNet + lpips' v0.1 alex.pth) with `python3 scripts/convert_lpips_weights.py \
-     OUT.safetensors` (see the README section \"LPIPS weights\")";
+     OUT.safetensors` (see docs/lpips.md)";
 
 /// Refuse headers larger than this: a corrupt length must not trigger a huge allocation.
 const MAX_HEADER: u64 = 100 << 20;

@@ -1,4 +1,4 @@
-//! Everything that decides what LPM does: its settings (LPM.md's numbers by default, the
+//! Everything that decides what LPM does: its settings (docs/algorithms/lpm.md's numbers by default, the
 //! authors' rules as one preset), their checks, and their JSON for config.json and checkpoints.
 
 use std::path::PathBuf;
@@ -10,7 +10,7 @@ use crate::lpm::{
     ConeRadius, MatchSettings, NeighbourChoice, RegionSettings, ZoneGeometry, ZoneSettings,
 };
 
-/// Everything that decides what LPM does (LPM.md's numbers by default).
+/// Everything that decides what LPM does (docs/algorithms/lpm.md's numbers by default).
 #[derive(Debug, Clone, PartialEq)]
 pub struct LpmConfig {
     /// LPM runs at iterations `from < t < until` that are multiples of `interval` and are also
@@ -68,7 +68,7 @@ pub struct LpmConfig {
     /// front of them or in their ball (`None`: every zone resets). Their Gaussians still count
     /// in the threshold's set ([`FLAG_INSIDE`](crate::lpm::membership::FLAG_INSIDE)). On Truck
     /// `-r 4` (seed 12) one step whose zone was 3.8 extents wide reset 24 % of the model's
-    /// opacities and cost 1.46 dB for a while (docs/lpm-results.md); dropping such zones
+    /// opacities and cost 1.46 dB for a while (docs/results/lpm.md); dropping such zones
     /// altogether (`max_zone_radius`) also loses what their lowered threshold adds.
     pub reset_max_zone_radius: Option<f64>,
     /// What one zone is built from: a connected component of error blocks (the paper), one
@@ -82,7 +82,7 @@ pub struct LpmConfig {
 /// The largest share of the model one local zone may hold ([`LpmConfig::with_local_zones`]).
 pub const LOCAL_MAX_ZONE_SHARE: f64 = 0.01;
 
-/// Density-aware pruning (LPM.md step 8).
+/// Density-aware pruning (docs/algorithms/lpm.md step 8).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Hash)]
 pub enum PruneMode {
     /// The authors' code: k = the Gaussians densified only because of the lowered threshold;
@@ -130,7 +130,7 @@ impl Default for LpmConfig {
             add_below: 3,
             add_opacity: 0.1,
             regions: RegionSettings::default(),
-            // The authors' top 70 % (k = int(0.7 n)) rather than LPM.md's 0.7 quantile: the
+            // The authors' top 70 % (k = int(0.7 n)) rather than docs/algorithms/lpm.md's 0.7 quantile: the
             // paper's reading was never measured to help, so the authors' rule is the default.
             reset_settings: OpacityResetSettings {
                 quantile: 0.3,
@@ -145,7 +145,7 @@ impl Default for LpmConfig {
             // The cone through the error region: on Truck at full size (H200, seed 0) it led ADC
             // by +0.06 / +0.06 / +0.11 dB at 7k / 14k / 21k, where the bounding cone had been
             // -0.73 / -0.03 at 7k / 15k with twice the resets; at -r 4 it was above the bounding
-            // cone on both seeds measured (docs/gpu.md, "LPM at full size").
+            // cone on both seeds measured (docs/results/gpu.md, "LPM at full size").
             cone: ConeRadius::Region,
             skip_adc_without_zone: false,
             region_keypoints: RegionKeypoints::Box,
@@ -158,7 +158,7 @@ impl Default for LpmConfig {
 }
 
 impl LpmConfig {
-    /// The authors' code's rules exactly (LPM.md step 6–9, "Authors' code"): box zones from
+    /// The authors' code's rules exactly (docs/algorithms/lpm.md step 6–9, "Authors' code"): box zones from
     /// perimeter rays, the in-front cone and the reset's threshold set on a ball of the box's
     /// smallest half-extent, the top 70 % of those opacities (k = ⌊0.7 n⌋), pruning OR-ed into
     /// ADC's mask, no point addition, and no ADC on steps without a zone.

@@ -1,4 +1,4 @@
-//! LPM's GPU passes (LPM.md steps 1–2 and 7–8), recorded into a caller's [`Recorder`] with no
+//! LPM's GPU passes (docs/algorithms/lpm.md steps 1–2 and 7–8), recorded into a caller's [`Recorder`] with no
 //! host wait inside:
 //!
 //! * [`LpmGpu::record_error_blocks`]: render + ground truth → error map → its quantile → per-block

@@ -1,4 +1,4 @@
-//! Zone membership and the LPM opacity reset on the CPU (LPM.md steps 7–8): the oracle of the GPU
+//! Zone membership and the LPM opacity reset on the CPU (docs/algorithms/lpm.md steps 7–8): the oracle of the GPU
 //! passes in [`super::gpu`], written to give the same bits.
 //!
 //! * Membership reproduces `glsl/lpm/zone_membership.comp` operation for operation in f32 (IEEE
@@ -209,18 +209,18 @@ pub fn key_to_f32(k: u32) -> f32 {
 /// Denominator of the reset share on the GPU: the share is applied in whole basis points.
 pub const SHARE_DENOMINATOR: u32 = 10_000;
 
-/// The LPM opacity reset (LPM.md step 8).
+/// The LPM opacity reset (docs/algorithms/lpm.md step 8).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct OpacityResetSettings {
     /// Among the n Gaussians inside zones, the k = ⌊n·(1 − quantile)⌋ highest opacities are at or
     /// above the threshold: the threshold is the k-th largest opacity (the `quantile` in the
     /// nearest-rank sense). No reset when k = 0. The share 1 − quantile is rounded to whole basis
-    /// points. 0.7 follows LPM.md; the authors' code (`topk` of int(0.7·n)) is quantile 0.3.
+    /// points. 0.7 follows docs/algorithms/lpm.md; the authors' code (`topk` of int(0.7·n)) is quantile 0.3.
     pub quantile: f64,
     /// The opacity given to reset Gaussians.
     pub opacity: f64,
     /// The membership flag of the Gaussians whose opacities give the threshold:
-    /// [`FLAG_INSIDE`] (inside a zone, LPM.md) or [`FLAG_IN_BALL`] (within the zone's cone radius
+    /// [`FLAG_INSIDE`] (inside a zone, docs/algorithms/lpm.md) or [`FLAG_IN_BALL`] (within the zone's cone radius
     /// of its centre: the authors' code, a ball of the box's smallest half-extent).
     pub threshold_set: u32,
 }

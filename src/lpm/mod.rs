@@ -1,5 +1,5 @@
 //! Localized Point Management, CPU half: correspondences (cached), neighbour views, error regions,
-//! region pairing, cone intersection and error zones. See `docs/LPM.md` (steps 1–6).
+//! region pairing, cone intersection and error zones. See `docs/algorithms/lpm.md` (steps 1–6).
 //!
 //! Typical use:
 //! * before training: [`load_or_build`] (or [`extract_correspondences`]) → [`Correspondences`]

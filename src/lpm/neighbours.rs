@@ -1,4 +1,4 @@
-//! Neighbour views (LPM.md step 3): for each training view, up to `max_neighbours` training views
+//! Neighbour views (docs/algorithms/lpm.md step 3): for each training view, up to `max_neighbours` training views
 //! whose optical axis makes an angle in (0, max_angle] with its own; the nearest camera centre
 //! when none qualifies. Which of the qualifying views are kept is [`NeighbourChoice`]: the
 //! paper's and the authors' random pick (the default), or the views that see most of the same
@@ -12,7 +12,7 @@
 //! leaves almost every region unpaired (measured at `-r 4`: 145 error regions in three steps, 4
 //! paired). The authors match with SuperPoint + LightGlue, which finds some matches in most
 //! pairs; our SfM tracks and classical features are sparser, so the choice matters more here.
-//! Yet measured (docs/lpm-results.md, *Neighbours by overlap*), the overlap choice paired more
+//! Yet measured (docs/results/lpm.md, *Neighbours by overlap*), the overlap choice paired more
 //! regions and made more zones without a better result: Truck `-r 4`, three seeds at 1,200
 //! iterations, +0.053 dB over ADC against the random pick's +0.074, with 2.5 % more Gaussians.
 //! So the random pick stays the default and overlap is an option.

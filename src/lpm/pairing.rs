@@ -1,4 +1,4 @@
-//! Region pairing (LPM.md step 5): an error box in V → the box of its matched keypoints in V
+//! Region pairing (docs/algorithms/lpm.md step 5): an error box in V → the box of its matched keypoints in V
 //! (R_e) and the box of their matches in the referred view V' (R_e').
 
 use super::regions::{BlockOwners, Region};
@@ -87,7 +87,7 @@ pub enum RegionKeypoints {
     /// blocks, and its box also covers what lies between them; on Truck at `-r 4` one region of
     /// background trees had a box reaching over the truck's hood, whose keypoints (many,
     /// textured) outnumbered the trees' and put the zone on the hood, where there was no error.
-    /// Not the default: measured (docs/lpm-results.md), the zones grew instead
+    /// Not the default: measured (docs/results/lpm.md), the zones grew instead
     /// (0.29 of the scene extent against 0.21), since a region's own blocks often span depths
     /// (trees behind a fence) and one sphere encloses them all, and the gain was smaller.
     ErrorBlocks,

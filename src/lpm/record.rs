@@ -58,7 +58,7 @@ pub struct ZoneRecord {
 /// the authors' rules) takes around the zone's centre.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Hash)]
 pub enum ConeRadius {
-    /// The zone's bounding sphere (LPM.md step 7: the cone to the zone sphere).
+    /// The zone's bounding sphere (docs/algorithms/lpm.md step 7: the cone to the zone sphere).
     Bounding,
     /// The authors' code: the box's smallest half-extent (a sphere's own radius).
     SmallestHalfExtent,
@@ -165,7 +165,7 @@ impl ZoneRecord {
     }
 }
 
-/// The colour of a point added at a zone's centre (LPM.md): the ground truth at the centre of
+/// The colour of a point added at a zone's centre (docs/algorithms/lpm.md): the ground truth at the centre of
 /// the region's box in the current view, i.e. the pixel containing that point, clamped into the
 /// image. An image with alpha is composited on `background` (the one the step's render used),
 /// because that is the colour the training loss compares against: a transparent pixel of a
@@ -185,7 +185,7 @@ pub fn center_color(img: &Image, b: &PixelBox, background: [f32; 3]) -> [f32; 3]
 
 /// Mean colour of the pixels whose centres lie in `b` (the nearest pixel to its centre when none
 /// does). Black for an empty image. (A smoother alternative to [`center_color`]; not used by
-/// the trainer, which follows LPM.md.)
+/// the trainer, which follows docs/algorithms/lpm.md.)
 pub fn mean_color(img: &Image, b: &PixelBox) -> [f32; 3] {
     if img.width == 0 || img.height == 0 || img.rgb.len() < 3 * (img.width * img.height) as usize {
         return [0.0; 3];

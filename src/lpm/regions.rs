@@ -1,4 +1,4 @@
-//! Error map → error regions (LPM.md steps 1–2).
+//! Error map → error regions (docs/algorithms/lpm.md steps 1–2).
 //!
 //! Split in three so each step can be replaced by a GPU pass without touching the rest:
 //! [`error_map`] (render + ground truth → per-pixel error), [`block_mask`] (error → kept 16×16

@@ -1,4 +1,4 @@
-//! Localized Point Management as a density strategy (LPM.md steps 1–9): a wrapper around an
+//! Localized Point Management as a density strategy (docs/algorithms/lpm.md steps 1–9): a wrapper around an
 //! ADC-family strategy (plain ADC, or ADC with Pixel-GS's statistic: whatever the trainer's
 //! density config names), fused into the density-control step of the iterations it runs at.
 //! On other densify iterations the wrapped strategy runs alone.

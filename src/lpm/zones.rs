@@ -1,4 +1,4 @@
-//! Cones and error zones (LPM.md step 6).
+//! Cones and error zones (docs/algorithms/lpm.md step 6).
 //!
 //! A *cone* is the set of points seen by a camera inside a circle on its image plane: apex at the
 //! camera centre, through the circumscribed circle of the region's pixel box. In pixels, a point

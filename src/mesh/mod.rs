@@ -1,4 +1,4 @@
-//! Meshes from rendered depth (2DGS's bounded mesh extraction, BASE_MODELS.md §1.8): fuse the
+//! Meshes from rendered depth (2DGS's bounded mesh extraction, docs/algorithms/base-models.md §1.8): fuse the
 //! training views' surface depth into a truncated signed distance volume ([`tsdf`]), extract
 //! its zero level set ([`extract`]), drop small disconnected pieces, write a PLY that MeshLab
 //! and Blender open ([`ply`]).

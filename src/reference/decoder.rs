@@ -1,5 +1,5 @@
 //! SpacetimeGaussians' full model, in f64: the feature channels blended beside the colour and
-//! the per-pixel decoder that turns the 9-channel image into RGB (BASE_MODELS.md §4.3–4.4). The
+//! the per-pixel decoder that turns the 9-channel image into RGB (docs/algorithms/base-models.md §4.3–4.4). The
 //! GPU kernels `glsl/spacetime/decode*.comp` and the feature path of the rasterizer copy it.
 //!
 //! # Feature channels

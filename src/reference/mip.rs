@@ -1,4 +1,4 @@
-//! Mip-Splatting's 3D smoothing filter (BASE_MODELS.md §2.2), in f64.
+//! Mip-Splatting's 3D smoothing filter (docs/algorithms/base-models.md §2.2), in f64.
 //!
 //! Every Gaussian gets a filter standard deviation `f = √0.2 · d_min / f_max`: `d_min` is the
 //! smallest camera depth of its centre over the training cameras that see it (depth > 0.2 and

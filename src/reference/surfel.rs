@@ -1,5 +1,5 @@
 //! CPU f64 reference of the 2D Gaussian Splatting forward pass (2DGS, Huang et al. SIGGRAPH
-//! 2024; BASE_MODELS.md §1.2): flat elliptic "surfels" rendered by intersecting every pixel's
+//! 2024; docs/algorithms/base-models.md §1.2): flat elliptic "surfels" rendered by intersecting every pixel's
 //! ray with each surfel's plane. Like the 3DGS reference ([`crate::reference`]) it is plain
 //! loops, no parallelism, the oracle GPU kernels will be tested against, and it keeps every
 //! intermediate a backward pass needs in structs ([`SurfelProjected`], [`SurfelSample`],

@@ -27,7 +27,7 @@ impl BlockShape {
     /// against this one, both 16,384 keys, alternated on one machine: training's depth sort
     /// 12.4–13.1 → 4.9–6.0 ms at 3,000 Gaussians, 36–37 → 25–27 ms at 56k (Truck `-r 4`), and
     /// the tile sort of a 100k-Gaussian frame at 1352×1014 0.28–0.29 of the rasterize time
-    /// against 0.35–0.36 (docs/speed-lavapipe.md).
+    /// against 0.35–0.36 (docs/results/speed-lavapipe.md).
     /// Earlier, at 256 invocations (`cargo bench --bench sort`, 262k 45-bit keys): 8 keys an
     /// invocation 290 ms, 16 208, 32 157, 64 129, 128 144.
     pub const CPU: Self = Self { wg: 64, items: 256 };

@@ -1,5 +1,5 @@
 //! Several views in one optimizer step (SpacetimeGaussians trains every step on two cameras
-//! at one time, BASE_MODELS.md §4.4): which views join the scheduled one, and the mean of their
+//! at one time, docs/algorithms/base-models.md §4.4): which views join the scheduled one, and the mean of their
 //! gradients (`glsl/train/grads_blend.comp`). The trainer renders and differentiates each view
 //! in turn, adds each later view's gradients into the first's and scales the sum to the mean
 //! before the one Adam step; the density statistics come from the last view only, as in the

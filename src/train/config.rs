@@ -277,7 +277,7 @@ impl SurfelTraining {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum ChildTime {
     /// Uniform in [0, 1), the whole segment: the official `densify_and_clone` and
-    /// `densify_and_splitv2` (BASE_MODELS.md §4.6), so detail found at one time can serve any.
+    /// `densify_and_splitv2` (docs/algorithms/base-models.md §4.6), so detail found at one time can serve any.
     #[default]
     Random,
     /// The parent's centre (what every other per-Gaussian group does).
@@ -303,7 +303,7 @@ impl ChildTime {
 }
 
 /// SpacetimeGaussians' training settings: the temporal groups' learning rates (the official
-/// N3DV settings, BASE_MODELS.md §4.2) and the temporal centre of new Gaussians.
+/// N3DV settings, docs/algorithms/base-models.md §4.2) and the temporal centre of new Gaussians.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SpacetimeTraining {
     /// Motion, relative to the scene extent, not decayed (1.6e-4 × 0.5 × 3.5).
@@ -325,7 +325,7 @@ pub struct SpacetimeTraining {
 }
 
 /// SpacetimeGaussians' culls of Gaussians by their world position on Neural 3D Video
-/// (helper_train.py `controlgaussians`, `removeminmax`; train.py; BASE_MODELS.md §4.6): before
+/// (helper_train.py `controlgaussians`, `removeminmax`; train.py; docs/algorithms/base-models.md §4.6): before
 /// training, every Gaussian with world z below `below_z` (4.5) is removed (the official
 /// `densify` modes 1 and 2); mode 1 (`later`) also repeats that cull after densification and
 /// once removes the Gaussians outside the initial points' bounding box. The threshold is in the
@@ -371,7 +371,7 @@ impl WorldCulls {
 }
 
 /// SpacetimeGaussians' split of rotation and angular velocity (helper_train.py
-/// `controlgaussians`, oursfull.py `zero_omegabymotion`, BASE_MODELS.md §4.4): at `from` the
+/// `controlgaussians`, oursfull.py `zero_omegabymotion`, docs/algorithms/base-models.md §4.4): at `from` the
 /// Gaussians that move (Σ|m₁| > `motion_above`), are mid-sized (`scale_between`, the largest
 /// scale) and opaque (σ(o) > `opacity_above`) are marked; every other Gaussian's angular
 /// velocity is set to 0 and the whole group's Adam moments are cleared; from then on only the
@@ -397,7 +397,7 @@ impl Default for OmegaFreeze {
 }
 
 /// SpacetimeGaussians' full model: the learning rates of its specular and time features and of
-/// its decoder (BASE_MODELS.md §4.2: 2.5e-3, 1e-3, 1e-4; the base colour keeps the DC rate).
+/// its decoder (docs/algorithms/base-models.md §4.2: 2.5e-3, 1e-3, 1e-4; the base colour keeps the DC rate).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FullModelRates {
     pub features: f64,
@@ -415,7 +415,7 @@ impl Default for FullModelRates {
     }
 }
 
-/// SpacetimeGaussians' guided error sampling (the official train.py "ems", BASE_MODELS.md §4.6;
+/// SpacetimeGaussians' guided error sampling (the official train.py "ems", docs/algorithms/base-models.md §4.6;
 /// `train::passes::guided_sampling`): the official defaults.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GuidedSamplingSettings {

@@ -225,7 +225,7 @@ pub struct TrainArgs {
     pub density_strategy: StrategyArgs,
 }
 
-/// Localized Point Management (LPM.md), fused into the density steps.
+/// Localized Point Management (docs/algorithms/lpm.md), fused into the density steps.
 #[derive(Args, Debug, Clone)]
 pub struct LpmArgs {
     /// Turn LPM on, on top of ADC (which runs on every density step unless --lpm-skip-adc or
@@ -330,7 +330,7 @@ pub struct LpmArgs {
     pub lpm_max_zone_share: Option<f64>,
     /// The cone whose Gaussians count as in front of a zone (the opacity reset's candidates):
     /// region (default under ours: the view's cone through its error region, capped at the
-    /// bounding sphere), bounding (the cone to the zone's bounding sphere, LPM.md step 7), or
+    /// bounding sphere), bounding (the cone to the zone's bounding sphere, docs/algorithms/lpm.md step 7), or
     /// smallest-half-extent (the authors': a ball of the box's smallest half-extent).
     #[arg(long, value_parser = ["bounding", "smallest-half-extent", "region"])]
     pub lpm_cone: Option<String>,

@@ -1,4 +1,4 @@
-//! The 2DGS regularisers (BASE_MODELS.md §1.4) on the reference's per-pixel outputs, with their
+//! The 2DGS regularisers (docs/algorithms/base-models.md §1.4) on the reference's per-pixel outputs, with their
 //! gradients as [`SurfelOutputGrads`] for [`super::backward()`]:
 //!
 //! - **Normal consistency** `mean_pixels(1 − N · N_surf·alpha)`: `N` is the accumulated

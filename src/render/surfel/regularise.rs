@@ -1,4 +1,4 @@
-//! The 2DGS regularisers on the GPU (normal consistency and depth distortion, BASE_MODELS.md
+//! The 2DGS regularisers on the GPU (normal consistency and depth distortion, docs/algorithms/base-models.md
 //! §1.4), three kernels mirroring [`crate::reference::surfel::regularise`]:
 //! `glsl/surfel/surface_depth.comp` (the surface-depth map), `normal_consistency.comp` (the
 //! depth normals, the loss terms, the rendered normal's gradient and the difference gradients)

@@ -1,5 +1,5 @@
 //! The absolute-gradient densification test's threshold (Gaussian Opacity Fields, as
-//! Mip-Splatting's official code runs it; BASE_MODELS.md §2.5): with `ratio` the fraction of
+//! Mip-Splatting's official code runs it; docs/algorithms/base-models.md §2.5): with `ratio` the fraction of
 //! Gaussians whose averaged usual statistic reaches the gradient threshold, the threshold on
 //! the averaged absolute gradient is their `(1 − ratio)` quantile, so the second test selects
 //! about as many Gaussians as the first, chosen by a statistic that signed sums cannot cancel.

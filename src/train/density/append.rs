@@ -22,7 +22,7 @@ pub struct NewGaussian {
 
 /// Log-scales and rotation (w, x, y, z) of a new point. A 3D Gaussian is isotropic (identity
 /// rotation). A surfel added at a zone centre faces the camera whose error created it (our
-/// decision; nothing in the LPM or 2DGS sources says which way, BASE_MODELS.md §1.6): its
+/// decision; nothing in the LPM or 2DGS sources says which way, docs/algorithms/base-models.md §1.6): its
 /// normal, the rotation's third column, points from the centre to that camera, so the view
 /// that asked for detail sees the disc face on; the third log-scale is the unused one.
 pub fn new_point_shape(primitive: Primitive, row: &NewGaussian) -> ([f32; 3], [f32; 4]) {

@@ -12,7 +12,7 @@ pub enum Statistic {
     /// 3DGS: the NDC mean-gradient norm, one vote per view.
     #[default]
     Gradient,
-    /// Pixel-GS (BASE_MODELS.md §3): each view weighted by the pixels the Gaussian contributed
+    /// Pixel-GS (docs/algorithms/base-models.md §3): each view weighted by the pixels the Gaussian contributed
     /// to there, its norm also scaled by min(1, (depth / (depth_threshold · extent))²). Needs the
     /// backward's per-splat pixel counts.
     PixelWeighted { depth_threshold: f32 },
@@ -78,7 +78,7 @@ pub struct DensityConfig {
     pub seed: u64,
     pub statistic: Statistic,
     /// Also densify by the absolute-gradient test of Gaussian Opacity Fields, as Mip-Splatting's
-    /// official code does (BASE_MODELS.md §2.5): with `ratio` the fraction of Gaussians whose
+    /// official code does (docs/algorithms/base-models.md §2.5): with `ratio` the fraction of Gaussians whose
     /// usual statistic reaches `grad_threshold`, a Gaussian whose averaged absolute gradient
     /// reaches the `(1 − ratio)` quantile of all of them is densified as well. Gradient
     /// statistic only; needs the backward's absolute gradients.

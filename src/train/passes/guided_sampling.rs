@@ -1,4 +1,4 @@
-//! SpacetimeGaussians' guided error sampling (the official train.py "ems", BASE_MODELS.md §4.6):
+//! SpacetimeGaussians' guided error sampling (the official train.py "ems", docs/algorithms/base-models.md §4.6):
 //! the model's own localized point addition, which LPM runs beside.
 //!
 //! From iteration `from` the first SSIM of every training camera is recorded. Once every camera

@@ -1,5 +1,5 @@
 //! SpacetimeGaussians (lite) as a base model: the Gaussians carry four extra groups (cubic
-//! motion, angular velocity, temporal centre and log-scale, BASE_MODELS.md §4.2); each frame
+//! motion, angular velocity, temporal centre and log-scale, docs/algorithms/base-models.md §4.2); each frame
 //! the temporal step (`render::spacetime`) writes the model at the view's time as still 3D
 //! Gaussians, which the 3DGS passes draw and differentiate unchanged, and the still Gaussians'
 //! gradients go back through the temporal step to the model's.
@@ -13,7 +13,7 @@
 //! SH DC coefficients at degree 0 (colour `0.5 + C₀·f`, clamped at 0 like every 3DGS colour), the
 //! same model up to an affine change of variable except that a colour cannot go negative.
 //!
-//! The full model ([`FullModel`], BASE_MODELS.md §4.3): two more groups, the specular feature
+//! The full model ([`FullModel`], docs/algorithms/base-models.md §4.3): two more groups, the specular feature
 //! `f_spec` and the time feature `f_t`; each frame the Gaussians' 6 feature channels
 //! `[f_spec, Δ·f_t]` are blended beside the raw DC coefficients (the base colour, no SH
 //! encoding, no clamp) over a black background, and the per-pixel decoder

@@ -1,4 +1,4 @@
-//! The passes of 2DGS's surfels (BASE_MODELS.md §1): the surfel forward and backward, and the
+//! The passes of 2DGS's surfels (docs/algorithms/base-models.md §1): the surfel forward and backward, and the
 //! normal-consistency and depth-distortion regularisers with the official weights and start
 //! iterations ([`SurfelTraining`]).
 //!

@@ -1,5 +1,5 @@
 //! SpacetimeGaussians' culls by world position on Neural 3D Video
-//! ([`crate::train::config::WorldCulls`]; BASE_MODELS.md §4.6): the official code removes every
+//! ([`crate::train::config::WorldCulls`]; docs/algorithms/base-models.md §4.6): the official code removes every
 //! Gaussian with world z < 4.5 before training (its `densify` modes 1 and 2, which the N3DV
 //! configs use), and in mode 1 repeats that after densification and once removes the Gaussians
 //! outside the bounding box of the initial points. These are the official rules for that
