@@ -19,6 +19,7 @@ pub mod plot;
 pub mod reference;
 pub mod render;
 pub mod scene;
+pub mod settings;
 pub mod splats;
 pub mod strategies;
 pub mod train;

@@ -18,12 +18,7 @@ use super::project::sigmoid;
 use super::RefGaussians;
 use crate::scene::{PinholeCamera, Pose};
 
-/// The 3D filter's variance scale (hard-coded 0.2 in the official code).
-pub const FILTER_SCALE: f64 = 0.2;
-/// Cameras closer than this (camera z) do not count.
-pub const MIN_DEPTH: f64 = 0.2;
-/// A projection up to this fraction of the image past an edge still counts.
-pub const FRUSTUM_MARGIN: f64 = 0.15;
+pub use crate::settings::mip::{FILTER_SCALE, FRUSTUM_MARGIN, MIN_DEPTH};
 
 /// The filter standard deviation of every centre in `positions` over `cameras`. Centres no
 /// camera sees get the largest value of the others (as the official code); when no centre is

@@ -12,8 +12,8 @@ use anyhow::{ensure, Result};
 
 use super::layout::CameraGpu;
 use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder};
-use crate::reference::decoder::{FEATURE_CHANNELS, WEIGHTS};
 use crate::shaders;
+use crate::splats::decoder_json::{FEATURE_CHANNELS, WEIGHTS};
 
 const WG: u32 = 256;
 

@@ -88,7 +88,7 @@ impl SmoothingFilter {
             )?,
             train_ids: GpuBuffer::from_slice(ctx, "filter3d train cameras", &ids)?,
             n_cameras: ids.len() as u32,
-            scale: (crate::reference::mip::FILTER_SCALE.sqrt() / f_max) as f32,
+            scale: (crate::settings::mip::FILTER_SCALE.sqrt() / f_max) as f32,
             seen_max: GpuBuffer::new(ctx, "filter3d seen max", 1, BufferKind::DeviceLocal)?,
             values: GpuBuffer::new(ctx, "filter3d", capacity.max(1), BufferKind::DeviceLocal)?,
         })
@@ -162,5 +162,68 @@ impl SmoothingFilter {
         );
         rec.barrier();
         Ok(())
+    }
+}
+
+/// `model` with the 3D filter `filter` (one standard deviation per Gaussian, as the GPU pass
+/// wrote it) folded into its scales and opacities, as the official `create_fused_ply.py` does
+/// for export: scale² + f² per axis, and the opacity times √(Π s² / Π (s² + f²)), so viewers
+/// without the filter render the filtered model. In f64 per Gaussian, rounded once to f32;
+/// `crate::reference::mip::fuse` is its oracle.
+pub fn fold_into(
+    model: &crate::splats::GaussianParams,
+    filter: &[f32],
+) -> anyhow::Result<crate::splats::GaussianParams> {
+    anyhow::ensure!(
+        filter.len() == model.len(),
+        "Mip-Splatting 3D filter: {} filter values for {} Gaussians",
+        filter.len(),
+        model.len()
+    );
+    let sigmoid = |x: f64| 1.0 / (1.0 + (-x).exp());
+    let logit = |p: f64| (p / (1.0 - p)).ln();
+    let mut out = model.clone();
+    for (i, &f) in filter.iter().enumerate() {
+        let phi = f as f64 * f as f64;
+        let mut log_ratio = 0.0;
+        for k in 0..3 {
+            let s2 = (2.0 * model.log_scales[i][k] as f64).exp();
+            out.log_scales[i][k] = (0.5 * (s2 + phi).ln()) as f32;
+            log_ratio += (s2 / (s2 + phi)).ln();
+        }
+        let o = sigmoid(model.opacity_logits[i] as f64) * (0.5 * log_ratio).exp();
+        out.opacity_logits[i] = logit(o) as f32;
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::reference::{mip, RefGaussians};
+    use rand::{Rng, SeedableRng};
+
+    /// The export's fold equals the f64 oracle's, rounded to f32, bit for bit.
+    #[test]
+    fn the_fold_matches_the_oracle() {
+        let mut rng = rand_pcg::Pcg32::seed_from_u64(7);
+        let mut p = crate::splats::init::random_init(64, [0.0; 3], [1.0; 3], 1, 3).unwrap();
+        for i in 0..p.len() {
+            p.log_scales[i] = [0; 3].map(|_| rng.gen_range(-7.0..1.0f32));
+            p.opacity_logits[i] = rng.gen_range(-6.0..6.0);
+        }
+        let filter: Vec<f32> = (0..p.len()).map(|_| rng.gen_range(0.0..0.05f32)).collect();
+        let got = fold_into(&p, &filter).unwrap();
+        let want = mip::fuse(
+            &RefGaussians::from_params(&p),
+            &filter.iter().map(|&v| v as f64).collect::<Vec<_>>(),
+        )
+        .unwrap()
+        .to_params(p.sh_degree);
+        assert_eq!(got.log_scales, want.log_scales);
+        assert_eq!(got.opacity_logits, want.opacity_logits);
+        assert_eq!(got.positions, want.positions);
+        assert_eq!(got.sh_rest, want.sh_rest);
+        assert!(fold_into(&p, &filter[1..]).is_err());
     }
 }

@@ -627,7 +627,7 @@ impl Renderer {
             );
             let decode = fc.decoded_by.is_some();
             if let Some(w) = fc.decoded_by {
-                use crate::reference::decoder::{FEATURE_CHANNELS, WEIGHTS};
+                use crate::splats::decoder_json::{FEATURE_CHANNELS, WEIGHTS};
                 anyhow::ensure!(
                     fc.channels as usize == FEATURE_CHANNELS && w.len() >= WEIGHTS,
                     "renderer: the decoder takes {FEATURE_CHANNELS} feature channels and \

@@ -229,13 +229,13 @@ impl RenderConstants {
     /// when `mip`, else the 3DGS defaults.
     pub fn for_mip(mip: bool) -> Self {
         if mip {
-            Self::from_settings(&crate::reference::RenderSettings::mip_splatting())
+            Self::from_settings(&crate::settings::raster::RenderSettings::mip_splatting())
         } else {
             Self::default()
         }
     }
 
-    pub fn from_settings(s: &crate::reference::RenderSettings) -> Self {
+    pub fn from_settings(s: &crate::settings::raster::RenderSettings) -> Self {
         assert_eq!(
             s.tile_size, TILE_SIZE,
             "the GPU rasterizer uses 16×16 tiles"
@@ -256,6 +256,6 @@ impl RenderConstants {
 
 impl Default for RenderConstants {
     fn default() -> Self {
-        Self::from_settings(&crate::reference::RenderSettings::default())
+        Self::from_settings(&crate::settings::raster::RenderSettings::default())
     }
 }

@@ -366,7 +366,7 @@ impl TimedModel {
         model: &GpuSplats,
         decoder: Option<&[f32]>,
     ) -> anyhow::Result<Self> {
-        use crate::reference::decoder::{FEATURE_CHANNELS, WEIGHTS};
+        use crate::splats::decoder_json::{FEATURE_CHANNELS, WEIGHTS};
         TemporalBuffers::of(model)?;
         let n = model.count;
         let instant = GpuSplats::zeroed(ctx, "instant ", 0, n, n.max(1))?;
@@ -446,7 +446,7 @@ impl TimedModel {
                 constants.flags |= RenderConstants::RAW_COLOUR;
                 let channels = super::forward::FeatureChannels {
                     values: &f.instant_features,
-                    channels: crate::reference::decoder::FEATURE_CHANNELS as u32,
+                    channels: crate::splats::decoder_json::FEATURE_CHANNELS as u32,
                     decoded_by: Some(&f.weights),
                 };
                 ([0.0; 3], Some(channels))

@@ -45,7 +45,11 @@ pub fn bench_camera(width: u32, height: u32) -> (PinholeCamera, Pose) {
         width,
         height,
     };
-    let pose = crate::reference::scenes::look_at([0.3, -0.4, -2.55], [0.0; 3], [0.0, -1.0, 0.0]);
+    let pose = crate::scene::orbit::look_at(
+        glam::DVec3::new(0.3, -0.4, -2.55),
+        glam::DVec3::ZERO,
+        glam::DVec3::NEG_Y,
+    );
     (camera, pose)
 }
 
@@ -72,6 +76,6 @@ pub fn camera_for_model(p: &GaussianParams, width: u32, height: u32) -> (Pinhole
     let r = d.get(d.len() * 9 / 10).copied().unwrap_or(1.0).max(1e-3);
     let (camera, _) = bench_camera(width, height);
     let eye = [c[0] + 0.3 * r, c[1] - 0.4 * r, c[2] - 2.5 * r];
-    let pose = crate::reference::scenes::look_at(eye, c, [0.0, -1.0, 0.0]);
+    let pose = crate::scene::orbit::look_at(eye.into(), c.into(), glam::DVec3::NEG_Y);
     (camera, pose)
 }

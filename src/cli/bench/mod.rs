@@ -23,6 +23,7 @@ mod trade;
 mod trade_args;
 mod trade_merge;
 mod trade_report;
+mod trade_run_table;
 mod trade_runs;
 mod trade_summary;
 mod trade_sweep;

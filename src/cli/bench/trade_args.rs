@@ -65,7 +65,7 @@ pub struct TradeArgs {
     #[arg(long, default_value_t = 20)]
     pub fps_frames: usize,
     /// The runs to compare, comma separated (the list and what each run is: --help).
-    #[arg(long, value_delimiter = ',', long_help = super::trade_runs::runs_help())]
+    #[arg(long, value_delimiter = ',', long_help = super::trade_run_table::runs_help())]
     pub runs: Vec<String>,
     /// Run the variants one after another instead of interleaving their iterations. Interleaving
     /// (the default) keeps every run's time measured under the same machine load, so the time

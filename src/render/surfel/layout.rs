@@ -10,8 +10,8 @@
 
 use bytemuck::{Pod, Zeroable};
 
-use crate::reference::surfel::SurfelSettings;
 use crate::render::layout::TILE_SIZE;
+use crate::settings::surfel::SurfelSettings;
 
 /// Per surfel (36 bytes, `GEOM_STRIDE` floats): `M`'s rows `h₁, h₂, h₃` (`M (u, v, 1)ᵀ =
 /// (x·z, y·z, z)`). The camera-space normal facing the camera is a buffer of its own

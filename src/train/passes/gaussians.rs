@@ -385,10 +385,6 @@ impl ModelPasses for GaussianPasses {
         self.filter_for_eval(params, cameras, iteration)?;
         let f = self.filter.as_ref().expect("checked above");
         let values = f.values().read_range(0, model.len())?;
-        let fused = crate::reference::mip::fuse(
-            &crate::reference::RefGaussians::from_params(&model),
-            &values.iter().map(|&v| v as f64).collect::<Vec<_>>(),
-        )?;
-        Ok(fused.to_params(model.sh_degree))
+        crate::render::filter3d::fold_into(&model, &values)
     }
 }

@@ -22,7 +22,6 @@ use serde::{Deserialize, Serialize};
 
 use crate::splats::GaussianParams;
 use crate::train::config::WorldCulls;
-use crate::train::density::reference::{kept_rows, prune_outside_box};
 use crate::train::density::{DensifyArgs, DensifyPhase};
 use crate::train::strategy::{DensityContext, ModelRule, StepSeen, StrategyEvent};
 
@@ -221,7 +220,15 @@ impl ModelRule for WorldCuller {
 
     fn prepare_initial(&mut self, init: GaussianParams) -> anyhow::Result<GaussianParams> {
         let (lo, hi) = self.z_box();
-        let kept = kept_rows(&init, &prune_outside_box(&init.positions, lo, hi));
+        // Kept: every centre inside the box on all three axes (a NaN coordinate is kept, as
+        // `prune_outside_box.comp` keeps it).
+        let inside: Vec<usize> = (0..init.len())
+            .filter(|&i| {
+                let p = init.positions[i];
+                !(0..3).any(|a| p[a] < lo[a] || p[a] > hi[a])
+            })
+            .collect();
+        let kept = init.select_rows(&inside);
         anyhow::ensure!(
             !kept.is_empty(),
             "world culls: all {} initial Gaussians have world z below {} (the official Neural \
