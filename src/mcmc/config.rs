@@ -76,3 +76,39 @@ impl McmcConfig {
 
 /// MCMC's default growth.
 pub const DEFAULT_GROWTH: Growth = Growth::Mcmc;
+
+/// MCMC's schedule on a calendar of `calendar` iterations (the official one is 30 000):
+/// refinement to the peers' 25 000 of 30 000, scaled to the calendar, unless the run gave its
+/// own end (`until`); no opacity reset, so neither ADC's reset rhythm nor its white-background
+/// reset applies. `train` and `bench trade` both set MCMC's runs up here.
+pub fn apply_schedule(
+    schedule: &mut crate::train::schedule::DensitySchedule,
+    calendar: u32,
+    until: Option<u32>,
+) {
+    schedule.densify_until =
+        until.unwrap_or(((REFINE_UNTIL_OF_30K as u64 * calendar as u64) / 30_000) as u32);
+    schedule.opacity_reset_interval = 0;
+    schedule.white_background = false;
+}
+
+/// The peers' last refinement on the 30 000-iteration calendar.
+pub const REFINE_UNTIL_OF_30K: u32 = 25_000;
+
+#[cfg(test)]
+mod schedule_tests {
+    use super::*;
+    use crate::train::schedule::DensitySchedule;
+
+    #[test]
+    fn the_refinement_window_scales_with_the_calendar_and_keeps_a_given_end() {
+        let mut s = DensitySchedule::default();
+        apply_schedule(&mut s, 30_000, None);
+        assert_eq!((s.densify_until, s.opacity_reset_interval), (25_000, 0));
+        assert!(!s.white_background);
+        apply_schedule(&mut s, 1_200, None);
+        assert_eq!(s.densify_until, 1_000);
+        apply_schedule(&mut s, 30_000, Some(7_000));
+        assert_eq!(s.densify_until, 7_000);
+    }
+}

@@ -88,6 +88,52 @@ impl Default for TrainConfig {
 }
 
 impl TrainConfig {
+    /// The values no run can train with, refused with the `train` flag that sets each and the
+    /// fix. `train` calls it on the configuration its flags made; a library caller that builds
+    /// a configuration by hand can call it the same way.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        use anyhow::ensure;
+        ensure!(
+            self.sh_degree <= 3,
+            "--sh-degree {}: the engine supports 0..=3. Fix: pass 0, 1, 2 or 3",
+            self.sh_degree
+        );
+        ensure!(
+            self.iterations > 0,
+            "--iterations 0: nothing to train. Fix: pass at least 1"
+        );
+        ensure!(
+            self.schedule.densify_from <= self.schedule.densify_until,
+            "--densify-from {} is after --densify-until {}. Fix: make from ≤ until",
+            self.schedule.densify_from,
+            self.schedule.densify_until
+        );
+        ensure!(
+            (0.0..=1.0).contains(&self.ssim_weight),
+            "--ssim-weight {} must lie in [0, 1]",
+            self.ssim_weight
+        );
+        if let Some(t) = &self.surfels {
+            ensure!(
+                t.normal_weight >= 0.0 && t.distortion_weight >= 0.0,
+                "--lambda-normal {} and --lambda-dist {} must be ≥ 0",
+                t.normal_weight,
+                t.distortion_weight
+            );
+            ensure!(
+                (0.0..=1.0).contains(&t.depth_ratio),
+                "--depth-ratio {} must lie in [0, 1] (0: expected depth, 1: median depth)",
+                t.depth_ratio
+            );
+        }
+        ensure!(
+            (1..=16).contains(&self.batch_views),
+            "--batch-views {}: choose 1 to 16 views per step",
+            self.batch_views
+        );
+        Ok(())
+    }
+
     /// This configuration with its lengths in world units (the angular-velocity split's
     /// motion and scale thresholds) moved into a scene's training frame
     /// ([`crate::scene::frame`]; the world culls' z is moved by their pass, which reports it
@@ -475,6 +521,97 @@ impl Default for SpacetimeTraining {
             full: None,
             omega_freeze: Some(OmegaFreeze::default()),
             world_culls: None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every value `validate` refuses is refused naming the flag that sets it; the defaults
+    /// and the edges of each range pass.
+    #[test]
+    fn validate_refuses_each_bad_value_by_its_flag() {
+        let ok = TrainConfig::default();
+        ok.validate().unwrap();
+        let surfels = || TrainConfig {
+            surfels: Some(SurfelTraining::default()),
+            ..TrainConfig::default()
+        };
+        surfels().validate().unwrap();
+        let edges = TrainConfig {
+            sh_degree: 0,
+            iterations: 1,
+            ssim_weight: 1.0,
+            batch_views: 16,
+            ..TrainConfig::default()
+        };
+        edges.validate().unwrap();
+        let cases: Vec<(TrainConfig, &str)> = vec![
+            (
+                TrainConfig {
+                    sh_degree: 4,
+                    ..ok.clone()
+                },
+                "--sh-degree",
+            ),
+            (
+                TrainConfig {
+                    iterations: 0,
+                    ..ok.clone()
+                },
+                "--iterations",
+            ),
+            (
+                TrainConfig {
+                    schedule: DensitySchedule {
+                        densify_from: 16_000,
+                        ..DensitySchedule::default()
+                    },
+                    ..ok.clone()
+                },
+                "--densify-from",
+            ),
+            (
+                TrainConfig {
+                    ssim_weight: 1.5,
+                    ..ok.clone()
+                },
+                "--ssim-weight",
+            ),
+            (
+                TrainConfig {
+                    ssim_weight: f32::NAN,
+                    ..ok.clone()
+                },
+                "--ssim-weight",
+            ),
+            (
+                TrainConfig {
+                    batch_views: 0,
+                    ..ok.clone()
+                },
+                "--batch-views",
+            ),
+            (
+                TrainConfig {
+                    batch_views: 17,
+                    ..ok.clone()
+                },
+                "--batch-views",
+            ),
+        ];
+        let mut cases = cases;
+        let mut s = surfels();
+        s.surfels.as_mut().unwrap().normal_weight = -0.1;
+        cases.push((s, "--lambda-normal"));
+        let mut s = surfels();
+        s.surfels.as_mut().unwrap().depth_ratio = 1.5;
+        cases.push((s, "--depth-ratio"));
+        for (c, flag) in cases {
+            let e = c.validate().unwrap_err().to_string();
+            assert!(e.contains(flag), "{flag}: {e}");
         }
     }
 }

@@ -513,10 +513,7 @@ fn apply_budget(
     );
     let mcmc = name.starts_with("mcmc");
     if mcmc {
-        // The peers' refinement window (to 25 000 of 30 000) on the calendar, no opacity reset.
-        cfg.schedule.densify_until = ((25_000u64 * calendar as u64) / 30_000) as u32;
-        cfg.schedule.opacity_reset_interval = 0;
-        cfg.schedule.white_background = false;
+        lpmsplat::mcmc::config::apply_schedule(&mut cfg.schedule, calendar, None);
     }
     if name.ends_with("lpm-lowered") {
         cfg.density.rank_lowered = true;

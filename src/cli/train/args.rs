@@ -465,26 +465,6 @@ impl TrainArgs {
         let densify_until = self
             .densify_until
             .unwrap_or(self.model.default_densify_until());
-        anyhow::ensure!(
-            self.sh_degree <= 3,
-            "--sh-degree {}: the engine supports 0..=3. Fix: pass 0, 1, 2 or 3",
-            self.sh_degree
-        );
-        anyhow::ensure!(
-            self.iterations > 0,
-            "--iterations 0: nothing to train. Fix: pass at least 1"
-        );
-        anyhow::ensure!(
-            self.densify_from <= densify_until,
-            "--densify-from {} is after --densify-until {}. Fix: make from ≤ until",
-            self.densify_from,
-            densify_until
-        );
-        anyhow::ensure!(
-            (0.0..=1.0).contains(&self.ssim_weight),
-            "--ssim-weight {} must lie in [0, 1]",
-            self.ssim_weight
-        );
         let mut c = TrainConfig {
             iterations: self.iterations,
             seed: self.seed,
@@ -521,17 +501,6 @@ impl TrainArgs {
             t.distortion_weight = self.lambda_dist.unwrap_or(t.distortion_weight);
             t.distortion_from = self.dist_from.unwrap_or(t.distortion_from);
             t.depth_ratio = self.depth_ratio.unwrap_or(t.depth_ratio);
-            anyhow::ensure!(
-                t.normal_weight >= 0.0 && t.distortion_weight >= 0.0,
-                "--lambda-normal {} and --lambda-dist {} must be ≥ 0",
-                t.normal_weight,
-                t.distortion_weight
-            );
-            anyhow::ensure!(
-                (0.0..=1.0).contains(&t.depth_ratio),
-                "--depth-ratio {} must lie in [0, 1] (0: expected depth, 1: median depth)",
-                t.depth_ratio
-            );
             c.surfels = Some(t);
         } else {
             for (flag, given) in [
@@ -581,12 +550,8 @@ impl TrainArgs {
         c.density.max_gaussians = self.max_gaussians;
         c.density.rank_lowered = self.lpm.lpm && self.lpm.lpm_rank == "lowered";
         if self.density_strategy.strategy == StrategyName::Mcmc {
-            // MCMC refines to the peers' 25 000 (of 30 000) and never resets opacities.
-            if self.densify_until.is_none() {
-                c.schedule.densify_until = 25_000;
-            }
-            c.schedule.opacity_reset_interval = 0;
-            c.schedule.white_background = false;
+            // `train`'s schedule is the official 30 000-iteration one whatever --iterations.
+            lpmsplat::mcmc::config::apply_schedule(&mut c.schedule, 30_000, self.densify_until);
         }
         if self.densify_abs_grad {
             anyhow::ensure!(
@@ -626,12 +591,9 @@ impl TrainArgs {
         }
         crate::cli::world_culls_arg::apply(self.n3dv_culls, &scene.root, self.model, &mut c, 1000)?;
         if let Some(b) = self.batch_views {
-            anyhow::ensure!(
-                (1..=16).contains(&b),
-                "--batch-views {b}: choose 1 to 16 views per step"
-            );
             c.batch_views = b;
         }
+        c.validate()?;
         Ok(c)
     }
 }
