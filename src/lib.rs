@@ -7,6 +7,7 @@
 
 pub mod error;
 pub mod gpu;
+pub mod initial;
 pub mod kernel_fixtures;
 pub mod lpips;
 pub mod lpm;

@@ -15,10 +15,11 @@ use super::trade_summary::{
     column_header, paired_table, plot, summarize, table_rows, Summary, TradeRow,
 };
 use crate::cli::lpips_scores;
-use crate::cli::train::{initial_model, prepare_output};
+use crate::cli::train::prepare_output;
 use indicatif::{ProgressBar, ProgressStyle};
 use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder};
+use lpmsplat::initial::initial_model;
 use lpmsplat::lpips::Lpips;
 use lpmsplat::lpm::config::LpmConfig;
 use lpmsplat::lpm::regions::RegionSettings;

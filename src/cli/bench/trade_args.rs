@@ -46,8 +46,8 @@ pub struct TradeArgs {
     pub init_points: usize,
     /// Where they come from: auto (triangulate video scenes), random or triangulate (as
     /// `train --init`).
-    #[arg(long, value_enum, default_value_t = crate::cli::train::InitSource::Auto)]
-    pub init: crate::cli::train::InitSource,
+    #[arg(long, value_enum, default_value_t = lpmsplat::initial::InitSource::Auto)]
+    pub init: lpmsplat::initial::InitSource,
     /// Output folder for trade.json, trade.md and trade.png.
     #[arg(long, short = 'o', default_value = "bench_trade")]
     pub out: PathBuf,

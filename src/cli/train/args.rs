@@ -614,25 +614,7 @@ impl RecordAhead {
     }
 }
 
-/// Where a scene without SfM points gets its initial points (`--init`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum InitSource {
-    /// Triangulate video scenes, random points for still ones.
-    Auto,
-    Random,
-    Triangulate,
-}
-
-impl InitSource {
-    /// Whether `scene`'s initial points are triangulated (when it has no SfM points).
-    pub fn triangulates(self, scene: &Scene) -> bool {
-        match self {
-            InitSource::Triangulate => true,
-            InitSource::Random => false,
-            InitSource::Auto => scene.view_times.is_some(),
-        }
-    }
-}
+use lpmsplat::initial::InitSource;
 
 /// Flag combinations that cannot work, caught before anything is loaded.
 pub(super) fn check_flags(args: &TrainArgs) -> anyhow::Result<()> {

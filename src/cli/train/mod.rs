@@ -9,8 +9,9 @@ mod progress;
 mod setup;
 pub(crate) mod strategy_args;
 
-pub use args::{background_from, parse_max_gaussians, InitSource, TrainArgs};
-pub use setup::{initial_model, prepare_output};
+pub use args::{background_from, parse_max_gaussians, TrainArgs};
+use lpmsplat::initial::initial_model;
+pub use setup::prepare_output;
 pub use strategy_args::{parse_budget, Budget, StrategyName};
 
 use super::lpips_scores;
