@@ -8,7 +8,6 @@
 pub mod error;
 pub mod gpu;
 pub mod initial;
-pub mod kernel_fixtures;
 pub mod lpips;
 pub mod lpm;
 pub mod mcmc;

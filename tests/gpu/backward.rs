@@ -7,10 +7,10 @@
 
 use crate::child_run;
 
-use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder};
-use lpmsplat::kernel_fixtures::{
+use crate::kernel_fixtures::{
     gaussian_params, gpu_forward_fixture, round_gaussians_to_f32, round_view_to_f32,
 };
+use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder};
 use lpmsplat::reference::scenes::{random_gaussians, random_view};
 use lpmsplat::reference::{self, mip, Gradients, RefGaussians, RenderSettings};
 use lpmsplat::render::backward::{

@@ -6,8 +6,8 @@
 //! fast on lavapipe. Validation layer on.
 #![allow(clippy::too_many_arguments, clippy::needless_range_loop)]
 
+use crate::kernel_fixtures::{gaussian_params, gpu_forward_fixture};
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder};
-use lpmsplat::kernel_fixtures::{gaussian_params, gpu_forward_fixture};
 use lpmsplat::reference::surfel::{self, RefSurfels, SurfelCull, SurfelSettings, SurfelSkip};
 use lpmsplat::reference::{
     self, alpha_min_edges, sh::SH_C0, Footprint, Gradients, Projected, RefGaussians,

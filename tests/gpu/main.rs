@@ -3,6 +3,8 @@
 
 #[path = "../support/child_run.rs"]
 mod child_run;
+#[path = "../support/kernel_fixtures.rs"]
+mod kernel_fixtures;
 
 mod adam;
 mod backward;

@@ -1,19 +1,21 @@
 //! The reference forward pass converted into the GPU data contract of
-//! [`crate::render::layout`], so GPU kernels can be tested stage by stage against the oracle
+//! `lpmsplat::render::layout`, so GPU kernels can be tested stage by stage against the oracle
 //! without the other GPU stages: the backward kernels get the reference's projected Gaussians,
 //! tile lists and per-pixel outputs; the forward kernels get something to compare with.
 //!
 //! Also converts [`RefGaussians`] to the f32 [`GaussianParams`] the GPU buffers are filled from,
 //! and rounds scenes to f32 so the f64 oracle sees exactly the values the GPU sees.
 
+#![allow(dead_code)] // each module of the gpu crate uses part of it
+
 use bytemuck::Zeroable;
 
-use crate::reference::{RefGaussians, RenderOutput};
-use crate::render::layout::{
+use lpmsplat::reference::{RefGaussians, RenderOutput};
+use lpmsplat::render::layout::{
     CameraGpu, ProjectedGpu, FLAG_CLAMPED_B, FLAG_CLAMPED_G, FLAG_CLAMPED_R,
 };
-use crate::scene::{PinholeCamera, Pose};
-use crate::splats::GaussianParams;
+use lpmsplat::scene::{PinholeCamera, Pose};
+use lpmsplat::splats::GaussianParams;
 
 /// A reference forward pass in the GPU contract layout (host vectors, ready to upload).
 #[derive(Debug, Clone, PartialEq)]
