@@ -693,3 +693,91 @@ fn bench_trade_compares_the_absolute_gradient_test_side_by_side() {
     );
     assert!(!refused.join("trade.json").exists());
 }
+
+/// `--budget 0.5x-adc,1x-adc`: the Taming protocol's grid in one command. A free adc per seed
+/// trains first (the reference); then every run at each budget, named RUN@BUDGET, the budget
+/// being that share of the reference's final count at the same seed: the exact-budget runs end
+/// on it, ADC capped at it stays under it, adc is not run again at 1x-adc, and each LPM-guided
+/// run is paired with its unguided twin at the same budget.
+#[test]
+fn bench_trade_budget_grid_takes_its_budgets_from_adcs_own_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("grid");
+    let mut c = door_trade("101", &out);
+    c.args([
+        "--calendar",
+        "600",
+        "--runs",
+        "adc,adc-exact,adc-exact+lpm-local",
+    ])
+    .args([
+        "--budget",
+        "0.5x-adc,1x-adc",
+        "--fps-frames",
+        "1",
+        "--seeds",
+        "2",
+    ]);
+    let (ok, text) = output(&mut c);
+    assert!(ok, "{text}");
+    let json = trade_json(&out);
+    assert_eq!(json["settings"]["budget"], "0.5x-adc,1x-adc");
+    let runs = json["runs"].as_array().unwrap();
+    let mut names: Vec<&str> = runs.iter().map(|r| r["run"].as_str().unwrap()).collect();
+    names.sort_unstable();
+    names.dedup();
+    assert_eq!(
+        names,
+        [
+            "adc",
+            "adc-exact+lpm-local@0.5x-adc",
+            "adc-exact+lpm-local@1x-adc",
+            "adc-exact@0.5x-adc",
+            "adc-exact@1x-adc",
+            "adc@0.5x-adc",
+        ]
+    );
+    let count = |run: &str, seed: u64| {
+        runs.iter()
+            .find(|r| r["run"] == run && r["seed"] == seed && r["iteration"] == 101)
+            .unwrap_or_else(|| panic!("{run} seed {seed}"))["gaussians"]
+            .as_u64()
+            .unwrap()
+    };
+    for seed in [0, 1] {
+        let adc = count("adc", seed);
+        let half = (adc as f64 * 0.5).round() as u64;
+        for exact in ["adc-exact", "adc-exact+lpm-local"] {
+            let at1 = count(&format!("{exact}@1x-adc"), seed);
+            let at_half = count(&format!("{exact}@0.5x-adc"), seed);
+            assert!(at1 <= adc && at1 + 1 >= adc, "{exact}: {at1} for {adc}");
+            assert!(
+                at_half <= half && at_half + 1 >= half,
+                "{exact}: {at_half} for {half}"
+            );
+        }
+        assert!(count("adc@0.5x-adc", seed) <= half);
+    }
+    let md = std::fs::read_to_string(out.join("trade.md")).unwrap();
+    assert!(md.contains("LPM as a guide at one count"), "{md}");
+    assert!(
+        md.contains("| adc-exact+lpm-local@1x-adc | adc-exact@1x-adc | 101 |"),
+        "{md}"
+    );
+    assert!(out.join("trade.png").is_file());
+    // A grid cannot follow adc's count every iteration; a budget relative to adc must be
+    // positive and named once.
+    for (extra, says) in [
+        (
+            &["--budget", "0.5x-adc", "--match-adc-count"][..],
+            "--match-adc-count",
+        ),
+        (&["--budget", "0x-adc"][..], "0.25x-adc"),
+        (&["--budget", "0.5x-adc,0.5x-adc"][..], "twice"),
+    ] {
+        let mut c = door_trade("10", &dir.path().join("bad"));
+        c.args(["--runs", "adc,mcmc"]).args(extra);
+        let (ok, text) = output(&mut c);
+        assert!(!ok && text.contains(says), "{extra:?}: {text}");
+    }
+}

@@ -21,6 +21,7 @@ use std::time::Instant;
 
 mod trade;
 mod trade_args;
+mod trade_budget;
 mod trade_merge;
 mod trade_report;
 mod trade_run_table;

@@ -7,15 +7,17 @@
 //! several such results.
 
 use super::trade_args::{settings_json, TradeArgs};
+use super::trade_budget::{plan_cells, run_of, BenchBudget};
 use super::trade_report;
 use super::trade_runs::{
     abs_grad_applies, calendar_config, fills_budget, run_lpm_config, selected_runs, RUNS,
 };
 use super::trade_summary::{
-    column_header, paired_table, plot, summarize, table_rows, Summary, TradeRow,
+    column_header, guide_table, paired_table, plot, summarize, table_rows, Summary, TradeRow,
 };
 use crate::cli::lpips_scores;
 use crate::cli::train::prepare_output;
+use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder};
@@ -98,28 +100,13 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
             )
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
-    // A budget is resolved against each seed's initial model; a start above it is drawn down
-    // to it (`within_budget`), for every run of that seed alike.
-    let targets: Vec<Option<usize>> = inits
-        .iter()
-        .map(|i| args.budget.map(|b| b.resolve(i.len())))
-        .collect();
-    let inits: Vec<_> = inits
-        .into_iter()
-        .zip(&targets)
-        .zip(&seeds)
-        .map(|((init, t), &seed)| match t {
-            Some(t) if *t < init.len() => {
-                eprintln!(
-                    "bench trade: budget {t} below the {} initial Gaussians of seed {seed}: \
-                     every run starts from {t} of them, drawn at random",
-                    init.len()
-                );
-                lpmsplat::splats::init::within_budget(init, *t, seed)
-            }
-            _ => init,
-        })
-        .collect();
+    let names: Vec<&str> = RUNS.iter().map(|r| r.name).collect();
+    let cells = plan_cells(&names, &selected, seeds.len(), &args.budget)?;
+    let grid = cells.iter().any(|c| c.name.contains('@'));
+    anyhow::ensure!(
+        !(args.match_adc_count && grid),
+        "bench trade: --match-adc-count follows adc's count at every iteration, a grid of          budgets (--budget with several values, or one relative to adc) holds each run to its          own. Fix: drop one of them"
+    );
     let ctx = GpuContext::new(gpu)?;
     let facts = RunFacts::new(&ctx.info.name, &scene, args.lpm_block);
     let calendar = args.calendar.unwrap_or(args.iterations);
@@ -150,10 +137,56 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
         facts.blocks_px(),
         ctx.info.name
     );
-    let mut runs = Vec::new();
-    for &k in &selected {
-        for (si, &seed) in seeds.iter().enumerate() {
-            let name = RUNS[k].name;
+    // Budgets relative to adc wait for the free adc runs (the references): two phases, each
+    // interleaved in itself. Otherwise one.
+    let (first, rest): (Vec<usize>, Vec<usize>) =
+        (0..cells.len()).partition(|&i| cells[i].reference);
+    let phases: Vec<Vec<usize>> = [first, rest]
+        .into_iter()
+        .filter(|p| !p.is_empty())
+        .collect();
+    let total = args.iterations as u64 * cells.len() as u64;
+    let bar = ProgressBar::new(total);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{bar:30} {pos}/{len} {msg} [{elapsed_precise} < {eta_precise}]",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let plain = !std::io::IsTerminal::is_terminal(&std::io::stderr());
+    let mut last_line = Instant::now();
+    let mut done = 0u64;
+    let mut rows = Vec::new();
+    // Each seed's free adc count at the end, once its reference has run.
+    let mut adc_final: Vec<Option<usize>> = vec![None; seeds.len()];
+    let mut drawn_told = Vec::new();
+    for phase in phases {
+        let mut runs = Vec::new();
+        for &ci in &phase {
+            let c = &cells[ci];
+            let (name, seed) = (RUNS[c.k].name, seeds[c.seed]);
+            let initial = inits[c.seed].len();
+            let target = match c.budget {
+                None => None,
+                Some(b) => Some(
+                    args.budget[b]
+                        .resolve(initial, adc_final[c.seed])
+                        .with_context(|| {
+                            format!("bench trade: adc's final count of seed {seed} is unknown")
+                        })?,
+                ),
+            };
+            if let Some(t) = target.filter(|&t| t < initial) {
+                // A start above the budget is drawn down to it (`within_budget`), for every
+                // run at that budget and seed alike.
+                if !drawn_told.contains(&(t, seed)) {
+                    eprintln!(
+                        "bench trade: budget {t} below the {initial} initial Gaussians of seed \
+                         {seed}: its runs start from {t} of them, drawn at random"
+                    );
+                    drawn_told.push((t, seed));
+                }
+            }
             let mut cfg = base.clone();
             cfg.seed = seed;
             if name == "adc-threshold-1e-4" {
@@ -167,17 +200,16 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
             if let Some(c) = &lpm {
                 c.validate()?;
             }
-            let mcmc = apply_budget(
-                name,
-                &mut cfg,
-                args,
-                (inits[si].len(), targets[si]),
-                calendar,
-            )?;
+            let start = target.map_or(initial, |t| t.min(initial));
+            let mcmc = apply_budget(name, &mut cfg, args, (start, target), calendar)?;
             runs.push(Run {
-                k,
+                k: c.k,
+                name: c.name.clone(),
+                colour: cell_colour(RUNS[c.k].colour, c.budget, args.budget.len(), grid),
                 seed,
-                init: si,
+                init: c.seed,
+                target,
+                reference: c.reference,
                 cfg,
                 lpm,
                 mcmc,
@@ -187,125 +219,118 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                 model_events: Vec::new(),
             });
         }
-    }
-    let total = args.iterations as u64 * runs.len() as u64;
-    let bar = ProgressBar::new(total);
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{bar:30} {pos}/{len} {msg} [{elapsed_precise} < {eta_precise}]",
-        )
-        .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
-    let plain = !std::io::IsTerminal::is_terminal(&std::io::stderr());
-    let mut last_line = Instant::now();
-    let mut done = 0u64;
-    let mut rows = Vec::new();
-    // Interleaved: every run advances one iteration per round, so each run's summed step time
-    // sees the same load. Sequential: one run to the end, evaluated and dropped, then the next.
-    // --match-adc-count: adc's count after each iteration, one list per seed. adc comes first
-    // in `runs` (table order), so within a round, or sequentially, it has run the iteration
-    // that another run of its seed is about to.
-    let mut adc_counts: Vec<Vec<usize>> = vec![Vec::new(); seeds.len()];
-    let groups: Vec<Vec<usize>> = if args.sequential {
-        (0..runs.len()).map(|i| vec![i]).collect()
-    } else {
-        vec![(0..runs.len()).collect()]
-    };
-    for group in groups {
-        for &i in &group {
-            let r = &mut runs[i];
-            let init = &inits[r.init];
-            let mut t = Trainer::new(&ctx, &scene, train_images.clone(), init, r.cfg.clone())?;
-            let strategy = lpmsplat::strategies::assemble(
-                &ctx,
-                &scene,
-                &train_images,
-                &r.cfg,
-                r.lpm.clone(),
-                r.mcmc,
-                &args.out,
-            )?;
-            if let Some(s) = strategy {
-                t.set_strategy(s);
-            }
-            r.trainer = Some(t);
-        }
-        for it in 1..=args.iterations {
+        // Interleaved: every run advances one iteration per round, so each run's summed step
+        // time sees the same load. Sequential: one run to the end, evaluated and dropped, then
+        // the next. --match-adc-count: adc's count after each iteration, one list per seed.
+        // adc comes first in `runs` (table order), so within a round, or sequentially, it has
+        // run the iteration that another run of its seed is about to.
+        let mut adc_counts: Vec<Vec<usize>> = vec![Vec::new(); seeds.len()];
+        let groups: Vec<Vec<usize>> = if args.sequential {
+            (0..runs.len()).map(|i| vec![i]).collect()
+        } else {
+            vec![(0..runs.len()).collect()]
+        };
+        for group in groups {
             for &i in &group {
                 let r = &mut runs[i];
-                let t = r.trainer.as_mut().expect("trainer built above");
-                let is_adc = RUNS[r.k].name == "adc";
-                if args.match_adc_count && !is_adc {
-                    let adc = adc_counts[r.init][it as usize - 1];
-                    t.set_max_gaussians(Some(args.max_gaussians.map_or(adc, |cap| cap.min(adc))));
+                let init = match r.target {
+                    Some(t) if t < inits[r.init].len() => std::borrow::Cow::Owned(
+                        lpmsplat::splats::init::within_budget(inits[r.init].clone(), t, r.seed),
+                    ),
+                    _ => std::borrow::Cow::Borrowed(&inits[r.init]),
+                };
+                let mut t = Trainer::new(&ctx, &scene, train_images.clone(), &init, r.cfg.clone())?;
+                let strategy = lpmsplat::strategies::assemble(
+                    &ctx,
+                    &scene,
+                    &train_images,
+                    &r.cfg,
+                    r.lpm.clone(),
+                    r.mcmc,
+                    &args.out,
+                )?;
+                if let Some(s) = strategy {
+                    t.set_strategy(s);
                 }
-                if eval_at.contains(&it) {
-                    t.snapshot_next_step();
-                }
-                let t0 = Instant::now();
-                // The next iteration is recorded while this one runs, unless an evaluation
-                // comes after this one or a snapshot before the next.
-                let prepare =
-                    it < args.iterations && !eval_at.contains(&it) && !eval_at.contains(&(it + 1));
-                let report = t.step_ahead(prepare)?;
-                r.seconds += t0.elapsed().as_secs_f64();
-                // The count after this iteration, as `train`'s metrics.json averages it.
-                r.count_sum += report.gaussians as f64;
-                if args.match_adc_count && is_adc {
-                    adc_counts[r.init].push(t.state.count());
-                }
-                r.model_events
-                    .extend(report.model_events.iter().map(|e| e.to_json()));
+                r.trainer = Some(t);
             }
-            done += group.len() as u64;
-            if done.is_multiple_of(20) || done == total {
-                let msg = group
-                    .iter()
-                    .map(|&i| {
-                        let r = &runs[i];
-                        let t = r.trainer.as_ref().expect("trainer built above");
-                        if seeds.len() > 1 {
-                            format!("{}/{} {}", RUNS[r.k].name, r.seed, t.state.count())
-                        } else {
-                            format!("{} {}", RUNS[r.k].name, t.state.count())
-                        }
-                    })
-                    .collect::<Vec<_>>()
-                    .join(" | ");
-                bar.set_position(done);
-                bar.set_message(format!("Gaussians: {msg}"));
-                if plain && (last_line.elapsed().as_secs() >= 10 || done == total) {
-                    eprintln!("[{done}/{total}] Gaussians: {msg}");
-                    last_line = Instant::now();
-                }
-            }
-            if eval_at.contains(&it) {
+            for it in 1..=args.iterations {
                 for &i in &group {
                     let r = &mut runs[i];
-                    let mut t = r.trainer.take().expect("trainer built above");
-                    let row = bar.suspend(|| {
-                        let test = TestSet {
-                            scene: &scene,
-                            images: &test_images,
-                            lpips: lpips.as_ref(),
-                        };
-                        evaluate_run(&ctx, &test, r, &mut t, it, args)
-                    })?;
-                    r.trainer = Some(t);
-                    rows.push(row);
+                    let t = r.trainer.as_mut().expect("trainer built above");
+                    let is_adc = RUNS[r.k].name == "adc";
+                    if args.match_adc_count && !is_adc {
+                        let adc = adc_counts[r.init][it as usize - 1];
+                        t.set_max_gaussians(Some(
+                            args.max_gaussians.map_or(adc, |cap| cap.min(adc)),
+                        ));
+                    }
+                    if eval_at.contains(&it) {
+                        t.snapshot_next_step();
+                    }
+                    let t0 = Instant::now();
+                    // The next iteration is recorded while this one runs, unless an
+                    // evaluation comes after this one or a snapshot before the next.
+                    let prepare = it < args.iterations
+                        && !eval_at.contains(&it)
+                        && !eval_at.contains(&(it + 1));
+                    let report = t.step_ahead(prepare)?;
+                    r.seconds += t0.elapsed().as_secs_f64();
+                    // The count after this iteration, as `train`'s metrics.json averages it.
+                    r.count_sum += report.gaussians as f64;
+                    if args.match_adc_count && is_adc {
+                        adc_counts[r.init].push(t.state.count());
+                    }
+                    r.model_events
+                        .extend(report.model_events.iter().map(|e| e.to_json()));
                 }
-                rows.sort_by_key(|r| {
-                    (
-                        r.iteration,
-                        RUNS.iter().position(|n| n.name == r.run),
-                        r.seed,
-                    )
-                });
-                write_outputs(&rows, &facts, &view_name, args)?;
+                done += group.len() as u64;
+                if done.is_multiple_of(20) || done == total {
+                    let msg = group
+                        .iter()
+                        .map(|&i| {
+                            let r = &runs[i];
+                            let t = r.trainer.as_ref().expect("trainer built above");
+                            if seeds.len() > 1 {
+                                format!("{}/{} {}", r.name, r.seed, t.state.count())
+                            } else {
+                                format!("{} {}", r.name, t.state.count())
+                            }
+                        })
+                        .collect::<Vec<_>>()
+                        .join(" | ");
+                    bar.set_position(done);
+                    bar.set_message(format!("Gaussians: {msg}"));
+                    if plain && (last_line.elapsed().as_secs() >= 10 || done == total) {
+                        eprintln!("[{done}/{total}] Gaussians: {msg}");
+                        last_line = Instant::now();
+                    }
+                }
+                if eval_at.contains(&it) {
+                    for &i in &group {
+                        let r = &mut runs[i];
+                        let mut t = r.trainer.take().expect("trainer built above");
+                        let row = bar.suspend(|| {
+                            let test = TestSet {
+                                scene: &scene,
+                                images: &test_images,
+                                lpips: lpips.as_ref(),
+                            };
+                            evaluate_run(&ctx, &test, r, &mut t, it, args)
+                        })?;
+                        if r.reference && it == args.iterations {
+                            adc_final[r.init] = Some(row.gaussians);
+                        }
+                        r.trainer = Some(t);
+                        rows.push(row);
+                    }
+                    rows.sort_by_key(|r| row_order(r, &args.budget, &seeds));
+                    write_outputs(&rows, &facts, &view_name, args)?;
+                }
             }
-        }
-        for &i in &group {
-            runs[i].trainer = None;
+            for &i in &group {
+                runs[i].trainer = None;
+            }
         }
     }
     bar.finish_and_clear();
@@ -407,12 +432,32 @@ pub fn table(rows: &[Summary], facts: &RunFacts, args: &TradeArgs) -> String {
 fn budget_sentence(args: &TradeArgs) -> String {
     let follow = "Every run but adc trained under a budget of adc's count at the same seed and \
                   iteration";
-    match (args.match_adc_count, args.max_gaussians) {
+    let grid = if args.budget.len() > 1
+        || args
+            .budget
+            .iter()
+            .any(|b| matches!(b, BenchBudget::TimesAdc(_)))
+    {
+        format!(
+            " Every run trained at each budget ({}; RUN@BUDGET), x-adc of the final count of a \
+             free adc of the same seed, trained first (the rows named adc): adc-exact* and mcmc \
+             fill the budget exactly, the others are capped at it.",
+            args.budget
+                .iter()
+                .map(BenchBudget::label)
+                .collect::<Vec<_>>()
+                .join(", ")
+        )
+    } else {
+        String::new()
+    };
+    let cap = match (args.match_adc_count, args.max_gaussians) {
         (true, None) => format!(" {follow} (--match-adc-count)."),
         (true, Some(n)) => format!(" {follow}, at most {n} Gaussians (--match-adc-count)."),
         (false, Some(n)) => format!(" Every run trained under a budget of at most {n} Gaussians."),
         (false, None) => String::new(),
-    }
+    };
+    cap + &grid
 }
 
 /// [`table`] of the rows' summary, and with several seeds each run's per-seed differences from
@@ -422,6 +467,10 @@ fn tables(rows: &[TradeRow], facts: &RunFacts, args: &TradeArgs) -> String {
     if args.seeds > 1 && rows.iter().any(|r| r.run == "adc") {
         s += "\n";
         s += &paired_table(rows, "adc");
+    }
+    if let Some(g) = guide_table(rows) {
+        s += "\n";
+        s += &g;
     }
     s
 }
@@ -477,11 +526,44 @@ fn write_outputs(
     Ok(())
 }
 
+/// Where a row sorts: by iteration, the runs table's order, the budgets' order, the seed.
+fn row_order(r: &TradeRow, budgets: &[BenchBudget], seeds: &[u64]) -> (u32, usize, usize, usize) {
+    let run = RUNS
+        .iter()
+        .position(|n| n.name == run_of(&r.run))
+        .unwrap_or(RUNS.len());
+    let budget = budgets
+        .iter()
+        .position(|b| r.run.ends_with(&format!("@{}", b.label())))
+        .map_or(0, |i| i + 1);
+    let seed = seeds.iter().position(|&s| s == r.seed).unwrap_or(0);
+    (r.iteration, run, budget, seed)
+}
+
+/// A cell's colour: its run's, lightened along the budgets in a grid so that one run's cells
+/// stay one hue and can still be told apart in the curves.
+fn cell_colour(colour: [u8; 3], budget: Option<usize>, budgets: usize, grid: bool) -> [u8; 3] {
+    match budget {
+        Some(b) if grid && budgets > 1 => {
+            let f = 0.55 * b as f64 / (budgets - 1) as f64;
+            colour.map(|c| (c as f64 + (255.0 - c as f64) * f).round() as u8)
+        }
+        _ => colour,
+    }
+}
+
 struct Run {
     k: usize,
+    /// The name its rows carry (`mcmc@0.5x-adc` in a grid) and its colour in the plots.
+    name: String,
+    colour: [u8; 3],
     seed: u64,
     /// Index of the run's initial model (one per seed).
     init: usize,
+    /// Its budget's count (the initial model is drawn down to it where above).
+    target: Option<usize>,
+    /// A free adc run that budgets relative to adc's count wait for.
+    reference: bool,
     cfg: TrainConfig,
     lpm: Option<LpmConfig>,
     /// MCMC's settings, for the mcmc run.
@@ -507,7 +589,7 @@ fn apply_budget(
 ) -> anyhow::Result<Option<McmcConfig>> {
     anyhow::ensure!(
         !fills_budget(name)
-            || args.budget.is_some()
+            || !args.budget.is_empty()
             || (args.match_adc_count && !name.starts_with("mcmc")),
         "bench trade: run {name} fills a Gaussian budget. Fix: pass --budget N (e.g. adc's final \
          count), or --match-adc-count for the adc-exact runs"
@@ -578,7 +660,7 @@ fn evaluate_run(
     args: &TradeArgs,
 ) -> anyhow::Result<TradeRow> {
     let (scene, test_images, lpips) = (test.scene, test.images, test.lpips);
-    let (name, colour) = (RUNS[r.k].name, RUNS[r.k].colour);
+    let (name, colour) = (r.name.as_str(), r.colour);
     // The report view's render and truth are saved at the final iteration of the first seed.
     let report = (iteration == args.iterations && r.seed == args.seed)
         .then(|| trade_report::report_view(scene, args.report_view.as_deref()))

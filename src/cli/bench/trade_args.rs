@@ -96,12 +96,17 @@ pub struct TradeArgs {
     /// --max-gaussians`): at the cap the runs compare at one count.
     #[arg(long, value_name = "N", value_parser = crate::cli::train::parse_max_gaussians)]
     pub max_gaussians: Option<usize>,
-    /// The Gaussian budget: a count (500k, 2.5M) or a multiple of the initial model's (3x).
-    /// adc-exact* and mcmc end densification exactly there (their curves: --budget-growth);
-    /// every other run trains under it as a cap (ADC at the budget). The Taming protocol takes
-    /// the budgets from adc's own final counts (0.25×, 0.5×, 1×).
-    #[arg(long, value_name = "N", value_parser = crate::cli::train::parse_budget)]
-    pub budget: Option<crate::cli::train::Budget>,
+    /// The Gaussian budget: a count (500k, 2.5M), a multiple of the initial model's (3x), or a
+    /// multiple of ADC's own final count at the same seed (0.5x-adc). adc-exact* and mcmc end
+    /// densification exactly there (their curves: --budget-growth); every other run trains
+    /// under it as a cap (ADC at the budget). Several, comma separated, make a grid in one
+    /// command: every run at every budget, its rows named RUN@BUDGET, one line per run through
+    /// its budgets in trade.png. Budgets relative to ADC (the Taming protocol's 0.25x-adc,
+    /// 0.5x-adc, 1x-adc) first train a free adc per seed, the reference, then the grid
+    /// interleaved; adc in --runs then means ADC capped at each budget (not at 1x-adc, the
+    /// reference itself).
+    #[arg(long, value_name = "N", value_delimiter = ',', value_parser = super::trade_budget::parse_bench_budget)]
+    pub budget: Vec<super::trade_budget::BenchBudget>,
     /// How adc-exact* and mcmc grow to the budget: taming (adc-exact's default), linear, mcmc
     /// (5 % a step; mcmc's default).
     #[arg(long, value_name = "CURVE", value_parser = lpmsplat::train::density::growth::Growth::parse)]
@@ -139,7 +144,7 @@ pub fn settings_json(args: &TradeArgs) -> serde_json::Value {
         "densify_abs_grad": args.densify_abs_grad,
         "max_gaussians": args.max_gaussians,
         "match_adc_count": args.match_adc_count,
-        "budget": args.budget.map(|b| format!("{b:?}")),
+        "budget": super::trade_budget::BenchBudget::setting(&args.budget),
         "budget_growth": args.budget_growth.map(|g| g.name()),
         "lpm_zone_weight": args.lpm_zone_weight,
         "init": format!("{:?}", args.init).to_lowercase(),

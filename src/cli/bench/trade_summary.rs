@@ -2,6 +2,7 @@
 //! spread, paired with ADC seed by seed), the table printed and written to trade.md, and
 //! trade.png (PSNR against Gaussian count and against training time).
 
+use super::trade_budget::{run_of, unguided};
 use lpmsplat::plot::{panels_png, Panel, Series};
 
 /// One run at one evaluated iteration: a row of trade.json's `runs` (read back by `bench merge`,
@@ -341,9 +342,113 @@ pub fn paired_table(rows: &[TradeRow], baseline: &str) -> String {
     s
 }
 
+/// LPM as a guide at one count: every run with LPM against the same strategy without it at the
+/// same budget (`mcmc+lpm-local@0.5x-adc` − `mcmc@0.5x-adc`), paired by seed, at each evaluated
+/// iteration: the mean ± standard error of the PSNR and SSIM differences, and each seed's.
+/// `None` when no run with LPM has its twin among the rows.
+pub fn guide_table(rows: &[TradeRow]) -> Option<String> {
+    let mut keys: Vec<(&str, u32, String)> = Vec::new();
+    for r in rows {
+        if let Some(twin) = unguided(&r.run) {
+            let known = keys.iter().any(|k| k.0 == r.run && k.1 == r.iteration);
+            if !known && rows.iter().any(|b| b.run == twin) {
+                keys.push((r.run.as_str(), r.iteration, twin));
+            }
+        }
+    }
+    if keys.is_empty() {
+        return None;
+    }
+    let mut s = String::from(
+        "LPM as a guide at one count: each run with LPM against the same strategy without it \
+         at the same budget, paired by seed (mean ± standard error over the pairs).\n\n\
+         | run | against | iteration | ΔPSNR | ΔSSIM | pairs | ΔPSNR seed by seed |\n\
+         |---|---|---|---|---|---|---|\n",
+    );
+    for (run, it, twin) in keys {
+        let mut pairs: Vec<(u64, f64, f64)> = rows
+            .iter()
+            .filter(|r| r.run == run && r.iteration == it)
+            .filter_map(|r| {
+                rows.iter()
+                    .find(|b| b.run == twin && b.iteration == it && b.seed == r.seed)
+                    .map(|b| (r.seed, r.psnr - b.psnr, r.ssim - b.ssim))
+            })
+            .collect();
+        pairs.sort_by_key(|p| p.0);
+        if pairs.is_empty() {
+            continue;
+        }
+        let pm = |v: Vec<f64>, digits: usize| {
+            let (m, sd) = mean_sd(&v);
+            if v.len() > 1 {
+                format!("{m:+.digits$} ± {:.digits$}", sd / (v.len() as f64).sqrt())
+            } else {
+                format!("{m:+.digits$}")
+            }
+        };
+        let dpsnr = pm(pairs.iter().map(|p| p.1).collect(), 3);
+        let dssim = pm(pairs.iter().map(|p| p.2).collect(), 4);
+        let cells = pairs
+            .iter()
+            .map(|(seed, d, _)| format!("{seed}: {d:+.3}"))
+            .collect::<Vec<_>>()
+            .join(", ");
+        s += &format!(
+            "| {run} | {twin} | {it} | {dpsnr} | {dssim} | {} | {cells} |\n",
+            pairs.len()
+        );
+    }
+    Some(s)
+}
+
+/// A grid's quality against model size at the final evaluation: one line per run through its
+/// budgets (`RUN@BUDGET` rows), in the run's colour, sorted by count; a row without a budget
+/// (the free adc reference) is a point of its own.
+fn budget_lines(rows: &[TradeRow]) -> Vec<Series> {
+    let Some(last) = rows.iter().map(|r| r.iteration).max() else {
+        return Vec::new();
+    };
+    let finals: Vec<&TradeRow> = rows.iter().filter(|r| r.iteration == last).collect();
+    let mut names: Vec<&str> = Vec::new();
+    for r in &finals {
+        let n = if r.run.contains('@') {
+            run_of(&r.run)
+        } else {
+            r.run.as_str()
+        };
+        if !names.contains(&n) {
+            names.push(n);
+        }
+    }
+    names
+        .iter()
+        .map(|&n| {
+            let mut own: Vec<&&TradeRow> = finals
+                .iter()
+                .filter(|r| r.run == n || (r.run.contains('@') && run_of(&r.run) == n))
+                .collect();
+            own.sort_by_key(|r| r.gaussians);
+            // The darkest of its cells' colours: the run's own (the grid lightens the others).
+            let colour = own
+                .iter()
+                .map(|r| r.colour)
+                .min_by_key(|c| c.iter().map(|&v| v as u32).sum::<u32>())
+                .unwrap_or([0; 3]);
+            Series {
+                name: n.to_string(),
+                colour,
+                points: own.iter().map(|r| (r.gaussians as f64, r.psnr)).collect(),
+                markers: true,
+            }
+        })
+        .collect()
+}
+
 /// Four panels (2 × 2): PSNR against Gaussians and against training seconds (the trade-off),
 /// then PSNR and Gaussians against iterations (the curves). One line per run through its
-/// evaluated iterations, in the run's colour, named in the legend; a dot per evaluation.
+/// evaluated iterations, in the run's colour, named in the legend; a dot per evaluation. A grid
+/// of budgets draws the first panel as one line per run through its budgets ([`budget_lines`]).
 pub fn plot(rows: &[TradeRow]) -> anyhow::Result<Vec<u8>> {
     let mut names: Vec<&str> = Vec::new();
     for r in rows {
@@ -376,13 +481,23 @@ pub fn plot(rows: &[TradeRow]) -> anyhow::Result<Vec<u8>> {
     let gaussians = |r: &TradeRow| r.gaussians as f64;
     let seconds = |r: &TradeRow| r.train_seconds;
     let iteration = |r: &TradeRow| r.iteration as f64;
+    let grid = rows.iter().any(|r| r.run.contains('@'));
     let panels = [
-        panel(
-            "PSNR against model size",
-            "Gaussians",
-            "test PSNR (dB)",
-            series(&gaussians, &psnr),
-        ),
+        if grid {
+            panel(
+                "PSNR against model size: one line per run through its budgets",
+                "Gaussians (final iteration)",
+                "test PSNR (dB)",
+                budget_lines(rows),
+            )
+        } else {
+            panel(
+                "PSNR against model size",
+                "Gaussians",
+                "test PSNR (dB)",
+                series(&gaussians, &psnr),
+            )
+        },
         panel(
             "PSNR against training time",
             "training seconds",
