@@ -13,6 +13,7 @@ use crate::splats::{self, read_ply, GaussianParams};
 pub enum InitSource {
     /// Triangulate video scenes, random points for still ones.
     Auto,
+    /// Random points in the cameras' bounds, even where the scene has SfM points.
     Random,
     Triangulate,
 }
@@ -57,7 +58,16 @@ pub fn initial_model(
         init.map_frame(scene.frame.stored_to_train(shift), &[], false);
         return Ok(model.initialise(init, seed));
     }
-    if let Some(points) = scene.points.as_ref().filter(|p| !p.is_empty()) {
+    let sfm = scene.points.as_ref().filter(|p| !p.is_empty());
+    if let (Some(points), InitSource::Random) = (sfm, source) {
+        // Asked for by name: random points even where SfM points exist (MCMC's claim is that
+        // it does not need them; this is how to test it).
+        eprintln!(
+            "--init random: the scene's {} SfM points are not used; {init_points} random points \
+             instead",
+            points.len()
+        );
+    } else if let Some(points) = sfm {
         ignored("the scene's SfM points");
         return Ok(model.initialise(splats::init::from_sfm(points, sh_degree)?, seed));
     }

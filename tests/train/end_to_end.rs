@@ -1613,3 +1613,38 @@ fn a_run_that_prunes_every_gaussian_says_so_and_readers_refuse_it() {
         "{err}"
     );
 }
+
+/// `--init random` by name replaces a scene's SfM points with --init-points random ones (MCMC's
+/// random start), and says so; without it the SfM points start the run.
+#[test]
+fn init_random_by_name_replaces_the_sfm_points() {
+    let scene = data("lund_door_small");
+    let count = |extra: &[&str]| {
+        let out = tempfile::tempdir().unwrap();
+        let text = run_ok(
+            lpmsplat()
+                .args([
+                    "train",
+                    scene.to_str().unwrap(),
+                    "-r",
+                    "8",
+                    "--iterations",
+                    "1",
+                ])
+                .args(["--init-points", "321", "-o"])
+                .arg(out.path())
+                .args(extra),
+        );
+        let ply = read_ply(&out.path().join("point_cloud.ply")).unwrap();
+        (ply.len(), text)
+    };
+    let (random, text) = count(&["--init", "random"]);
+    assert_eq!(random, 321, "{text}");
+    assert!(
+        text.contains("SfM points are not used; 321 random points instead"),
+        "{text}"
+    );
+    let (sfm, text) = count(&[]);
+    assert!(sfm > 1000, "{text}");
+    assert!(!text.contains("random points"), "{text}");
+}

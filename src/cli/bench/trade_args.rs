@@ -44,8 +44,8 @@ pub struct TradeArgs {
     /// points).
     #[arg(long, default_value_t = 100_000)]
     pub init_points: usize,
-    /// Where they come from: auto (triangulate video scenes), random or triangulate (as
-    /// `train --init`).
+    /// Where they come from: auto (triangulate video scenes), random (even where the scene has
+    /// SfM points) or triangulate (as `train --init`).
     #[arg(long, value_enum, default_value_t = lpmsplat::initial::InitSource::Auto)]
     pub init: lpmsplat::initial::InitSource,
     /// Output folder for trade.json, trade.md and trade.png.

@@ -55,15 +55,17 @@ pub struct TrainArgs {
     /// Start from this PLY instead of the SfM points / random points.
     #[arg(long)]
     pub init_ply: Option<PathBuf>,
-    /// Initial points for scenes without SfM points (the reference uses 100k random ones).
+    /// Initial points for scenes without SfM points, or with --init random (the reference uses
+    /// 100k random ones).
     #[arg(long, default_value_t = 100_000)]
     pub init_points: usize,
     /// Where the initial points of a scene without SfM points come from: `triangulate` (feature
     /// matches between neighbour views triangulated with the known poses, a video scene's at
     /// 10 frames over the segment with each point centred at its frame's time, topped up with
     /// random points to --init-points, as SpacetimeGaussians starts from triangulated points),
-    /// `random` (a box in front of the cameras, as the NeRF-synthetic reference does) or `auto`
-    /// (triangulate video scenes, random points for still ones).
+    /// `random` (--init-points in a box in front of the cameras, as the NeRF-synthetic
+    /// reference does; named, it replaces a scene's SfM points too, as MCMC's random start) or
+    /// `auto` (triangulate video scenes, random points for still ones).
     #[arg(long, value_enum, default_value_t = InitSource::Auto)]
     pub init: InitSource,
     /// Evaluate on the test views every N iterations (0 = only at the end).
