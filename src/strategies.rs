@@ -56,6 +56,21 @@ pub fn assemble(
     mcmc: Option<McmcConfig>,
     cache_dir: &Path,
 ) -> anyhow::Result<Option<Box<dyn DensityStrategy>>> {
+    if let Some(c) = lpm.as_ref().filter(|c| c.surface_share > 0.0) {
+        anyhow::ensure!(
+            mcmc.is_some(),
+            "LPM surface share {} (--lpm-surface-share) moves MCMC's dead Gaussians onto the \
+             zones' surface samples; this run has no MCMC. Fix: add --strategy mcmc --budget N, \
+             or drop --lpm-surface-share",
+            c.surface_share
+        );
+        anyhow::ensure!(
+            c.zones.geometry == crate::lpm::ZoneGeometry::Local,
+            "LPM surface share {} (--lpm-surface-share) takes its samples from local zones' SfM \
+             points. Fix: add --lpm-zone local, or drop --lpm-surface-share",
+            c.surface_share
+        );
+    }
     let mcmc = match mcmc {
         Some(c) => Some(McmcStrategy::new(ctx, c, primitive_of(config))?),
         None => None,

@@ -77,6 +77,11 @@ pub struct LpmConfig {
     /// Zones holding more than this share of the model's Gaussians are dropped (counted by the
     /// membership pass; `None`: no limit). A zone that holds a tenth of the model is not local.
     pub max_zone_share: Option<f64>,
+    /// With a strategy that moves dead Gaussians (MCMC): the largest share of a step's dead
+    /// Gaussians moved onto surface samples inside the local zones (the SfM points the view
+    /// observes there, coloured from the ground truth, `lpm::surface`) instead of onto live
+    /// Gaussians. 0: none. Needs local zones from SfM tracks; elsewhere there are no samples.
+    pub surface_share: f64,
 }
 
 /// The largest share of the model one local zone may hold ([`LpmConfig::with_local_zones`]).
@@ -153,6 +158,7 @@ impl Default for LpmConfig {
             reset_max_zone_radius: None,
             region_unit: RegionUnit::Components,
             max_zone_share: None,
+            surface_share: 0.0,
         }
     }
 }
@@ -267,6 +273,13 @@ impl LpmConfig {
                  pass e.g. 0.01 (no zone holds more than 1 % of the model's Gaussians)"
             );
         }
+        anyhow::ensure!(
+            (0.0..=1.0).contains(&self.surface_share),
+            "LPM surface share {} (--lpm-surface-share) must lie in [0, 1]. Fix: pass e.g. 0.5 \
+             (up to half of each MCMC refinement's dead Gaussians move onto the local zones' \
+             surface samples) or 0 (none)",
+            self.surface_share
+        );
         self.reset_settings.top_basis_points()?;
         self.reset_settings.reset_logit()?;
         Ok(())
@@ -303,6 +316,7 @@ impl LpmConfig {
             "min_parallax_deg": self.zones.min_parallax_deg,
             "band_quantiles": [self.zones.band_quantiles.0, self.zones.band_quantiles.1],
             "band_margin": self.zones.band_margin,
+            "surface_share": self.surface_share,
         })
     }
 }
@@ -334,6 +348,10 @@ impl LpmConfig {
             }
             if self.max_zone_share.is_none() {
                 o.remove("max_zone_share");
+            }
+            // Of 2026-12-07: older checkpoints moved no dead Gaussian onto surface samples.
+            if self.surface_share == 0.0 {
+                o.remove("surface_share");
             }
             if self.zones.geometry != ZoneGeometry::Local {
                 for k in ["min_parallax_deg", "band_quantiles", "band_margin"] {

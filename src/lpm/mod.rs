@@ -28,6 +28,7 @@ pub mod region_units;
 pub mod regions;
 pub mod report;
 pub mod strategy;
+pub mod surface;
 pub mod view_points;
 pub mod zones;
 

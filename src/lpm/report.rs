@@ -35,6 +35,9 @@ pub struct LpmStepReport {
     /// Gaussians whose opacity LPM reset.
     pub reset: u32,
     pub added: u32,
+    /// Surface samples offered to the guided strategy (`surface_share`; MCMC moves dead
+    /// Gaussians onto some of them, its own events say how many).
+    pub surface_samples: usize,
     /// ADC was skipped (no zone, `skip_adc_without_zone`).
     pub skipped_adc: bool,
     /// This step ran only the opacity reset (a reset iteration without LPM's density part).
@@ -65,7 +68,8 @@ impl LpmStepReport {
             "no_reset_zones": self.no_reset, "too_full_dropped": self.too_full,
             "inside_max_share": self.inside_max_share, "inside": self.inside,
             "lowered": self.lowered, "pruned_extra": self.pruned, "opacity_reset": self.reset,
-            "added": self.added, "skipped_adc": self.skipped_adc, "reset_only": self.reset_only,
+            "added": self.added, "surface_samples": self.surface_samples,
+            "skipped_adc": self.skipped_adc, "reset_only": self.reset_only,
             "seconds": self.seconds,
         })
     }

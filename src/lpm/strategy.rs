@@ -39,6 +39,7 @@ use crate::lpm::record::local_zones_for_step;
 use crate::lpm::record::ZONE_NO_RESET;
 use crate::lpm::region_units::step_regions;
 use crate::lpm::report::{LpmStepReport, LpmTotals};
+use crate::lpm::surface::zone_samples;
 use crate::lpm::view_points::ViewPoints;
 use crate::lpm::{regions, zones_for_step, Correspondences, ZoneGeometry, ZoneRecord};
 use crate::scene::image_source::{ImageSource, TrainImages};
@@ -46,7 +47,9 @@ use crate::scene::{Image, Scene, View};
 use crate::shaders;
 use crate::splats::gpu::grown_capacity;
 use crate::train::density::{DensifyArgs, DensifyOutcome};
-use crate::train::strategy::{Adc, DensityContext, DensityStrategy, IterationView, StrategyEvent};
+use crate::train::strategy::{
+    Adc, DensityContext, DensityStrategy, Guide, IterationView, StrategyEvent,
+};
 
 const WG: u32 = 256;
 
@@ -237,7 +240,7 @@ impl LpmStrategy {
         bg: [f32; 3],
         iteration: u32,
         extent: f64,
-    ) -> anyhow::Result<(LpmStepReport, Vec<ZoneRecord>)> {
+    ) -> anyhow::Result<(LpmStepReport, Vec<ZoneRecord>, Vec<Vec<NewGaussian>>)> {
         let mut report = LpmStepReport {
             iteration,
             view,
@@ -294,12 +297,13 @@ impl LpmStrategy {
         let owners =
             (self.config.region_keypoints == RegionKeypoints::ErrorBlocks).then_some(&owners);
         report.regions = regions.len();
+        let mut samples: Vec<Vec<NewGaussian>> = Vec::new();
         let step = match reference {
             _ if from_sfm && !regions.is_empty() => {
                 let gt = self
                     .ground_truth(view)?
                     .context("LPM: the current view has no ground truth")?;
-                local_zones_for_step(
+                let step = local_zones_for_step(
                     &self.views[view],
                     &regions,
                     owners,
@@ -308,7 +312,28 @@ impl LpmStrategy {
                     &gt,
                     bg,
                     &self.config.zones,
-                )
+                );
+                if self.config.surface_share > 0.0 {
+                    samples = step
+                        .zones
+                        .iter()
+                        .zip(&step.pairs)
+                        .map(|(z, p)| {
+                            zone_samples(
+                                &self.views[view],
+                                z,
+                                &p.in_view,
+                                &p.matched,
+                                sfm.0,
+                                sfm.1,
+                                &gt,
+                                bg,
+                                self.config.add_opacity,
+                            )
+                        })
+                        .collect();
+                }
+                step
             }
             Some(r) if !regions.is_empty() => {
                 let (xy_v, xy_r) = self.corr.oriented(view, r).unwrap_or((&[], &[]));
@@ -331,17 +356,20 @@ impl LpmStrategy {
             _ => Default::default(),
         };
         report.paired = step.pairing.paired;
-        let finite: Vec<ZoneRecord> = step
+        // Each record with its samples (none unless asked for), filtered together.
+        samples.resize_with(step.records.len(), Vec::new);
+        let finite: Vec<(ZoneRecord, Vec<NewGaussian>)> = step
             .records
             .into_iter()
-            .filter(|z| z.radius.is_finite() && z.center.iter().all(|c| c.is_finite()))
+            .zip(samples)
+            .filter(|(z, _)| z.radius.is_finite() && z.center.iter().all(|c| c.is_finite()))
             .collect();
         let found = finite.len();
         let widest = self.config.max_zone_radius.map(|r| r * extent);
-        let mut records: Vec<ZoneRecord> = finite
+        let (mut records, samples): (Vec<ZoneRecord>, Vec<Vec<NewGaussian>>) = finite
             .into_iter()
-            .filter(|z| widest.is_none_or(|w| z.radius as f64 <= w))
-            .collect();
+            .filter(|(z, _)| widest.is_none_or(|w| z.radius as f64 <= w))
+            .unzip();
         report.wide = found - records.len();
         if let Some(w) = self.config.reset_max_zone_radius.map(|r| r * extent) {
             // Kept for the lowered threshold and point addition; the reset ignores them.
@@ -372,7 +400,7 @@ impl LpmStrategy {
                 self.corr.oriented(view, reference.unwrap_or(view)),
             )?;
         }
-        Ok((report, records))
+        Ok((report, records, samples))
     }
 
     /// The training image of scene view `view` (`None` for a view not trained on).
@@ -444,10 +472,12 @@ impl LpmStrategy {
     /// hold more than that share of the model are dropped first (one readback of the per-zone
     /// counts, once a step) and the membership of the rest recorded again. Returns the zones
     /// kept; `report` gets their count and sizes.
+    /// `samples` (one list a record) are kept with their records.
     fn record_kept_membership(
         &mut self,
         t: &mut DensityContext,
         records: Vec<ZoneRecord>,
+        samples: &mut Vec<Vec<NewGaussian>>,
         report: &mut LpmStepReport,
         extent: f64,
     ) -> anyhow::Result<Vec<ZoneRecord>> {
@@ -460,12 +490,17 @@ impl LpmStrategy {
         let count = t.state.count();
         let inside = self.zone_inside.read_range(0, records.len())?;
         let most = share * count as f64;
+        let keep: Vec<bool> = inside.iter().map(|&n| n as f64 <= most).collect();
         let kept: Vec<ZoneRecord> = records
             .iter()
-            .zip(&inside)
-            .filter(|(_, &n)| n as f64 <= most)
+            .zip(&keep)
+            .filter(|(_, &k)| k)
             .map(|(z, _)| *z)
             .collect();
+        if samples.len() == records.len() {
+            let mut k = keep.iter();
+            samples.retain(|_| *k.next().unwrap_or(&false));
+        }
         report.too_full = records.len() - kept.len();
         report.set_zone_sizes(kept.iter().map(|z| z.radius), extent);
         if report.too_full > 0 && !kept.is_empty() {
@@ -508,12 +543,14 @@ impl LpmStrategy {
         args: &DensifyArgs,
     ) -> anyhow::Result<DensifyOutcome> {
         let start = Instant::now();
-        let (mut report, records) =
+        let (mut report, records, mut samples) =
             self.find_zones(t, at.view, at.background, args.iteration, args.extent)?;
         // Membership of the current Gaussians (the zones too full for a local zone dropped).
         let records = match records.is_empty() {
             true => records,
-            false => self.record_kept_membership(t, records, &mut report, args.extent)?,
+            false => {
+                self.record_kept_membership(t, records, &mut samples, &mut report, args.extent)?
+            }
         };
         if records.is_empty() {
             let a0 = Instant::now();
@@ -548,7 +585,14 @@ impl LpmStrategy {
             );
             t.rec.barrier();
             let a0 = Instant::now();
-            let outcome = self.inner.densify_guided(t, at, args, &self.weight)?;
+            let samples: Vec<NewGaussian> = samples.into_iter().flatten().collect();
+            report.surface_samples = samples.len();
+            let guide = Guide {
+                weight: &self.weight,
+                samples: &samples,
+                sample_share: self.config.surface_share,
+            };
+            let outcome = self.inner.densify_guided(t, at, args, &guide)?;
             self.note_inside(&mut report, records.len(), count)?;
             self.pending = Some(Pending {
                 report,
@@ -703,12 +747,12 @@ impl LpmStrategy {
         let start = Instant::now();
         t.rec.begin()?;
         let extent = t.extent;
-        let (mut report, records) =
+        let (mut report, records, mut samples) =
             self.find_zones(t, at.view, at.background, at.iteration, extent)?;
         report.reset_only = true;
         let records = match records.is_empty() {
             true => records,
-            false => self.record_kept_membership(t, records, &mut report, extent)?,
+            false => self.record_kept_membership(t, records, &mut samples, &mut report, extent)?,
         };
         if !records.is_empty() {
             self.record_reset(t)?;

@@ -136,6 +136,17 @@ fn plan_copies(logits: &mut [f32], sources: &[u32], dsts: &[u32], min_opacity: f
     plan
 }
 
+/// The dead Gaussians among `logits`: opacity ≤ `min_opacity`, or NaN.
+pub fn dead_rows(logits: &[f32], min_opacity: f64) -> Vec<u32> {
+    (0..logits.len() as u32)
+        .filter(|&i| {
+            let o = sigmoid(logits[i as usize] as f64);
+            // A NaN opacity counts as dead (moved onto a live one).
+            o.is_nan() || o <= min_opacity
+        })
+        .collect()
+}
+
 /// The relocation plan: every Gaussian of opacity ≤ `min_opacity` (among the first `logits.len()`)
 /// moves onto a live one drawn ∝ opacity × `weight` (1 without a guide). `logits` is updated
 /// to the opacities after the plan. No live Gaussian: an empty plan.
@@ -145,27 +156,66 @@ pub fn plan_relocation(
     min_opacity: f64,
     rng: &mut impl Rng,
 ) -> Plan {
+    let dead = dead_rows(logits, min_opacity);
+    plan_relocation_of(logits, weight, min_opacity, &dead, rng)
+}
+
+/// [`plan_relocation`] of the dead rows `moving` only (a subset of [`dead_rows`]; the others
+/// stay where they are, for the caller to fill).
+pub fn plan_relocation_of(
+    logits: &mut [f32],
+    weight: Option<&[f32]>,
+    min_opacity: f64,
+    moving: &[u32],
+    rng: &mut impl Rng,
+) -> Plan {
     let opacity: Vec<f64> = logits.iter().map(|&l| sigmoid(l as f64)).collect();
-    let dead: Vec<u32> = (0..logits.len() as u32)
-        // A NaN opacity counts as dead (moved onto a live one).
-        .filter(|&i| opacity[i as usize].is_nan() || opacity[i as usize] <= min_opacity)
-        .collect();
-    if dead.is_empty() || dead.len() == logits.len() {
-        return Plan::default();
-    }
     let live: Vec<u32> = (0..logits.len() as u32)
         .filter(|&i| opacity[i as usize] > min_opacity)
         .collect();
+    if moving.is_empty() || live.is_empty() {
+        return Plan::default();
+    }
     let w: Vec<f64> = live
         .iter()
         .map(|&i| opacity[i as usize] * weight.map_or(1.0, |w| w[i as usize] as f64))
         .collect();
-    let picks = sample_weighted(&w, dead.len(), rng);
-    if picks.len() != dead.len() {
+    let picks = sample_weighted(&w, moving.len(), rng);
+    if picks.len() != moving.len() {
         return Plan::default();
     }
     let sources: Vec<u32> = picks.iter().map(|&k| live[k as usize]).collect();
-    plan_copies(logits, &sources, &dead, min_opacity)
+    plan_copies(logits, &sources, moving, min_opacity)
+}
+
+/// Which dead rows take a guide's surface samples, and which sample each takes: at most
+/// ⌊`share` · dead⌋ rows and at most one a sample, both chosen uniformly at random without
+/// replacement. Returns `(row, sample index)` pairs, rows in increasing order; the rest of
+/// `dead` is for [`plan_relocation_of`].
+pub fn plan_seeded(
+    dead: &[u32],
+    samples: usize,
+    share: f64,
+    rng: &mut impl Rng,
+) -> Vec<(u32, u32)> {
+    let share = if share.is_finite() {
+        share.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let k = ((share * dead.len() as f64).floor() as usize).min(samples);
+    if k == 0 {
+        return Vec::new();
+    }
+    let rows = rand::seq::index::sample(rng, dead.len(), k);
+    let picks = rand::seq::index::sample(rng, samples, k);
+    let mut out: Vec<(u32, u32)> = rows
+        .iter()
+        .zip(picks.iter())
+        .map(|(r, p)| (dead[r], p as u32))
+        .collect();
+    out.sort_unstable();
+    out
 }
 
 /// The growth plan: `m` new rows after the current `logits.len()`, each a copy of a Gaussian
@@ -257,6 +307,27 @@ mod tests {
             &mut plan_rng(0, 1, 1),
         );
         assert!(grow.copies.iter().all(|&(d, s)| s >= 600 && d >= n as u32));
+    }
+
+    /// The seeded rows: at most the share of the dead and one a sample, distinct rows among
+    /// the dead and distinct samples, seeded; nothing at share 0 or without samples.
+    #[test]
+    fn seeded_rows_are_distinct_dead_rows_each_taking_a_distinct_sample() {
+        let dead: Vec<u32> = (0..40).map(|i| 3 * i + 1).collect();
+        let s = plan_seeded(&dead, 100, 0.5, &mut plan_rng(7, 3, 2));
+        assert_eq!(s.len(), 20);
+        let rows: std::collections::BTreeSet<u32> = s.iter().map(|p| p.0).collect();
+        let picks: std::collections::BTreeSet<u32> = s.iter().map(|p| p.1).collect();
+        assert_eq!((rows.len(), picks.len()), (20, 20));
+        assert!(rows.iter().all(|r| dead.contains(r)));
+        assert!(picks.iter().all(|&k| k < 100));
+        assert!(s.windows(2).all(|w| w[0].0 < w[1].0), "rows in order");
+        assert_eq!(s, plan_seeded(&dead, 100, 0.5, &mut plan_rng(7, 3, 2)));
+        assert_eq!(plan_seeded(&dead, 5, 1.0, &mut plan_rng(7, 3, 2)).len(), 5);
+        assert!(plan_seeded(&dead, 0, 1.0, &mut plan_rng(7, 3, 2)).is_empty());
+        assert!(plan_seeded(&dead, 9, 0.0, &mut plan_rng(7, 3, 2)).is_empty());
+        assert!(plan_seeded(&dead, 9, f64::NAN, &mut plan_rng(7, 3, 2)).is_empty());
+        assert!(plan_seeded(&[], 9, 1.0, &mut plan_rng(7, 3, 2)).is_empty());
     }
 
     #[test]

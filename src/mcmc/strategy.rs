@@ -5,14 +5,15 @@ use std::sync::Arc;
 
 use super::config::McmcConfig;
 use super::gpu::McmcKernels;
-use super::plan::{plan_growth, plan_relocation, plan_rng};
-use crate::gpu::{GpuBuffer, GpuContext, Recorder};
+use super::plan::{dead_rows, logit, plan_growth, plan_relocation_of, plan_rng, plan_seeded, Plan};
+use crate::gpu::{GpuContext, Recorder};
 use crate::splats::gpu::{grown_capacity, GpuSplats};
 use crate::train::adam::SplatState;
+use crate::train::density::append::stage_rows;
 use crate::train::density::rng::fold_seed;
 use crate::train::density::{DensifyArgs, DensifyOutcome};
 use crate::train::strategy::{
-    DensityContext, DensityStrategy, IterationView, Primitive, StrategyEvent,
+    DensityContext, DensityStrategy, Guide, IterationView, Primitive, StrategyEvent,
 };
 
 /// What one refinement did.
@@ -21,6 +22,8 @@ pub struct McmcEvent {
     pub iteration: u32,
     /// Dead Gaussians moved onto live ones.
     pub relocated: usize,
+    /// Dead Gaussians moved onto a guide's surface samples instead.
+    pub seeded: usize,
     /// New Gaussians (copies of live ones).
     pub added: usize,
     /// The count after the refinement.
@@ -30,14 +33,15 @@ pub struct McmcEvent {
 impl StrategyEvent for McmcEvent {
     fn to_json(&self) -> serde_json::Value {
         serde_json::json!({
-            "iteration": self.iteration, "relocated": self.relocated, "added": self.added,
+            "iteration": self.iteration, "relocated": self.relocated, "seeded": self.seeded,
+            "added": self.added,
             "gaussians": self.gaussians,
         })
     }
     fn describe(&self) -> String {
         format!(
-            "mcmc: {} relocated, {} added, {} Gaussians",
-            self.relocated, self.added, self.gaussians
+            "mcmc: {} relocated, {} onto surface samples, {} added, {} Gaussians",
+            self.relocated, self.seeded, self.added, self.gaussians
         )
     }
     fn as_any(&self) -> &dyn Any {
@@ -50,6 +54,7 @@ impl StrategyEvent for McmcEvent {
 pub struct McmcTotals {
     pub refinements: usize,
     pub relocated: usize,
+    pub seeded: usize,
     pub added: usize,
 }
 
@@ -81,13 +86,14 @@ impl McmcStrategy {
         })
     }
 
-    /// One refinement: relocation, then growth to the curve's target, sources drawn ∝
-    /// opacity × `weight` (a guide's, read back with the opacities).
+    /// One refinement: relocation (some dead Gaussians onto a guide's surface samples, the rest
+    /// onto live ones), then growth to the curve's target, sources drawn ∝ opacity × the
+    /// guide's weight (read back with the opacities).
     fn refine(
         &mut self,
         t: &mut DensityContext,
         args: &DensifyArgs,
-        weight: Option<&GpuBuffer<f32>>,
+        guide: Option<&Guide>,
     ) -> anyhow::Result<DensifyOutcome> {
         let it = args.iteration;
         let n = t.state.count();
@@ -96,17 +102,65 @@ impl McmcStrategy {
         t.rec.submit_and_wait()?;
         t.rec.begin()?;
         let mut logits = t.state.params.opacity_logits.read_range(0, n)?;
-        let weight = match weight {
-            Some(w) => Some(w.read_range(0, n)?),
+        let weight = match guide {
+            Some(g) => Some(g.weight.read_range(0, n)?),
             None => None,
         };
         let weight = weight.as_deref();
         let min = self.config.min_opacity;
         let seed = self.config.seed;
-        let relocation = plan_relocation(&mut logits, weight, min, &mut plan_rng(seed, it, 0));
+        let dead = dead_rows(&logits, min);
+        let seeded = match guide {
+            Some(g) if !g.samples.is_empty() && g.sample_share > 0.0 => plan_seeded(
+                &dead,
+                g.samples.len(),
+                g.sample_share,
+                &mut plan_rng(seed, it, 2),
+            ),
+            _ => Vec::new(),
+        };
+        let moving: Vec<u32> = match seeded.is_empty() {
+            true => dead,
+            false => {
+                let taken: std::collections::HashSet<u32> = seeded.iter().map(|s| s.0).collect();
+                dead.into_iter().filter(|r| !taken.contains(r)).collect()
+            }
+        };
+        let relocation = plan_relocation_of(
+            &mut logits,
+            weight,
+            min,
+            &moving,
+            &mut plan_rng(seed, it, 0),
+        );
         let moved = self.kernels.upload(&relocation)?;
         self.kernels
             .record_plan(t.rec, t.state, &moved, self.axes)?;
+        if let Some(g) = guide.filter(|_| !seeded.is_empty()) {
+            // The samples are written after the last row (growing the buffers if need be),
+            // then copied onto their dead rows with fresh moments; the count does not change.
+            // Staging wants `t.rec` begun and empty: the relocation runs first.
+            t.rec.submit_and_wait()?;
+            t.rec.begin()?;
+            let rows: Vec<_> = seeded.iter().map(|&(_, k)| g.samples[k as usize]).collect();
+            let staged = stage_rows(t, &rows, None, rows.len())?;
+            debug_assert_eq!(staged, rows.len());
+            let copies = Plan {
+                copies: seeded
+                    .iter()
+                    .enumerate()
+                    .map(|(j, &(row, _))| (row, (n + j) as u32))
+                    .collect(),
+                updates: Vec::new(),
+            };
+            let up = self.kernels.upload(&copies)?;
+            self.kernels.record_plan(t.rec, t.state, &up, self.axes)?;
+            t.rec.submit_and_wait()?;
+            t.rec.begin()?;
+            for (&(row, _), r) in seeded.iter().zip(&rows) {
+                logits[row as usize] = logit(r.opacity) as f32;
+            }
+        }
         let target = self.config.budget.target_at(it, n);
         let growth = plan_growth(
             &mut logits,
@@ -142,11 +196,13 @@ impl McmcStrategy {
         let event = McmcEvent {
             iteration: it,
             relocated: relocation.copies.len(),
+            seeded: seeded.len(),
             added,
             gaussians: after,
         };
         self.totals.refinements += 1;
         self.totals.relocated += event.relocated;
+        self.totals.seeded += event.seeded;
         self.totals.added += added;
         self.last = Some(event);
         Ok(DensifyOutcome {
@@ -186,15 +242,16 @@ impl DensityStrategy for McmcStrategy {
         true
     }
 
-    /// Relocation targets and growth sources drawn ∝ opacity × the guide's weight.
+    /// Relocation targets and growth sources drawn ∝ opacity × the guide's weight; up to its
+    /// share of the dead Gaussians moved onto its surface samples instead.
     fn densify_guided(
         &mut self,
         t: &mut DensityContext,
         _at: &IterationView,
         args: &DensifyArgs,
-        weight: &GpuBuffer<f32>,
+        guide: &Guide,
     ) -> anyhow::Result<DensifyOutcome> {
-        self.refine(t, args, Some(weight))
+        self.refine(t, args, Some(guide))
     }
 
     fn after_density(

@@ -19,6 +19,7 @@ use std::fmt::Debug;
 use std::sync::Arc;
 
 use super::adam::SplatState;
+use super::density::append::NewGaussian;
 use super::density::{DensifyArgs, DensifyOutcome, DensityControl};
 use crate::gpu::{GpuBuffer, GpuContext, Recorder};
 use crate::render::filter3d::SmoothingFilter;
@@ -66,6 +67,18 @@ pub trait FramePositions {
         count: usize,
         out: &GpuBuffer<f32>,
     ) -> anyhow::Result<()>;
+}
+
+/// What a guide (LPM) gives the strategy it steers at a density step
+/// ([`DensityStrategy::densify_guided`]).
+pub struct Guide<'a> {
+    /// A weight for each of the current Gaussians (`≥ 0`, 1 where the guide has no preference).
+    pub weight: &'a GpuBuffer<f32>,
+    /// Points on the surfaces the guide wants covered (SfM points inside its zones, coloured
+    /// from the ground truth): a strategy that moves Gaussians may move some onto them.
+    pub samples: &'a [NewGaussian],
+    /// The largest share of the Gaussians a step moves that may go to `samples` (0: none).
+    pub sample_share: f64,
 }
 
 pub struct DensityContext<'a> {
@@ -149,15 +162,14 @@ pub trait DensityStrategy: Any {
         false
     }
 
-    /// [`DensityStrategy::densify`] with a guide's weight for each of the current Gaussians
-    /// (`weight[i] ≥ 0`, 1 where the guide has no preference): where the strategy's room goes,
+    /// [`DensityStrategy::densify`] steered by a [`Guide`]: where the strategy's room goes,
     /// never how much there is. Only called when [`DensityStrategy::takes_guide`].
     fn densify_guided(
         &mut self,
         _t: &mut DensityContext,
         _at: &IterationView,
         _args: &DensifyArgs,
-        _weight: &GpuBuffer<f32>,
+        _guide: &Guide,
     ) -> anyhow::Result<DensifyOutcome> {
         anyhow::bail!("density strategy {}: takes no guide", self.name())
     }

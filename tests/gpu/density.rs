@@ -1322,6 +1322,187 @@ fn added_gaussians_carry_the_models_extra_groups() {
     ctx.check_validation().unwrap();
 }
 
+/// MCMC guided by surface samples (LPM's `--lpm-surface-share`): the dead rows `plan_seeded`
+/// picks hold exactly the samples, written as LPM's added points are (position, log-scale,
+/// identity rotation, opacity logit, SH DC, zero SH rest, the model's extra row, zero moments),
+/// over dead rows poisoned first; the other dead rows are relocated onto live ones as
+/// `plan_relocation_of` plans; the rows no plan touches keep every bit; the count stays at
+/// the budget, though the samples were staged past the capacity.
+#[test]
+fn mcmc_moves_dead_gaussians_onto_a_guides_surface_samples() {
+    use lpmsplat::lpm::strategy::NewGaussian;
+    use lpmsplat::mcmc::plan::{dead_rows, plan_relocation_of, plan_rng, plan_seeded};
+    use lpmsplat::mcmc::{McmcConfig, McmcStrategy};
+    use lpmsplat::splats::SH_C0;
+    use lpmsplat::train::strategy::{
+        DensityContext, DensityStrategy, Guide, IterationView, Primitive,
+    };
+    const POISON: f32 = 7.77e7;
+    let ctx = ctx();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
+    let n = 60usize;
+    let mut params = with_extras(random_params(&mut rng, n, 1, 2.0), &mut rng);
+    let mut m = with_extras(random_moments(&mut rng, n, 1, false), &mut rng);
+    let mut v = with_extras(random_moments(&mut rng, n, 1, true), &mut rng);
+    let rs = params.rest_stride();
+    for i in (0..n).step_by(3) {
+        params.opacity_logits[i] = -9.0;
+        // Poison (the upload refuses NaN): values no written row holds.
+        params.sh_rest[i * rs..(i + 1) * rs].fill(POISON);
+        for set in [&mut m, &mut v] {
+            set.positions[i] = [POISON; 3];
+            set.sh_dc[i] = [POISON; 3];
+            set.sh_rest[i * rs..(i + 1) * rs].fill(POISON);
+        }
+    }
+    let host = HostState { params, m, v };
+    let mut state = upload_state(&ctx, &host, n);
+    let mut density = DensityControl::new(&ctx, n, DensityConfig::default()).unwrap();
+    let mut rec = Recorder::new(&ctx).unwrap();
+    rec.begin().unwrap();
+    let dummy_f = GpuBuffer::<f32>::from_slice(&ctx, "render", &[0.0; 3]).unwrap();
+    let dummy_u = GpuBuffer::<u32>::from_slice(&ctx, "truth", &[0]).unwrap();
+    let ones = vec![1.0f32; n];
+    let weight = GpuBuffer::<f32>::from_slice(&ctx, "weight", &ones).unwrap();
+    let samples: Vec<NewGaussian> = (0..7)
+        .map(|k| NewGaussian {
+            position: [k as f32 * 0.1, -0.3, 0.7],
+            scale: 0.01 * (k + 1) as f32,
+            color: [0.1 * k as f32, 0.5, 0.9],
+            opacity: 0.1,
+            camera_center: [0.0, 0.0, -5.0],
+        })
+        .collect();
+    let budget = BudgetCurve {
+        target: n,
+        growth: Growth::Mcmc,
+        initial: n,
+        window: (0, 1000, 100),
+    };
+    let mut config = McmcConfig::with_budget(budget);
+    config.seed = 3;
+    let mut mcmc = McmcStrategy::new(&ctx, config, Primitive::Gaussian).unwrap();
+    let extras = vec![vec![0.5, -0.5], vec![0.25]];
+    let it = 500;
+    {
+        let mut t = DensityContext {
+            ctx: &ctx,
+            rec: &mut rec,
+            state: &mut state,
+            density: &mut density,
+            extent: 1.0,
+            render: &dummy_f,
+            truth: &dummy_u,
+            truth_offset_px: 0,
+            width: 1,
+            height: 1,
+            primitive: Primitive::Gaussian,
+            raw_colour: false,
+            new_extras: extras.clone(),
+            moving: None,
+            opacity_filter: None,
+        };
+        let args = DensifyArgs {
+            extent: 1.0,
+            prune_large: false,
+            iteration: it,
+            phase: DensifyPhase::Both,
+        };
+        let at = IterationView {
+            iteration: it,
+            view: 0,
+            background: [0.0; 3],
+        };
+        let guide = Guide {
+            weight: &weight,
+            samples: &samples,
+            sample_share: 0.5,
+        };
+        mcmc.densify_guided(&mut t, &at, &args, &guide).unwrap();
+    }
+    rec.submit_and_wait().unwrap();
+    assert_eq!(state.count(), n, "the count is the budget's");
+    assert!(
+        state.capacity() > n,
+        "the samples were staged past the capacity"
+    );
+    let got = download_state(&state);
+
+    // What the plans say.
+    let dead = dead_rows(&host.params.opacity_logits, 0.005);
+    assert!(
+        dead.len() >= n / 3,
+        "every third row and the random ones below 0.005"
+    );
+    let seeded = plan_seeded(&dead, samples.len(), 0.5, &mut plan_rng(3, it, 2));
+    assert_eq!(seeded.len(), 7, "at least ⌊½ · 20⌋ = 10 rows, 7 samples");
+    let moving: Vec<u32> = dead
+        .iter()
+        .copied()
+        .filter(|r| seeded.iter().all(|s| s.0 != *r))
+        .collect();
+    let mut logits = host.params.opacity_logits.clone();
+    let reloc = plan_relocation_of(
+        &mut logits,
+        Some(&ones),
+        0.005,
+        &moving,
+        &mut plan_rng(3, it, 0),
+    );
+    assert_eq!(reloc.copies.len(), moving.len());
+
+    for &(row, k) in &seeded {
+        let (r, g) = (row as usize, &samples[k as usize]);
+        let p = &got.params;
+        assert_eq!(bits(&p.positions[r]), bits(&g.position), "row {r}");
+        assert_eq!(bits(&p.log_scales[r]), bits(&[g.scale.ln(); 3]), "row {r}");
+        assert_eq!(p.rotations[r], [1.0, 0.0, 0.0, 0.0]);
+        let logit = (g.opacity / (1.0 - g.opacity)).ln() as f32;
+        assert_eq!(p.opacity_logits[r].to_bits(), logit.to_bits());
+        let dc = g.color.map(|c| ((c as f64 - 0.5) / SH_C0) as f32);
+        assert_eq!(bits(&p.sh_dc[r]), bits(&dc));
+        assert!(p.sh_rest[r * rs..(r + 1) * rs].iter().all(|&x| x == 0.0));
+        for (e, row) in p.extra.iter().zip(&extras) {
+            let s = e.group.stride;
+            assert_eq!(e.values[r * s..(r + 1) * s], row[..]);
+        }
+        for set in [&got.m, &got.v] {
+            assert_eq!(set.positions[r], [0.0; 3]);
+            assert_eq!(set.sh_dc[r], [0.0; 3]);
+            assert_eq!(set.opacity_logits[r], 0.0);
+            assert!(set.sh_rest[r * rs..(r + 1) * rs].iter().all(|&x| x == 0.0));
+        }
+    }
+    let mut touched = std::collections::HashSet::new();
+    for &(dst, src) in &reloc.copies {
+        let (d, s) = (dst as usize, src as usize);
+        assert_eq!(
+            bits(&got.params.positions[d]),
+            bits(&host.params.positions[s]),
+            "relocated row {d} sits on its source {s}"
+        );
+        touched.extend([d, s]);
+    }
+    for &(row, l, _) in &reloc.updates {
+        assert_eq!(got.params.opacity_logits[row as usize], l, "row {row}");
+        touched.insert(row as usize);
+    }
+    touched.extend(seeded.iter().map(|s| s.0 as usize));
+    for i in (0..n).filter(|i| !touched.contains(i)) {
+        assert_eq!(got.params.positions[i], host.params.positions[i], "row {i}");
+        assert_eq!(
+            bits(&got.params.log_scales[i]),
+            bits(&host.params.log_scales[i])
+        );
+        assert_eq!(
+            got.params.opacity_logits[i].to_bits(),
+            host.params.opacity_logits[i].to_bits()
+        );
+        assert_eq!(bits(&got.m.sh_dc[i]), bits(&host.m.sh_dc[i]));
+    }
+    ctx.check_validation().unwrap();
+}
+
 /// Device-local bytes of every buffer of `s`.
 fn state_bytes(s: &SplatState) -> u64 {
     groups_of(s).iter().map(|g| g.0.byte_len()).sum()

@@ -133,6 +133,80 @@ fn a_strategy_without_its_budget_or_a_bad_budget_is_refused() {
     }
 }
 
+/// `--lpm-surface-share` through the CLI: LPM offers MCMC surface samples at its steps (the SfM
+/// points in its local zones), MCMC moves dead Gaussians onto them (at share 1 all of them, as
+/// long as there are samples enough), the count is still the budget's, and metrics.json says
+/// how many. Without MCMC or without local zones the flag is refused, naming the fix.
+#[test]
+fn mcmc_moves_dead_gaussians_onto_lpms_surface_samples() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("surface");
+    let lpm = [
+        "--lpm",
+        "--lpm-zone",
+        "local",
+        "--lpm-from",
+        "10",
+        "--lpm-interval",
+        "20",
+    ];
+    let mut args = vec!["--strategy", "mcmc", "--budget", "1.08x"];
+    args.extend(lpm);
+    args.extend(["--lpm-surface-share", "1"]);
+    let o = train(&out, &args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let h = history_counts(&out);
+    let budget = (1.08 * count_at(&h, 10) as f64).round() as u64;
+    assert_eq!(count_at(&h, 70), budget, "{h:?}");
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
+    let steps = m["lpm"]["per_step"].as_array().unwrap();
+    let offered: Vec<u64> = steps
+        .iter()
+        .map(|s| s["surface_samples"].as_u64().unwrap())
+        .collect();
+    assert!(offered.iter().all(|&k| k > 0), "{offered:?}");
+    let mcmc = &m["mcmc"];
+    assert_eq!(mcmc["refinements"], 2, "{mcmc}");
+    assert!(mcmc["seeded"].as_u64().unwrap() > 0, "{mcmc}");
+    assert_eq!(
+        mcmc["relocated"], 0,
+        "share 1: every dead one onto a sample: {mcmc}"
+    );
+    let c: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("config.json")).unwrap()).unwrap();
+    assert!(c.to_string().contains("\"surface_share\":1.0"), "{c}");
+
+    for (flags, says) in [
+        (
+            vec!["--strategy", "adc-exact", "--budget", "1.08x"],
+            "--strategy mcmc",
+        ),
+        (
+            vec!["--strategy", "mcmc", "--budget", "1.08x", "--lpm"],
+            "--lpm-zone local",
+        ),
+    ] {
+        let refused = dir.path().join("refused");
+        let mut args = flags.clone();
+        if !args.contains(&"--lpm") {
+            args.extend(lpm);
+        }
+        args.extend(["--lpm-surface-share", "0.5"]);
+        let o = train(&refused, &args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && err.contains(says), "{args:?}: {err}");
+        assert!(!refused.join("metrics.json").exists());
+    }
+    let refused = dir.path().join("refused");
+    let mut args = vec!["--strategy", "mcmc", "--budget", "1.08x"];
+    args.extend(lpm);
+    args.extend(["--lpm-surface-share", "1.5"]);
+    let o = train(&refused, &args);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("[0, 1]"), "{err}");
+}
+
 /// `--lpm-zone local` through the CLI with a share cap small enough to bite: every step's kept
 /// zones hold at most that share of the model (counted on the GPU), some zones were dropped for
 /// holding more, the settings are recorded, and the exact budget still lands where it did

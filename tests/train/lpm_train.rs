@@ -1054,8 +1054,15 @@ fn checkpoint_settings_leave_out_new_rules_at_their_old_values() {
         "min_parallax_deg",
         "band_quantiles",
         "band_margin",
+        // The surface samples (2026-12-07): none before.
+        "surface_share",
     ];
     assert!(new_keys.iter().all(|k| ck.get(*k).is_none()), "{ck}");
+    let surface = LpmConfig {
+        surface_share: 0.5,
+        ..LpmConfig::default()
+    };
+    assert_eq!(surface.checkpoint_json()["surface_share"], 0.5);
     let zoned = LpmConfig::default().with_local_zones().checkpoint_json();
     assert_eq!(zoned["region_unit"], "blocks");
     assert_eq!(zoned["max_zone_share"], 0.01);

@@ -115,6 +115,10 @@ pub struct TradeArgs {
     /// --lpm-zone-weight`; default 1.5).
     #[arg(long, value_name = "W")]
     pub lpm_zone_weight: Option<f32>,
+    /// The share of MCMC's dead Gaussians the `+lpm-surface` runs move onto surface samples
+    /// (`train --lpm-surface-share`; default 0.5).
+    #[arg(long, value_name = "SHARE")]
+    pub lpm_surface_share: Option<f64>,
     /// Every run but adc trains under a Gaussian budget that follows adc's count at the same
     /// seed and iteration (at most --max-gaussians too), so the runs compare at adc's count at
     /// every evaluation without knowing it beforehand. Needs adc in --runs.
@@ -147,6 +151,7 @@ pub fn settings_json(args: &TradeArgs) -> serde_json::Value {
         "budget": super::trade_budget::BenchBudget::setting(&args.budget),
         "budget_growth": args.budget_growth.map(|g| g.name()),
         "lpm_zone_weight": args.lpm_zone_weight,
+        "lpm_surface_share": args.lpm_surface_share,
         "init": format!("{:?}", args.init).to_lowercase(),
         "init_points": args.init_points,
         "n3dv_culls": format!("{:?}", args.n3dv_culls).to_lowercase(),

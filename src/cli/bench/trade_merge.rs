@@ -97,8 +97,14 @@ fn settings_of(json: &Value) -> (serde_json::Map<String, Value>, bool) {
         m.entry("match_adc_count").or_insert(Value::Bool(false));
         // Before --lpm-threshold-ratio: each rule set's own ratio (null, as when not given).
         m.entry("lpm_threshold_ratio").or_insert(Value::Null);
-        // Before --budget and --lpm-zone-weight: no budget, LPM's own weight.
-        for k in ["budget", "budget_growth", "lpm_zone_weight"] {
+        // Before --budget, --lpm-zone-weight and --lpm-surface-share: no budget, LPM's own
+        // weight, no surface samples.
+        for k in [
+            "budget",
+            "budget_growth",
+            "lpm_zone_weight",
+            "lpm_surface_share",
+        ] {
             m.entry(k).or_insert(Value::Null);
         }
         return (m, true);

@@ -13,7 +13,7 @@ const fn run(name: &'static str, colour: [u8; 3], what: &'static str) -> Run {
     Run { name, colour, what }
 }
 
-pub const RUNS: [Run; 25] = [
+pub const RUNS: [Run; 27] = [
     run("adc", [40, 40, 40], "ADC, the base model's own density control"),
     run("adc-threshold-1e-4", [200, 120, 0], "ADC with its gradient threshold halved to 1e-4 (alias adc-1e-4)"),
     run("adc+lpm", [220, 30, 30], "ADC + LPM with our rules (`train --lpm`; alias lpm)"),
@@ -39,6 +39,8 @@ pub const RUNS: [Run; 25] = [
     run("adc-exact+lpm-local", [180, 0, 90], "the exact budget guided by zones local by construction (`--lpm-zone local`: one a block, a depth band of observed points, ≤ 1 % of the model)"),
     run("mcmc+lpm-local", [200, 120, 0], "MCMC guided by local zones"),
     run("adc-exact+lpm-random", [130, 130, 130], "the control: local zones on as many blocks drawn at random (`--lpm-regions random-blocks`): what the error map adds"),
+    run("mcmc+lpm-surface", [0, 160, 80], "MCMC guided by local zones, half of each refinement's dead Gaussians moved onto the zones' SfM points coloured from the ground truth (`--lpm-surface-share 0.5`)"),
+    run("mcmc+lpm-surface-random", [110, 160, 130], "the control of mcmc+lpm-surface: the same on as many blocks drawn at random"),
 ];
 
 /// The `--runs` help: every run of [`RUNS`] with what it is, in table order.

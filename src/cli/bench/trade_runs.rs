@@ -91,6 +91,10 @@ pub fn abs_grad_applies(model: BaseModel) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The share of MCMC's dead Gaussians the `+lpm-surface` runs move onto the local zones'
+/// surface samples (`--lpm-surface-share` overrides it).
+const SURFACE_SHARE: f64 = 0.5;
+
 /// The block rule of `lpm-loose-blocks`: ahead of the paper's 0.85 at one Gaussian count on
 /// Truck `-r 4` over eleven seeds (docs/results/lpm.md), not yet measured at full size.
 const LOOSE_BLOCK_FRACTION: f32 = 0.7;
@@ -138,11 +142,15 @@ pub fn run_lpm_config(name: &str, cfg: &TrainConfig, args: &TradeArgs) -> Option
     if name == "lpm-local-resets" {
         c.reset_max_zone_radius = Some(1.0);
     }
-    if name.ends_with("+lpm-local") || name.ends_with("+lpm-random") {
+    let surface = name.ends_with("+lpm-surface") || name.ends_with("+lpm-surface-random");
+    if name.ends_with("+lpm-local") || name.ends_with("+lpm-random") || surface {
         c = c.with_local_zones();
     }
-    if name.ends_with("+lpm-random") {
+    if name.ends_with("+lpm-random") || name.ends_with("+lpm-surface-random") {
         c.region_unit = RegionUnit::RandomBlocks;
+    }
+    if surface {
+        c.surface_share = args.lpm_surface_share.unwrap_or(SURFACE_SHARE);
     }
     if let Some(p) = args.lpm_prune {
         c.prune = p;

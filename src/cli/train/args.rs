@@ -330,6 +330,11 @@ pub struct LpmArgs {
     /// --lpm-zone local; default otherwise: no limit). Counted on the GPU at each step.
     #[arg(long, value_name = "SHARE")]
     pub lpm_max_zone_share: Option<f64>,
+    /// With --strategy mcmc and --lpm-zone local: the largest share of each refinement's dead
+    /// Gaussians moved onto surface samples inside the zones (the SfM points the view observes
+    /// there, coloured from the ground truth) instead of onto live Gaussians. Default 0: none.
+    #[arg(long, value_name = "SHARE", default_value_t = 0.0)]
+    pub lpm_surface_share: f64,
     /// The cone whose Gaussians count as in front of a zone (the opacity reset's candidates):
     /// region (default under ours: the view's cone through its error region, capped at the
     /// bounding sphere), bounding (the cone to the zone's bounding sphere, docs/algorithms/lpm.md step 7), or
@@ -423,6 +428,7 @@ impl LpmArgs {
         if let Some(share) = self.lpm_max_zone_share {
             c.max_zone_share = Some(share);
         }
+        c.surface_share = self.lpm_surface_share;
         if let Some(k) = &self.lpm_cone {
             c.cone = ConeRadius::parse(k)?;
         }

@@ -198,6 +198,7 @@ impl Finished<'_> {
                 "settings": m.config.to_json(),
                 "refinements": m.totals.refinements,
                 "relocated": m.totals.relocated,
+                "seeded": m.totals.seeded,
                 "added": m.totals.added,
             })),
             "exact_budget": config.density.exact_budget.map(|b| b.to_json()),
@@ -324,12 +325,13 @@ impl Finished<'_> {
         });
         match (mcmc, config.density.max_gaussians) {
             (Some(m), _) => println!(
-                "  MCMC to {} Gaussians ({} growth): {} refinements, {} dead Gaussians relocated, \
-                 {} added",
+                "  MCMC to {} Gaussians ({} growth): {} refinements, {} dead Gaussians relocated \
+                 ({} onto LPM's surface samples), {} added",
                 m.config.budget.target,
                 m.config.budget.growth.name(),
                 m.totals.refinements,
-                m.totals.relocated,
+                m.totals.relocated + m.totals.seeded,
+                m.totals.seeded,
                 m.totals.added
             ),
             (None, Some(cap)) => println!(

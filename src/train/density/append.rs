@@ -71,8 +71,24 @@ pub fn append_with_extras(
         .config
         .ceiling()
         .map_or(rows.len(), |cap| cap.saturating_sub(n));
-    let all = rows.len();
-    let rows = &rows[..all.min(room)];
+    let m = stage_rows(t, &rows[..rows.len().min(room)], extras, rows.len())?;
+    t.state.set_count(n + m);
+    Ok(m)
+}
+
+/// Writes `rows` (at most `all` given, the extras' columns sized for `all`) into the rows just
+/// after the current Gaussians (`count..count + rows.len()`), with zero Adam moments, growing
+/// the state and the density statistics when the capacity is short; the count is unchanged, so
+/// the rows are staged for the caller to take in (as [`append_with_extras`] does) or to copy
+/// elsewhere (MCMC's dead Gaussians moved onto surface samples). Returns how many were written.
+/// `t.rec` must be begun and empty; it is left so.
+pub fn stage_rows(
+    t: &mut DensityContext,
+    rows: &[NewGaussian],
+    extras: Option<&[Vec<f32>]>,
+    all: usize,
+) -> anyhow::Result<usize> {
+    let n = t.state.count();
     if rows.is_empty() {
         return Ok(0);
     }
@@ -175,6 +191,5 @@ pub fn append_with_extras(
     }
     t.rec.submit_and_wait()?;
     t.rec.begin()?;
-    t.state.set_count(new);
     Ok(m)
 }
