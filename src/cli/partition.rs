@@ -115,15 +115,17 @@ pub fn run(args: &PartitionArgs) -> anyhow::Result<()> {
     let opts = args.scene.load_options()?;
     let scene = Scene::load_in_file_frame(&args.scene.scene, &opts)?;
     scene.check_coordinates()?;
-    let SceneFormat::Colmap { sparse_dir, binary } = &scene.format else {
-        anyhow::bail!(
-            "{}: partition reads COLMAP scenes (sparse/ with images/); this one is {:?}. Fix: \
-             convert it to a COLMAP model",
-            args.scene.scene.display(),
-            scene.format
-        );
+    let model = match &scene.format {
+        SceneFormat::Colmap { sparse_dir, binary } => {
+            Some(colmap::read_model(sparse_dir, *binary)?)
+        }
+        SceneFormat::NerfSynthetic | SceneFormat::Nerfstudio => None,
+        SceneFormat::Video => anyhow::bail!(
+            "{}: partition cuts still scenes (COLMAP or transforms.json); a multi-view video \
+             is one capture point for every frame. Fix: train it whole",
+            args.scene.scene.display()
+        ),
     };
-    let model = colmap::read_model(sparse_dir, *binary)?;
     let frame = scene.clone().into_training_frame().frame;
     let points = scene.points.as_ref().map_or(0, |p| p.len());
     let budget = args.budget.map(|b| b.resolve(points) as u64);
@@ -143,7 +145,10 @@ pub fn run(args: &PartitionArgs) -> anyhow::Result<()> {
     let plan = partition::make_plan(&scene, frame, &popts, train_args)?;
     std::fs::create_dir_all(&args.out)?;
     let out = std::path::absolute(&args.out)?;
-    blocks::write_block_folders(&out, &plan, &model, &scene.root)?;
+    match &model {
+        Some(model) => blocks::write_block_folders(&out, &plan, model, &scene.root)?,
+        None => blocks::write_transforms_block_folders(&out, &plan, &scene.root)?,
+    }
     if args.slurm.slurm {
         let sopts = args.slurm.options()?;
         slurm::write_scripts(&slurm::block_array(&plan, &out, &sopts), &sopts)?;

@@ -2,6 +2,8 @@
 //! and the points of its region, its images by reference (a link to the scene's `images/`
 //! and its downscaled copies, never a copy), and `test_views.txt` naming its test views, so
 //! `train` reads it like any other scene and holds out exactly the whole scene's test views.
+//! A transforms scene's block is its transforms file(s) cut to the block's frames
+//! ([`crate::scene::transforms::subset`]), with the scene's other entries linked in.
 
 use std::collections::{HashMap, HashSet};
 use std::path::Path;
@@ -9,6 +11,7 @@ use std::path::Path;
 use super::plan::{Block, Plan};
 use crate::scene::colmap::{self, ColmapModel};
 use crate::scene::split::TEST_VIEWS_FILE;
+use crate::scene::transforms::subset::{write_subset, TRANSFORMS_FILES};
 
 /// The block's COLMAP model: its views' images and cameras, the points whose ground position
 /// lies in its region with their tracks cut to those images, and the images' keypoints
@@ -111,6 +114,44 @@ pub fn write_block_folders(
         let mut test = block.test_views.join("\n");
         test.push('\n');
         std::fs::write(dir.join(TEST_VIEWS_FILE), test)?;
+    }
+    Ok(())
+}
+
+/// Writes every block's folder under `out` (the plan's folder) for a transforms scene in
+/// `scene_root`: its transforms file(s) holding the block's frames, and a link to every other
+/// entry of the scene folder (its image folders, whatever they are called), except one that
+/// holds `out` itself.
+pub fn write_transforms_block_folders(
+    out: &Path,
+    plan: &Plan,
+    scene_root: &Path,
+) -> anyhow::Result<()> {
+    let scene_root = std::path::absolute(scene_root)?;
+    let out = std::path::absolute(out)?;
+    let mut entries = Vec::new();
+    for entry in std::fs::read_dir(&scene_root)? {
+        let name = entry?.file_name().to_string_lossy().into_owned();
+        let path = scene_root.join(&name);
+        if TRANSFORMS_FILES.contains(&name.as_str())
+            || name == TEST_VIEWS_FILE
+            || out.starts_with(&path)
+        {
+            continue;
+        }
+        entries.push(name);
+    }
+    for block in &plan.blocks {
+        let dir = out.join(&block.folder);
+        write_subset(&scene_root, &dir, &block.train_views, &block.test_views)
+            .map_err(|e| anyhow::anyhow!("block {}: {e:#}", block.name))?;
+        for name in &entries {
+            let link = dir.join(name);
+            if link.symlink_metadata().is_ok() {
+                std::fs::remove_file(&link)?;
+            }
+            std::os::unix::fs::symlink(scene_root.join(name), &link)?;
+        }
     }
     Ok(())
 }

@@ -366,8 +366,23 @@ pub fn make_plan(
         .map(|v| v.camera.width as f64 * v.camera.height as f64)
         .fold(0.0, f64::max);
     let total_points = geom.point_ground.len();
-    let expected = |region_points: usize| -> u64 {
+    // Without SfM points (a transforms scene) there is nothing to estimate a block's share
+    // from but its views: the budget is shared by training views, and is needed.
+    if total_points == 0 {
+        anyhow::ensure!(
+            opts.budget.is_some_and(|b| b > 0),
+            "{}: the scene has no SfM points (a transforms scene starts from random ones), so \
+             the plan cannot estimate each block's Gaussians from them. Fix: give --budget N, \
+             the merged model's Gaussians as a count (e.g. 500k); it is shared among the blocks \
+             by their training views",
+            scene.root.display()
+        );
+    }
+    let expected = |region_points: usize, train_views: usize| -> u64 {
         match opts.budget {
+            Some(b) if total_points == 0 => {
+                (b as f64 * train_views as f64 / scene.train.len() as f64).ceil() as u64
+            }
             Some(b) => (b as f64 * region_points as f64 / total_points.max(1) as f64).ceil() as u64,
             None => (region_points as f64 * opts.growth).ceil() as u64,
         }
@@ -411,7 +426,7 @@ pub fn make_plan(
                 };
                 let train_views = pick(&scene.train);
                 let test_views = pick(&scene.test);
-                let expected_gaussians = expected(region_points);
+                let expected_gaussians = expected(region_points, train_views.len());
                 let name = format!("b{}_{}", k / rows, k % rows);
                 Block {
                     folder: PathBuf::from("blocks").join(&name),

@@ -434,3 +434,171 @@ fn test_views_txt_sets_the_split_and_a_bad_line_is_named() {
     let e = Scene::load(&root, &LoadOptions::default()).unwrap_err();
     assert!(e.downcast_ref::<InputError>().is_some(), "{e:#}");
 }
+
+/// Each block of `plan` (in `out`) reads as a scene whose training and test views are exactly
+/// the block's, all of them views of `whole`; the transforms files are the block's own, the
+/// rest of the scene folder is linked.
+fn assert_transforms_blocks(out: &Path, plan: &Plan, whole: &Scene, json_files: &[&str]) {
+    let names = |s: &Scene, ix: &[usize]| {
+        let mut v: Vec<String> = ix.iter().map(|&i| s.views[i].name.clone()).collect();
+        v.sort();
+        v
+    };
+    let whole_train = names(whole, &whole.train);
+    let whole_test = names(whole, &whole.test);
+    let mut covered = std::collections::HashSet::new();
+    for b in &plan.blocks {
+        let dir = out.join(&b.folder);
+        let scene = Scene::load(&dir, &LoadOptions::default()).unwrap();
+        assert_eq!(
+            names(&scene, &scene.train),
+            b.train_views,
+            "block {}",
+            b.name
+        );
+        assert_eq!(names(&scene, &scene.test), b.test_views, "block {}", b.name);
+        assert!(b.train_views.iter().all(|n| whole_train.contains(n)));
+        assert!(b.test_views.iter().all(|n| whole_test.contains(n)));
+        assert!(!b.train_views.is_empty() && b.expected_gaussians > 0);
+        covered.extend(b.train_views.iter().cloned());
+        for f in json_files {
+            let meta = std::fs::symlink_metadata(dir.join(f));
+            assert!(
+                meta.as_ref().is_ok_and(|m| m.file_type().is_file()),
+                "{}: {f} is the block's own file",
+                b.name
+            );
+        }
+    }
+    assert_eq!(
+        covered.len(),
+        whole_train.len(),
+        "every training view trains a block"
+    );
+}
+
+/// A transforms scene (NeRF-synthetic: the bundled lego; nerfstudio: a street of cameras made
+/// here) partitions like a COLMAP one: each block is its transforms file(s) cut to its frames
+/// (the scene's conventions and view names kept, the split lists rewritten), the image
+/// folders linked, and `train` reads it unchanged. Without SfM points the budget is shared by
+/// training views, and a plan without --budget is refused, naming it.
+#[test]
+fn transforms_scenes_partition_into_blocks_train_reads() {
+    let tmp = tempfile::tempdir().unwrap();
+    let lego = data("lego_small");
+    let (ok, text) = run(lpmsplat()
+        .arg("partition")
+        .arg(&lego)
+        .args(["--blocks", "2x1", "-o"])
+        .arg(tmp.path().join("refused")));
+    assert!(!ok && text.contains("--budget"), "{text}");
+    assert!(!tmp.path().join("refused/plan.json").exists());
+
+    let out = tmp.path().join("lego");
+    run_ok(
+        lpmsplat()
+            .arg("partition")
+            .arg(&lego)
+            .args(["--blocks", "2x1", "--budget", "20k", "-o"])
+            .arg(&out),
+    );
+    let plan = Plan::read(&out.join("plan.json")).unwrap();
+    let whole = Scene::load(&lego, &LoadOptions::default()).unwrap();
+    assert_transforms_blocks(&out, &plan, &whole, &["transforms_train.json"]);
+    let train_views: usize = plan.blocks.iter().map(|b| b.train_views.len()).sum();
+    for b in &plan.blocks {
+        let share = 20_000.0 * b.train_views.len() as f64 / whole.train.len() as f64;
+        assert_eq!(b.expected_gaussians, share.ceil() as u64);
+        assert!(std::fs::symlink_metadata(out.join(&b.folder).join("train"))
+            .unwrap()
+            .file_type()
+            .is_symlink());
+    }
+    assert!(train_views >= whole.train.len());
+    // train takes a block as it is.
+    let block = out.join(&plan.blocks[0].folder);
+    run_ok(
+        lpmsplat()
+            .arg("train")
+            .arg(&block)
+            .args(["--iterations", "5", "--init-points", "500", "-o"])
+            .arg(tmp.path().join("run")),
+    );
+    assert!(tmp.path().join("run/point_cloud.ply").exists());
+
+    // nerfstudio: sixteen cameras along a street (x), looking down, every fourth a test view,
+    // one frame with its own distortion; an unread point cloud and a val list dropped.
+    let street = tmp.path().join("street");
+    std::fs::create_dir_all(street.join("images")).unwrap();
+    let mut frames = Vec::new();
+    let mut test = Vec::new();
+    for i in 0..16 {
+        let fp = format!("images/f{i:02}.png");
+        image::RgbImage::from_fn(40, 30, |x, y| {
+            image::Rgb([(x * 6) as u8, (y * 8) as u8, i * 9])
+        })
+        .save(street.join(&fp))
+        .unwrap();
+        let mut f = serde_json::json!({
+            "file_path": fp,
+            "transform_matrix": [
+                [1.0, 0.0, 0.0, i as f64],
+                [0.0, 1.0, 0.0, 0.0],
+                [0.0, 0.0, 1.0, 3.0],
+                [0.0, 0.0, 0.0, 1.0]
+            ],
+        });
+        if i == 5 {
+            f["k1"] = serde_json::json!(0.01);
+        }
+        if i % 4 == 2 {
+            test.push(fp.clone());
+        }
+        frames.push(f);
+    }
+    let json = serde_json::json!({
+        "w": 40, "h": 30, "fl_x": 40.0, "fl_y": 40.0, "cx": 20.0, "cy": 15.0,
+        "frames": frames, "test_filenames": test, "val_filenames": [],
+        "ply_file_path": "sparse_pc.ply",
+    });
+    std::fs::write(
+        street.join("transforms.json"),
+        serde_json::to_string_pretty(&json).unwrap(),
+    )
+    .unwrap();
+    let out = tmp.path().join("street_plan");
+    run_ok(
+        lpmsplat()
+            .arg("partition")
+            .arg(&street)
+            .args(["--blocks", "2x1", "--budget", "8k", "-o"])
+            .arg(&out),
+    );
+    let plan = Plan::read(&out.join("plan.json")).unwrap();
+    let whole = Scene::load(&street, &LoadOptions::default()).unwrap();
+    assert_eq!(whole.test.len(), 4);
+    assert_transforms_blocks(&out, &plan, &whole, &["transforms.json"]);
+    for b in &plan.blocks {
+        let j: serde_json::Value = serde_json::from_slice(
+            &std::fs::read(out.join(&b.folder).join("transforms.json")).unwrap(),
+        )
+        .unwrap();
+        assert!(j.get("val_filenames").is_none() && j.get("ply_file_path").is_none());
+        assert_eq!(j["fl_x"], 40.0, "the shared intrinsics kept");
+        let frames = j["frames"].as_array().unwrap();
+        assert_eq!(
+            frames.len(),
+            b.train_views.len() + b.test_views.len(),
+            "{}",
+            b.name
+        );
+        if let Some(f) = frames.iter().find(|f| f["file_path"] == "images/f05.png") {
+            assert_eq!(f["k1"], 0.01, "a frame's own fields kept");
+        }
+    }
+    // The two blocks split the street: neither holds every training view.
+    assert!(plan
+        .blocks
+        .iter()
+        .all(|b| b.train_views.len() < whole.train.len()));
+}

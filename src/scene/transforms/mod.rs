@@ -16,6 +16,7 @@
 mod nerf_synthetic;
 mod nerfstudio;
 mod shared;
+pub mod subset;
 
 use super::{LoadOptions, Scene};
 use crate::error::{bad_input, InputError};
