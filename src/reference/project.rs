@@ -99,26 +99,10 @@ pub fn normalize_quat(q: [f64; 4]) -> Option<([f64; 4], f64)> {
     Some(([q[0] / n, q[1] / n, q[2] / n, q[3] / n], n))
 }
 
-/// Rotation matrix of a unit quaternion (w, x, y, z).
+/// Rotation matrix of a unit quaternion (w, x, y, z): the formula the COLMAP reader uses for
+/// poses, kept once below both (the GPU kernels' own, in GLSL, are what this oracle checks).
 pub fn quat_to_rotation(q: [f64; 4]) -> Mat3 {
-    let [w, x, y, z] = q;
-    [
-        [
-            1.0 - 2.0 * (y * y + z * z),
-            2.0 * (x * y - w * z),
-            2.0 * (x * z + w * y),
-        ],
-        [
-            2.0 * (x * y + w * z),
-            1.0 - 2.0 * (x * x + z * z),
-            2.0 * (y * z - w * x),
-        ],
-        [
-            2.0 * (x * z - w * y),
-            2.0 * (y * z + w * x),
-            1.0 - 2.0 * (x * x + y * y),
-        ],
-    ]
+    crate::scene::camera::rotation_of_unit_quaternion(q)
 }
 
 /// The unit quaternion (w, x, y, z, w ≥ 0 not guaranteed) of a rotation matrix: the inverse of

@@ -180,6 +180,29 @@ pub struct Pose {
     pub translation: [f64; 3],
 }
 
+/// The rotation matrix of a unit quaternion (w, x, y, z), in f64: COLMAP's poses here, and the
+/// f64 oracles' Gaussian rotations (`crate::reference::project::quat_to_rotation`).
+pub fn rotation_of_unit_quaternion(q: [f64; 4]) -> [[f64; 3]; 3] {
+    let [w, x, y, z] = q;
+    [
+        [
+            1.0 - 2.0 * (y * y + z * z),
+            2.0 * (x * y - w * z),
+            2.0 * (x * z + w * y),
+        ],
+        [
+            2.0 * (x * y + w * z),
+            1.0 - 2.0 * (x * x + z * z),
+            2.0 * (y * z - w * x),
+        ],
+        [
+            2.0 * (x * z - w * y),
+            2.0 * (y * z + w * x),
+            1.0 - 2.0 * (x * x + y * y),
+        ],
+    ]
+}
+
 impl Pose {
     pub const IDENTITY: Pose = Pose {
         rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
@@ -195,23 +218,7 @@ impl Pose {
             (1.0, 0.0, 0.0, 0.0)
         };
         Pose {
-            rotation: [
-                [
-                    1.0 - 2.0 * (y * y + z * z),
-                    2.0 * (x * y - w * z),
-                    2.0 * (x * z + w * y),
-                ],
-                [
-                    2.0 * (x * y + w * z),
-                    1.0 - 2.0 * (x * x + z * z),
-                    2.0 * (y * z - w * x),
-                ],
-                [
-                    2.0 * (x * z - w * y),
-                    2.0 * (y * z + w * x),
-                    1.0 - 2.0 * (x * x + y * y),
-                ],
-            ],
+            rotation: rotation_of_unit_quaternion([w, x, y, z]),
             translation: t,
         }
     }
