@@ -143,6 +143,21 @@ impl Recorder {
     }
 
     /// Records a dispatch of `groups` workgroups.
+    /// [`Recorder::dispatch`] with each buffer given by the name the kernel's GLSL gives its
+    /// binding (the block's member: `positions`, `g_sh_rest0`, …), in any order: the kernel's
+    /// declaration is the one place binding numbers are written, and a list is never matched
+    /// to it by position. Every binding must be named exactly once.
+    pub fn dispatch_named<P: Pod>(
+        &mut self,
+        p: &ComputePipeline,
+        buffers: &[(&str, &dyn Bindable)],
+        push: &P,
+        groups: [u32; 3],
+    ) {
+        let ordered = order_by_name(p, buffers);
+        self.dispatch(p, &ordered, push, groups);
+    }
+
     pub fn dispatch<P: Pod>(
         &mut self,
         p: &ComputePipeline,
@@ -377,4 +392,39 @@ impl Drop for Recorder {
             self.ctx.device.destroy_command_pool(self.pool, None);
         }
     }
+}
+
+/// `buffers` in the binding order of `p`'s declared names; panics (as a mismatched count does)
+/// naming what is missing, unknown or given twice.
+fn order_by_name<'b>(
+    p: &ComputePipeline,
+    buffers: &[(&str, &'b dyn Bindable)],
+) -> Vec<&'b dyn Bindable> {
+    let names = p.binding_names;
+    assert!(
+        !names.is_empty() || buffers.is_empty(),
+        "kernel {}: its bindings' names are unknown (not one of glsl/'s kernels)",
+        p.name
+    );
+    let mut slots: Vec<Option<&dyn Bindable>> = vec![None; names.len()];
+    for &(name, buffer) in buffers {
+        let Some(k) = names.iter().position(|n| *n == name) else {
+            panic!(
+                "kernel {}: no binding is named {name:?} (it declares {})",
+                p.name,
+                names.join(", ")
+            );
+        };
+        assert!(
+            slots[k].is_none(),
+            "kernel {}: {name:?} is given twice",
+            p.name
+        );
+        slots[k] = Some(buffer);
+    }
+    slots
+        .into_iter()
+        .zip(names)
+        .map(|(b, n)| b.unwrap_or_else(|| panic!("kernel {}: no buffer given for {n:?}", p.name)))
+        .collect()
 }

@@ -18,7 +18,7 @@ mod pipeline;
 mod timestamps;
 mod validation;
 
-pub use buffer::{BufferKind, GpuBuffer};
+pub use buffer::{Bindable, BufferKind, GpuBuffer};
 pub use commands::Recorder;
 pub use context::{list_devices, DeviceInfo, GpuContext, GpuOptions};
 pub use held_frees::HoldFrees;

@@ -17,6 +17,20 @@ pub struct ComputePipeline {
     /// Workgroup size in x (specialisation constant 0).
     pub workgroup_size: u32,
     pub name: String,
+    /// The kernel's storage buffers by binding, as its GLSL names them (from `build.rs`'s
+    /// table; empty for SPIR-V that is not one of ours): what [`Recorder::dispatch_named`]
+    /// places the named buffers by.
+    ///
+    /// [`Recorder::dispatch_named`]: super::Recorder::dispatch_named
+    pub(crate) binding_names: &'static [&'static str],
+}
+
+/// The binding names `build.rs` found in the GLSL of the kernel whose SPIR-V is `spirv`.
+fn declared_bindings(spirv: &[u8]) -> Option<&'static [&'static str]> {
+    crate::shaders::BINDINGS
+        .iter()
+        .find(|(code, _)| code.len() == spirv.len() && *code == spirv)
+        .map(|(_, names)| *names)
 }
 
 impl ComputePipeline {
@@ -50,6 +64,17 @@ impl ComputePipeline {
                 "kernel {name}: workgroup size {workgroup_size} is outside 1..={}",
                 ctx.info.max_workgroup_invocations
             );
+        }
+        let binding_names = declared_bindings(spirv).unwrap_or(&[]);
+        if let Some(names) = declared_bindings(spirv) {
+            if names.len() as u32 != num_buffers {
+                bail!(
+                    "kernel {name}: the Rust side binds {num_buffers} storage buffers, its GLSL \
+                     declares {} ({}). Fix: make the two agree",
+                    names.len(),
+                    names.join(", ")
+                );
+            }
         }
         let device = &ctx.device;
         let code = ash::util::read_spv(&mut std::io::Cursor::new(spirv))
@@ -131,6 +156,7 @@ impl ComputePipeline {
             push_size,
             workgroup_size,
             name: name.to_string(),
+            binding_names,
         })
     }
 }

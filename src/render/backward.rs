@@ -41,9 +41,9 @@
 
 use super::layout::{CameraGpu, RenderConstants};
 use super::projected::ProjectedBuffers;
-use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder};
+use crate::gpu::{Bindable, BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder};
 use crate::shaders;
-use crate::splats::gpu::{grown_capacity, GpuSplats};
+use crate::splats::gpu::{grown_capacity, GpuSplats, GRAD_BINDINGS, PARAM_BINDINGS};
 use crate::splats::model::sh_rest_coeffs;
 use anyhow::{ensure, Result};
 use bytemuck::{Pod, Zeroable};
@@ -545,35 +545,21 @@ impl Backward {
         let s = a.splats;
         let g = a.grads;
         if a.count > 0 {
-            rec.dispatch(
+            let own: [(&str, &dyn Bindable); 5] = [
+                ("cameras", a.cameras),
+                ("bounds", &a.projected.bounds),
+                ("grad2d", &self.grad2d),
+                ("view_grad_norm", a.view_grad_norm),
+                ("filter3d", a.filter3d.unwrap_or(&self.no_filter)),
+            ];
+            let buffers: Vec<(&str, &dyn Bindable)> = own
+                .into_iter()
+                .chain(s.bindings(&PARAM_BINDINGS))
+                .chain(g.bindings(&GRAD_BINDINGS))
+                .collect();
+            rec.dispatch_named(
                 &self.preprocess,
-                &[
-                    a.cameras,
-                    &a.projected.bounds,
-                    &self.grad2d,
-                    &s.positions,
-                    &s.log_scales,
-                    &s.rotations,
-                    &s.opacity_logits,
-                    &s.sh_dc,
-                    &s.sh_rest[0],
-                    &g.positions,
-                    &g.log_scales,
-                    &g.rotations,
-                    &g.opacity_logits,
-                    &g.sh_dc,
-                    &g.sh_rest[0],
-                    a.view_grad_norm,
-                    a.filter3d.unwrap_or(&self.no_filter),
-                    &s.sh_rest[1],
-                    &s.sh_rest[2],
-                    &g.sh_rest[1],
-                    &g.sh_rest[2],
-                    &s.sh_rest[3],
-                    &s.sh_rest[4],
-                    &g.sh_rest[3],
-                    &g.sh_rest[4],
-                ],
+                &buffers,
                 &push,
                 ctx.groups_1d(a.count as u64, WG),
             );

@@ -10,7 +10,7 @@
 
 use super::sh_planes::{self, PLANES};
 use super::{ExtraGroup, ExtraValues, GaussianParams};
-use crate::gpu::{BufferKind, GpuBuffer, GpuContext};
+use crate::gpu::{Bindable, BufferKind, GpuBuffer, GpuContext};
 use anyhow::bail;
 use std::sync::Arc;
 
@@ -109,7 +109,58 @@ pub fn grown_capacity(count: usize) -> usize {
     (count + count / 8).max(count + 1024)
 }
 
+/// The names kernels give a set's parameter buffers (their GLSL block members), in the
+/// order of [`GpuSplats::bindings`]: the SH rest planes are `sh_rest0`, `sh_rest1`, ….
+pub const PARAM_BINDINGS: [&str; 5 + PLANES] = [
+    "positions",
+    "log_scales",
+    "rotations",
+    "opacity_logits",
+    "sh_dc",
+    "sh_rest0",
+    "sh_rest1",
+    "sh_rest2",
+    "sh_rest3",
+    "sh_rest4",
+];
+
+/// The names of the same buffers of a gradient set (`g_positions`, …, `g_sh_rest4`).
+pub const GRAD_BINDINGS: [&str; 5 + PLANES] = [
+    "g_positions",
+    "g_log_scales",
+    "g_rotations",
+    "g_opacity_logits",
+    "g_sh_dc",
+    "g_sh_rest0",
+    "g_sh_rest1",
+    "g_sh_rest2",
+    "g_sh_rest3",
+    "g_sh_rest4",
+];
+
 impl GpuSplats {
+    /// The fixed groups' buffers named as a kernel binds them (`names`: [`PARAM_BINDINGS`] for
+    /// parameters, [`GRAD_BINDINGS`] for their gradients), for
+    /// [`Recorder::dispatch_named`](crate::gpu::Recorder::dispatch_named).
+    pub fn bindings<'a>(
+        &'a self,
+        names: &[&'static str; 5 + PLANES],
+    ) -> [(&'static str, &'a dyn Bindable); 5 + PLANES] {
+        let b: [&'a dyn Bindable; 5 + PLANES] = [
+            &self.positions,
+            &self.log_scales,
+            &self.rotations,
+            &self.opacity_logits,
+            &self.sh_dc,
+            &self.sh_rest[0],
+            &self.sh_rest[1],
+            &self.sh_rest[2],
+            &self.sh_rest[3],
+            &self.sh_rest[4],
+        ];
+        std::array::from_fn(|k| (names[k], b[k]))
+    }
+
     /// Uploads `params` (validated first: NaN or inf never reaches the GPU) into buffers of
     /// `capacity` Gaussians (at least `params.len()`).
     pub fn upload(

@@ -270,3 +270,81 @@ fn held_frees_wait_for_the_last_guard() {
         assert!(e.to_string().contains("in use"), "{e}");
     }
 }
+
+/// Bindings are declared once, in each kernel's GLSL: `build.rs` reads every kernel's
+/// declarations (includes expanded, aliases of one binding kept once) into a table; a pipeline
+/// whose Rust side binds another count is refused, naming both; a named dispatch places
+/// buffers by those names and refuses a name the kernel does not declare, one given twice, or
+/// one left out.
+#[test]
+fn bindings_come_from_the_kernels_declarations_and_named_dispatch_checks_them() {
+    assert_eq!(shaders::BINDINGS.len(), shaders::ALL.len());
+    for ((path, code), (table_code, names)) in shaders::ALL.iter().zip(shaders::BINDINGS) {
+        assert_eq!(code, table_code, "{path}");
+        assert!(names.iter().all(|n| !n.is_empty()), "{path}: {names:?}");
+    }
+    let names = shaders::BINDINGS
+        .iter()
+        .find(|(c, _)| *c == shaders::BACKWARD_PREPROCESS_BACKWARD)
+        .unwrap()
+        .1;
+    assert_eq!(names.len(), 25);
+    assert_eq!(names[3], "positions");
+    assert_eq!(names[9], "g_positions");
+    assert_eq!(names[24], "g_sh_rest4");
+    // The float alias of binding 7 keeps the first declaration's name.
+    let raster = shaders::BINDINGS
+        .iter()
+        .find(|(c, _)| *c == shaders::BACKWARD_RASTERIZE_BACKWARD)
+        .unwrap()
+        .1;
+    assert_eq!(raster[7], "grad2d_bits");
+
+    let ctx = ctx();
+    let e = ComputePipeline::new(&ctx, "probe", shaders::UTIL_SUBGROUP_PROBE, 2, 8, 64, &[])
+        .err()
+        .expect("a count its GLSL does not declare")
+        .to_string();
+    assert!(e.contains("binds 2") && e.contains("declares 3"), "{e}");
+
+    let pipe =
+        ComputePipeline::new(&ctx, "probe", shaders::UTIL_SUBGROUP_PROBE, 3, 8, 64, &[]).unwrap();
+    let declared = shaders::BINDINGS
+        .iter()
+        .find(|(c, _)| *c == shaders::UTIL_SUBGROUP_PROBE)
+        .unwrap()
+        .1;
+    let buf = GpuBuffer::<u32>::new(&ctx, "b", 64, BufferKind::DeviceLocal).unwrap();
+    let attempt = |named: Vec<&'static str>| {
+        let ctx = ctx.clone();
+        let pipe = &pipe;
+        let buf = &buf;
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(move || {
+            let mut rec = Recorder::new(&ctx).unwrap();
+            rec.begin().unwrap();
+            let buffers: Vec<(&str, &dyn lpmsplat::gpu::Bindable)> = named
+                .iter()
+                .map(|&n| (n, buf as &dyn lpmsplat::gpu::Bindable))
+                .collect();
+            rec.dispatch_named(pipe, &buffers, &[0u32; 2], [0, 1, 1]);
+        }))
+    };
+    let message = |r: std::thread::Result<()>| match r {
+        Ok(()) => String::new(),
+        Err(p) => p
+            .downcast_ref::<String>()
+            .cloned()
+            .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+            .unwrap_or_default(),
+    };
+    // In any order.
+    let mut reversed: Vec<&str> = declared.to_vec();
+    reversed.reverse();
+    assert!(attempt(reversed).is_ok());
+    let m = message(attempt(vec![declared[0], declared[1], "nope"]));
+    assert!(m.contains("no binding is named \"nope\""), "{m}");
+    let m = message(attempt(vec![declared[0], declared[0], declared[1]]));
+    assert!(m.contains("given twice"), "{m}");
+    let m = message(attempt(vec![declared[0], declared[1]]));
+    assert!(m.contains("no buffer given for"), "{m}");
+}

@@ -19,13 +19,15 @@ use anyhow::{ensure, Result};
 
 use super::forward::SurfelRenderer;
 use super::layout::SurfelConstants;
-use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder, TimestampPool};
+use crate::gpu::{
+    Bindable, BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder, TimestampPool,
+};
 use crate::render::backward::{
     backward_pixels_per_invocation, backward_workgroup, full_kernel, subgroup_atomics,
 };
 use crate::render::layout::CameraGpu;
 use crate::shaders;
-use crate::splats::gpu::{grown_capacity, GpuSplats};
+use crate::splats::gpu::{grown_capacity, GpuSplats, GRAD_BINDINGS, PARAM_BINDINGS};
 use crate::splats::model::sh_rest_coeffs;
 
 /// Floats per surfel of [`SurfelBackward::grad_geom`]: `dL/d(h₁ (3), h₂ (3), h₃ (3), box
@@ -237,35 +239,21 @@ impl SurfelBackward {
         let s = a.splats;
         let g = a.grads;
         if a.count > 0 {
-            rec.dispatch(
+            let own: [(&str, &dyn Bindable); 5] = [
+                ("cameras", a.cameras),
+                ("bounds", &f.projected.bounds),
+                ("grad_rows", &self.grad_geom[0]),
+                ("grad_rest", &self.grad_geom[1]),
+                ("view_grad_norm", a.view_grad_norm),
+            ];
+            let buffers: Vec<(&str, &dyn Bindable)> = own
+                .into_iter()
+                .chain(s.bindings(&PARAM_BINDINGS))
+                .chain(g.bindings(&GRAD_BINDINGS))
+                .collect();
+            rec.dispatch_named(
                 &self.preprocess,
-                &[
-                    a.cameras,
-                    &f.projected.bounds,
-                    &self.grad_geom[0],
-                    &s.positions,
-                    &s.log_scales,
-                    &s.rotations,
-                    &s.opacity_logits,
-                    &s.sh_dc,
-                    &s.sh_rest[0],
-                    &g.positions,
-                    &g.log_scales,
-                    &g.rotations,
-                    &g.opacity_logits,
-                    &g.sh_dc,
-                    &g.sh_rest[0],
-                    a.view_grad_norm,
-                    &s.sh_rest[1],
-                    &s.sh_rest[2],
-                    &g.sh_rest[1],
-                    &g.sh_rest[2],
-                    &self.grad_geom[1],
-                    &s.sh_rest[3],
-                    &s.sh_rest[4],
-                    &g.sh_rest[3],
-                    &g.sh_rest[4],
-                ],
+                &buffers,
                 &PreprocessPush {
                     sc: a.constants,
                     camera_index: a.camera_index,
