@@ -34,9 +34,11 @@ use super::layout::{CameraGpu, RenderConstants};
 use super::projected::ProjectedBuffers;
 use super::scan::PrefixScan;
 use super::sort::{RadixSort, SortedIn};
-use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder, TimestampPool};
+use crate::gpu::{
+    Bindable, BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder, TimestampPool,
+};
 use crate::shaders;
-use crate::splats::gpu::GpuSplats;
+use crate::splats::gpu::{GpuSplats, PARAM_BINDINGS};
 
 mod binning;
 use binning::BandTotals;
@@ -571,27 +573,22 @@ impl Renderer {
             rc.flags |= RenderConstants::FILTER_3D;
         }
         rec.fill(&f.tile_ranges, 0);
-        rec.dispatch(
+        let own: [(&str, &dyn Bindable); 7] = [
+            ("cameras", cameras),
+            ("projected_splats", &f.projected.splats),
+            ("depth_keys", &f.depth_keys),
+            ("depth_vals", &f.depth_vals),
+            ("counts", &f.counts),
+            ("filter3d", settings.filter3d.unwrap_or(&self.no_filter)),
+            ("projected_bounds_out", &f.projected.bounds),
+        ];
+        let buffers: Vec<(&str, &dyn Bindable)> = own
+            .into_iter()
+            .chain(splats.bindings(&PARAM_BINDINGS))
+            .collect();
+        rec.dispatch_named(
             &self.preprocess,
-            &[
-                &splats.positions,
-                &splats.log_scales,
-                &splats.rotations,
-                &splats.opacity_logits,
-                &splats.sh_dc,
-                &splats.sh_rest[0],
-                cameras,
-                &f.projected.splats,
-                &f.depth_keys,
-                &f.depth_vals,
-                &f.counts,
-                settings.filter3d.unwrap_or(&self.no_filter),
-                &splats.sh_rest[1],
-                &splats.sh_rest[2],
-                &f.projected.bounds,
-                &splats.sh_rest[3],
-                &splats.sh_rest[4],
-            ],
+            &buffers,
             &PreprocessPush {
                 count: splats.count as u32,
                 camera_index,

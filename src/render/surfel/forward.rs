@@ -6,14 +6,16 @@
 use std::sync::Arc;
 
 use super::layout::{SurfelConstants, GEOM_STRIDE, MAPS_STRIDE, NORMAL_STRIDE};
-use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder, TimestampPool};
+use crate::gpu::{
+    Bindable, BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder, TimestampPool,
+};
 use crate::render::backward::default_pixels_per_invocation;
 use crate::render::bands::{FrameWork, TileBand};
 use crate::render::blocking::BandedRenderer;
 use crate::render::forward::{Capacity, Pairing, Renderer};
 use crate::render::layout::CameraGpu;
 use crate::shaders;
-use crate::splats::gpu::GpuSplats;
+use crate::splats::gpu::{GpuSplats, PARAM_BINDINGS};
 
 const WG: u32 = 256;
 
@@ -204,28 +206,23 @@ impl SurfelRenderer {
         let n = splats.count as u64;
         let f = &self.base.frame;
         rec.fill(&f.tile_ranges, 0);
-        rec.dispatch(
+        let own: [(&str, &dyn Bindable); 8] = [
+            ("cameras", cameras),
+            ("projected_splats", &f.projected.splats),
+            ("depth_keys", &f.depth_keys),
+            ("depth_vals", &f.depth_vals),
+            ("counts", &f.counts),
+            ("geom", &self.surfel.geom),
+            ("projected_bounds_out", &f.projected.bounds),
+            ("normals", &self.surfel.normals),
+        ];
+        let buffers: Vec<(&str, &dyn Bindable)> = own
+            .into_iter()
+            .chain(splats.bindings(&PARAM_BINDINGS))
+            .collect();
+        rec.dispatch_named(
             &self.preprocess,
-            &[
-                &splats.positions,
-                &splats.log_scales,
-                &splats.rotations,
-                &splats.opacity_logits,
-                &splats.sh_dc,
-                &splats.sh_rest[0],
-                cameras,
-                &f.projected.splats,
-                &f.depth_keys,
-                &f.depth_vals,
-                &f.counts,
-                &self.surfel.geom,
-                &splats.sh_rest[1],
-                &splats.sh_rest[2],
-                &f.projected.bounds,
-                &self.surfel.normals,
-                &splats.sh_rest[3],
-                &splats.sh_rest[4],
-            ],
+            &buffers,
             &PreprocessPush {
                 count: splats.count as u32,
                 camera_index,
