@@ -19,7 +19,6 @@ use std::fmt::Debug;
 use std::sync::Arc;
 
 use super::adam::SplatState;
-use super::density::append::NewGaussian;
 use super::density::{DensifyArgs, DensifyOutcome, DensityControl};
 use crate::gpu::{GpuBuffer, GpuContext, Recorder};
 use crate::render::filter3d::SmoothingFilter;
@@ -67,6 +66,20 @@ pub trait FramePositions {
         count: usize,
         out: &GpuBuffer<f32>,
     ) -> anyhow::Result<()>;
+}
+
+/// A Gaussian to append: SH DC only, fresh optimizer state; isotropic for 3D Gaussians, a disc
+/// facing `camera_center` for surfels ([`new_point_shape`](super::density::append::new_point_shape)).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NewGaussian {
+    pub position: [f32; 3],
+    /// World-space standard deviation (all three axes; both in-plane axes of a surfel).
+    pub scale: f32,
+    /// Linear RGB in [0, 1].
+    pub color: [f32; 3],
+    pub opacity: f64,
+    /// The centre of the camera whose error created the point.
+    pub camera_center: [f32; 3],
 }
 
 /// What a guide (LPM) gives the strategy it steers at a density step

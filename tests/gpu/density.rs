@@ -1239,13 +1239,41 @@ fn decisions_can_be_edited_between_decide_and_apply() {
     ctx.check_validation().unwrap();
 }
 
+/// A density context for 3D Gaussians with no render behind it (extent 1, a 1×1 image of
+/// `dummies`), the model's new-Gaussian extras `extras`.
+fn bare_context<'a>(
+    ctx: &'a Arc<GpuContext>,
+    rec: &'a mut Recorder,
+    state: &'a mut SplatState,
+    density: &'a mut DensityControl,
+    dummies: (&'a GpuBuffer<f32>, &'a GpuBuffer<u32>),
+    extras: Vec<Vec<f32>>,
+) -> lpmsplat::train::strategy::DensityContext<'a> {
+    lpmsplat::train::strategy::DensityContext {
+        ctx,
+        rec,
+        state,
+        density,
+        extent: 1.0,
+        render: dummies.0,
+        truth: dummies.1,
+        truth_offset_px: 0,
+        width: 1,
+        height: 1,
+        primitive: lpmsplat::train::strategy::Primitive::Gaussian,
+        raw_colour: false,
+        new_extras: extras,
+        moving: None,
+        opacity_filter: None,
+    }
+}
+
 /// LPM's point addition writes the model's extra groups of every new Gaussian from the
 /// model's row (`DensityContext::new_extras`), keeps the old rows, grows past the capacity, and
 /// refuses rows that do not match the groups.
 #[test]
 fn added_gaussians_carry_the_models_extra_groups() {
     use lpmsplat::lpm::strategy::{append_gaussians, NewGaussian};
-    use lpmsplat::train::strategy::{DensityContext, Primitive};
     let ctx = ctx();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
     let n = 40usize;
@@ -1269,23 +1297,14 @@ fn added_gaussians_carry_the_models_extra_groups() {
         })
         .collect();
     let mut append = |state: &mut SplatState, extras: Vec<Vec<f32>>| {
-        let mut t = DensityContext {
-            ctx: &ctx,
-            rec: &mut rec,
+        let mut t = bare_context(
+            &ctx,
+            &mut rec,
             state,
-            density: &mut density,
-            extent: 1.0,
-            render: &dummy_f,
-            truth: &dummy_u,
-            truth_offset_px: 0,
-            width: 1,
-            height: 1,
-            primitive: Primitive::Gaussian,
-            raw_colour: false,
-            new_extras: extras,
-            moving: None,
-            opacity_filter: None,
-        };
+            &mut density,
+            (&dummy_f, &dummy_u),
+            extras,
+        );
         append_gaussians(&mut t, &rows)
     };
     let e = append(&mut state, vec![vec![0.0; 2]])
@@ -1334,9 +1353,7 @@ fn mcmc_moves_dead_gaussians_onto_a_guides_surface_samples() {
     use lpmsplat::mcmc::plan::{dead_rows, plan_relocation_of, plan_rng, plan_seeded};
     use lpmsplat::mcmc::{McmcConfig, McmcStrategy};
     use lpmsplat::splats::SH_C0;
-    use lpmsplat::train::strategy::{
-        DensityContext, DensityStrategy, Guide, IterationView, Primitive,
-    };
+    use lpmsplat::train::strategy::{DensityStrategy, Guide, IterationView, Primitive};
     const POISON: f32 = 7.77e7;
     let ctx = ctx();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
@@ -1385,23 +1402,14 @@ fn mcmc_moves_dead_gaussians_onto_a_guides_surface_samples() {
     let extras = vec![vec![0.5, -0.5], vec![0.25]];
     let it = 500;
     {
-        let mut t = DensityContext {
-            ctx: &ctx,
-            rec: &mut rec,
-            state: &mut state,
-            density: &mut density,
-            extent: 1.0,
-            render: &dummy_f,
-            truth: &dummy_u,
-            truth_offset_px: 0,
-            width: 1,
-            height: 1,
-            primitive: Primitive::Gaussian,
-            raw_colour: false,
-            new_extras: extras.clone(),
-            moving: None,
-            opacity_filter: None,
-        };
+        let mut t = bare_context(
+            &ctx,
+            &mut rec,
+            &mut state,
+            &mut density,
+            (&dummy_f, &dummy_u),
+            extras.clone(),
+        );
         let args = DensifyArgs {
             extent: 1.0,
             prune_large: false,

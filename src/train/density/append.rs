@@ -4,21 +4,8 @@
 use crate::gpu::{BufferKind, GpuBuffer};
 use crate::splats::gpu::{grown_capacity, FIXED_GROUPS};
 use crate::splats::SH_C0;
+pub use crate::train::strategy::NewGaussian;
 use crate::train::strategy::{DensityContext, Primitive};
-
-/// A Gaussian to append: SH DC only, fresh optimizer state; isotropic for 3D Gaussians, a disc
-/// facing `camera_center` for surfels ([`new_point_shape`]).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct NewGaussian {
-    pub position: [f32; 3],
-    /// World-space standard deviation (all three axes; both in-plane axes of a surfel).
-    pub scale: f32,
-    /// Linear RGB in [0, 1].
-    pub color: [f32; 3],
-    pub opacity: f64,
-    /// The centre of the camera whose error created the point.
-    pub camera_center: [f32; 3],
-}
 
 /// Log-scales and rotation (w, x, y, z) of a new point. A 3D Gaussian is isotropic (identity
 /// rotation). A surfel added at a zone centre faces the camera whose error created it (our
