@@ -79,8 +79,9 @@ pub enum Command {
     Export(export::ExportArgs),
     /// A triangle mesh (PLY) of a trained 2DGS model: its rendered depth fused into a TSDF.
     Mesh(mesh::MeshArgs),
-    /// Cut a COLMAP scene into overlapping blocks on its ground plane: a plan, each block a
-    /// scene folder `train` reads, and (--slurm) a job array that trains them and a merge job.
+    /// Cut a COLMAP or transforms scene into overlapping blocks on its ground plane: a plan,
+    /// each block a scene folder `train` reads, and (--slurm) a job array that trains them and
+    /// a merge job.
     Partition(Box<partition::PartitionArgs>),
     /// The blocks' trained models of a plan, each cropped to its core, as one model.
     Merge(merge::MergeArgs),

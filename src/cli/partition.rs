@@ -43,6 +43,7 @@ pub struct PartitionArgs {
     /// The merged model's Gaussian budget (500k, 2.5M, or 3x the SfM points), shared among
     /// the blocks by the points of their regions: each block's run gets `--budget` its share.
     /// Pair it with a strategy that fills a budget (`-- --strategy mcmc`), or it is a cap.
+    /// Required for a scene without SfM points (transforms): a count, shared by training views.
     #[arg(long, value_name = "N", value_parser = parse_budget)]
     pub budget: Option<Budget>,
     /// Without --budget: the Gaussians expected per SfM point of a block's region, for the
