@@ -715,8 +715,8 @@ fn bench_trade_budget_grid_takes_its_budgets_from_adcs_own_count() {
         "0.5x-adc,1x-adc",
         "--fps-frames",
         "1",
-        "--seeds",
-        "2",
+        "--seed",
+        "1",
     ]);
     let (ok, text) = output(&mut c);
     assert!(ok, "{text}");
@@ -744,20 +744,21 @@ fn bench_trade_budget_grid_takes_its_budgets_from_adcs_own_count() {
             .as_u64()
             .unwrap()
     };
-    for seed in [0, 1] {
-        let adc = count("adc", seed);
-        let half = (adc as f64 * 0.5).round() as u64;
-        for exact in ["adc-exact", "adc-exact+lpm-local"] {
-            let at1 = count(&format!("{exact}@1x-adc"), seed);
-            let at_half = count(&format!("{exact}@0.5x-adc"), seed);
-            assert!(at1 <= adc && at1 + 1 >= adc, "{exact}: {at1} for {adc}");
-            assert!(
-                at_half <= half && at_half + 1 >= half,
-                "{exact}: {at_half} for {half}"
-            );
-        }
-        assert!(count("adc@0.5x-adc", seed) <= half);
+    // One seed, not 0: several seeds paired by seed are bench_trade_match_adc_count_…'s
+    // and the Slurm sweep's to show.
+    let seed = 1;
+    let adc = count("adc", seed);
+    let half = (adc as f64 * 0.5).round() as u64;
+    for exact in ["adc-exact", "adc-exact+lpm-local"] {
+        let at1 = count(&format!("{exact}@1x-adc"), seed);
+        let at_half = count(&format!("{exact}@0.5x-adc"), seed);
+        assert!(at1 <= adc && at1 + 1 >= adc, "{exact}: {at1} for {adc}");
+        assert!(
+            at_half <= half && at_half + 1 >= half,
+            "{exact}: {at_half} for {half}"
+        );
     }
+    assert!(count("adc@0.5x-adc", seed) <= half);
     let md = std::fs::read_to_string(out.join("trade.md")).unwrap();
     assert!(md.contains("LPM as a guide at one count"), "{md}");
     assert!(
