@@ -22,6 +22,7 @@ pub mod scene;
 pub mod settings;
 pub mod splats;
 pub mod strategies;
+pub mod synthetic;
 pub mod train;
 pub mod triangulated_init;
 

@@ -3,6 +3,7 @@
 mod bench;
 mod eval;
 mod export;
+mod generate;
 mod geometry_outputs;
 mod image_cache_args;
 mod info;
@@ -85,6 +86,9 @@ pub enum Command {
     Partition(Box<partition::PartitionArgs>),
     /// The blocks' trained models of a plan, each cropped to its core, as one model.
     Merge(merge::MergeArgs),
+    /// A procedural district of box buildings surveyed from the air, rendered from its known
+    /// Gaussians into a COLMAP scene (images, SfM points, truth.ply): a scene as large as asked.
+    GenerateCity(generate::GenerateCityArgs),
 }
 
 /// Scene-loading flags shared by the subcommands that read a scene.
@@ -151,5 +155,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Mesh(a) => mesh::run(&gpu, &a),
         Command::Partition(a) => partition::run(&a),
         Command::Merge(a) => merge::run(&a),
+        Command::GenerateCity(a) => generate::run(&gpu, &a),
     }
 }

@@ -75,7 +75,7 @@ fn parse_grid(s: &str) -> Result<(usize, usize), String> {
     Ok((c, r))
 }
 
-fn parse_count(s: &str) -> Result<u64, String> {
+pub(super) fn parse_count(s: &str) -> Result<u64, String> {
     match parse_budget(s)? {
         Budget::Count(n) => Ok(n as u64),
         Budget::TimesInitial(_) => Err(format!("'{s}': give a count (2M, 500k), not a multiple")),

@@ -203,6 +203,49 @@ pub fn rotation_of_unit_quaternion(q: [f64; 4]) -> [[f64; 3]; 3] {
     ]
 }
 
+/// The unit quaternion (w, x, y, z, w ≥ 0) of a rotation matrix, the inverse of
+/// [`rotation_of_unit_quaternion`]: what a COLMAP file stores for a pose built as a matrix.
+/// Shepperd's choice of the largest diagonal term keeps it accurate near every rotation.
+pub fn unit_quaternion_of_rotation(r: [[f64; 3]; 3]) -> [f64; 4] {
+    let trace = r[0][0] + r[1][1] + r[2][2];
+    let q = if trace > r[0][0].max(r[1][1]).max(r[2][2]) {
+        let s = 2.0 * (1.0 + trace).sqrt();
+        [
+            s / 4.0,
+            (r[2][1] - r[1][2]) / s,
+            (r[0][2] - r[2][0]) / s,
+            (r[1][0] - r[0][1]) / s,
+        ]
+    } else if r[0][0] >= r[1][1] && r[0][0] >= r[2][2] {
+        let s = 2.0 * (1.0 + r[0][0] - r[1][1] - r[2][2]).sqrt();
+        [
+            (r[2][1] - r[1][2]) / s,
+            s / 4.0,
+            (r[0][1] + r[1][0]) / s,
+            (r[0][2] + r[2][0]) / s,
+        ]
+    } else if r[1][1] >= r[2][2] {
+        let s = 2.0 * (1.0 + r[1][1] - r[0][0] - r[2][2]).sqrt();
+        [
+            (r[0][2] - r[2][0]) / s,
+            (r[0][1] + r[1][0]) / s,
+            s / 4.0,
+            (r[1][2] + r[2][1]) / s,
+        ]
+    } else {
+        let s = 2.0 * (1.0 + r[2][2] - r[0][0] - r[1][1]).sqrt();
+        [
+            (r[1][0] - r[0][1]) / s,
+            (r[0][2] + r[2][0]) / s,
+            (r[1][2] + r[2][1]) / s,
+            s / 4.0,
+        ]
+    };
+    let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let sign = if q[0] < 0.0 { -1.0 } else { 1.0 };
+    q.map(|v| sign * v / n)
+}
+
 impl Pose {
     pub const IDENTITY: Pose = Pose {
         rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
@@ -281,6 +324,38 @@ impl Pose {
         Pose {
             rotation,
             translation,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    #[test]
+    fn a_rotation_matrix_gives_back_its_quaternion() {
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
+        // Random rotations, and half-turns about each axis and a diagonal (trace −1, where a
+        // quaternion from the trace alone loses every digit).
+        let mut qs: Vec<[f64; 4]> = (0..1000)
+            .map(|_| [0; 4].map(|_| rng.gen_range(-1.0..1.0)))
+            .collect();
+        qs.extend([
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 0.0],
+            [0.0, 0.0, 0.0, 1.0],
+            [1e-9, 0.6, 0.0, 0.8],
+            [1.0, 0.0, 0.0, 0.0],
+        ]);
+        for q in qs {
+            let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+            let sign = if q[0] < 0.0 { -1.0 } else { 1.0 };
+            let q = q.map(|v| sign * v / n);
+            let back = unit_quaternion_of_rotation(rotation_of_unit_quaternion(q));
+            for k in 0..4 {
+                assert!((back[k] - q[k]).abs() < 1e-12, "{q:?} → {back:?}");
+            }
         }
     }
 }

@@ -7,6 +7,7 @@ mod cli_support;
 mod bench;
 mod buffer_widths;
 mod front_door;
+mod generate_city;
 mod partition;
 mod partition_slurm;
 mod render_scales;

@@ -138,7 +138,9 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         Some(oom) => anyhow::anyhow!(
             "setting up the training: {oom}. Fix: a device with more memory or a higher \
              --memory-limit, or less to hold: a coarser -r, fewer initial Gaussians \
-             (--init-points), --image-cache MIB to stream the training images"
+             (--init-points), --image-cache MIB to stream the training images; or train the \
+             scene as blocks that each fit (lpmsplat partition SCENE --memory MIB, \
+             docs/partition.md)"
         ),
         None => e,
     })?;

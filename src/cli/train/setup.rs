@@ -77,7 +77,8 @@ pub(super) fn save_after_oom(
         "after iteration {it} ({n} Gaussians): {oom}. Wrote {}{ply_note}: the model at \
          iteration {it}. Fix: continue on a device with more memory (or with a higher \
          --memory-limit MIB): {}; or train again with fewer Gaussians (a higher \
-         --densify-grad-threshold or an earlier --densify-until)",
+         --densify-grad-threshold or an earlier --densify-until, or --budget N), or as blocks \
+         that each fit (lpmsplat partition SCENE --memory MIB, docs/partition.md)",
         checkpoint.display(),
         resume_hint_without(&checkpoint, "--memory-limit")
     )
