@@ -164,12 +164,22 @@ pub fn run(args: &PartitionArgs) -> anyhow::Result<()> {
             out.display()
         );
     } else {
+        // One line a block: with a budget each block trains to its own share of it.
+        println!("train each block, then merge them:");
+        for b in &plan.blocks {
+            let budget = match plan.budget {
+                Some(_) => format!(" --budget {}", b.expected_gaussians),
+                None => String::new(),
+            };
+            println!(
+                "  lpmsplat train {} -o {} {}{budget}",
+                out.join(&b.folder).display(),
+                out.join("runs").join(&b.name).display(),
+                plan.train_args.join(" "),
+            );
+        }
         println!(
-            "train each block: lpmsplat train {}/blocks/<name> -o {}/runs/<name> {}; then \
-             lpmsplat merge {} --runs {}/runs -o {}/merged",
-            out.display(),
-            out.display(),
-            plan.train_args.join(" "),
+            "  lpmsplat merge {} --runs {}/runs -o {}/merged",
             plan_path.display(),
             out.display(),
             out.display()

@@ -23,12 +23,15 @@ pub const MIN_BLOCK_VIEWS: usize = 3;
 /// The most blocks along one side the automatic grid tries.
 pub const MAX_SIDE: usize = 16;
 
-/// Device bytes one Gaussian takes at a training run's peak, growth headroom included:
-/// measured on Truck at `-r 4` (2,000 iterations, SH degree 3, lavapipe): a 405.9 MiB peak at
-/// 301,854 Gaussians, less its 219 images (111.5 MiB) and one step's render targets (~20 MiB),
-/// is 952 bytes a Gaussian (docs/partition.md). On an H100 Truck at full size peaks at 4.9 GB
-/// with 2.5 M Gaussians and 2.1 GB of images: ~1.1 kB.
-pub const BYTES_PER_GAUSSIAN: f64 = 1000.0;
+/// Device bytes one Gaussian takes at a training run's peak, growth headroom and the tile
+/// lists of wide Gaussians included: the larger of two measurements (lavapipe, SH degree 3).
+/// Truck at `-r 4` after 2,000 iterations: a 405.9 MiB peak at 301,854 Gaussians, less its 219
+/// images (111.5 MiB) and one step's render targets (~20 MiB), is 952 bytes a Gaussian. The
+/// generated district (`generate-city`, 204,642 SfM points, `-r 4`) peaks at 311.3 MiB on its
+/// first step, less 33 MiB of images and ~10 MiB of targets: 1.37 kB, since a model fresh from
+/// sparse points is of wide Gaussians that each cover many tiles (docs/partition.md). On an
+/// H100 Truck at full size peaks at 4.9 GB with 2.5 M Gaussians and 2.1 GB of images: ~1.1 kB.
+pub const BYTES_PER_GAUSSIAN: f64 = 1400.0;
 /// Device bytes a training image pixel takes (8 bits a channel, RGBA) while the image cache
 /// holds them all.
 pub const BYTES_PER_IMAGE_PIXEL: f64 = 4.0;
