@@ -14,7 +14,7 @@ use crate::mcmc::{McmcConfig, McmcStrategy};
 use crate::scene::image_source::TrainImages;
 use crate::scene::{images, Image, Scene};
 use crate::train::strategy::{DensityStrategy, Primitive};
-use crate::train::trainer::TrainConfig;
+use crate::train::trainer::{TrainConfig, Trainer};
 
 /// The shape of the primitives a run trains (2DGS's surfels or 3D Gaussians).
 pub fn primitive_of(config: &TrainConfig) -> Primitive {
@@ -85,5 +85,13 @@ pub fn assemble(
         }
         (None, Some(m)) => Some(Box::new(m)),
         (None, None) => None,
+    })
+}
+
+/// The run's MCMC strategy, on its own or guided by LPM; `None` for the other strategies.
+pub fn mcmc_of(trainer: &Trainer) -> Option<&McmcStrategy> {
+    trainer.strategy_as::<McmcStrategy>().or_else(|| {
+        let lpm = trainer.strategy_as::<LpmStrategy>()?;
+        lpm.inner().as_any().downcast_ref::<McmcStrategy>()
     })
 }

@@ -58,6 +58,18 @@ pub struct McmcTotals {
     pub added: usize,
 }
 
+impl McmcTotals {
+    /// As metrics.json and `bench trade` rows record them.
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "refinements": self.refinements,
+            "relocated": self.relocated,
+            "seeded": self.seeded,
+            "added": self.added,
+        })
+    }
+}
+
 pub struct McmcStrategy {
     pub config: McmcConfig,
     kernels: McmcKernels,

@@ -708,7 +708,7 @@ fn bench_trade_budget_grid_takes_its_budgets_from_adcs_own_count() {
         "--calendar",
         "600",
         "--runs",
-        "adc,adc-exact,adc-exact+lpm-local",
+        "adc,adc-exact,adc-exact+lpm-local,mcmc",
     ])
     .args([
         "--budget",
@@ -735,6 +735,8 @@ fn bench_trade_budget_grid_takes_its_budgets_from_adcs_own_count() {
             "adc-exact@0.5x-adc",
             "adc-exact@1x-adc",
             "adc@0.5x-adc",
+            "mcmc@0.5x-adc",
+            "mcmc@1x-adc",
         ]
     );
     let count = |run: &str, seed: u64| {
@@ -759,6 +761,23 @@ fn bench_trade_budget_grid_takes_its_budgets_from_adcs_own_count() {
         );
     }
     assert!(count("adc@0.5x-adc", seed) <= half);
+    // MCMC's rows say what it did towards each budget; the other
+    // strategies' rows carry no MCMC totals.
+    for run in ["mcmc@0.5x-adc", "mcmc@1x-adc"] {
+        let row = runs
+            .iter()
+            .find(|r| r["run"] == run && r["iteration"] == 101)
+            .unwrap();
+        let mcmc = &row["mcmc"];
+        assert!(mcmc["refinements"].as_u64().unwrap() > 0, "{run}: {row}");
+        assert!(mcmc["relocated"].as_u64().is_some(), "{run}: {row}");
+    }
+    // (5 % a refinement: in 101 iterations it grows towards the budget, never past it.)
+    assert!(count("mcmc@1x-adc", seed) <= adc);
+    assert!(runs
+        .iter()
+        .filter(|r| r["mcmc"].is_object())
+        .all(|r| r["run"].as_str().unwrap().starts_with("mcmc")));
     let md = std::fs::read_to_string(out.join("trade.md")).unwrap();
     assert!(md.contains("LPM as a guide at one count"), "{md}");
     assert!(

@@ -728,6 +728,7 @@ fn evaluate_run(
         view_psnr,
         model_events: r.model_events.clone(),
         lpm_steps,
+        mcmc: lpmsplat::strategies::mcmc_of(t).map(|m| m.totals.to_json()),
         source: 0,
     };
     let name = if args.seeds > 1 {

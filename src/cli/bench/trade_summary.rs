@@ -61,6 +61,11 @@ pub struct TradeRow {
     /// densifications, extra prunes, resets, additions. Empty (and left out) for ADC runs.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub lpm_steps: Vec<serde_json::Value>,
+    /// MCMC's totals up to this iteration (refinements, dead Gaussians relocated, of them moved
+    /// onto LPM's surface samples, Gaussians added), as `train`'s `metrics.json` has them;
+    /// absent for the other strategies.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mcmc: Option<serde_json::Value>,
     /// The process the row came from: 0 in `bench trade`; in `bench merge` the input file's
     /// index. Times are compared only between rows of one process (interleaved runs).
     #[serde(skip)]
@@ -133,6 +138,7 @@ impl Summary {
             view_psnr: None,
             model_events: Vec::new(),
             lpm_steps: Vec::new(),
+            mcmc: None,
             source: 0,
         }
     }
@@ -557,6 +563,7 @@ mod tests {
             view_psnr: None,
             model_events: Vec::new(),
             lpm_steps: Vec::new(),
+            mcmc: None,
             source: 0,
         }
     }

@@ -188,19 +188,11 @@ impl Finished<'_> {
                 j["per_step"] = l.steps.iter().map(|r| r.to_json()).collect();
                 j
             }),
-            "mcmc": trainer
-                .strategy_as::<McmcStrategy>()
-                .or_else(|| {
-                    let lpm = trainer.strategy_as::<LpmStrategy>()?;
-                    lpm.inner().as_any().downcast_ref::<McmcStrategy>()
-                })
-                .map(|m| serde_json::json!({
-                "settings": m.config.to_json(),
-                "refinements": m.totals.refinements,
-                "relocated": m.totals.relocated,
-                "seeded": m.totals.seeded,
-                "added": m.totals.added,
-            })),
+            "mcmc": lpmsplat::strategies::mcmc_of(trainer).map(|m| {
+                let mut j = m.totals.to_json();
+                j["settings"] = m.config.to_json();
+                j
+            }),
             "exact_budget": config.density.exact_budget.map(|b| b.to_json()),
         })
     }
