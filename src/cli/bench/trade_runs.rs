@@ -77,13 +77,7 @@ pub fn calendar_config(
 /// The absolute-gradient test needs the mean-gradient statistic of a Gaussian model.
 pub fn abs_grad_applies(model: BaseModel) -> anyhow::Result<()> {
     anyhow::ensure!(
-        matches!(
-            model,
-            BaseModel::Gaussians3d
-                | BaseModel::MipSplatting
-                | BaseModel::SpacetimeLite
-                | BaseModel::SpacetimeFull
-        ),
+        model.takes_abs_grad(),
         "bench trade: the absolute-gradient test (--densify-abs-grad, run adc-abs-grad) with \
          --model {}: it applies to 3dgs, mip-splatting and the spacetime models. Fix: drop it",
         model.name()

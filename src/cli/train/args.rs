@@ -11,11 +11,10 @@ use lpmsplat::lpm::config::{LpmConfig, PruneMode};
 use lpmsplat::lpm::pairing::RegionKeypoints;
 use lpmsplat::lpm::region_units::RegionUnit;
 use lpmsplat::lpm::{ConeRadius, NeighbourChoice, ZoneGeometry};
-use lpmsplat::models::BaseModel;
+use lpmsplat::models::{BaseModel, ModelOptions};
 use lpmsplat::scene::Scene;
 use lpmsplat::train::config::ChildTime;
 use lpmsplat::train::loss::LossLayout;
-use lpmsplat::train::passes::surfels::SurfelTraining;
 use lpmsplat::train::schedule::DensitySchedule;
 use lpmsplat::train::trainer::{Background, TrainConfig};
 use std::path::PathBuf;
@@ -469,6 +468,26 @@ pub fn background_from(arg: Option<&str>, scene: &Scene) -> anyhow::Result<Backg
 }
 
 impl TrainArgs {
+    /// The model settings as given, for the model to take or refuse.
+    pub fn model_options(&self) -> anyhow::Result<ModelOptions> {
+        Ok(ModelOptions {
+            lambda_normal: self.lambda_normal,
+            normal_from: self.normal_from,
+            lambda_dist: self.lambda_dist,
+            dist_from: self.dist_from,
+            depth_ratio: self.depth_ratio,
+            child_time: self.child_time,
+            guided_sampling: self.guided_sampling.as_deref().map(|v| v == "on"),
+            guided_from: self.guided_from,
+            omega_freeze: self
+                .omega_freeze
+                .as_deref()
+                .map(ModelOptions::parse_omega_freeze)
+                .transpose()?,
+            densify_abs_grad: self.densify_abs_grad,
+        })
+    }
+
     pub fn config(&self, scene: &Scene) -> anyhow::Result<TrainConfig> {
         let densify_until = self
             .densify_until
@@ -502,100 +521,12 @@ impl TrainArgs {
         c.schedule.opacity_reset_interval = self.opacity_reset_interval;
         c.schedule.growth_rounds = self.growth_rounds;
         c.schedule.white_background = c.background == Background::Fixed([1.0; 3]);
-        if self.model == BaseModel::Surfels2d {
-            let mut t = SurfelTraining::default();
-            t.normal_weight = self.lambda_normal.unwrap_or(t.normal_weight);
-            t.normal_from = self.normal_from.unwrap_or(t.normal_from);
-            t.distortion_weight = self.lambda_dist.unwrap_or(t.distortion_weight);
-            t.distortion_from = self.dist_from.unwrap_or(t.distortion_from);
-            t.depth_ratio = self.depth_ratio.unwrap_or(t.depth_ratio);
-            c.surfels = Some(t);
-        } else {
-            for (flag, given) in [
-                ("--lambda-normal", self.lambda_normal.is_some()),
-                ("--normal-from", self.normal_from.is_some()),
-                ("--lambda-dist", self.lambda_dist.is_some()),
-                ("--dist-from", self.dist_from.is_some()),
-                ("--depth-ratio", self.depth_ratio.is_some()),
-            ] {
-                anyhow::ensure!(
-                    !given,
-                    "{flag} applies to --model 2dgs only (this run trains {}). Fix: drop the \
-                     flag or pass --model 2dgs",
-                    self.model.name()
-                );
-            }
-        }
-        self.model.configure(&mut c);
-        match (c.spacetime.as_mut(), self.child_time) {
-            (Some(st), Some(ct)) => st.child_time = ct,
-            (None, Some(_)) => anyhow::bail!(
-                "--child-time applies to --model spacetime-lite or spacetime-full only (this run trains {}). Fix: \
-                 drop the flag",
-                self.model.name()
-            ),
-            _ => {}
-        }
-        if self.guided_sampling.is_some() || self.guided_from.is_some() {
-            let Some(st) = c.spacetime.as_mut() else {
-                anyhow::bail!(
-                    "--guided-sampling and --guided-from apply to --model spacetime-full or spacetime-lite only \
-                     (this run trains {}). Fix: drop the flag",
-                    self.model.name()
-                );
-            };
-            if self.guided_sampling.as_deref() == Some("off") {
-                anyhow::ensure!(
-                    self.guided_from.is_none(),
-                    "--guided-from with --guided-sampling off: nothing would sample. Fix: drop \
-                     one of them"
-                );
-                st.guided = None;
-            } else if let (Some(g), Some(from)) = (st.guided.as_mut(), self.guided_from) {
-                g.from = from;
-            }
-        }
+        self.model.apply_options(&self.model_options()?, &mut c)?;
         c.density.max_gaussians = self.max_gaussians;
         c.density.rank_lowered = self.lpm.lpm && self.lpm.lpm_rank == "lowered";
         if self.density_strategy.strategy == StrategyName::Mcmc {
             // `train`'s schedule is the official 30 000-iteration one whatever --iterations.
             lpmsplat::mcmc::config::apply_schedule(&mut c.schedule, 30_000, self.densify_until);
-        }
-        if self.densify_abs_grad {
-            anyhow::ensure!(
-                matches!(
-                    c.density.statistic,
-                    lpmsplat::train::density::Statistic::Gradient
-                ) && c.surfels.is_none(),
-                "--densify-abs-grad applies to the models densified by the mean gradient: 3dgs, \
-                 mip-splatting, spacetime-lite, spacetime-full (this run trains {}, whose \
-                 statistic it would not combine with). Fix: drop the flag",
-                self.model.name()
-            );
-            c.density.abs_grad = true;
-        }
-        if let Some(v) = &self.omega_freeze {
-            let Some(st) = c.spacetime.as_mut() else {
-                anyhow::bail!(
-                    "--omega-freeze applies to the spacetime models only (this run trains {}). \
-                     Fix: drop the flag",
-                    self.model.name()
-                );
-            };
-            st.omega_freeze = match v.as_str() {
-                "off" => None,
-                n => {
-                    let from: u32 = n.parse().map_err(|_| {
-                        anyhow::anyhow!(
-                            "--omega-freeze {n:?} is not an iteration. Fix: give one (official 8001) or off"
-                        )
-                    })?;
-                    Some(lpmsplat::train::config::OmegaFreeze {
-                        from,
-                        ..st.omega_freeze.unwrap_or_default()
-                    })
-                }
-            };
         }
         crate::cli::world_culls_arg::apply(self.n3dv_culls, &scene.root, self.model, &mut c, 1000)?;
         if let Some(b) = self.batch_views {

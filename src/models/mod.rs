@@ -8,6 +8,10 @@
 //! four extra parameter groups and the temporal step before the 3DGS passes,
 //! [`crate::train::passes::spacetime`]).
 
+pub mod options;
+
+pub use options::ModelOptions;
+
 use crate::splats::GaussianParams;
 use crate::train::config::SpacetimeTraining;
 use crate::train::density::Statistic;
