@@ -22,7 +22,6 @@ mod slurm_args;
 
 mod train;
 mod train_plot;
-mod world_culls_arg;
 
 use clap::{Args, Parser, Subcommand};
 use lpmsplat::gpu::GpuOptions;

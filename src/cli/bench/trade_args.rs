@@ -2,11 +2,11 @@
 //! run shares, and [`settings_json`], what of them trade.json records for `bench merge`.
 
 use crate::cli::lpips_scores::LpipsArgs;
-use crate::cli::world_culls_arg::N3dvCulls;
 use crate::cli::SceneArgs;
 use clap::Args;
 use lpmsplat::lpm::config::PruneMode;
 use lpmsplat::models::BaseModel;
+use lpmsplat::train::passes::world_culls::N3dvCulls;
 use std::path::PathBuf;
 
 fn parse_prune(s: &str) -> anyhow::Result<PruneMode> {

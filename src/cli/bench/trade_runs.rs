@@ -59,10 +59,10 @@ pub fn calendar_config(
         f.from = scale(f.from);
     }
     // The Neural 3D Video culls on the same calendar (official: every 1000 of 30k).
-    crate::cli::world_culls_arg::apply(
+    lpmsplat::train::passes::world_culls::apply_choice(
         args.n3dv_culls,
         &scene.root,
-        args.model,
+        args.model.name(),
         &mut base,
         scale(1000),
     )?;

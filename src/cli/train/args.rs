@@ -4,7 +4,6 @@ use super::strategy_args::{StrategyArgs, StrategyName};
 use crate::cli::image_cache_args::ImageCacheArgs;
 use crate::cli::lpips_scores::LpipsArgs;
 use crate::cli::render::parse_rgb;
-use crate::cli::world_culls_arg::N3dvCulls;
 use crate::cli::SceneArgs;
 use clap::Args;
 use lpmsplat::lpm::config::{LpmConfig, PruneMode};
@@ -15,6 +14,7 @@ use lpmsplat::models::{BaseModel, ModelOptions};
 use lpmsplat::scene::Scene;
 use lpmsplat::train::config::ChildTime;
 use lpmsplat::train::loss::LossLayout;
+use lpmsplat::train::passes::world_culls::N3dvCulls;
 use lpmsplat::train::schedule::DensitySchedule;
 use lpmsplat::train::trainer::{Background, TrainConfig};
 use std::path::PathBuf;
@@ -528,7 +528,13 @@ impl TrainArgs {
             // `train`'s schedule is the official 30 000-iteration one whatever --iterations.
             lpmsplat::mcmc::config::apply_schedule(&mut c.schedule, 30_000, self.densify_until);
         }
-        crate::cli::world_culls_arg::apply(self.n3dv_culls, &scene.root, self.model, &mut c, 1000)?;
+        lpmsplat::train::passes::world_culls::apply_choice(
+            self.n3dv_culls,
+            &scene.root,
+            self.model.name(),
+            &mut c,
+            1000,
+        )?;
         if let Some(b) = self.batch_views {
             c.batch_views = b;
         }

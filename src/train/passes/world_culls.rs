@@ -24,6 +24,51 @@ use crate::splats::GaussianParams;
 use crate::train::config::WorldCulls;
 use crate::train::density::{DensifyArgs, DensifyPhase};
 use crate::train::strategy::{DensityContext, ModelRule, StepSeen, StrategyEvent};
+use crate::train::trainer::TrainConfig;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum N3dvCulls {
+    /// The official rule of the scene: on for the six Neural 3D Video scenes (by folder name,
+    /// beside poses_bounds.npy), with the later culls where their config uses them; off
+    /// elsewhere.
+    Auto,
+    /// The cull before training and the later ones (the official `densify: 1`).
+    Official,
+    /// Only the cull before training (the official `densify: 2`: coffee_martini,
+    /// flame_salmon_1).
+    Initial,
+    Off,
+}
+
+/// Sets `config`'s culls for the scene at `root` as `--n3dv-culls` asks (`train` and `bench
+/// trade`), after the model and the schedule are set: `per_thousand` iterations stand for the
+/// official 1000 (1000 at full length).
+pub fn apply_choice(
+    choice: N3dvCulls,
+    root: &Path,
+    model_name: &str,
+    config: &mut TrainConfig,
+    per_thousand: u32,
+) -> anyhow::Result<()> {
+    let until = config.schedule.densify_until;
+    let Some(st) = config.spacetime.as_mut() else {
+        anyhow::ensure!(
+            matches!(choice, N3dvCulls::Auto | N3dvCulls::Off),
+            "--n3dv-culls applies to the spacetime models only (this run trains {}). Fix: drop \
+             the flag",
+            model_name
+        );
+        return Ok(());
+    };
+    let later = match choice {
+        N3dvCulls::Auto => for_scene(root),
+        N3dvCulls::Official => Some(true),
+        N3dvCulls::Initial => Some(false),
+        N3dvCulls::Off => None,
+    };
+    st.world_culls = later.map(|l| WorldCulls::n3dv(l, until, per_thousand));
+    Ok(())
+}
 
 /// The six Neural 3D Video scenes and whether their official config uses `densify` mode 1
 /// (the later culls too) or 2 (only the cull before training: coffee_martini and
