@@ -143,14 +143,7 @@ mod tests {
 
     #[test]
     fn each_model_takes_its_own_settings_and_refuses_the_others_by_flag() {
-        let all = [
-            BaseModel::Gaussians3d,
-            BaseModel::PixelGs,
-            BaseModel::MipSplatting,
-            BaseModel::Surfels2d,
-            BaseModel::SpacetimeLite,
-            BaseModel::SpacetimeFull,
-        ];
+        let all = BaseModel::ALL;
         let cases: [(ModelOptions, &str, &[BaseModel]); 5] = [
             (
                 ModelOptions {

@@ -105,44 +105,10 @@ pub fn quat_to_rotation(q: [f64; 4]) -> Mat3 {
     crate::scene::camera::rotation_of_unit_quaternion(q)
 }
 
-/// The unit quaternion (w, x, y, z, w ≥ 0 not guaranteed) of a rotation matrix: the inverse of
-/// [`quat_to_rotation`] up to sign (Shepperd's method: the division uses the largest of the
-/// four diagonal combinations, so it stays well conditioned at every angle).
+/// The unit quaternion (w, x, y, z; w ≥ 0) of a rotation matrix, the inverse of
+/// [`quat_to_rotation`]: kept once below both, with the COLMAP writers.
 pub fn rotation_to_quat(m: &Mat3) -> [f64; 4] {
-    let tr = m[0][0] + m[1][1] + m[2][2];
-    if tr > 0.0 {
-        let s = 2.0 * (1.0 + tr).sqrt();
-        [
-            s / 4.0,
-            (m[2][1] - m[1][2]) / s,
-            (m[0][2] - m[2][0]) / s,
-            (m[1][0] - m[0][1]) / s,
-        ]
-    } else if m[0][0] > m[1][1] && m[0][0] > m[2][2] {
-        let s = 2.0 * (1.0 + m[0][0] - m[1][1] - m[2][2]).sqrt();
-        [
-            (m[2][1] - m[1][2]) / s,
-            s / 4.0,
-            (m[0][1] + m[1][0]) / s,
-            (m[0][2] + m[2][0]) / s,
-        ]
-    } else if m[1][1] > m[2][2] {
-        let s = 2.0 * (1.0 + m[1][1] - m[0][0] - m[2][2]).sqrt();
-        [
-            (m[0][2] - m[2][0]) / s,
-            (m[0][1] + m[1][0]) / s,
-            s / 4.0,
-            (m[1][2] + m[2][1]) / s,
-        ]
-    } else {
-        let s = 2.0 * (1.0 + m[2][2] - m[0][0] - m[1][1]).sqrt();
-        [
-            (m[1][0] - m[0][1]) / s,
-            (m[0][2] + m[2][0]) / s,
-            (m[1][2] + m[2][1]) / s,
-            s / 4.0,
-        ]
-    }
+    crate::scene::camera::unit_quaternion_of_rotation(*m)
 }
 
 /// The rotation a stored quaternion stands for (identity for a degenerate one).
