@@ -21,10 +21,9 @@ use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
 use crate::splats::GaussianParams;
-use crate::train::config::WorldCulls;
+use crate::train::config::{TrainConfig, WorldCulls};
 use crate::train::density::{DensifyArgs, DensifyPhase};
 use crate::train::strategy::{DensityContext, ModelRule, StepSeen, StrategyEvent};
-use crate::train::trainer::TrainConfig;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum N3dvCulls {
