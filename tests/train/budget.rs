@@ -152,7 +152,10 @@ fn mcmc_moves_dead_gaussians_onto_lpms_surface_samples() {
     ];
     let mut args = vec!["--strategy", "mcmc", "--budget", "1.08x"];
     args.extend(lpm);
-    args.extend(["--lpm-surface-share", "1"]);
+    // A strong opacity regulariser so the two refinements find dead Gaussians
+    // (about a hundred); at the default weight this short run leaves two or three, and
+    // lavapipe's unordered sums can make that none.
+    args.extend(["--lpm-surface-share", "1", "--mcmc-opacity-reg", "1"]);
     let o = train(&out, &args);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let h = history_counts(&out);
@@ -168,7 +171,7 @@ fn mcmc_moves_dead_gaussians_onto_lpms_surface_samples() {
     assert!(offered.iter().all(|&k| k > 0), "{offered:?}");
     let mcmc = &m["mcmc"];
     assert_eq!(mcmc["refinements"], 2, "{mcmc}");
-    assert!(mcmc["seeded"].as_u64().unwrap() > 0, "{mcmc}");
+    assert!(mcmc["seeded"].as_u64().unwrap() > 10, "{mcmc}");
     assert_eq!(
         mcmc["relocated"], 0,
         "share 1: every dead one onto a sample: {mcmc}"
