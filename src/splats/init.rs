@@ -118,21 +118,10 @@ pub fn random_init(
 }
 
 /// The initial model of a run whose Gaussian budget `budget` is below its count: `budget` of
-/// its Gaussians drawn at random without replacement (seeded), in their order. A budget says
-/// how many Gaussians the run ends densification with; every strategy grows from its start, so
-/// a start above the budget could only be cut at the first density step, after the optimizer
-/// had fitted Gaussians that are then thrown away. A model within the budget is returned as it
-/// is. (A first pass of ADC could choose better which to keep; an SfM point cloud is what the
-/// structure-from-motion saw, so a uniform draw keeps its density everywhere alike.)
+/// its Gaussians drawn uniformly at random (seeded), in their order, scales untouched. (See
+/// [`super::budget_draw`] for the other draws and the scale refit.)
 pub fn within_budget(init: GaussianParams, budget: usize, seed: u64) -> GaussianParams {
-    let n = init.len();
-    if budget >= n || budget == 0 {
-        return init;
-    }
-    let mut rng = rand_pcg::Pcg64::seed_from_u64(seed ^ 0x6275_6467_6574_5f69);
-    let mut rows = rand::seq::index::sample(&mut rng, n, budget).into_vec();
-    rows.sort_unstable();
-    init.select_rows(&rows)
+    super::budget_draw::draw_down(init, budget, seed, super::budget_draw::Draw::Random, false)
 }
 
 #[cfg(test)]

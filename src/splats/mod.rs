@@ -3,6 +3,7 @@
 //! The GPU parameter buffers are filled from [`GaussianParams`]; this module keeps to plain
 //! host arrays.
 
+pub mod budget_draw;
 pub mod decoder_json;
 pub mod gpu;
 pub mod init;

@@ -269,8 +269,9 @@ fn local_zones_never_hold_more_than_their_share_of_the_model() {
 }
 
 /// A budget below the initial count (`0.5x`): the run starts from that many of the SfM points
-/// (drawn at random) and ends densification there, MCMC and the exact budget alike, rather
-/// than training the whole start and cutting it later.
+/// (drawn at random; the exact budget's run here spread over the cloud, its scales refitted)
+/// and ends densification there, MCMC and the exact budget alike, rather than training the
+/// whole start and cutting it later. config.json says how the start was drawn.
 #[test]
 fn a_budget_below_the_start_draws_the_start_down_to_it() {
     let dir = tempfile::tempdir().unwrap();
@@ -279,15 +280,38 @@ fn a_budget_below_the_start_draws_the_start_down_to_it() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let initial = count_at(&history_counts(&full), 10);
     let half = (0.5 * initial as f64).round() as u64;
-    for strategy in ["mcmc", "adc-exact"] {
+    for (strategy, draw) in [
+        ("mcmc", &[][..]),
+        (
+            "adc-exact",
+            &["--budget-draw", "spread", "--budget-refit-scales"][..],
+        ),
+    ] {
         let out = dir.path().join(strategy);
-        let o = train(&out, &["--strategy", strategy, "--budget", "0.5x"]);
+        let mut flags = vec!["--strategy", strategy, "--budget", "0.5x"];
+        flags.extend(draw);
+        let o = train(&out, &flags);
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(o.status.success(), "{err}");
+        let (says, json) = if draw.is_empty() {
+            (
+                "drawn at random\n",
+                r#"{"draw":"random","refit_scales":false}"#,
+            )
+        } else {
+            (
+                "drawn spread over the cloud, scales refitted",
+                r#"{"draw":"spread","refit_scales":true}"#,
+            )
+        };
         assert!(
-            err.contains(&format!("budget {half} below the {initial} initial")),
+            err.contains(&format!("budget {half} below the {initial} initial"))
+                && err.contains(says),
             "{err}"
         );
+        let c: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("config.json")).unwrap()).unwrap();
+        assert_eq!(c["budget_draw"].to_string(), json, "{strategy}");
         let h = history_counts(&out);
         assert!(h.iter().all(|e| e.1 <= half), "{strategy}: {h:?}");
         let end = count_at(&h, 70);

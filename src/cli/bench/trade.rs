@@ -10,7 +10,7 @@ use super::trade_args::{settings_json, TradeArgs};
 use super::trade_budget::{plan_cells, run_of, BenchBudget};
 use super::trade_report;
 use super::trade_runs::{
-    abs_grad_applies, calendar_config, fills_budget, run_lpm_config, selected_runs, RUNS,
+    abs_grad_applies, calendar_config, fills_budget, run_draw, run_lpm_config, selected_runs, RUNS,
 };
 use super::trade_summary::{
     column_header, guide_table, paired_table, plot, summarize, table_rows, Summary, TradeRow,
@@ -32,6 +32,7 @@ use lpmsplat::render::layout::CameraGpu;
 use lpmsplat::render::spacetime::TimedModel;
 use lpmsplat::scene::image_source::{ImageSource, ViewImages};
 use lpmsplat::scene::Scene;
+use lpmsplat::splats::budget_draw::Draw;
 use lpmsplat::splats::gpu::GpuSplats;
 use lpmsplat::train::density::growth::{BudgetCurve, Growth};
 use lpmsplat::train::trainer::{TrainConfig, Trainer, ViewMetrics};
@@ -182,7 +183,8 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                 if !drawn_told.contains(&(t, seed)) {
                     eprintln!(
                         "bench trade: budget {t} below the {initial} initial Gaussians of seed \
-                         {seed}: its runs start from {t} of them, drawn at random"
+                         {seed}: its runs start from {t} of them, drawn at random (the same draw \
+                         for each; mcmc-spread's spread over the cloud)"
                     );
                     drawn_told.push((t, seed));
                 }
@@ -213,6 +215,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                 cfg,
                 lpm,
                 mcmc,
+                draw: run_draw(name),
                 trainer: None,
                 seconds: 0.0,
                 count_sum: 0.0,
@@ -234,9 +237,15 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
             for &i in &group {
                 let r = &mut runs[i];
                 let init = match r.target {
-                    Some(t) if t < inits[r.init].len() => std::borrow::Cow::Owned(
-                        lpmsplat::splats::init::within_budget(inits[r.init].clone(), t, r.seed),
-                    ),
+                    Some(t) if t < inits[r.init].len() => {
+                        std::borrow::Cow::Owned(lpmsplat::splats::budget_draw::draw_down(
+                            inits[r.init].clone(),
+                            t,
+                            r.seed,
+                            r.draw.0,
+                            r.draw.1,
+                        ))
+                    }
                     _ => std::borrow::Cow::Borrowed(&inits[r.init]),
                 };
                 let mut t = Trainer::new(&ctx, &scene, train_images.clone(), &init, r.cfg.clone())?;
@@ -568,6 +577,8 @@ struct Run {
     lpm: Option<LpmConfig>,
     /// MCMC's settings, for the mcmc run.
     mcmc: Option<McmcConfig>,
+    /// How a start above its budget is drawn down to it, and whether the scales are refitted.
+    draw: (Draw, bool),
     trainer: Option<Trainer>,
     seconds: f64,
     /// The Gaussian counts after each iteration so far, summed (for the mean model size).

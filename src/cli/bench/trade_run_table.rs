@@ -13,7 +13,7 @@ const fn run(name: &'static str, colour: [u8; 3], what: &'static str) -> Run {
     Run { name, colour, what }
 }
 
-pub const RUNS: [Run; 27] = [
+pub const RUNS: [Run; 29] = [
     run("adc", [40, 40, 40], "ADC, the base model's own density control"),
     run("adc-threshold-1e-4", [200, 120, 0], "ADC with its gradient threshold halved to 1e-4 (alias adc-1e-4)"),
     run("adc+lpm", [220, 30, 30], "ADC + LPM with our rules (`train --lpm`; alias lpm)"),
@@ -41,6 +41,8 @@ pub const RUNS: [Run; 27] = [
     run("adc-exact+lpm-random", [130, 130, 130], "the control: local zones on as many blocks drawn at random (`--lpm-regions random-blocks`): what the error map adds"),
     run("mcmc+lpm-surface", [0, 160, 80], "MCMC guided by local zones, half of each refinement's dead Gaussians moved onto the zones' SfM points coloured from the ground truth (`--lpm-surface-share 0.5`)"),
     run("mcmc+lpm-surface-random", [110, 160, 130], "the control of mcmc+lpm-surface: the same on as many blocks drawn at random"),
+    run("mcmc-refit", [90, 150, 230], "MCMC whose start, drawn down to a budget below it, has its scales refitted to the kept points' spacing (`--budget-refit-scales`)"),
+    run("mcmc-spread", [0, 40, 120], "the same drawn spread over the cloud: one Gaussian from each cell of the finest grid the budget allows (`--budget-draw spread --budget-refit-scales`)"),
 ];
 
 /// The `--runs` help: every run of [`RUNS`] with what it is, in table order.

@@ -10,6 +10,7 @@ use lpmsplat::lpm::region_units::RegionUnit;
 use lpmsplat::lpm::{ConeRadius, NeighbourChoice, ZoneGeometry};
 use lpmsplat::models::BaseModel;
 use lpmsplat::scene::Scene;
+use lpmsplat::splats::budget_draw::Draw;
 use lpmsplat::train::trainer::TrainConfig;
 
 pub use super::trade_run_table::RUNS;
@@ -83,6 +84,17 @@ pub fn abs_grad_applies(model: BaseModel) -> anyhow::Result<()> {
         model.name()
     );
     Ok(())
+}
+
+/// How run `name`'s start is drawn down to a budget below it: the draw and whether the kept
+/// Gaussians' scales are refitted to their new spacing (`train --budget-draw`,
+/// `--budget-refit-scales`).
+pub fn run_draw(name: &str) -> (Draw, bool) {
+    match name {
+        "mcmc-refit" => (Draw::Random, true),
+        "mcmc-spread" => (Draw::Spread, true),
+        _ => (Draw::Random, false),
+    }
 }
 
 /// The share of MCMC's dead Gaussians the `+lpm-surface` runs move onto the local zones'

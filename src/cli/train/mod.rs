@@ -19,6 +19,7 @@ use args::{check_flags, RecordAhead};
 use lpmsplat::gpu::{GpuContext, GpuOptions};
 use lpmsplat::scene::image_source::ViewImages;
 use lpmsplat::scene::Scene;
+use lpmsplat::splats::budget_draw::Draw;
 use lpmsplat::train::nan_check::NonFiniteCheck;
 use lpmsplat::train::trainer::Trainer;
 use outputs::Finished;
@@ -75,12 +76,19 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     });
     let init = match target {
         Some(t) if resumed.is_none() && t < init.len() => {
+            let sa = &args.density_strategy;
+            let refit = sa.budget_refit_scales && args.init_ply.is_none();
             eprintln!(
-                "budget {t} below the {} initial Gaussians: starting from {t} of them, drawn at \
-                 random",
-                init.len()
+                "budget {t} below the {} initial Gaussians: starting from {t} of them, drawn \
+                 {}{}",
+                init.len(),
+                match sa.budget_draw {
+                    Draw::Random => "at random",
+                    Draw::Spread => "spread over the cloud",
+                },
+                if refit { ", scales refitted" } else { "" }
             );
-            lpmsplat::splats::init::within_budget(init, t, args.seed)
+            lpmsplat::splats::budget_draw::draw_down(init, t, args.seed, sa.budget_draw, refit)
         }
         _ => init,
     };

@@ -220,6 +220,13 @@ impl Finished<'_> {
             }
             _ => {
                 cfg["init_points"] = serde_json::json!(self.init_gaussians);
+                let sa = &args.density_strategy;
+                if sa.budget.is_some() {
+                    cfg["budget_draw"] = serde_json::json!({
+                        "draw": sa.budget_draw.name(),
+                        "refit_scales": sa.budget_refit_scales && args.init_ply.is_none(),
+                    });
+                }
                 cfg["init"] = serde_json::json!(format!("{:?}", args.init).to_lowercase());
             }
         }

@@ -3,6 +3,7 @@
 
 use clap::{Args, ValueEnum};
 use lpmsplat::mcmc::McmcConfig;
+use lpmsplat::splats::budget_draw::Draw;
 use lpmsplat::train::density::growth::{BudgetCurve, Growth};
 use lpmsplat::train::schedule::DensitySchedule;
 
@@ -77,6 +78,16 @@ pub struct StrategyArgs {
     /// default), linear, or mcmc (5 % a step; mcmc's default).
     #[arg(long, value_name = "CURVE", value_parser = Growth::parse)]
     pub budget_growth: Option<Growth>,
+    /// How a start above --budget is drawn down to it: random (uniformly: the cloud's density
+    /// kept alike everywhere) or spread (one Gaussian from each cell of the finest grid the
+    /// budget allows, the rest at random: sparse regions keep their points).
+    #[arg(long, value_enum, default_value_t = Draw::Random)]
+    pub budget_draw: Draw,
+    /// With a start above --budget: rescale each kept Gaussian by how far its nearest
+    /// neighbours moved in the draw (its scales were set from the whole cloud's spacing). For
+    /// a start from points; a trained --init-ply keeps its own scales.
+    #[arg(long)]
+    pub budget_refit_scales: bool,
     /// mcmc: the position noise's learning rate (× the position learning rate).
     #[arg(long, default_value_t = 5e5)]
     pub mcmc_noise_lr: f64,
