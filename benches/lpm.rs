@@ -12,8 +12,8 @@
 use lpmsplat::gpu::{BufferKind, GpuBuffer, GpuContext, GpuOptions, Recorder, TimestampPool};
 use lpmsplat::lpm::enclosing_sphere::Sphere;
 use lpmsplat::lpm::gpu::LpmGpu;
-use lpmsplat::lpm::membership::OpacityResetSettings;
 use lpmsplat::lpm::record::ZoneRecord;
+use lpmsplat::lpm::reset_settings::OpacityResetSettings;
 use lpmsplat::lpm::{ConeRadius, Zone};
 use rand::{Rng, SeedableRng};
 

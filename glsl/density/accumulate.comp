@@ -10,7 +10,7 @@
 //     the optimisation's own gradients are untouched.
 // With `abs_grad`: abs_accum += the backward's absolute-gradient statistic (Gaussian Opacity
 // Fields' test, mode 0 only), over the same views.
-// `precise`: the host reference (src/train/density/reference.rs) repeats these f32 operations
+// `precise`: the host reference (src/reference/density.rs) repeats these f32 operations
 // in this order, without fused multiply-adds, and must match bit for bit.
 layout(local_size_x_id = 0) in;
 #include "projected.glsl"

@@ -5,7 +5,7 @@
 // Gaussians with z < 4.5 and, once, those outside the initial points' bounding box). Written
 // where decide.comp would write, so expand / scatter apply it like any prune. A NaN coordinate
 // compares false both ways and is kept, as the official tensor masks keep it.
-// Host reference: `prune_outside_box` in src/train/density/reference.rs.
+// Host reference: `prune_outside_box` in src/reference/density.rs.
 layout(local_size_x_id = 0) in;
 #include "decisions.glsl"
 layout(std430, set = 0, binding = 0) readonly buffer Positions { float positions[]; };

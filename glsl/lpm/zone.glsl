@@ -19,7 +19,7 @@ const uint ZONE_SHAPE_MASK = 0xFFu;
 // ignores it (a zone wider than --lpm-reset-max-zone-radius); it still holds Gaussians inside.
 const uint ZONE_NO_RESET = 0x100u;
 
-// Bits of the per-Gaussian membership flags (src/lpm/membership.rs has the same constants).
+// Bits of the per-Gaussian membership flags (src/lpm/reset_settings.rs has the same constants).
 const uint FLAG_INSIDE = 1u;
 const uint FLAG_IN_FRONT = 2u;
 const uint FLAG_IN_BALL = 4u;  // within cone_radius of a zone's centre (the authors' reset set)

@@ -24,7 +24,7 @@
 //   slab, near face |v| ≥ |a| − f:  A ≤ F, or W ≤ 0, or 4FV ≥ W²
 // The angle is undefined at the apex (V = 0) and for a zone centred on its camera (A = 0): such
 // points are not in front. Every operation is an IEEE add, sub or mul marked `precise` (no fused
-// multiply-add, no reordering), so src/lpm/membership.rs reproduces each flag bit for bit. Terms
+// multiply-add, no reordering), so src/reference/lpm_membership.rs reproduces each flag bit for bit. Terms
 // grow as |coordinate|⁶: coordinates must stay below ~1e6 (f32 overflow).
 //
 // One workgroup handles WG_SIZE · ITEMS Gaussians; zones are staged in shared memory in batches

@@ -3,9 +3,9 @@
 
 use std::path::PathBuf;
 
-use crate::lpm::membership::{OpacityResetSettings, FLAG_IN_BALL};
 use crate::lpm::pairing::RegionKeypoints;
 use crate::lpm::region_units::RegionUnit;
+use crate::lpm::reset_settings::{OpacityResetSettings, FLAG_IN_BALL};
 use crate::lpm::{
     ConeRadius, MatchSettings, NeighbourChoice, RegionSettings, ZoneGeometry, ZoneSettings,
 };
@@ -66,7 +66,7 @@ pub struct LpmConfig {
     /// Zones wider than this many scene extents still lower the threshold, count their
     /// Gaussians and get points added, but the opacity reset ignores them: nothing counts as in
     /// front of them or in their ball (`None`: every zone resets). Their Gaussians still count
-    /// in the threshold's set ([`FLAG_INSIDE`](crate::lpm::membership::FLAG_INSIDE)). On Truck
+    /// in the threshold's set ([`FLAG_INSIDE`](crate::lpm::reset_settings::FLAG_INSIDE)). On Truck
     /// `-r 4` (seed 12) one step whose zone was 3.8 extents wide reset 24 % of the model's
     /// opacities and cost 1.46 dB for a while (docs/results/lpm.md); dropping such zones
     /// altogether (`max_zone_radius`) also loses what their lowered threshold adds.

@@ -18,9 +18,9 @@
 //! its outputs are visible to what follows. The scratch buffers belong to the `LpmGpu`: record one
 //! `LpmGpu`'s passes into one recorder at a time.
 
-use super::membership::{OpacityResetSettings, OpacityResetStats, SHARE_DENOMINATOR};
 use super::record::ZoneRecord;
 use super::regions::RegionSettings;
+use super::reset_settings::{OpacityResetSettings, OpacityResetStats, SHARE_DENOMINATOR};
 use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder};
 use crate::shaders;
 use bytemuck::{Pod, Zeroable};
@@ -268,8 +268,8 @@ impl LpmGpu {
     }
 
     /// Records the membership pass: `flags[i]` for the first `count` Gaussians
-    /// ([`FLAG_INSIDE`](super::membership::FLAG_INSIDE) |
-    /// [`FLAG_IN_FRONT`](super::membership::FLAG_IN_FRONT); entries past `count` untouched) and
+    /// ([`FLAG_INSIDE`](super::reset_settings::FLAG_INSIDE) |
+    /// [`FLAG_IN_FRONT`](super::reset_settings::FLAG_IN_FRONT); entries past `count` untouched) and
     /// `zone_inside[z]` for the first `zone_count` zones (the whole buffer is zeroed first).
     /// `positions` holds xyz per Gaussian.
     #[allow(clippy::too_many_arguments)]

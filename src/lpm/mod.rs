@@ -8,7 +8,7 @@
 //!   [`regions::error_regions`] (or a GPU block mask through [`regions::regions_from_blocks`]),
 //!   then [`record::zones_for_step`] gives the [`ZoneRecord`]s to upload.
 //!
-//! The GPU half (steps 1–2 and 7–8) is [`gpu::LpmGpu`]; [`membership`] is its CPU twin.
+//! The GPU half (steps 1–2 and 7–8) is [`gpu::LpmGpu`]; [`crate::reference::lpm_membership`] is its CPU twin.
 //! [`strategy::LpmStrategy`] puts it all together as a density strategy of the trainer
 //! (`crate::train::strategy`), wrapping ADC.
 
@@ -20,13 +20,13 @@ pub mod enclosing_sphere;
 pub mod epipolar;
 pub mod features;
 pub mod gpu;
-pub mod membership;
 pub mod neighbours;
 pub mod pairing;
 pub mod record;
 pub mod region_units;
 pub mod regions;
 pub mod report;
+pub mod reset_settings;
 pub mod strategy;
 pub mod surface;
 pub mod view_points;

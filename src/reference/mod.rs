@@ -75,7 +75,9 @@
 
 pub mod backward;
 pub mod decoder;
+pub mod density;
 pub mod linalg;
+pub mod lpm_membership;
 pub mod mcmc;
 pub mod mip;
 pub mod project;

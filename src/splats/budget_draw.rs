@@ -180,6 +180,43 @@ pub fn refit_scales(drawn: &mut GaussianParams, before: &[[f32; 3]], rows: &[usi
 mod tests {
     use super::*;
 
+    fn numbered(n: usize) -> GaussianParams {
+        // SH degree 1: nine rest coefficients a Gaussian, each its row number.
+        GaussianParams {
+            sh_degree: 1,
+            positions: (0..n).map(|i| [i as f32, 0.0, 0.0]).collect(),
+            log_scales: vec![[0.0; 3]; n],
+            rotations: vec![[1.0, 0.0, 0.0, 0.0]; n],
+            opacity_logits: vec![0.0; n],
+            sh_dc: vec![[0.0; 3]; n],
+            sh_rest: (0..n).flat_map(|i| [i as f32; 9]).collect(),
+            extra: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn a_start_above_the_budget_is_drawn_down_to_it_whole_rows_in_order() {
+        let p = numbered(100);
+        let q = draw_down(p.clone(), 30, 7, Draw::Random, false);
+        assert_eq!(q.len(), 30);
+        let rows: Vec<usize> = q.positions.iter().map(|x| x[0] as usize).collect();
+        assert!(
+            rows.windows(2).all(|w| w[0] < w[1]),
+            "distinct, in order: {rows:?}"
+        );
+        for (k, &r) in rows.iter().enumerate() {
+            assert!(q.sh_rest[9 * k..9 * k + 9].iter().all(|&v| v == r as f32));
+        }
+        assert_eq!(
+            q,
+            draw_down(p.clone(), 30, 7, Draw::Random, false),
+            "seeded"
+        );
+        assert_ne!(q, draw_down(p.clone(), 30, 8, Draw::Random, false));
+        assert_eq!(draw_down(p.clone(), 100, 7, Draw::Random, false), p);
+        assert_eq!(draw_down(p.clone(), 500, 7, Draw::Random, false), p);
+    }
+
     /// 900 points in a ball of radius 0.01 at the origin and 100 on a line 10 long.
     fn crowd_and_line() -> Vec<[f32; 3]> {
         let mut rng = rand_pcg::Pcg64::seed_from_u64(3);

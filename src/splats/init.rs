@@ -117,47 +117,4 @@ pub fn random_init(
     Ok(params)
 }
 
-/// The initial model of a run whose Gaussian budget `budget` is below its count: `budget` of
-/// its Gaussians drawn uniformly at random (seeded), in their order, scales untouched. (See
-/// [`super::budget_draw`] for the other draws and the scale refit.)
-pub fn within_budget(init: GaussianParams, budget: usize, seed: u64) -> GaussianParams {
-    super::budget_draw::draw_down(init, budget, seed, super::budget_draw::Draw::Random, false)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn numbered(n: usize) -> GaussianParams {
-        // SH degree 1: nine rest coefficients a Gaussian, each its row number.
-        GaussianParams {
-            sh_degree: 1,
-            positions: (0..n).map(|i| [i as f32, 0.0, 0.0]).collect(),
-            log_scales: vec![[0.0; 3]; n],
-            rotations: vec![[1.0, 0.0, 0.0, 0.0]; n],
-            opacity_logits: vec![0.0; n],
-            sh_dc: vec![[0.0; 3]; n],
-            sh_rest: (0..n).flat_map(|i| [i as f32; 9]).collect(),
-            extra: Vec::new(),
-        }
-    }
-
-    #[test]
-    fn a_start_above_the_budget_is_drawn_down_to_it_whole_rows_in_order() {
-        let p = numbered(100);
-        let q = within_budget(p.clone(), 30, 7);
-        assert_eq!(q.len(), 30);
-        let rows: Vec<usize> = q.positions.iter().map(|x| x[0] as usize).collect();
-        assert!(
-            rows.windows(2).all(|w| w[0] < w[1]),
-            "distinct, in order: {rows:?}"
-        );
-        for (k, &r) in rows.iter().enumerate() {
-            assert!(q.sh_rest[9 * k..9 * k + 9].iter().all(|&v| v == r as f32));
-        }
-        assert_eq!(q, within_budget(p.clone(), 30, 7), "seeded");
-        assert_ne!(q, within_budget(p.clone(), 30, 8));
-        assert_eq!(within_budget(p.clone(), 100, 7), p);
-        assert_eq!(within_budget(p.clone(), 500, 7), p);
-    }
-}
+// A start above a Gaussian budget is drawn down to it in `super::budget_draw`.

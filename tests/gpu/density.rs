@@ -1,9 +1,10 @@
-//! GPU density control against the host reference (`train::density::reference`): statistics,
+//! GPU density control against the host reference (`reference::density`): statistics,
 //! decisions, compaction of every per-Gaussian buffer, split samples (a 2DGS surfel's in its
 //! plane), opacity reset, growth past the capacity, the decision hook. Validation on;
 //! destinations poisoned before every step.
 
 use lpmsplat::gpu::{BufferKind, GpuBuffer, GpuContext, GpuOptions, Recorder};
+use lpmsplat::reference::density::{self as reference, HostState, HostStats};
 use lpmsplat::render::layout::ProjectedBoundsGpu;
 use lpmsplat::splats::gpu::{grown_capacity, GpuSplats};
 use lpmsplat::splats::{ExtraGroup, ExtraValues, GaussianParams};
@@ -11,7 +12,6 @@ use lpmsplat::train::adam::SplatState;
 use lpmsplat::train::density::abs_quantile::abs_grad_threshold;
 use lpmsplat::train::density::budget::{self, BudgetCut};
 use lpmsplat::train::density::growth::{BudgetCurve, Growth};
-use lpmsplat::train::density::reference::{self, HostState, HostStats};
 use lpmsplat::train::density::rng::fold_seed;
 use lpmsplat::train::density::{
     reset_logit, DensifyArgs, DensifyPhase, DensityConfig, DensityControl, Statistic, Thresholds,

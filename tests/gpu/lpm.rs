@@ -9,13 +9,13 @@ use lpmsplat::lpm::enclosing_sphere::Sphere;
 use lpmsplat::lpm::gpu::{
     block_grid, error_block_counts, unpack_ground_truth, ErrorImages, FilteredOpacity, LpmGpu,
 };
-use lpmsplat::lpm::membership::{
-    apply_opacity_reset, membership, OpacityResetSettings, ZoneTest, FLAG_INSIDE, FLAG_IN_BALL,
-    FLAG_IN_FRONT,
-};
 use lpmsplat::lpm::record::{ZONE_NO_RESET, ZONE_SLAB};
 use lpmsplat::lpm::regions::{block_mask, error_map, quantile, BlockMask};
+use lpmsplat::lpm::reset_settings::{
+    OpacityResetSettings, FLAG_INSIDE, FLAG_IN_BALL, FLAG_IN_FRONT,
+};
 use lpmsplat::lpm::{ConeRadius, RegionSettings, Zone, ZoneRecord};
+use lpmsplat::reference::lpm_membership::{apply_opacity_reset, membership, ZoneTest};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use std::sync::Arc;
@@ -716,7 +716,7 @@ fn lpm_passes_under_subgroup_size_16() {
 /// of the expanded multiset; unweighted with the same flags as a control.
 #[test]
 fn weighted_rank_selection_matches_the_expanded_multiset() {
-    use lpmsplat::lpm::membership::float_key;
+    use lpmsplat::reference::lpm_membership::float_key;
     let ctx = ctx();
     let lpm = LpmGpu::new(&ctx, 1).unwrap();
     let mut rng = Pcg64::seed_from_u64(73);

@@ -1445,8 +1445,8 @@ fn authors_cone_radius_is_the_smallest_half_extent() {
 /// sight is left alone.
 #[test]
 fn region_cone_follows_the_error_region_and_stops_at_the_zone() {
-    use lpmsplat::lpm::membership::ZoneTest;
     use lpmsplat::lpm::record::region_tan_half_angle;
+    use lpmsplat::reference::lpm_membership::ZoneTest;
     let cam = PinholeCamera {
         fx: 100.0,
         fy: 100.0,
@@ -1568,8 +1568,8 @@ fn added_surfels_face_the_camera_that_asked_for_them() {
 /// with the f64 definition, and the bounding sphere holds the slab.
 #[test]
 fn slab_zone_holds_what_is_drawn_over_the_region_at_the_matches_depths() {
-    use lpmsplat::lpm::membership::ZoneTest;
     use lpmsplat::lpm::record::ZONE_SLAB;
+    use lpmsplat::reference::lpm_membership::ZoneTest;
     let cams = small_baseline(10.0);
     let cv = |v: usize| CameraView {
         camera: &cams[v].0,
@@ -1700,7 +1700,7 @@ fn slab_zone_holds_what_is_drawn_over_the_region_at_the_matches_depths() {
 /// at 0.5°, takes it).
 #[test]
 fn local_zone_is_the_quantile_band_of_the_points_seen_with_parallax() {
-    use lpmsplat::lpm::membership::ZoneTest;
+    use lpmsplat::reference::lpm_membership::ZoneTest;
     let cams = small_baseline(10.0);
     let cv = |v: usize| CameraView {
         camera: &cams[v].0,

@@ -8,12 +8,12 @@ use std::sync::Arc;
 
 use lpmsplat::gpu::{GpuContext, GpuOptions, Recorder};
 use lpmsplat::models::BaseModel;
+use lpmsplat::reference::density::{kept_rows, prune_outside_box};
 use lpmsplat::scene::{images, LoadOptions, Scene};
 use lpmsplat::splats::gpu::GpuSplats;
 use lpmsplat::splats::{random_init, GaussianParams};
 use lpmsplat::train::adam::SplatState;
 use lpmsplat::train::config::{LaterCulls, TrainConfig, WorldCulls};
-use lpmsplat::train::density::reference::{kept_rows, prune_outside_box};
 use lpmsplat::train::density::{
     DensifyArgs, DensifyPhase, DensityConfig, DensityControl, DECIDE_REMOVE,
 };

@@ -178,7 +178,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                 ),
             };
             if let Some(t) = target.filter(|&t| t < initial) {
-                // A start above the budget is drawn down to it (`within_budget`), for every
+                // A start above the budget is drawn down to it (`splats::budget_draw::draw_down`), for every
                 // run at that budget and seed alike.
                 if !drawn_told.contains(&(t, seed)) {
                     eprintln!(

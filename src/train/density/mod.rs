@@ -48,7 +48,6 @@ pub mod append;
 pub mod budget;
 pub mod growth;
 mod move_in_place;
-pub mod reference;
 pub mod rng;
 mod rules;
 

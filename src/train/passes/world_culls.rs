@@ -9,7 +9,7 @@
 //! The pre-training cull runs on the host before the model is uploaded
 //! ([`ModelRule::prepare_initial`]); the later ones write removal decisions on the GPU
 //! (`glsl/density/prune_outside_box.comp`, host reference
-//! [`crate::train::density::reference::prune_outside_box`]) that density control applies like
+//! [`crate::reference::density::prune_outside_box`]) that density control applies like
 //! any prune, so every per-Gaussian buffer follows. The bounding box is that of the initial
 //! model before the z cull, as the official code takes it (train.py computes it from the loaded
 //! points before pruning them), and checkpoints keep it.

@@ -3,10 +3,12 @@
 //! positions are computed in f64 (the GPU's `exp`/`log`/`cos` are not correctly rounded), every
 //! other value is reproduced exactly.
 
-use super::rng::rng_normal;
-use super::{Thresholds, DECIDE_CLONE, DECIDE_LOWERED, DECIDE_REMOVE, DECIDE_SPLIT};
-use crate::reference::project::{normalize_quat, quat_to_rotation};
+use super::project::{normalize_quat, quat_to_rotation};
 use crate::splats::{ExtraValues, GaussianParams};
+use crate::train::density::rng::rng_normal;
+use crate::train::density::{
+    Thresholds, DECIDE_CLONE, DECIDE_LOWERED, DECIDE_REMOVE, DECIDE_SPLIT,
+};
 
 /// Parameters and their Adam moments (the moments use the parameter layout).
 #[derive(Debug, Clone, PartialEq)]
@@ -16,7 +18,7 @@ pub struct HostState {
     pub v: GaussianParams,
 }
 
-/// The statistics of [`super::DensityStats`] on the host.
+/// The statistics of [`crate::train::density::DensityStats`] on the host.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct HostStats {
     pub grad_accum: Vec<f32>,
@@ -170,7 +172,7 @@ fn candidacy(
     abs_threshold: Option<f32>,
     i: usize,
 ) -> (bool, bool) {
-    let abs_stat = super::abs_quantile::average(stats.abs_accum[i], stats.denom[i]);
+    let abs_stat = crate::train::density::abs_quantile::average(stats.abs_accum[i], stats.denom[i]);
     match t.rank_all {
         false => (stat >= thr, abs_threshold.is_some_and(|q| abs_stat >= q)),
         true => (
@@ -183,7 +185,7 @@ fn candidacy(
 /// Every Gaussian's score as `decide.comp` writes it (the same f32 operations): a candidate's
 /// statistic over `grad_threshold` (over its own scaled threshold with
 /// [`Thresholds::rank_lowered`]), the larger ratio when both tests pass, +∞ over a threshold
-/// ≤ 0, times its `score_weight`; 0 for the others ([`super::budget`] ranks additions by it).
+/// ≤ 0, times its `score_weight`; 0 for the others ([`crate::train::density::budget`] ranks additions by it).
 pub fn scores(
     t: &Thresholds,
     stats: &HostStats,
@@ -200,7 +202,7 @@ pub fn scores(
         .map(|i| {
             let dn = stats.denom[i];
             let (stat, thr) = statistic_and_threshold(t, stats, threshold_scale, i);
-            let abs_stat = super::abs_quantile::average(stats.abs_accum[i], dn);
+            let abs_stat = crate::train::density::abs_quantile::average(stats.abs_accum[i], dn);
             let (by_grad, by_abs) = candidacy(t, stats, stat, thr, abs_threshold, i);
             let over = if t.rank_lowered {
                 thr
@@ -352,8 +354,8 @@ pub fn reset_opacity(state: &mut HostState, max_logit: f32) {
 
 #[cfg(test)]
 mod tests {
-    use super::super::{DensifyArgs, DensifyPhase, DensityConfig};
     use super::*;
+    use crate::train::density::{DensifyArgs, DensifyPhase, DensityConfig};
 
     fn one(log_scale: f32, opacity_logit: f32) -> GaussianParams {
         let mut p = GaussianParams::empty(0);
