@@ -6,7 +6,6 @@
 //! and a note) rather than reporting a stand-in.
 
 use super::lpips_scores::{self, LpipsArgs};
-use super::train::background_from;
 use super::SceneArgs;
 use anyhow::Context;
 use clap::Args;
@@ -129,7 +128,10 @@ fn side_by_side(render: &[f32], gt: &Image) -> Image {
 
 pub fn run(gpu: &GpuOptions, args: &EvalArgs) -> anyhow::Result<()> {
     let scene = crate::cli::model_segment::load_scene_for_model(&args.scene, &args.ply)?;
-    let bg = match background_from(args.background.as_deref(), &scene)? {
+    let bg = match lpmsplat::train::config::Background::choose(
+        args.background.as_deref(),
+        scene.background,
+    )? {
         Background::Fixed(c) => c,
         Background::Random => anyhow::bail!(
             "--background random: evaluation needs a fixed colour. Fix: pass black, white or r,g,b"

@@ -13,6 +13,7 @@ mod matching;
 mod merge;
 mod mesh;
 mod model_segment;
+mod output_folder;
 mod partition;
 // docs/cli.md is written from the definitions; only its test needs the writer.
 #[cfg(test)]

@@ -7,8 +7,8 @@ use clap::Args;
 use lpmsplat::partition::{self, blocks, slurm, GridChoice, PartitionOptions, Plan, Targets};
 use lpmsplat::scene::{colmap, Scene, SceneFormat};
 
-use super::train::strategy_args::{parse_budget, Budget};
 use super::SceneArgs;
+use lpmsplat::train::density::growth::Budget;
 
 #[derive(Args, Debug)]
 pub struct PartitionArgs {
@@ -44,7 +44,7 @@ pub struct PartitionArgs {
     /// the blocks by the points of their regions: each block's run gets `--budget` its share.
     /// Pair it with a strategy that fills a budget (`-- --strategy mcmc`), or it is a cap.
     /// Required for a scene without SfM points (transforms): a count, shared by training views.
-    #[arg(long, value_name = "N", value_parser = parse_budget)]
+    #[arg(long, value_name = "N", value_parser = Budget::parse)]
     pub budget: Option<Budget>,
     /// Without --budget: the Gaussians expected per SfM point of a block's region, for the
     /// plan's estimates (a rough figure; a budget makes them exact).
@@ -76,7 +76,7 @@ fn parse_grid(s: &str) -> Result<(usize, usize), String> {
 }
 
 pub(super) fn parse_count(s: &str) -> Result<u64, String> {
-    match parse_budget(s)? {
+    match Budget::parse(s)? {
         Budget::Count(n) => Ok(n as u64),
         Budget::TimesInitial(_) => Err(format!("'{s}': give a count (2M, 500k), not a multiple")),
     }

@@ -34,7 +34,7 @@ pub struct RenderArgs {
     #[arg(long, default_value = "test", value_parser = ["train", "test", "all"])]
     pub cameras: String,
     /// Background colour as r,g,b in [0, 1] (default: the scene's, black for COLMAP scenes).
-    #[arg(long, value_parser = parse_rgb)]
+    #[arg(long, value_parser = lpmsplat::train::config::parse_rgb)]
     pub background: Option<[f32; 3]>,
     /// Instead of the scene's cameras, render N frames on a closed path around the scene (a
     /// turntable for 360° captures, a small ellipse for forward-facing ones; see
@@ -61,18 +61,6 @@ pub struct RenderArgs {
     /// Frames per second of the orbit GIF.
     #[arg(long, default_value_t = 25, value_parser = clap::value_parser!(u32).range(1..=100))]
     pub fps: u32,
-}
-
-pub fn parse_rgb(s: &str) -> Result<[f32; 3], String> {
-    let v: Vec<f32> = s
-        .split(',')
-        .map(|p| p.trim().parse::<f32>())
-        .collect::<Result<_, _>>()
-        .map_err(|e| format!("'{s}': {e}; give three numbers like 1,1,1"))?;
-    match v[..] {
-        [r, g, b] if v.iter().all(|x| (0.0..=1.0).contains(x)) => Ok([r, g, b]),
-        _ => Err(format!("'{s}': give three numbers in [0, 1] like 0,0,0")),
-    }
 }
 
 pub fn run(gpu: &GpuOptions, args: &RenderArgs) -> anyhow::Result<()> {

@@ -28,6 +28,38 @@ impl Background {
             Background::Random => [0.0; 3],
         }
     }
+
+    /// The background a `--background` choice names: `black`, `white`, `random` or `R,G,B` in
+    /// [0, 1]; without one, the scene's own (NeRF-synthetic's white) or black.
+    pub fn choose(
+        choice: Option<&str>,
+        scene_background: Option<[f32; 3]>,
+    ) -> anyhow::Result<Self> {
+        Ok(match choice {
+            None => Background::Fixed(scene_background.unwrap_or([0.0; 3])),
+            Some("black") => Background::Fixed([0.0; 3]),
+            Some("white") => Background::Fixed([1.0; 3]),
+            Some("random") => Background::Random,
+            Some(s) => {
+                Background::Fixed(parse_rgb(s).map_err(|e| {
+                    anyhow::anyhow!("--background {e}; or use black, white or random")
+                })?)
+            }
+        })
+    }
+}
+
+/// A colour as three numbers in [0, 1], comma separated (`1,1,1`).
+pub fn parse_rgb(s: &str) -> Result<[f32; 3], String> {
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|p| p.trim().parse::<f32>())
+        .collect::<Result<_, _>>()
+        .map_err(|e| format!("'{s}': {e}; give three numbers like 1,1,1"))?;
+    match v[..] {
+        [r, g, b] if v.iter().all(|x| (0.0..=1.0).contains(x)) => Ok([r, g, b]),
+        _ => Err(format!("'{s}': give three numbers in [0, 1] like 0,0,0")),
+    }
 }
 
 /// Everything that decides a training run (written to `config.json`).

@@ -16,7 +16,7 @@ use super::trade_summary::{
     column_header, guide_table, paired_table, plot, summarize, table_rows, Summary, TradeRow,
 };
 use crate::cli::lpips_scores;
-use crate::cli::train::prepare_output;
+use crate::cli::output_folder::prepare_output;
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 use lpmsplat::error::write_atomic;

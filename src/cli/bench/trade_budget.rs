@@ -4,7 +4,7 @@
 //! at which budget, under which name, and in which phase (a budget taken from ADC's count
 //! waits for a free ADC run of its seed to finish).
 
-use crate::cli::train::{parse_budget, Budget};
+use lpmsplat::train::density::growth::Budget;
 
 /// One budget of `bench trade`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -27,7 +27,7 @@ pub fn parse_bench_budget(s: &str) -> Result<BenchBudget, String> {
             )),
         };
     }
-    parse_budget(t).map(BenchBudget::Fixed)
+    Budget::parse(t).map(BenchBudget::Fixed)
 }
 
 impl BenchBudget {

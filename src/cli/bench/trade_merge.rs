@@ -11,7 +11,7 @@ use super::trade_report::{write_html, Page};
 use super::trade_summary::{
     column_header, paired_table, plot, summarize_against, table_rows, Summary, TradeRow,
 };
-use crate::cli::train::prepare_output;
+use crate::cli::output_folder::prepare_output;
 use anyhow::Context;
 use clap::Args;
 use lpmsplat::error::write_atomic;

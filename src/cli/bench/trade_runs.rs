@@ -2,7 +2,6 @@
 //! configured: the calendar every run follows and each LPM run's rules.
 
 use super::trade_args::TradeArgs;
-use crate::cli::train::background_from;
 use anyhow::Context;
 use lpmsplat::lpm::config::{LpmConfig, PruneMode};
 use lpmsplat::lpm::pairing::RegionKeypoints;
@@ -32,7 +31,7 @@ pub fn calendar_config(
     let mut base = TrainConfig {
         iterations: args.iterations,
         seed: args.seed,
-        background: background_from(None, scene)?,
+        background: lpmsplat::train::config::Background::choose(None, scene.background)?,
         ..TrainConfig::default()
     };
     base.schedule.densify_from = scale(500);

@@ -3,7 +3,6 @@
 use super::strategy_args::{StrategyArgs, StrategyName};
 use crate::cli::image_cache_args::ImageCacheArgs;
 use crate::cli::lpips_scores::LpipsArgs;
-use crate::cli::render::parse_rgb;
 use crate::cli::SceneArgs;
 use clap::Args;
 use lpmsplat::lpm::config::{LpmConfig, PruneMode};
@@ -454,19 +453,6 @@ pub fn parse_zone(name: &str) -> anyhow::Result<ZoneGeometry> {
     })
 }
 
-pub fn background_from(arg: Option<&str>, scene: &Scene) -> anyhow::Result<Background> {
-    Ok(match arg {
-        None => Background::Fixed(scene.background.unwrap_or([0.0; 3])),
-        Some("black") => Background::Fixed([0.0; 3]),
-        Some("white") => Background::Fixed([1.0; 3]),
-        Some("random") => Background::Random,
-        Some(s) => Background::Fixed(
-            parse_rgb(s)
-                .map_err(|e| anyhow::anyhow!("--background {e}; or use black, white or random"))?,
-        ),
-    })
-}
-
 impl TrainArgs {
     /// The model settings as given, for the model to take or refuse.
     pub fn model_options(&self) -> anyhow::Result<ModelOptions> {
@@ -496,7 +482,7 @@ impl TrainArgs {
             iterations: self.iterations,
             seed: self.seed,
             sh_degree: self.sh_degree,
-            background: background_from(self.background.as_deref(), scene)?,
+            background: Background::choose(self.background.as_deref(), scene.background)?,
             ssim_weight: self.ssim_weight,
             timestamps: self.timestamps,
             raster_pixels: self.raster_pixels,

@@ -9,10 +9,10 @@ mod progress;
 mod setup;
 pub(crate) mod strategy_args;
 
-pub use args::{background_from, parse_max_gaussians, TrainArgs};
+pub use args::{parse_max_gaussians, TrainArgs};
 use lpmsplat::initial::initial_model;
-pub use setup::prepare_output;
-pub use strategy_args::{parse_budget, Budget, StrategyName};
+
+pub use strategy_args::StrategyName;
 
 use super::lpips_scores;
 use args::{check_flags, RecordAhead};
@@ -34,7 +34,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     let config = args.config(&scene)?;
     let lpm_config = args.lpm.config(&config.schedule, args.seed)?;
     let lpips = args.lpips.load()?;
-    prepare_output(&args.out)?;
+    crate::cli::output_folder::prepare_output(&args.out)?;
     let checkpoint_path = args.out.join("checkpoint.bin");
     let t_load = Instant::now();
     let train_images = args.images.train_images(&scene)?;

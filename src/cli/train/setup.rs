@@ -2,29 +2,9 @@
 //! that say how to resume a run that stopped. The initial model is `lpmsplat::initial`'s.
 
 use super::args::TrainArgs;
-use anyhow::Context;
 use lpmsplat::scene::Scene;
 use lpmsplat::train::trainer::Trainer;
 use std::path::Path;
-
-/// Creates `out` and proves it writable before any work is done.
-pub fn prepare_output(out: &Path) -> anyhow::Result<()> {
-    std::fs::create_dir_all(out).with_context(|| {
-        format!(
-            "{}: cannot create the output folder. Fix: choose a writable --out",
-            out.display()
-        )
-    })?;
-    let probe = out.join(".lpmsplat-write-test");
-    std::fs::write(&probe, b"ok").with_context(|| {
-        format!(
-            "{}: the output folder is not writable. Fix: choose a writable --out",
-            out.display()
-        )
-    })?;
-    let _ = std::fs::remove_file(probe);
-    Ok(())
-}
 
 /// How to continue this run: its own command line with `--resume CHECKPOINT` (for messages).
 pub(super) fn resume_hint(checkpoint: &Path) -> String {

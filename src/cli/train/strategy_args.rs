@@ -4,7 +4,7 @@
 use clap::{Args, ValueEnum};
 use lpmsplat::mcmc::McmcConfig;
 use lpmsplat::splats::budget_draw::Draw;
-use lpmsplat::train::density::growth::{BudgetCurve, Growth};
+use lpmsplat::train::density::growth::{Budget, BudgetCurve, Growth};
 use lpmsplat::train::schedule::DensitySchedule;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -19,50 +19,6 @@ pub enum StrategyName {
     Mcmc,
 }
 
-/// A budget: a count, or a multiple of the initial model's (`2.5x`).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Budget {
-    Count(usize),
-    TimesInitial(f64),
-}
-
-impl Budget {
-    pub fn resolve(self, initial: usize) -> usize {
-        match self {
-            Budget::Count(n) => n,
-            Budget::TimesInitial(f) => ((initial as f64) * f).round().max(1.0) as usize,
-        }
-    }
-}
-
-/// `--budget`: `500000`, `500k`, `2.5M`, or `3x` (times the initial Gaussians).
-pub fn parse_budget(s: &str) -> Result<Budget, String> {
-    let t = s.trim();
-    let bad = || {
-        format!(
-            "'{s}' is not a Gaussian budget. Fix: give a count (500000, 500k, 2.5M) or a \
-             multiple of the initial model's count (3x)"
-        )
-    };
-    if let Some(f) = t.strip_suffix('x') {
-        return match f.parse::<f64>() {
-            Ok(v) if v > 0.0 && v.is_finite() => Ok(Budget::TimesInitial(v)),
-            _ => Err(bad()),
-        };
-    }
-    let (num, mult) = match t.chars().last() {
-        Some('k' | 'K') => (&t[..t.len() - 1], 1e3),
-        Some('M' | 'm') => (&t[..t.len() - 1], 1e6),
-        _ => (t, 1.0),
-    };
-    match num.parse::<f64>() {
-        Ok(v) if v > 0.0 && (v * mult).is_finite() && (v * mult).round() >= 1.0 => {
-            Ok(Budget::Count((v * mult).round() as usize))
-        }
-        _ => Err(bad()),
-    }
-}
-
 #[derive(Args, Debug, Clone)]
 pub struct StrategyArgs {
     /// The density strategy (--lpm guides any of them: ADC's candidates by a lowered threshold
@@ -72,7 +28,7 @@ pub struct StrategyArgs {
     /// Gaussians at the end of densification: a count (500000, 500k, 2.5M) or a multiple of
     /// the initial model's (3x). adc-exact and mcmc end exactly there; adc treats it as a
     /// cap (as --max-gaussians).
-    #[arg(long, value_name = "N", value_parser = parse_budget)]
+    #[arg(long, value_name = "N", value_parser = Budget::parse)]
     pub budget: Option<Budget>,
     /// How the count grows to the budget: taming (quadratic, most growth early; adc-exact's
     /// default), linear, or mcmc (5 % a step; mcmc's default).
@@ -176,23 +132,5 @@ impl StrategyArgs {
             );
         }
         Ok(())
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn budgets_parse_as_counts_or_multiples_and_a_bad_one_says_the_forms() {
-        assert_eq!(parse_budget("500000"), Ok(Budget::Count(500_000)));
-        assert_eq!(parse_budget("500k"), Ok(Budget::Count(500_000)));
-        assert_eq!(parse_budget("2.5M"), Ok(Budget::Count(2_500_000)));
-        assert_eq!(parse_budget("3x"), Ok(Budget::TimesInitial(3.0)));
-        assert_eq!(Budget::TimesInitial(0.5).resolve(1001), 501);
-        for bad in ["", "0", "-3", "x", "1e400", "2.5Q", "0.0001"] {
-            let e = parse_budget(bad).unwrap_err();
-            assert!(e.contains("500k") && e.contains("3x"), "{bad}: {e}");
-        }
     }
 }

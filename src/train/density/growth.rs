@@ -17,6 +17,50 @@
 
 use anyhow::bail;
 
+/// A budget: a count, or a multiple of the initial model's (`2.5x`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Budget {
+    Count(usize),
+    TimesInitial(f64),
+}
+
+impl Budget {
+    pub fn resolve(self, initial: usize) -> usize {
+        match self {
+            Budget::Count(n) => n,
+            Budget::TimesInitial(f) => ((initial as f64) * f).round().max(1.0) as usize,
+        }
+    }
+
+    /// `500000`, `500k`, `2.5M`, or `3x` (times the initial Gaussians): `--budget`'s forms.
+    pub fn parse(s: &str) -> Result<Budget, String> {
+        let t = s.trim();
+        let bad = || {
+            format!(
+                "'{s}' is not a Gaussian budget. Fix: give a count (500000, 500k, 2.5M) or a \
+                 multiple of the initial model's count (3x)"
+            )
+        };
+        if let Some(f) = t.strip_suffix('x') {
+            return match f.parse::<f64>() {
+                Ok(v) if v > 0.0 && v.is_finite() => Ok(Budget::TimesInitial(v)),
+                _ => Err(bad()),
+            };
+        }
+        let (num, mult) = match t.chars().last() {
+            Some('k' | 'K') => (&t[..t.len() - 1], 1e3),
+            Some('M' | 'm') => (&t[..t.len() - 1], 1e6),
+            _ => (t, 1.0),
+        };
+        match num.parse::<f64>() {
+            Ok(v) if v > 0.0 && (v * mult).is_finite() && (v * mult).round() >= 1.0 => {
+                Ok(Budget::Count((v * mult).round() as usize))
+            }
+            _ => Err(bad()),
+        }
+    }
+}
+
 /// How the room grows from the initial count to the budget.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Growth {
@@ -148,6 +192,19 @@ pub fn step_index(iteration: u32, from: u32, until: u32, interval: u32) -> (u32,
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn budgets_parse_as_counts_or_multiples_and_a_bad_one_says_the_forms() {
+        assert_eq!(Budget::parse("500000"), Ok(Budget::Count(500_000)));
+        assert_eq!(Budget::parse("500k"), Ok(Budget::Count(500_000)));
+        assert_eq!(Budget::parse("2.5M"), Ok(Budget::Count(2_500_000)));
+        assert_eq!(Budget::parse("3x"), Ok(Budget::TimesInitial(3.0)));
+        assert_eq!(Budget::TimesInitial(0.5).resolve(1001), 501);
+        for bad in ["", "0", "-3", "x", "1e400", "2.5Q", "0.0001"] {
+            let e = Budget::parse(bad).unwrap_err();
+            assert!(e.contains("500k") && e.contains("3x"), "{bad}: {e}");
+        }
+    }
 
     #[test]
     fn every_curve_starts_near_the_initial_count_and_ends_at_the_budget() {
