@@ -5,6 +5,7 @@
 //! → `triangulated_init` → CLI. The trainer is generic over a density strategy (`train::strategy`: ADC, or LPM
 //! wrapping it); a base model (`models`) sets what it changes in the training config.
 
+pub mod bench;
 pub mod error;
 pub mod gpu;
 pub mod initial;

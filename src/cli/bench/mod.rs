@@ -21,12 +21,8 @@ use std::time::Instant;
 
 mod trade;
 mod trade_args;
-mod trade_budget;
 mod trade_merge;
-mod trade_report;
-mod trade_run_table;
 mod trade_runs;
-mod trade_summary;
 mod trade_sweep;
 
 #[derive(Args, Debug)]

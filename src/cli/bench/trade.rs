@@ -7,12 +7,12 @@
 //! several such results.
 
 use super::trade_args::{settings_json, TradeArgs};
-use super::trade_budget::{plan_cells, run_of, BenchBudget};
-use super::trade_report;
+use lpmsplat::bench::budget::{plan_cells, run_of, BenchBudget};
+use lpmsplat::bench::report;
 use super::trade_runs::{
     abs_grad_applies, calendar_config, fills_budget, run_draw, run_lpm_config, selected_runs, RUNS,
 };
-use super::trade_summary::{
+use lpmsplat::bench::summary::{
     column_header, guide_table, paired_table, plot, summarize, table_rows, Summary, TradeRow,
 };
 use crate::cli::lpips_scores;
@@ -75,7 +75,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
     );
     prepare_output(&args.out)?;
     let view_name = scene.views
-        [scene.test[trade_report::report_view(&scene, args.report_view.as_deref())?]]
+        [scene.test[report::report_view(&scene, args.report_view.as_deref())?]]
     .name
     .clone();
     let train_images = args.images.train_images(&scene)?;
@@ -525,13 +525,13 @@ fn write_outputs(
         args.model.name(),
         args.iterations
     );
-    let page = trade_report::Page {
+    let page = report::Page {
         title: &title,
         baseline: "adc",
         view: Some(view_name),
         sources: &[],
     };
-    trade_report::write_html(&args.out, &page, rows, &summary, &table)?;
+    report::write_html(&args.out, &page, rows, &summary, &table)?;
     Ok(())
 }
 
@@ -674,12 +674,12 @@ fn evaluate_run(
     let (name, colour) = (r.name.as_str(), r.colour);
     // The report view's render and truth are saved at the final iteration of the first seed.
     let report = (iteration == args.iterations && r.seed == args.seed)
-        .then(|| trade_report::report_view(scene, args.report_view.as_deref()))
+        .then(|| report::report_view(scene, args.report_view.as_deref()))
         .transpose()?;
     let m = t.evaluate(scene, &scene.test, test_images, |k, m, render, truth| {
         lpips_scores::score_view(lpips, m, render, truth)?;
         if report == Some(k) {
-            trade_report::save_view_images(&args.out, name, render, truth)?;
+            report::save_view_images(&args.out, name, render, truth)?;
         }
         Ok(())
     })?;

@@ -65,7 +65,7 @@ pub struct TradeArgs {
     #[arg(long, default_value_t = 20)]
     pub fps_frames: usize,
     /// The runs to compare, comma separated (the list and what each run is: --help).
-    #[arg(long, value_delimiter = ',', long_help = super::trade_run_table::runs_help())]
+    #[arg(long, value_delimiter = ',', long_help = lpmsplat::bench::runs::runs_help())]
     pub runs: Vec<String>,
     /// Run the variants one after another instead of interleaving their iterations. Interleaving
     /// (the default) keeps every run's time measured under the same machine load, so the time
@@ -105,8 +105,8 @@ pub struct TradeArgs {
     /// 0.5x-adc, 1x-adc) first train a free adc per seed, the reference, then the grid
     /// interleaved; adc in --runs then means ADC capped at each budget (not at 1x-adc, the
     /// reference itself).
-    #[arg(long, value_name = "N", value_delimiter = ',', value_parser = super::trade_budget::parse_bench_budget)]
-    pub budget: Vec<super::trade_budget::BenchBudget>,
+    #[arg(long, value_name = "N", value_delimiter = ',', value_parser = lpmsplat::bench::budget::parse_bench_budget)]
+    pub budget: Vec<lpmsplat::bench::budget::BenchBudget>,
     /// How adc-exact* and mcmc grow to the budget: taming (adc-exact's default), linear, mcmc
     /// (5 % a step; mcmc's default).
     #[arg(long, value_name = "CURVE", value_parser = lpmsplat::train::density::growth::Growth::parse)]
@@ -148,7 +148,7 @@ pub fn settings_json(args: &TradeArgs) -> serde_json::Value {
         "densify_abs_grad": args.densify_abs_grad,
         "max_gaussians": args.max_gaussians,
         "match_adc_count": args.match_adc_count,
-        "budget": super::trade_budget::BenchBudget::setting(&args.budget),
+        "budget": lpmsplat::bench::budget::BenchBudget::setting(&args.budget),
         "budget_growth": args.budget_growth.map(|g| g.name()),
         "lpm_zone_weight": args.lpm_zone_weight,
         "lpm_surface_share": args.lpm_surface_share,

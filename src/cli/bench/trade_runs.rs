@@ -12,7 +12,7 @@ use lpmsplat::scene::Scene;
 use lpmsplat::splats::budget_draw::Draw;
 use lpmsplat::train::trainer::TrainConfig;
 
-pub use super::trade_run_table::RUNS;
+pub use lpmsplat::bench::runs::RUNS;
 
 /// Whether run `name` fills an exact budget (the exact-budget ADC runs and MCMC).
 pub fn fills_budget(name: &str) -> bool {

@@ -2,8 +2,8 @@
 //! spread, paired with ADC seed by seed), the table printed and written to trade.md, and
 //! trade.png (PSNR against Gaussian count and against training time).
 
-use super::trade_budget::{run_of, unguided};
-use lpmsplat::plot::{panels_png, Panel, Series};
+use super::budget::{run_of, unguided};
+use crate::plot::{panels_png, Panel, Series};
 
 /// One run at one evaluated iteration: a row of trade.json's `runs` (read back by `bench merge`,
 /// which is why the telemetry that older files lack defaults to zero or empty).

@@ -2,10 +2,10 @@
 //! table, and for one test view the ground truth beside every run's final render and its error
 //! map (so ADC and LPM are compared by eye, not only by numbers).
 
-use super::trade_summary::{Summary, TradeRow};
-use lpmsplat::error::write_atomic;
-use lpmsplat::plot::{captioned_grid, error_map, Tile};
-use lpmsplat::scene::{images, Image, Scene};
+use super::summary::{Summary, TradeRow};
+use crate::error::write_atomic;
+use crate::plot::{captioned_grid, error_map, Tile};
+use crate::scene::{images, Image, Scene};
 use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::Path;

@@ -4,7 +4,7 @@
 //! at which budget, under which name, and in which phase (a budget taken from ADC's count
 //! waits for a free ADC run of its seed to finish).
 
-use lpmsplat::train::density::growth::Budget;
+use crate::train::density::growth::Budget;
 
 /// One budget of `bench trade`.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -1,0 +1,10 @@
+//! `bench trade`'s harness as a library: the runs it can compare ([`runs`]), the budgets of a
+//! grid and the runs × seeds × budgets cells they make ([`budget`]), the summary of the rows
+//! (means, paired differences, the tables and trade.png: [`summary`]) and the report page with
+//! each run's renders ([`report`]). The CLI (`src/cli/bench/`) parses the flags, trains the
+//! cells and calls these.
+
+pub mod budget;
+pub mod report;
+pub mod runs;
+pub mod summary;
