@@ -300,9 +300,14 @@ impl LpmGpu {
         rec.barrier();
         rec.fill(zone_inside, 0);
         rec.barrier();
-        rec.dispatch(
+        rec.dispatch_named(
             &self.membership,
-            &[positions, zones, flags, zone_inside],
+            &[
+                ("positions", positions),
+                ("zones", zones),
+                ("flags", flags),
+                ("zone_inside", zone_inside),
+            ],
             &MembershipPush { count, zone_count },
             self.ctx
                 .groups_1d((count as u64).div_ceil(MEMBERSHIP_ITEMS as u64), WG),
@@ -331,9 +336,14 @@ impl LpmGpu {
             .ctx
             .groups_1d((count as u64).div_ceil(HIST_ITEMS as u64), WG);
         for pass in 0..4 {
-            rec.dispatch(
+            rec.dispatch_named(
                 &self.select_histogram,
-                &[values, flags, &sel.state, &sel.hist],
+                &[
+                    ("values", values),
+                    ("flags", flags),
+                    ("state", &sel.state),
+                    ("hist", &sel.hist),
+                ],
                 &HistPush {
                     count,
                     pass,
@@ -391,9 +401,14 @@ impl LpmGpu {
         let reset_logit = s.reset_logit()?;
         rec.barrier();
         if let Some(f) = filtered {
-            rec.dispatch(
+            rec.dispatch_named(
                 &self.effective_logits,
-                &[opacity_logits, f.log_scales, f.filter3d, f.effective],
+                &[
+                    ("logits", opacity_logits),
+                    ("log_scales", f.log_scales),
+                    ("filter3d", f.filter3d),
+                    ("effective", f.effective),
+                ],
                 &count,
                 self.ctx.groups_1d(count as u64, WG),
             );
@@ -418,15 +433,21 @@ impl LpmGpu {
                 ranks: 1,
             },
         );
-        rec.dispatch(
+        rec.dispatch_named(
             &self.opacity_reset,
             &[
-                flags,
-                opacity_logits,
-                &self.opacity_select.state,
-                filtered.map_or(opacity_logits, |f| f.effective),
-                filtered.map_or(opacity_logits, |f| f.log_scales),
-                filtered.map_or(opacity_logits, |f| f.filter3d),
+                ("flags", flags),
+                ("logits", opacity_logits),
+                ("state", &self.opacity_select.state),
+                (
+                    "effective",
+                    filtered.map_or(opacity_logits, |f| f.effective),
+                ),
+                (
+                    "log_scales",
+                    filtered.map_or(opacity_logits, |f| f.log_scales),
+                ),
+                ("filter3d", filtered.map_or(opacity_logits, |f| f.filter3d)),
             ],
             &ResetPush {
                 count,
@@ -518,9 +539,14 @@ impl LpmGpu {
             [1, 1, 1],
         );
         rec.barrier();
-        rec.dispatch(
+        rec.dispatch_named(
             &self.error_map,
-            &[img.render, img.gt, &self.scales, &self.error],
+            &[
+                ("render", img.render),
+                ("gt", img.gt),
+                ("scales", &self.scales),
+                ("error", &self.error),
+            ],
             &image_push,
             self.ctx.groups_1d(pixels as u64, WG),
         );

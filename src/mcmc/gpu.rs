@@ -166,13 +166,13 @@ impl McmcKernels {
         }
         if let (Some(rows), Some(values)) = (&plan.rows, &plan.values) {
             rec.barrier();
-            rec.dispatch(
+            rec.dispatch_named(
                 &self.correct,
                 &[
-                    rows,
-                    values,
-                    &state.params.opacity_logits,
-                    &state.params.log_scales,
+                    ("rows", rows),
+                    ("values", values),
+                    ("opacity_logits", &state.params.opacity_logits),
+                    ("log_scales", &state.params.log_scales),
                 ],
                 &CorrectPush {
                     count: plan.updates as u32,
@@ -201,13 +201,13 @@ impl McmcKernels {
             return;
         }
         rec.barrier();
-        rec.dispatch(
+        rec.dispatch_named(
             &self.noise,
             &[
-                &params.positions,
-                &params.log_scales,
-                &params.rotations,
-                &params.opacity_logits,
+                ("positions", &params.positions),
+                ("log_scales", &params.log_scales),
+                ("rotations", &params.rotations),
+                ("opacity_logits", &params.opacity_logits),
             ],
             &NoisePush {
                 count: count as u32,
@@ -238,13 +238,13 @@ impl McmcKernels {
         }
         let n = count as f64;
         rec.barrier();
-        rec.dispatch(
+        rec.dispatch_named(
             &self.regularise,
             &[
-                &params.opacity_logits,
-                &params.log_scales,
-                &grads.opacity_logits,
-                &grads.log_scales,
+                ("opacity_logits", &params.opacity_logits),
+                ("log_scales", &params.log_scales),
+                ("grad_opacity", &grads.opacity_logits),
+                ("grad_log_scales", &grads.log_scales),
             ],
             &RegularisePush {
                 count: count as u32,

@@ -316,9 +316,14 @@ impl Adam {
                 "Adam: group {k} has {n} floats, over 2^32"
             );
             let push = self.push(n as u32, lrs.0[logical_group(k)], step);
-            rec.dispatch(
+            rec.dispatch_named(
                 &self.pipe,
-                &[p[k].0, g[k].0, mm[k].0, vv[k].0],
+                &[
+                    ("params", p[k].0),
+                    ("grads", g[k].0),
+                    ("m", mm[k].0),
+                    ("v", vv[k].0),
+                ],
                 &push,
                 ctx.groups_1d(n / 4 + n % 4, WG),
             );
@@ -377,9 +382,9 @@ impl Adam {
         let push = self.push(n as u32, lr, step);
         let n = n as u64;
         rec.barrier();
-        rec.dispatch(
+        rec.dispatch_named(
             &self.pipe,
-            &[params, grads, m, v],
+            &[("params", params), ("grads", grads), ("m", m), ("v", v)],
             &push,
             ctx.groups_1d(n / 4 + n % 4, WG),
         );

@@ -360,10 +360,34 @@ impl Loss {
         rec.barrier();
         match (&self.kernels, &self.moments) {
             (Kernels::Tiles { fwd, bwd }, _) => {
-                rec.dispatch(fwd, &[image, gt, d0, d1, d2, &self.partials], &push, sums);
+                rec.dispatch_named(
+                    fwd,
+                    &[
+                        ("image", image),
+                        ("gt", gt),
+                        ("out0", d0),
+                        ("out1", d1),
+                        ("out2", d2),
+                        ("partials", &self.partials),
+                    ],
+                    &push,
+                    sums,
+                );
                 rec.barrier();
                 rec.dispatch(&self.reduce, &[&self.partials, loss_out], &push, [1, 1, 1]);
-                rec.dispatch(bwd, &[image, gt, d0, d1, d2, grad_out], &push, sums);
+                rec.dispatch_named(
+                    bwd,
+                    &[
+                        ("image", image),
+                        ("gt", gt),
+                        ("in0", d0),
+                        ("in1", d1),
+                        ("in2", d2),
+                        ("grad", grad_out),
+                    ],
+                    &push,
+                    sums,
+                );
             }
             (
                 Kernels::Segments {
@@ -375,19 +399,64 @@ impl Loss {
                 Some([m0, m1, m2]),
             ) => {
                 let hg = h_groups(width, height);
-                rec.dispatch(fwd_h, &[image, gt, m0, m1, m2], &push, hg);
+                rec.dispatch_named(
+                    fwd_h,
+                    &[
+                        ("image", image),
+                        ("gt", gt),
+                        ("out0", m0),
+                        ("out1", m1),
+                        ("out2", m2),
+                    ],
+                    &push,
+                    hg,
+                );
                 rec.barrier();
-                rec.dispatch(
+                rec.dispatch_named(
                     fwd_v,
-                    &[image, gt, m0, m1, m2, d0, d1, d2, &self.partials],
+                    &[
+                        ("image", image),
+                        ("gt", gt),
+                        ("in0", m0),
+                        ("in1", m1),
+                        ("in2", m2),
+                        ("out0", d0),
+                        ("out1", d1),
+                        ("out2", d2),
+                        ("partials", &self.partials),
+                    ],
                     &push,
                     sums,
                 );
                 rec.barrier();
                 rec.dispatch(&self.reduce, &[&self.partials, loss_out], &push, [1, 1, 1]);
-                rec.dispatch(bwd_h, &[d0, d1, d2, m0, m1, m2], &push, hg);
+                rec.dispatch_named(
+                    bwd_h,
+                    &[
+                        ("in0", d0),
+                        ("in1", d1),
+                        ("in2", d2),
+                        ("out0", m0),
+                        ("out1", m1),
+                        ("out2", m2),
+                    ],
+                    &push,
+                    hg,
+                );
                 rec.barrier();
-                rec.dispatch(bwd_v, &[image, gt, m0, m1, m2, grad_out], &push, sums);
+                rec.dispatch_named(
+                    bwd_v,
+                    &[
+                        ("image", image),
+                        ("gt", gt),
+                        ("in0", m0),
+                        ("in1", m1),
+                        ("in2", m2),
+                        ("grad", grad_out),
+                    ],
+                    &push,
+                    sums,
+                );
             }
             (Kernels::Segments { .. }, None) => {
                 bail!("loss: the segment layout's moment maps are missing")

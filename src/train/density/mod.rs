@@ -406,17 +406,17 @@ impl DensityControl {
             return Ok(());
         }
         rec.barrier();
-        rec.dispatch(
+        rec.dispatch_named(
             &self.accumulate,
             &[
-                view_grad_norm,
-                bounds,
-                &self.stats.grad_accum,
-                &self.stats.denom,
-                &self.stats.max_radii,
-                counts,
-                abs.unwrap_or(&self.dummy),
-                &self.stats.abs_accum,
+                ("view_grad_norm", view_grad_norm),
+                ("bounds", bounds),
+                ("grad_accum", &self.stats.grad_accum),
+                ("denom", &self.stats.denom),
+                ("max_radii", &self.stats.max_radii),
+                ("pixel_count", counts),
+                ("abs_grad", abs.unwrap_or(&self.dummy)),
+                ("abs_accum", &self.stats.abs_accum),
             ],
             &AccumulatePush {
                 count: count as u32,
@@ -504,19 +504,19 @@ impl DensityControl {
             screen_max: t.screen_max,
         };
         rec.barrier();
-        rec.dispatch(
+        rec.dispatch_named(
             &self.decide,
             &[
-                &self.stats.grad_accum,
-                &self.stats.denom,
-                &self.stats.max_radii,
-                &state.params.log_scales,
-                &state.params.opacity_logits,
-                threshold_scale.unwrap_or(&self.dummy),
-                &self.decisions,
-                &self.stats.abs_accum,
-                &self.scores,
-                score_weight.unwrap_or(&self.dummy),
+                ("grad_accum", &self.stats.grad_accum),
+                ("denom", &self.stats.denom),
+                ("max_radii", &self.stats.max_radii),
+                ("log_scales", &state.params.log_scales),
+                ("opacity_logits", &state.params.opacity_logits),
+                ("threshold_scale", threshold_scale.unwrap_or(&self.dummy)),
+                ("decisions", &self.decisions),
+                ("abs_accum", &self.stats.abs_accum),
+                ("scores", &self.scores),
+                ("score_weight", score_weight.unwrap_or(&self.dummy)),
             ],
             &push,
             self.ctx.groups_1d(count as u64, WG),
@@ -762,14 +762,14 @@ impl DensityControl {
             return Ok(());
         }
         rec.barrier();
-        rec.dispatch(
+        rec.dispatch_named(
             &self.reset,
             &[
-                &state.params.opacity_logits,
-                &state.m.opacity_logits,
-                &state.v.opacity_logits,
-                &state.params.log_scales,
-                filter3d.unwrap_or(&self.dummy),
+                ("opacity_logits", &state.params.opacity_logits),
+                ("m", &state.m.opacity_logits),
+                ("v", &state.v.opacity_logits),
+                ("log_scales", &state.params.log_scales),
+                ("filter3d", filter3d.unwrap_or(&self.dummy)),
             ],
             &ResetPush {
                 count: count as u32,

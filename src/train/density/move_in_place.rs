@@ -106,9 +106,14 @@ impl DensityControl {
         mode: u32,
         count: usize,
     ) {
-        rec.dispatch(
+        rec.dispatch_named(
             &self.scatter,
-            &[&self.decisions, &self.slots, src, dst],
+            &[
+                ("decisions", &self.decisions),
+                ("offsets", &self.slots),
+                ("src", src),
+                ("dst", dst),
+            ],
             &ScatterPush {
                 count: count as u32,
                 stride: stride as u32,
@@ -128,16 +133,16 @@ impl DensityControl {
         count: usize,
         push: &SplitPush,
     ) {
-        rec.dispatch(
+        rec.dispatch_named(
             &self.split,
             &[
-                &self.decisions,
-                &self.slots,
-                &src.params.positions,
-                &src.params.log_scales,
-                &src.params.rotations,
-                positions,
-                log_scales,
+                ("decisions", &self.decisions),
+                ("offsets", &self.slots),
+                ("positions", &src.params.positions),
+                ("log_scales", &src.params.log_scales),
+                ("rotations", &src.params.rotations),
+                ("dst_positions", positions),
+                ("dst_log_scales", log_scales),
             ],
             push,
             self.ctx.groups_1d(count as u64, WG),
