@@ -7,18 +7,18 @@
 //! several such results.
 
 use super::trade_args::{settings_json, TradeArgs};
-use lpmsplat::bench::budget::{plan_cells, run_of, BenchBudget};
-use lpmsplat::bench::report;
 use super::trade_runs::{
     abs_grad_applies, calendar_config, fills_budget, run_draw, run_lpm_config, selected_runs, RUNS,
-};
-use lpmsplat::bench::summary::{
-    column_header, guide_table, paired_table, plot, summarize, table_rows, Summary, TradeRow,
 };
 use crate::cli::lpips_scores;
 use crate::cli::output_folder::prepare_output;
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
+use lpmsplat::bench::budget::{plan_cells, run_of, BenchBudget};
+use lpmsplat::bench::report;
+use lpmsplat::bench::summary::{
+    column_header, guide_table, paired_table, plot, summarize, table_rows, Summary, TradeRow,
+};
 use lpmsplat::error::write_atomic;
 use lpmsplat::gpu::{GpuBuffer, GpuContext, GpuOptions, Recorder};
 use lpmsplat::initial::initial_model;

@@ -7,13 +7,13 @@
 //! share the machine's load. Its trade.html shows the pooled plot and tables and links each
 //! input's own page, where that run's renders are.
 
+use crate::cli::output_folder::prepare_output;
+use anyhow::Context;
+use clap::Args;
 use lpmsplat::bench::report::{write_html, Page};
 use lpmsplat::bench::summary::{
     column_header, paired_table, plot, summarize_against, table_rows, Summary, TradeRow,
 };
-use crate::cli::output_folder::prepare_output;
-use anyhow::Context;
-use clap::Args;
 use lpmsplat::error::write_atomic;
 use serde_json::Value;
 use std::io::Write;
