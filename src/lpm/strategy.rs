@@ -647,14 +647,14 @@ impl LpmStrategy {
                 c[1],
                 k - 1,
             )?;
-            t.rec.dispatch(
+            t.rec.dispatch_named(
                 &self.prune_lowest,
                 &[
-                    &self.candidates,
-                    &t.state.params.opacity_logits,
-                    self.gpu.rank_selection_state(),
-                    t.density.decisions(),
-                    &self.counters,
+                    ("candidates", &self.candidates),
+                    ("logits", &t.state.params.opacity_logits),
+                    ("state", self.gpu.rank_selection_state()),
+                    ("decisions", t.density.decisions()),
+                    ("counters", &self.counters),
                 ],
                 &ModePush {
                     count: count as u32,

@@ -187,9 +187,15 @@ impl Decoder {
     /// Records the decoding of one frame into [`Decoder::image`] (no barriers).
     pub fn record_forward(&self, rec: &mut Recorder, f: &DecoderFrame) -> Result<()> {
         let pixels = self.check(f)?;
-        rec.dispatch(
+        rec.dispatch_named(
             &self.forward,
-            &[f.cameras, f.base, f.features, f.weights, &self.rgb],
+            &[
+                ("cameras", f.cameras),
+                ("base_image", f.base),
+                ("feature_image", f.features),
+                ("dec_w", f.weights),
+                ("rgb", &self.rgb),
+            ],
             &CameraPush {
                 camera_index: f.camera_index,
             },
@@ -219,17 +225,17 @@ impl Decoder {
             dl_drgb.len(),
             weight_grads.len()
         );
-        rec.dispatch(
+        rec.dispatch_named(
             &self.backward,
             &[
-                f.cameras,
-                f.base,
-                f.features,
-                f.weights,
-                dl_drgb,
-                &self.dl_dbase,
-                &self.dl_dfeatures,
-                &self.partial,
+                ("cameras", f.cameras),
+                ("base_image", f.base),
+                ("feature_image", f.features),
+                ("w", f.weights),
+                ("dl_drgb", dl_drgb),
+                ("dl_dbase", &self.dl_dbase),
+                ("dl_dfeatures", &self.dl_dfeatures),
+                ("partial", &self.partial),
             ],
             &CameraPush {
                 camera_index: f.camera_index,
@@ -336,9 +342,14 @@ impl TimeFeatures {
         if count == 0 {
             return Ok(());
         }
-        rec.dispatch(
+        rec.dispatch_named(
             &self.forward,
-            &[groups.f_spec, groups.f_t, groups.t_center, out],
+            &[
+                ("f_spec", groups.f_spec),
+                ("f_t", groups.f_t),
+                ("t_center", groups.t_center),
+                ("features", out),
+            ],
             &TimePush {
                 count: count as u32,
                 t,
@@ -369,9 +380,14 @@ impl TimeFeatures {
         if count == 0 {
             return Ok(());
         }
-        rec.dispatch(
+        rec.dispatch_named(
             &self.backward,
-            &[params.t_center, d_features, grads.f_spec, grads.f_t],
+            &[
+                ("t_center", params.t_center),
+                ("d_features", d_features),
+                ("d_f_spec", grads.f_spec),
+                ("d_f_t", grads.f_t),
+            ],
             &TimePush {
                 count: count as u32,
                 t,

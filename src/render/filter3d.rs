@@ -135,14 +135,14 @@ impl SmoothingFilter {
         rec.fill(&self.seen_max, 0);
         rec.barrier();
         let groups = self.ctx.groups_1d(count as u64, WG);
-        rec.dispatch(
+        rec.dispatch_named(
             &self.depth,
             &[
-                positions,
-                cameras,
-                &self.train_ids,
-                &self.values,
-                &self.seen_max,
+                ("positions", positions),
+                ("cameras", cameras),
+                ("train_ids", &self.train_ids),
+                ("filter3d", &self.values),
+                ("seen_max", &self.seen_max),
             ],
             &DepthPush {
                 count: count as u32,

@@ -691,19 +691,19 @@ impl Renderer {
                     &self.no_filter,
                 ),
             };
-            rec.dispatch(
+            rec.dispatch_named(
                 raster,
                 &[
-                    &f.projected.splats,
-                    ids,
-                    &f.tile_ranges,
-                    cameras,
-                    &f.image,
-                    &f.final_t,
-                    &f.last_index,
-                    features,
-                    feature_image,
-                    weights,
+                    ("splats", &f.projected.splats),
+                    ("sorted_ids", ids),
+                    ("ranges", &f.tile_ranges),
+                    ("cameras", cameras),
+                    ("image", &f.image),
+                    ("final_t", &f.final_t),
+                    ("last_index", &f.last_index),
+                    ("features", features),
+                    ("feature_image", feature_image),
+                    ("dec_w", weights),
                 ],
                 &RasterPush {
                     rc: settings.constants,

@@ -222,19 +222,19 @@ impl TemporalStep {
         if count == 0 {
             return Ok(());
         }
-        rec.dispatch(
+        rec.dispatch_named(
             &self.forward,
             &[
-                params.positions,
-                params.motion,
-                params.rotations,
-                params.omega,
-                params.opacity_logits,
-                params.t_center,
-                params.t_log_scale,
-                out.positions,
-                out.rotations,
-                out.opacity_logits,
+                ("positions", params.positions),
+                ("motion", params.motion),
+                ("rotations", params.rotations),
+                ("omega", params.omega),
+                ("opacity_logits", params.opacity_logits),
+                ("t_center", params.t_center),
+                ("t_log_scale", params.t_log_scale),
+                ("out_positions", out.positions),
+                ("out_rotations", out.rotations),
+                ("out_opacity_logits", out.opacity_logits),
             ],
             &ForwardPush {
                 count: count as u32,
@@ -266,22 +266,22 @@ impl TemporalStep {
         if count == 0 {
             return Ok(());
         }
-        rec.dispatch(
+        rec.dispatch_named(
             &self.backward,
             &[
-                params.opacity_logits,
-                params.t_center,
-                params.t_log_scale,
-                d_instant.positions,
-                d_instant.rotations,
-                d_instant.opacity_logits,
-                grads.positions,
-                grads.motion,
-                grads.rotations,
-                grads.omega,
-                grads.opacity_logits,
-                grads.t_center,
-                grads.t_log_scale,
+                ("opacity_logits", params.opacity_logits),
+                ("t_center", params.t_center),
+                ("t_log_scale", params.t_log_scale),
+                ("d_positions_t", d_instant.positions),
+                ("d_rotations_t", d_instant.rotations),
+                ("d_opacity_t", d_instant.opacity_logits),
+                ("d_positions", grads.positions),
+                ("d_motion", grads.motion),
+                ("d_rotations", grads.rotations),
+                ("d_omega", grads.omega),
+                ("d_opacity_logits", grads.opacity_logits),
+                ("d_t_center", grads.t_center),
+                ("d_t_log_scale", grads.t_log_scale),
             ],
             &BackwardPush {
                 count: count as u32,
@@ -320,14 +320,14 @@ impl TemporalStep {
         if count == 0 {
             return Ok(());
         }
-        rec.dispatch(
+        rec.dispatch_named(
             &self.positions,
             &[
-                params.positions,
-                params.motion,
-                params.t_center,
-                params.t_log_scale,
-                out,
+                ("positions", params.positions),
+                ("motion", params.motion),
+                ("t_center", params.t_center),
+                ("t_log_scale", params.t_log_scale),
+                ("out_positions", out),
             ],
             &PositionsPush {
                 count: count as u32,

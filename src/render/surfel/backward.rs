@@ -206,23 +206,23 @@ impl SurfelBackward {
             rec.fill(b, 0);
         }
         rec.barrier();
-        rec.dispatch(
+        rec.dispatch_named(
             &self.raster,
             &[
-                a.cameras,
-                &f.projected.splats,
-                &sf.geom,
-                &f.tile_ranges,
-                renderer.base.sorted_ids(),
-                &f.final_t,
-                &f.last_index,
-                &sf.median_index,
-                &sf.maps,
-                a.dl_dimage,
-                a.dl_dmaps,
-                &self.grad_geom[0],
-                &self.grad_geom[1],
-                &sf.normals,
+                ("cameras", a.cameras),
+                ("splats", &f.projected.splats),
+                ("geom", &sf.geom),
+                ("tile_ranges", &f.tile_ranges),
+                ("sorted_ids", renderer.base.sorted_ids()),
+                ("final_t", &f.final_t),
+                ("last_index", &f.last_index),
+                ("median_index", &sf.median_index),
+                ("maps", &sf.maps),
+                ("dl_dimage", a.dl_dimage),
+                ("dl_dmaps", a.dl_dmaps),
+                ("grad_rows_bits", &self.grad_geom[0]),
+                ("grad_rest_bits", &self.grad_geom[1]),
+                ("normals", &sf.normals),
             ],
             &RasterPush {
                 sc: a.constants,

@@ -260,20 +260,20 @@ impl SurfelRenderer {
                 timestamps.as_deref_mut(),
             );
             let f = &self.base.frame;
-            rec.dispatch(
+            rec.dispatch_named(
                 &self.raster,
                 &[
-                    &f.projected.splats,
-                    &self.surfel.geom,
-                    self.base.sorted_ids(),
-                    &f.tile_ranges,
-                    cameras,
-                    &f.image,
-                    &f.final_t,
-                    &f.last_index,
-                    &self.surfel.maps,
-                    &self.surfel.median_index,
-                    &self.surfel.normals,
+                    ("splats", &f.projected.splats),
+                    ("geom", &self.surfel.geom),
+                    ("sorted_ids", self.base.sorted_ids()),
+                    ("ranges", &f.tile_ranges),
+                    ("cameras", cameras),
+                    ("image", &f.image),
+                    ("final_t", &f.final_t),
+                    ("last_index", &f.last_index),
+                    ("maps", &self.surfel.maps),
+                    ("median_index", &self.surfel.median_index),
+                    ("normals", &self.surfel.normals),
                 ],
                 &RasterPush {
                     sc: settings.constants,

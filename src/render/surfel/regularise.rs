@@ -143,16 +143,16 @@ impl SurfelRegularisers {
             groups,
         );
         rec.barrier();
-        rec.dispatch(
+        rec.dispatch_named(
             &self.normal,
             &[
-                cameras,
-                maps,
-                &f.final_t,
-                &self.surf_depth,
-                &self.diff_grads,
-                dl_dmaps,
-                &self.terms,
+                ("cameras", cameras),
+                ("maps", maps),
+                ("final_t", &f.final_t),
+                ("surf_depth", &self.surf_depth),
+                ("diff_grads", &self.diff_grads),
+                ("dl_dmaps", dl_dmaps),
+                ("terms", &self.terms),
             ],
             &NormalPush {
                 camera_index,
@@ -162,9 +162,15 @@ impl SurfelRegularisers {
             groups,
         );
         rec.barrier();
-        rec.dispatch(
+        rec.dispatch_named(
             &self.gather,
-            &[cameras, maps, &f.final_t, &self.diff_grads, dl_dmaps],
+            &[
+                ("cameras", cameras),
+                ("maps", maps),
+                ("final_t", &f.final_t),
+                ("diff_grads", &self.diff_grads),
+                ("dl_dmaps", dl_dmaps),
+            ],
             &GatherPush {
                 camera_index,
                 depth_ratio: weights.depth_ratio,

@@ -83,13 +83,13 @@ impl OmegaFreezer {
         let f = &self.settings;
         rec.barrier();
         if n > 0 {
-            rec.dispatch(
+            rec.dispatch_named(
                 &self.select,
                 &[
-                    group(p, "motion")?,
-                    &p.log_scales,
-                    &p.opacity_logits,
-                    group(p, "omega")?,
+                    ("motion", group(p, "motion")?),
+                    ("log_scales", &p.log_scales),
+                    ("opacity_logits", &p.opacity_logits),
+                    ("omega", group(p, "omega")?),
                 ],
                 &SelectPush {
                     count: n as u32,
