@@ -118,3 +118,126 @@ pub fn random_init(
 }
 
 // A start above a Gaussian budget is drawn down to it in `super::budget_draw`.
+
+/// How opaque and how large a start from points begins: every Gaussian's opacity set to
+/// `opacity` and its scales multiplied by `scale`. 3DGS starts at 0.1 and the neighbours'
+/// spacing ([`Look::STANDARD`]); the MCMC recipe as gsplat ships it starts at 0.5 and a tenth of
+/// the spacing ([`Look::MCMC`]): small opaque Gaussians that relocation can move without
+/// dimming the image, where wide faint ones blur it until they are split.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Look {
+    /// Opacity after the sigmoid, in (0, 1).
+    pub opacity: f32,
+    /// Factor on every scale, > 0.
+    pub scale: f32,
+}
+
+impl Look {
+    /// 3DGS's start: opacity [`INIT_OPACITY`], scales as set from the neighbours.
+    pub const STANDARD: Look = Look {
+        opacity: INIT_OPACITY,
+        scale: 1.0,
+    };
+    /// MCMC's start (gsplat's MCMC preset): opacity 0.5, a tenth of the neighbours' spacing.
+    pub const MCMC: Look = Look {
+        opacity: 0.5,
+        scale: 0.1,
+    };
+
+    /// Refuses an opacity outside (0, 1) (its logit is infinite) and a scale that is not a
+    /// finite positive number, naming the flag.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        if !(self.opacity > 0.0 && self.opacity < 1.0) {
+            bail!(
+                "--init-opacity {}: an opacity must lie strictly between 0 and 1 (its logit is \
+                 the stored value). Fix: pass e.g. 0.1 (3DGS) or 0.5 (MCMC)",
+                self.opacity
+            );
+        }
+        if !(self.scale.is_finite() && self.scale > 0.0) {
+            bail!(
+                "--init-scale {}: the factor on the neighbours' spacing must be a finite number \
+                 above 0. Fix: pass e.g. 1 (3DGS) or 0.1 (MCMC)",
+                self.scale
+            );
+        }
+        Ok(())
+    }
+
+    /// Sets every Gaussian's opacity and multiplies its scales. [`Look::STANDARD`] on a fresh
+    /// start from points leaves it bit for bit as it was.
+    pub fn apply(&self, params: &mut GaussianParams) {
+        let logit = inverse_sigmoid(self.opacity);
+        params.opacity_logits.iter_mut().for_each(|o| *o = logit);
+        if self.scale != 1.0 {
+            let shift = self.scale.ln();
+            for s in params.log_scales.iter_mut().flatten() {
+                *s += shift;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cloud() -> GaussianParams {
+        let positions: Vec<[f64; 3]> = (0..20)
+            .map(|i| [i as f64 * 0.3, (i % 3) as f64, (i % 5) as f64 * 0.1])
+            .collect();
+        from_sfm_points(&positions, &vec![[10, 20, 30]; 20], 1).unwrap()
+    }
+
+    #[test]
+    fn the_standard_look_leaves_a_start_bit_for_bit() {
+        let before = cloud();
+        let mut after = before.clone();
+        Look::STANDARD.apply(&mut after);
+        assert_eq!(before.opacity_logits, after.opacity_logits);
+        assert_eq!(before.log_scales, after.log_scales);
+    }
+
+    #[test]
+    fn mcmcs_look_sets_opacity_and_shrinks_every_scale_tenfold() {
+        let before = cloud();
+        let mut after = before.clone();
+        Look::MCMC.apply(&mut after);
+        for &o in &after.opacity_logits {
+            let p = 1.0 / (1.0 + (-o as f64).exp());
+            assert!((p - 0.5).abs() < 1e-6, "{p}");
+        }
+        for (b, a) in before.log_scales.iter().zip(&after.log_scales) {
+            for k in 0..3 {
+                let ratio = (a[k] as f64).exp() / (b[k] as f64).exp();
+                assert!((ratio - 0.1).abs() < 1e-5, "{ratio}");
+            }
+        }
+        assert_eq!(before.positions, after.positions);
+        assert_eq!(before.sh_dc, after.sh_dc);
+    }
+
+    #[test]
+    fn a_look_without_a_logit_or_a_size_is_refused_by_its_flag() {
+        for o in [0.0, 1.0, -0.2, 1.5, f32::NAN] {
+            let e = Look {
+                opacity: o,
+                scale: 1.0,
+            }
+            .validate()
+            .unwrap_err();
+            assert!(e.to_string().contains("--init-opacity"), "{e}");
+        }
+        for s in [0.0, -1.0, f32::INFINITY, f32::NAN] {
+            let e = Look {
+                opacity: 0.5,
+                scale: s,
+            }
+            .validate()
+            .unwrap_err();
+            assert!(e.to_string().contains("--init-scale"), "{e}");
+        }
+        Look::MCMC.validate().unwrap();
+        Look::STANDARD.validate().unwrap();
+    }
+}

@@ -8,7 +8,8 @@
 
 use super::trade_args::{settings_json, TradeArgs};
 use super::trade_runs::{
-    abs_grad_applies, calendar_config, fills_budget, run_draw, run_lpm_config, selected_runs, RUNS,
+    abs_grad_applies, calendar_config, fills_budget, run_draw, run_look, run_lpm_config,
+    selected_runs, RUNS,
 };
 use crate::cli::lpips_scores;
 use crate::cli::output_folder::prepare_output;
@@ -34,6 +35,7 @@ use lpmsplat::scene::image_source::{ImageSource, ViewImages};
 use lpmsplat::scene::Scene;
 use lpmsplat::splats::budget_draw::Draw;
 use lpmsplat::splats::gpu::GpuSplats;
+use lpmsplat::splats::init::Look;
 use lpmsplat::train::density::growth::{BudgetCurve, Growth};
 use lpmsplat::train::trainer::{TrainConfig, Trainer, ViewMetrics};
 use std::io::Write;
@@ -216,6 +218,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                 lpm,
                 mcmc,
                 draw: run_draw(name),
+                look: run_look(name),
                 trainer: None,
                 seconds: 0.0,
                 count_sum: 0.0,
@@ -247,6 +250,13 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                         ))
                     }
                     _ => std::borrow::Cow::Borrowed(&inits[r.init]),
+                };
+                let init = if r.look != Look::STANDARD {
+                    let mut own = init.into_owned();
+                    r.look.apply(&mut own);
+                    std::borrow::Cow::Owned(own)
+                } else {
+                    init
                 };
                 let mut t = Trainer::new(&ctx, &scene, train_images.clone(), &init, r.cfg.clone())?;
                 let strategy = lpmsplat::strategies::assemble(
@@ -579,6 +589,8 @@ struct Run {
     mcmc: Option<McmcConfig>,
     /// How a start above its budget is drawn down to it, and whether the scales are refitted.
     draw: (Draw, bool),
+    /// How its start from points looks (opacity, scale factor).
+    look: Look,
     trainer: Option<Trainer>,
     seconds: f64,
     /// The Gaussian counts after each iteration so far, summed (for the mean model size).

@@ -10,6 +10,7 @@ use lpmsplat::lpm::{ConeRadius, NeighbourChoice, ZoneGeometry};
 use lpmsplat::models::BaseModel;
 use lpmsplat::scene::Scene;
 use lpmsplat::splats::budget_draw::Draw;
+use lpmsplat::splats::init::Look;
 use lpmsplat::train::trainer::TrainConfig;
 
 pub use lpmsplat::bench::runs::RUNS;
@@ -93,6 +94,18 @@ pub fn run_draw(name: &str) -> (Draw, bool) {
         "mcmc-refit" => (Draw::Random, true),
         "mcmc-spread" => (Draw::Spread, true),
         _ => (Draw::Random, false),
+    }
+}
+
+/// How run `name`'s start from points looks (`train --init-opacity`, `--init-scale`).
+pub fn run_look(name: &str) -> Look {
+    match name {
+        "mcmc-start" => Look::MCMC,
+        "mcmc-opaque" => Look {
+            opacity: Look::MCMC.opacity,
+            scale: 1.0,
+        },
+        _ => Look::STANDARD,
     }
 }
 

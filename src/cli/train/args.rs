@@ -66,6 +66,14 @@ pub struct TrainArgs {
     /// `auto` (triangulate video scenes, random points for still ones).
     #[arg(long, value_enum, default_value_t = InitSource::Auto)]
     pub init: InitSource,
+    /// Opacity every Gaussian of a start from points begins with (3DGS: 0.1; MCMC as gsplat
+    /// ships it: 0.5, with --init-scale 0.1).
+    #[arg(long, value_name = "O")]
+    pub init_opacity: Option<f32>,
+    /// Factor on the initial scales, which are set from each point's 3 nearest neighbours
+    /// (3DGS: 1; MCMC as gsplat ships it: 0.1).
+    #[arg(long, value_name = "F")]
+    pub init_scale: Option<f32>,
     /// Evaluate on the test views every N iterations (0 = only at the end).
     #[arg(long, default_value_t = 0)]
     pub eval_every: u32,
@@ -546,9 +554,33 @@ impl RecordAhead {
 }
 
 use lpmsplat::initial::InitSource;
+use lpmsplat::splats::init::Look;
+
+impl TrainArgs {
+    /// How a start from points looks: --init-opacity and --init-scale over 3DGS's start.
+    pub fn look(&self) -> Look {
+        Look {
+            opacity: self.init_opacity.unwrap_or(Look::STANDARD.opacity),
+            scale: self.init_scale.unwrap_or(Look::STANDARD.scale),
+        }
+    }
+}
 
 /// Flag combinations that cannot work, caught before anything is loaded.
 pub(super) fn check_flags(args: &TrainArgs) -> anyhow::Result<()> {
+    if args.init_opacity.is_some() || args.init_scale.is_some() {
+        anyhow::ensure!(
+            args.init_ply.is_none() && args.resume.is_none(),
+            "--init-opacity / --init-scale shape a start from points; {} brings its own \
+             Gaussians. Fix: drop them",
+            if args.resume.is_some() {
+                "--resume"
+            } else {
+                "--init-ply"
+            }
+        );
+        args.look().validate()?;
+    }
     if let Some(r) = &args.resume {
         anyhow::ensure!(
             args.init_ply.is_none(),

@@ -20,6 +20,7 @@ use lpmsplat::gpu::{GpuContext, GpuOptions};
 use lpmsplat::scene::image_source::ViewImages;
 use lpmsplat::scene::Scene;
 use lpmsplat::splats::budget_draw::Draw;
+use lpmsplat::splats::init::Look;
 use lpmsplat::train::nan_check::NonFiniteCheck;
 use lpmsplat::train::trainer::Trainer;
 use outputs::Finished;
@@ -91,6 +92,14 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
             lpmsplat::splats::budget_draw::draw_down(init, t, args.seed, sa.budget_draw, refit)
         }
         _ => init,
+    };
+    // After the draw, so that a refit works from the scales the points were given.
+    let init = if resumed.is_none() && args.init_ply.is_none() && args.look() != Look::STANDARD {
+        let mut init = init;
+        args.look().apply(&mut init);
+        init
+    } else {
+        init
     };
     let ctx = GpuContext::new(gpu)?;
     // From here on Ctrl-C is polled after each iteration (and saves a checkpoint).

@@ -228,6 +228,11 @@ impl Finished<'_> {
                     });
                 }
                 cfg["init"] = serde_json::json!(format!("{:?}", args.init).to_lowercase());
+                if args.init_ply.is_none() {
+                    let look = args.look();
+                    cfg["init_look"] =
+                        serde_json::json!({"opacity": look.opacity, "scale": look.scale});
+                }
             }
         }
         cfg["lpm"] = self
