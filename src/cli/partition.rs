@@ -40,6 +40,12 @@ pub struct PartitionArgs {
     /// SfM observations; its image cells without them) lies in the block's core.
     #[arg(long, default_value_t = 0.25)]
     pub visibility: f64,
+    /// Write each block's loss masks (`loss_masks.json`): a block learns, in each view, only
+    /// the image cells whose nearest SfM point lies in its region (and the cells around them),
+    /// or, where no point projects, whose ray ends over its region; the rest of the view is
+    /// another block's to explain (docs/partition.md).
+    #[arg(long)]
+    pub loss_masks: bool,
     /// The merged model's Gaussian budget (500k, 2.5M, or 3x the SfM points), shared among
     /// the blocks by the points of their regions: each block's run gets `--budget` its share.
     /// Pair it with a strategy that fills a budget (`-- --strategy mcmc`), or it is a cap.
@@ -149,6 +155,16 @@ pub fn run(args: &PartitionArgs) -> anyhow::Result<()> {
     match &model {
         Some(model) => blocks::write_block_folders(&out, &plan, model, &scene.root)?,
         None => blocks::write_transforms_block_folders(&out, &plan, &scene.root)?,
+    }
+    if args.loss_masks {
+        let shares = partition::masks::write_block_masks(&out, &plan, &scene)?;
+        for (b, share) in plan.blocks.iter().zip(shares) {
+            println!(
+                "{}: loss masks learn {:.1} % of its training views' pixels",
+                b.name,
+                100.0 * share
+            );
+        }
     }
     if args.slurm.slurm {
         let sopts = args.slurm.options()?;

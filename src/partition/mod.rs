@@ -9,6 +9,7 @@ pub mod assign;
 pub mod blocks;
 pub mod grid;
 pub mod ground;
+pub mod masks;
 pub mod merge;
 pub mod plan;
 pub mod slurm;

@@ -77,6 +77,7 @@ pub mod backward;
 pub mod decoder;
 pub mod density;
 pub mod linalg;
+pub mod loss_mask;
 pub mod lpm_membership;
 pub mod mcmc;
 pub mod mip;

@@ -10,6 +10,7 @@ pub mod colmap;
 pub mod frame;
 pub mod image_source;
 pub mod images;
+pub mod loss_masks;
 pub mod orbit;
 pub mod split;
 pub mod transforms;

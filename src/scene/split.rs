@@ -49,7 +49,8 @@ pub fn listed_split(
                 &path,
                 format!("line {}", k + 1),
                 format!("'{name}' is not a view of the scene"),
-                "name views as the scene lists them (e.g. images.txt's NAME column), or remove                  the line",
+                "name views as the scene lists them (e.g. images.txt's NAME column), or remove \
+                 the line",
             );
         };
         if std::mem::replace(&mut is_test[i], true) {

@@ -9,6 +9,7 @@ pub mod data;
 pub mod density;
 pub mod image_cache;
 pub mod loss;
+pub mod loss_mask;
 pub mod nan_check;
 pub mod passes;
 pub mod schedule;

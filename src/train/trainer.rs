@@ -37,6 +37,7 @@ use super::data::{scene_cameras, ViewSchedule};
 use super::density::{DensifyOutcome, DensityControl};
 use super::image_cache::{CacheStats, ImageCache, ImageSlot};
 use super::loss::{Loss, LOSS_SLOT_FLOATS};
+use super::loss_mask::GpuLossMasks;
 use super::passes::{self, FrameArgs, GradArgs, ModelPasses};
 use super::schedule::sh_degree_at;
 use super::strategy::{Adc, DensityStrategy, IterationView, ModelRule, StrategyEvent};
@@ -46,6 +47,7 @@ use crate::gpu::{
 use crate::render::forward::Capacity;
 use crate::render::layout::{CameraGpu, RenderConstants};
 use crate::scene::image_source::TrainImages;
+use crate::scene::loss_masks::LossMasks;
 use crate::scene::Scene;
 use crate::splats::gpu::{grown_capacity, GpuSplats};
 use crate::splats::GaussianParams;
@@ -116,6 +118,8 @@ pub struct Trainer {
     adam: Adam,
     pub density: DensityControl,
     dl_dimage: GpuBuffer<f32>,
+    /// Which pixels of each view are learned (`loss_masks.json`); `None`: all of them.
+    loss_masks: Option<GpuLossMasks>,
     loss_out: GpuBuffer<f32>,
     loss_host: GpuBuffer<f32>,
     pub views: ViewSchedule,
@@ -280,6 +284,7 @@ impl Trainer {
             adam: Adam::new(ctx)?,
             density: DensityControl::new(ctx, capacity, density)?,
             dl_dimage: GpuBuffer::new(ctx, "dL/dimage", pixels * 3, BufferKind::DeviceLocal)?,
+            loss_masks: None,
             // One loss slot per view of a step.
             loss_out: GpuBuffer::new(
                 ctx,
@@ -556,6 +561,9 @@ impl Trainer {
                 k as u32,
                 cfg.ssim_weight,
             )?;
+            if let Some(m) = &self.loss_masks {
+                m.record(&mut self.rec, v, img.width, img.height, &self.dl_dimage)?;
+            }
             if cfg.timestamps {
                 self.rec.timestamp(&mut self.pool, "loss");
             }
@@ -727,6 +735,20 @@ impl Trainer {
             st.stages.push(("density control".into(), ms));
         }
         Ok(report)
+    }
+
+    /// Learns each view only from the pixels of its cells `masks` marks (before the first
+    /// step): the loss gradient is zeroed at the others.
+    pub fn set_loss_masks(&mut self, masks: &LossMasks) -> anyhow::Result<()> {
+        self.assert_nothing_prepared("set_loss_masks");
+        anyhow::ensure!(
+            masks.views.len() == self.image_of_view.len(),
+            "loss masks for {} views, the scene has {}",
+            masks.views.len(),
+            self.image_of_view.len()
+        );
+        self.loss_masks = Some(GpuLossMasks::new(&self.ctx, masks)?);
+        Ok(())
     }
 
     /// Replaces the density strategy (before the first step, or after a restore).

@@ -116,6 +116,61 @@ fn blocks_are_scenes_that_hold_their_views_points_and_the_scenes_test_split() {
     assert!(!ok && text.contains("holds a plan already"), "{text}");
 }
 
+/// `--loss-masks`: every block's training views have a mask; a view two blocks share is
+/// learned, cell by cell, by at least one of them (the regions cover the ground, so every
+/// nearest point and every ray's far end is some block's); and `train` reads the file.
+#[test]
+fn loss_masks_share_out_every_cell_of_a_shared_view_and_train_reads_them() {
+    use lpmsplat::scene::loss_masks;
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("plan");
+    let text = run_ok(
+        lpmsplat()
+            .args(["partition"])
+            .arg(data("lund_door_small"))
+            .args(["--blocks", "2x1", "--loss-masks", "-o"])
+            .arg(&out),
+    );
+    assert!(text.contains("loss masks learn"), "{text}");
+    let plan = Plan::read(&out.join("plan.json")).unwrap();
+    let mut per_block = Vec::new();
+    for b in &plan.blocks {
+        let scene = Scene::load(&out.join(&b.folder), &LoadOptions::default()).unwrap();
+        let (masks, share) = loss_masks::for_scene(&scene).unwrap().expect("masks");
+        assert!(share > 0.0 && share < 1.0, "block {}: {share}", b.name);
+        let by_name: std::collections::HashMap<String, Vec<bool>> = scene
+            .views
+            .iter()
+            .enumerate()
+            .filter_map(|(i, v)| masks.views[i].clone().map(|m| (v.name.clone(), m)))
+            .collect();
+        for n in &b.train_views {
+            assert!(by_name.contains_key(n), "block {}: no mask for {n}", b.name);
+        }
+        per_block.push(by_name);
+    }
+    let mut shared = 0;
+    for (name, a) in &per_block[0] {
+        if let Some(b) = per_block[1].get(name) {
+            shared += 1;
+            assert!(
+                a.iter().zip(b).all(|(x, y)| *x || *y),
+                "{name}: a cell nobody learns"
+            );
+        }
+    }
+    assert!(shared > 0, "the two blocks share no view");
+    let block = out.join(&plan.blocks[0].folder);
+    let text = run_ok(
+        lpmsplat()
+            .arg("train")
+            .arg(&block)
+            .args(["--iterations", "3", "-o"])
+            .arg(tmp.path().join("run")),
+    );
+    assert!(text.contains("loss masks (loss_masks.json)"), "{text}");
+}
+
 #[test]
 fn the_plan_is_the_same_in_a_georeferenced_kilometre_frame() {
     let tmp = tempfile::tempdir().unwrap();

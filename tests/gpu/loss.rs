@@ -477,3 +477,58 @@ fn cpu_gradient_matches_finite_differences() {
         assert!(checked > render.len() / 2, "too few elements checked");
     }
 }
+
+/// The loss mask pass (`glsl/train/mask_grads.comp`) against its oracle
+/// (`reference::loss_mask`): random gradients and cells at image sizes on both sides of a cell
+/// and of a workgroup, grids finer and coarser than the image, a masked view after an unmasked
+/// one in the same buffer; the tail past the gradient poisoned and left alone.
+#[test]
+fn loss_mask_zeroes_exactly_the_unlearned_cells_pixels() {
+    use lpmsplat::reference::loss_mask::mask_gradient;
+    use lpmsplat::scene::loss_masks::LossMasks;
+    use lpmsplat::train::loss_mask::GpuLossMasks;
+    let ctx = ctx();
+    let mut rng = Pcg64::seed_from_u64(11);
+    for &(w, h, cols, rows) in &[
+        (1u32, 1u32, 1u32, 1u32),
+        (7, 5, 3, 2),
+        (37, 23, 32, 32),
+        (161, 243, 5, 40),
+        (20, 9, 40, 17),
+    ] {
+        let cells = (cols * rows) as usize;
+        let mask: Vec<bool> = (0..cells).map(|_| rng.gen_bool(0.5)).collect();
+        // View 0 unmasked, view 1 masked (its bits after nothing), view 2 masked differently.
+        let other: Vec<bool> = mask.iter().map(|b| !b).collect();
+        let masks = LossMasks {
+            cols,
+            rows,
+            views: vec![None, Some(mask.clone()), Some(other.clone())],
+        };
+        let gpu = GpuLossMasks::new(&ctx, &masks).unwrap();
+        let px = (w * h) as usize;
+        let grad: Vec<f32> = (0..3 * px).map(|_| rng.gen_range(-1.0..1.0)).collect();
+        for (view, cells_of) in [(0usize, None), (1, Some(&mask)), (2, Some(&other))] {
+            let mut data = grad.clone();
+            data.extend([f32::from_bits(NAN_BITS); 5]);
+            let buf = GpuBuffer::from_slice(&ctx, "grad", &data).unwrap();
+            let mut rec = Recorder::new(&ctx).unwrap();
+            gpu.record(&mut rec, view, w, h, &buf).unwrap();
+            rec.submit_and_wait().unwrap();
+            let got = buf.read().unwrap();
+            assert!(got[3 * px..].iter().all(|v| v.to_bits() == NAN_BITS));
+            let g64: Vec<f64> = grad.iter().map(|&v| v as f64).collect();
+            let want = match cells_of {
+                Some(c) => mask_gradient(&g64, w, h, c, cols, rows),
+                None => g64,
+            };
+            for (i, (a, b)) in got[..3 * px].iter().zip(&want).enumerate() {
+                assert_eq!(
+                    *a as f64, *b,
+                    "{w}×{h}, {cols}×{rows}, view {view}, float {i}"
+                );
+            }
+        }
+    }
+    ctx.check_validation().unwrap();
+}

@@ -183,6 +183,15 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     if let Some(s) = strategy {
         trainer.set_strategy(s);
     }
+    let loss_masks = lpmsplat::scene::loss_masks::for_scene(&scene)?;
+    if let Some((masks, share)) = &loss_masks {
+        eprintln!(
+            "loss masks ({}): the training views learn from {:.1} % of their pixels on average",
+            lpmsplat::scene::loss_masks::LOSS_MASKS_FILE,
+            100.0 * share
+        );
+        trainer.set_loss_masks(masks)?;
+    }
     if let Some(p) = &args.resume {
         trainer.check_resumed_strategy(p)?;
     }
