@@ -13,7 +13,7 @@ const fn run(name: &'static str, colour: [u8; 3], what: &'static str) -> Run {
     Run { name, colour, what }
 }
 
-pub const RUNS: [Run; 31] = [
+pub const RUNS: [Run; 32] = [
     run("adc", [40, 40, 40], "ADC, the base model's own density control"),
     run("adc-threshold-1e-4", [200, 120, 0], "ADC with its gradient threshold halved to 1e-4 (alias adc-1e-4)"),
     run("adc+lpm", [220, 30, 30], "ADC + LPM with our rules (`train --lpm`; alias lpm)"),
@@ -44,6 +44,7 @@ pub const RUNS: [Run; 31] = [
     run("mcmc-refit", [90, 150, 230], "MCMC whose start, drawn down to a budget below it, has its scales refitted to the kept points' spacing (`--budget-refit-scales`)"),
     run("mcmc-spread", [0, 40, 120], "the same drawn spread over the cloud: one Gaussian from each cell of the finest grid the budget allows (`--budget-draw spread --budget-refit-scales`)"),
     run("mcmc-start", [100, 200, 250], "MCMC from its own start as gsplat ships it: opacity 0.5, a tenth of the neighbours' spacing (`--init-opacity 0.5 --init-scale 0.1`)"),
+    run("mcmc-keep", [20, 160, 200], "MCMC from every initial Gaussian at a budget below them: the count falls to the budget along the densify window, the least opaque removed at each refinement (`--budget-draw keep`)"),
     run("mcmc-opaque", [160, 60, 20], "MCMC from points of opacity 0.5 at the neighbours' spacing (`--init-opacity 0.5`)"),
 ];
 

@@ -147,6 +147,26 @@ pub fn dead_rows(logits: &[f32], min_opacity: f64) -> Vec<u32> {
         .collect()
 }
 
+/// The `remove` rows of lowest opacity (a NaN opacity lowest of all; ties to the lower row), in
+/// increasing order: what a falling budget curve takes away (`--budget-draw keep`). All rows
+/// when `remove` is at least their number.
+pub fn lowest_opacity_rows(logits: &[f32], remove: usize) -> Vec<u32> {
+    let mut order: Vec<u32> = (0..logits.len() as u32).collect();
+    let key = |i: u32| {
+        let l = logits[i as usize];
+        if l.is_nan() {
+            f32::NEG_INFINITY
+        } else {
+            l
+        }
+    };
+    // The logit is monotonic in the opacity: rank by it.
+    order.sort_by(|&a, &b| key(a).total_cmp(&key(b)).then(a.cmp(&b)));
+    order.truncate(remove);
+    order.sort_unstable();
+    order
+}
+
 /// The relocation plan: every Gaussian of opacity ≤ `min_opacity` (among the first `logits.len()`)
 /// moves onto a live one drawn ∝ opacity × `weight` (1 without a guide). `logits` is updated
 /// to the opacities after the plan. No live Gaussian: an empty plan.
@@ -240,6 +260,17 @@ pub fn plan_growth(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_least_opaque_rows_go_first_nan_before_all_ties_to_the_lower_row() {
+        let logits = [0.5, -3.0, f32::NAN, -3.0, 2.0, -7.0];
+        assert_eq!(lowest_opacity_rows(&logits, 0), Vec::<u32>::new());
+        assert_eq!(lowest_opacity_rows(&logits, 1), vec![2]);
+        assert_eq!(lowest_opacity_rows(&logits, 2), vec![2, 5]);
+        assert_eq!(lowest_opacity_rows(&logits, 3), vec![1, 2, 5]);
+        assert_eq!(lowest_opacity_rows(&logits, 4), vec![1, 2, 3, 5]);
+        assert_eq!(lowest_opacity_rows(&logits, 9), vec![0, 1, 2, 3, 4, 5]);
+    }
 
     #[test]
     fn one_copy_changes_nothing_and_two_halve_the_transmittance() {

@@ -5,7 +5,10 @@ use std::sync::Arc;
 
 use super::config::McmcConfig;
 use super::gpu::McmcKernels;
-use super::plan::{dead_rows, logit, plan_growth, plan_relocation_of, plan_rng, plan_seeded, Plan};
+use super::plan::{
+    dead_rows, logit, lowest_opacity_rows, plan_growth, plan_relocation_of, plan_rng, plan_seeded,
+    Plan,
+};
 use crate::gpu::{GpuContext, Recorder};
 use crate::splats::gpu::{grown_capacity, GpuSplats};
 use crate::train::adam::SplatState;
@@ -26,6 +29,8 @@ pub struct McmcEvent {
     pub seeded: usize,
     /// New Gaussians (copies of live ones).
     pub added: usize,
+    /// The least opaque removed (a falling budget curve, `--budget-draw keep`).
+    pub removed: usize,
     /// The count after the refinement.
     pub gaussians: usize,
 }
@@ -34,14 +39,14 @@ impl StrategyEvent for McmcEvent {
     fn to_json(&self) -> serde_json::Value {
         serde_json::json!({
             "iteration": self.iteration, "relocated": self.relocated, "seeded": self.seeded,
-            "added": self.added,
+            "added": self.added, "removed": self.removed,
             "gaussians": self.gaussians,
         })
     }
     fn describe(&self) -> String {
         format!(
-            "mcmc: {} relocated, {} onto surface samples, {} added, {} Gaussians",
-            self.relocated, self.seeded, self.added, self.gaussians
+            "mcmc: {} relocated, {} onto surface samples, {} added, {} removed, {} Gaussians",
+            self.relocated, self.seeded, self.added, self.removed, self.gaussians
         )
     }
     fn as_any(&self) -> &dyn Any {
@@ -56,6 +61,7 @@ pub struct McmcTotals {
     pub relocated: usize,
     pub seeded: usize,
     pub added: usize,
+    pub removed: usize,
 }
 
 impl McmcTotals {
@@ -66,6 +72,7 @@ impl McmcTotals {
             "relocated": self.relocated,
             "seeded": self.seeded,
             "added": self.added,
+            "removed": self.removed,
         })
     }
 }
@@ -121,7 +128,23 @@ impl McmcStrategy {
         let weight = weight.as_deref();
         let min = self.config.min_opacity;
         let seed = self.config.seed;
-        let dead = dead_rows(&logits, min);
+        // A falling curve (a start kept whole above the budget) first takes the least opaque
+        // away: they neither move nor are drawn as sources (opacity 0 from here on).
+        let target = self.config.budget.target_at(it, n);
+        let removed = lowest_opacity_rows(&logits, n.saturating_sub(target));
+        for &r in &removed {
+            logits[r as usize] = f32::NEG_INFINITY;
+        }
+        let dead = match removed.is_empty() {
+            true => dead_rows(&logits, min),
+            false => {
+                let gone: std::collections::HashSet<u32> = removed.iter().copied().collect();
+                dead_rows(&logits, min)
+                    .into_iter()
+                    .filter(|r| !gone.contains(r))
+                    .collect()
+            }
+        };
         let seeded = match guide {
             Some(g) if !g.samples.is_empty() && g.sample_share > 0.0 => plan_seeded(
                 &dead,
@@ -173,7 +196,27 @@ impl McmcStrategy {
                 logits[row as usize] = logit(r.opacity) as f32;
             }
         }
-        let target = self.config.budget.target_at(it, n);
+        if !removed.is_empty() {
+            // The relocation recorded above runs first; then the rows are compacted (every
+            // per-Gaussian buffer, moments included) and the statistics zeroed.
+            drop(moved);
+            t.density.record_remove_rows(t.state, &removed)?;
+            let out = t.density.apply(t.rec, t.state, args)?;
+            let event = McmcEvent {
+                iteration: it,
+                relocated: relocation.copies.len(),
+                seeded: seeded.len(),
+                added: 0,
+                removed: removed.len(),
+                gaussians: out.after,
+            };
+            self.totals.refinements += 1;
+            self.totals.relocated += event.relocated;
+            self.totals.seeded += event.seeded;
+            self.totals.removed += event.removed;
+            self.last = Some(event);
+            return Ok(out);
+        }
         let growth = plan_growth(
             &mut logits,
             weight,
@@ -210,6 +253,7 @@ impl McmcStrategy {
             relocated: relocation.copies.len(),
             seeded: seeded.len(),
             added,
+            removed: 0,
             gaussians: after,
         };
         self.totals.refinements += 1;

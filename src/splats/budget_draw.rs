@@ -36,6 +36,9 @@ pub enum Draw {
     /// One from each cell of the finest grid the budget allows, the rest at random: sparse
     /// regions keep their points.
     Spread,
+    /// Nothing drawn: the run starts from every initial Gaussian and the strategy removes the
+    /// least opaque along the densify window until the budget (MCMC only: its curve falls).
+    Keep,
 }
 
 impl Draw {
@@ -43,6 +46,7 @@ impl Draw {
         match self {
             Draw::Random => "random",
             Draw::Spread => "spread",
+            Draw::Keep => "keep",
         }
     }
 }
@@ -55,12 +59,13 @@ const BISECTION_STEPS: usize = 40;
 /// of them when `budget` is at least their number.
 pub fn draw_rows(positions: &[[f32; 3]], budget: usize, seed: u64, draw: Draw) -> Vec<usize> {
     let n = positions.len();
-    if budget >= n {
+    if budget >= n || draw == Draw::Keep {
         return (0..n).collect();
     }
     let mut rng = rand_pcg::Pcg64::seed_from_u64(seed ^ 0x6275_6467_6574_5f69);
     let mut rows = match draw {
-        Draw::Random => rand::seq::index::sample(&mut rng, n, budget).into_vec(),
+        // (Keep returned every row above.)
+        Draw::Random | Draw::Keep => rand::seq::index::sample(&mut rng, n, budget).into_vec(),
         Draw::Spread => spread_rows(positions, budget, &mut rng),
     };
     rows.sort_unstable();
@@ -144,7 +149,7 @@ pub fn draw_down(
     draw: Draw,
     refit: bool,
 ) -> GaussianParams {
-    if budget >= init.len() || budget == 0 {
+    if budget >= init.len() || budget == 0 || draw == Draw::Keep {
         return init;
     }
     let rows = draw_rows(&init.positions, budget, seed, draw);
@@ -248,8 +253,14 @@ mod tests {
                 Draw::Random => assert!((5..=40).contains(&line), "{line}"),
                 // Every line point is its own cell long before the crowd's cells number 100.
                 Draw::Spread => assert_eq!(line, 100),
+                Draw::Keep => unreachable!("not in the loop"),
             }
         }
+        // Keep draws nothing: every row, and the model as it was.
+        assert_eq!(
+            draw_rows(&p, 200, 5, Draw::Keep),
+            (0..1000).collect::<Vec<_>>()
+        );
         assert_eq!(
             draw_rows(&p, 1000, 5, Draw::Spread),
             (0..1000).collect::<Vec<_>>()

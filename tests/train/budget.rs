@@ -318,3 +318,59 @@ fn a_budget_below_the_start_draws_the_start_down_to_it() {
         assert!(end == half || end + 1 == half, "{strategy}: {h:?}");
     }
 }
+
+/// `--budget-draw keep`: MCMC starts from every initial Gaussian and falls to the budget along
+/// the densify window (two steps: half the way at the first, the budget at the last), the
+/// least opaque removed; a strategy that cannot remove is refused.
+#[test]
+fn a_kept_start_falls_to_the_budget_under_mcmc_and_is_refused_elsewhere() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("keep");
+    let o = train(
+        &out,
+        &[
+            "--strategy",
+            "mcmc",
+            "--budget",
+            "0.5x",
+            "--budget-draw",
+            "keep",
+        ],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("starting from all of them"), "{err}");
+    let h = history_counts(&out);
+    let initial = count_at(&h, 10);
+    let half = (0.5 * initial as f64).round() as u64;
+    assert_eq!(count_at(&h, 30), initial, "{h:?}");
+    assert_eq!(
+        count_at(&h, 50),
+        initial - ((initial - half) as f64 * 0.5).round() as u64,
+        "{h:?}"
+    );
+    assert_eq!(count_at(&h, 70), half, "{h:?}");
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
+    assert_eq!(m["mcmc"]["removed"], initial - half, "{}", m["mcmc"]);
+    let c: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("config.json")).unwrap()).unwrap();
+    assert_eq!(c["budget_draw"]["draw"], "keep");
+
+    let o = train(
+        &dir.path().join("exact"),
+        &[
+            "--strategy",
+            "adc-exact",
+            "--budget",
+            "0.5x",
+            "--budget-draw",
+            "keep",
+        ],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("only mcmc removes"),
+        "{err}"
+    );
+}

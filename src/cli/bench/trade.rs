@@ -204,7 +204,11 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
             if let Some(c) = &lpm {
                 c.validate()?;
             }
-            let start = target.map_or(initial, |t| t.min(initial));
+            // A kept start (mcmc-keep) falls from the initial count to the budget.
+            let start = match run_draw(name).0 {
+                Draw::Keep => initial,
+                _ => target.map_or(initial, |t| t.min(initial)),
+            };
             let mcmc = apply_budget(name, &mut cfg, args, (start, target), calendar)?;
             runs.push(Run {
                 k: c.k,

@@ -93,6 +93,7 @@ pub fn run_draw(name: &str) -> (Draw, bool) {
     match name {
         "mcmc-refit" => (Draw::Random, true),
         "mcmc-spread" => (Draw::Spread, true),
+        "mcmc-keep" => (Draw::Keep, false),
         _ => (Draw::Random, false),
     }
 }

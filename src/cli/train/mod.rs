@@ -28,6 +28,11 @@ use progress::TrainingLog;
 use setup::{resume_hint, save_after_oom};
 use std::time::Instant;
 
+/// `--budget-draw keep`: the start is kept whole and the strategy's curve falls to the budget.
+fn sa_keeps(args: &TrainArgs) -> bool {
+    args.density_strategy.budget_draw == Draw::Keep
+}
+
 pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
     check_flags(args)?;
     args.density_strategy.check(args.model)?;
@@ -76,6 +81,14 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
             .unwrap_or_else(|| b.resolve(init.len()))
     });
     let init = match target {
+        Some(t) if resumed.is_none() && t < init.len() && sa_keeps(args) => {
+            eprintln!(
+                "budget {t} below the {} initial Gaussians: starting from all of them; mcmc \
+                 removes the least opaque along the densify window down to {t}",
+                init.len()
+            );
+            init
+        }
         Some(t) if resumed.is_none() && t < init.len() => {
             let sa = &args.density_strategy;
             let refit = sa.budget_refit_scales && args.init_ply.is_none();
@@ -86,6 +99,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
                 match sa.budget_draw {
                     Draw::Random => "at random",
                     Draw::Spread => "spread over the cloud",
+                    Draw::Keep => "(kept)",
                 },
                 if refit { ", scales refitted" } else { "" }
             );

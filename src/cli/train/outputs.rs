@@ -330,13 +330,14 @@ impl Finished<'_> {
         match (mcmc, config.density.max_gaussians) {
             (Some(m), _) => println!(
                 "  MCMC to {} Gaussians ({} growth): {} refinements, {} dead Gaussians relocated \
-                 ({} onto LPM's surface samples), {} added",
+                 ({} onto LPM's surface samples), {} added, {} of the least opaque removed",
                 m.config.budget.target,
                 m.config.budget.growth.name(),
                 m.totals.refinements,
                 m.totals.relocated + m.totals.seeded,
                 m.totals.seeded,
-                m.totals.added
+                m.totals.added,
+                m.totals.removed
             ),
             (None, Some(cap)) => println!(
                 "  Gaussian budget {cap}{}: {} clones and splits dropped on {} density steps",

@@ -35,8 +35,10 @@ pub struct StrategyArgs {
     #[arg(long, value_name = "CURVE", value_parser = Growth::parse)]
     pub budget_growth: Option<Growth>,
     /// How a start above --budget is drawn down to it: random (uniformly: the cloud's density
-    /// kept alike everywhere) or spread (one Gaussian from each cell of the finest grid the
-    /// budget allows, the rest at random: sparse regions keep their points).
+    /// kept alike everywhere), spread (one Gaussian from each cell of the finest grid the
+    /// budget allows, the rest at random: sparse regions keep their points), or keep (mcmc
+    /// only: nothing drawn; the count falls from the start to the budget along the densify
+    /// window, the least opaque removed at each refinement).
     #[arg(long, value_enum, default_value_t = Draw::Random)]
     pub budget_draw: Draw,
     /// With a start above --budget: rescale each kept Gaussian by how far its nearest
@@ -122,6 +124,18 @@ impl StrategyArgs {
         ensure!(
             self.budget_growth.is_none() || self.budget.is_some(),
             "--budget-growth without --budget: there is no budget to grow to. Fix: pass --budget"
+        );
+        ensure!(
+            self.budget_draw != Draw::Keep || self.strategy == StrategyName::Mcmc,
+            "--budget-draw keep: only mcmc removes Gaussians, to follow a curve that falls from \
+             the start to the budget; {} would end above it. Fix: --strategy mcmc, or draw the \
+             start down (--budget-draw random or spread)",
+            self.strategy.to_possible_value().unwrap().get_name()
+        );
+        ensure!(
+            self.budget_draw != Draw::Keep || !self.budget_refit_scales,
+            "--budget-draw keep with --budget-refit-scales: nothing is drawn, so no scale is \
+             refitted. Fix: drop --budget-refit-scales"
         );
         if self.strategy == StrategyName::Mcmc {
             ensure!(

@@ -122,6 +122,9 @@ impl BudgetCurve {
     /// model of `current` Gaussians before the step.
     pub fn step_target(&self, k: u32, n: u32, current: usize) -> usize {
         let b = self.target;
+        if self.initial > b {
+            return self.falling_target(k, n);
+        }
         let s = self.initial.min(b);
         if k >= n || n == 0 {
             return match self.growth {
@@ -137,6 +140,23 @@ impl BudgetCurve {
             Growth::Mcmc => grow_mcmc(current, b),
         }
         .min(b)
+    }
+
+    /// A curve from above its budget (a start kept whole, `--budget-draw keep`) falls to it:
+    /// taming removes most early (`initial − room·(2x − x²)`), linear and mcmc evenly
+    /// (`initial − room·x`), with `x = k/n`, the budget from step `n` on.
+    fn falling_target(&self, k: u32, n: u32) -> usize {
+        let (b, s) = (self.target, self.initial);
+        if k >= n || n == 0 {
+            return b;
+        }
+        let x = k as f64 / n as f64;
+        let room = (s - b) as f64;
+        let fallen = match self.growth {
+            Growth::Taming => room * (2.0 * x - x * x),
+            Growth::Linear | Growth::Mcmc => room * x,
+        };
+        (s - fallen.round() as usize).max(b)
     }
 
     pub fn to_json(&self) -> serde_json::Value {
@@ -259,16 +279,40 @@ mod tests {
     }
 
     #[test]
-    fn a_budget_below_the_initial_count_is_flat() {
-        let c = BudgetCurve {
-            target: 500,
-            growth: Growth::Taming,
-            initial: 1_000,
-            window: (500, 15_000, 100),
-        };
-        for k in 1..=10 {
-            assert_eq!(c.step_target(k, 10, 1_000), 500);
+    fn a_budget_below_the_initial_count_is_fallen_to_by_the_last_step() {
+        for growth in [Growth::Taming, Growth::Linear, Growth::Mcmc] {
+            let c = BudgetCurve {
+                target: 500,
+                growth,
+                initial: 1_000,
+                window: (500, 15_000, 100),
+            };
+            let mut prev = 1_000;
+            for k in 1..=10 {
+                let t = c.step_target(k, 10, prev);
+                assert!(
+                    t <= prev && t >= 500,
+                    "{growth:?} step {k}: {t} after {prev}"
+                );
+                prev = t;
+            }
+            assert_eq!(prev, 500);
+            assert_eq!(c.step_target(12, 10, 500), 500);
         }
+        let at = |growth, k| {
+            BudgetCurve {
+                target: 500,
+                growth,
+                initial: 1_000,
+                window: (500, 15_000, 100),
+            }
+            .step_target(k, 10, 1_000)
+        };
+        // Linear: 50 a step; taming: 95 at the first (most early), 5 at the last.
+        assert_eq!(at(Growth::Linear, 1), 950);
+        assert_eq!(at(Growth::Mcmc, 4), 800);
+        assert_eq!(at(Growth::Taming, 1), 905);
+        assert_eq!(at(Growth::Taming, 9), 505);
     }
 
     #[test]

@@ -616,6 +616,32 @@ impl DensityControl {
         Ok(())
     }
 
+    /// Records decisions that remove exactly `remove` (rows of `state`, each below its count)
+    /// and keep every other row, in place of [`DensityControl::record_decide`]; follow it with
+    /// [`DensityControl::apply`]. The decisions are uploaded at once (a one-off submission):
+    /// for steps that wait for the device anyway (MCMC's refinement, whose plan is the host's).
+    pub fn record_remove_rows(&mut self, state: &SplatState, remove: &[u32]) -> anyhow::Result<()> {
+        let count = state.count();
+        ensure!(
+            count <= self.stats.capacity(),
+            "density control: {count} Gaussians but statistics for {}",
+            self.stats.capacity()
+        );
+        self.ensure_scratch(state.capacity().max(count))?;
+        let mut words = vec![0u32; count];
+        for &r in remove {
+            ensure!(
+                (r as usize) < count,
+                "density control: row {r} to remove, of {count} Gaussians"
+            );
+            words[r as usize] = DECIDE_REMOVE;
+        }
+        self.decisions.upload(&words)?;
+        self.decided = Some(count);
+        self.last_budget = None;
+        Ok(())
+    }
+
     /// Applies the recorded decisions: submits everything recorded in `rec` so far, reads the
     /// new count, moves every per-Gaussian buffer into the new layout in place (after growing
     /// the state's buffers when the count outgrows its capacity), zeroes the statistics, and
