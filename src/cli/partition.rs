@@ -82,10 +82,7 @@ fn parse_grid(s: &str) -> Result<(usize, usize), String> {
 }
 
 pub(super) fn parse_count(s: &str) -> Result<u64, String> {
-    match Budget::parse(s)? {
-        Budget::Count(n) => Ok(n as u64),
-        Budget::TimesInitial(_) => Err(format!("'{s}': give a count (2M, 500k), not a multiple")),
-    }
+    Budget::parse_count(s).map(|n| n as u64)
 }
 
 pub fn run(args: &PartitionArgs) -> anyhow::Result<()> {

@@ -94,7 +94,7 @@ pub struct TradeArgs {
     pub densify_abs_grad: bool,
     /// Every run trains under the same cap on the number of Gaussians (as `train
     /// --max-gaussians`): at the cap the runs compare at one count.
-    #[arg(long, value_name = "N", value_parser = crate::cli::train::parse_max_gaussians)]
+    #[arg(long, value_name = "N", value_parser = lpmsplat::train::density::growth::Budget::parse_count)]
     pub max_gaussians: Option<usize>,
     /// The Gaussian budget: a count (500k, 2.5M), a multiple of the initial model's (3x), or a
     /// multiple of ADC's own final count at the same seed (0.5x-adc). adc-exact* and mcmc end

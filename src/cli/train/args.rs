@@ -12,6 +12,7 @@ use lpmsplat::lpm::{ConeRadius, NeighbourChoice, ZoneGeometry};
 use lpmsplat::models::{BaseModel, ModelOptions};
 use lpmsplat::scene::Scene;
 use lpmsplat::train::config::ChildTime;
+use lpmsplat::train::density::growth::Budget;
 use lpmsplat::train::loss::LossLayout;
 use lpmsplat::train::passes::world_culls::N3dvCulls;
 use lpmsplat::train::schedule::DensitySchedule;
@@ -193,7 +194,7 @@ pub struct TrainArgs {
     /// whose statistic is furthest over their own threshold (LPM's lowered one inside its
     /// zones), as many as fit; LPM's and the models' point additions stop at the cap too.
     /// Default: no cap
-    #[arg(long, value_name = "N", value_parser = parse_max_gaussians)]
+    #[arg(long, value_name = "N", value_parser = Budget::parse_count)]
     pub max_gaussians: Option<usize>,
     /// spacetime-lite, spacetime-full: the temporal centre of clones and split children: random (uniform over
     /// the segment, the official rule) or parent.
@@ -604,15 +605,6 @@ pub(super) fn check_flags(args: &TrainArgs) -> anyhow::Result<()> {
 }
 
 /// `--max-gaussians N`: a positive count.
-pub fn parse_max_gaussians(s: &str) -> Result<usize, String> {
-    match s.trim().parse::<usize>() {
-        Ok(n) if n > 0 => Ok(n),
-        _ => Err(format!(
-            "'{s}' is not a Gaussian count. Fix: give a positive whole number, e.g. 500000"
-        )),
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -9,7 +9,7 @@ mod progress;
 mod setup;
 pub(crate) mod strategy_args;
 
-pub use args::{parse_max_gaussians, TrainArgs};
+pub use args::TrainArgs;
 use lpmsplat::initial::initial_model;
 
 pub use strategy_args::StrategyName;

@@ -59,6 +59,18 @@ impl Budget {
             _ => Err(bad()),
         }
     }
+
+    /// A Gaussian count in `--budget`'s count forms (`500000`, `500k`, `2.5M`), not a multiple:
+    /// what `--max-gaussians` and the other count flags take.
+    pub fn parse_count(s: &str) -> Result<usize, String> {
+        match Budget::parse(s) {
+            Ok(Budget::Count(n)) => Ok(n),
+            _ => Err(format!(
+                "'{s}' is not a Gaussian count. Fix: give a positive count, e.g. 500000, 500k or \
+                 2.5M"
+            )),
+        }
+    }
 }
 
 /// How the room grows from the initial count to the budget.
@@ -212,6 +224,20 @@ pub fn step_index(iteration: u32, from: u32, until: u32, interval: u32) -> (u32,
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_count_parses_in_the_budgets_count_forms_and_refuses_a_multiple() {
+        assert_eq!(Budget::parse_count("500000"), Ok(500_000));
+        assert_eq!(Budget::parse_count(" 2.5M"), Ok(2_500_000));
+        assert_eq!(Budget::parse_count("500k"), Ok(500_000));
+        for bad in ["3x", "0", "-1", "", "k", "1e400"] {
+            let e = Budget::parse_count(bad).unwrap_err();
+            assert!(
+                e.contains("not a Gaussian count") && e.contains("500k"),
+                "{bad}: {e}"
+            );
+        }
+    }
 
     #[test]
     fn budgets_parse_as_counts_or_multiples_and_a_bad_one_says_the_forms() {
