@@ -186,7 +186,8 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                     eprintln!(
                         "bench trade: budget {t} below the {initial} initial Gaussians of seed \
                          {seed}: its runs start from {t} of them, drawn at random (the same draw \
-                         for each; mcmc-spread's spread over the cloud)"
+                         for each; mcmc-spread's spread over the cloud; mcmc-keep's kept whole, \
+                         falling to {t})"
                     );
                     drawn_told.push((t, seed));
                 }
