@@ -186,7 +186,7 @@ mod tests {
         let positions: Vec<[f64; 3]> = (0..20)
             .map(|i| [i as f64 * 0.3, (i % 3) as f64, (i % 5) as f64 * 0.1])
             .collect();
-        from_sfm_points(&positions, &vec![[10, 20, 30]; 20], 1).unwrap()
+        from_sfm_points(&positions, &[[10, 20, 30]; 20], 1).unwrap()
     }
 
     #[test]
