@@ -57,6 +57,15 @@ pub fn bad_input<T>(
     Err(InputError::new(file, field, problem, fix).into())
 }
 
+/// The text of `path`, or an input error naming the file that says it cannot be read as text,
+/// with `fix`.
+pub fn read_text(path: &Path, fix: &str) -> anyhow::Result<String> {
+    match std::fs::read_to_string(path) {
+        Ok(t) => Ok(t),
+        Err(e) => bad_input(path, "file", format!("cannot be read as text: {e}"), fix),
+    }
+}
+
 /// Writes a file atomically: to a temporary sibling first, then renamed over the target, so a
 /// failed run never leaves a half-written file or destroys an existing one.
 pub fn write_atomic(

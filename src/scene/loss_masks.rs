@@ -74,17 +74,7 @@ pub fn read(root: &Path, names: &[&str]) -> anyhow::Result<Option<LossMasks>> {
     }
     let fix_file =
         "write it as partition --loss-masks does, or remove it to learn from every pixel";
-    let text = match std::fs::read_to_string(&path) {
-        Ok(t) => t,
-        Err(e) => {
-            return bad_input(
-                &path,
-                "file",
-                format!("cannot be read as text: {e}"),
-                fix_file,
-            )
-        }
-    };
+    let text = crate::error::read_text(&path, fix_file)?;
     let json: serde_json::Value = match serde_json::from_str(&text) {
         Ok(j) => j,
         Err(e) => return bad_input(&path, "file", format!("is not JSON: {e}"), fix_file),

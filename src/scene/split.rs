@@ -22,17 +22,10 @@ pub fn listed_split(
     if !path.is_file() {
         return Ok(None);
     }
-    let text = match std::fs::read_to_string(&path) {
-        Ok(t) => t,
-        Err(e) => {
-            return bad_input(
-                &path,
-                "file",
-                format!("cannot be read as text: {e}"),
-                "write one view name a line, or remove the file to hold out every 8th view",
-            )
-        }
-    };
+    let text = crate::error::read_text(
+        &path,
+        "write one view name a line, or remove the file to hold out every 8th view",
+    )?;
     let index: std::collections::HashMap<&str, usize> = views
         .iter()
         .enumerate()

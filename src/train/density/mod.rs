@@ -587,16 +587,8 @@ impl DensityControl {
         lo: [f32; 3],
         hi: [f32; 3],
     ) -> anyhow::Result<()> {
-        let count = state.count();
-        ensure!(
-            count <= self.stats.capacity(),
-            "density control: {count} Gaussians but statistics for {}",
-            self.stats.capacity()
-        );
-        self.ensure_scratch(state.capacity().max(count))?;
-        self.decided = Some(count);
         // No budget on a cull (it only removes).
-        self.last_budget = None;
+        let count = self.begin_removal(state)?;
         if count == 0 {
             return Ok(());
         }
@@ -621,13 +613,7 @@ impl DensityControl {
     /// [`DensityControl::apply`]. The decisions are uploaded at once (a one-off submission):
     /// for steps that wait for the device anyway (MCMC's refinement, whose plan is the host's).
     pub fn record_remove_rows(&mut self, state: &SplatState, remove: &[u32]) -> anyhow::Result<()> {
-        let count = state.count();
-        ensure!(
-            count <= self.stats.capacity(),
-            "density control: {count} Gaussians but statistics for {}",
-            self.stats.capacity()
-        );
-        self.ensure_scratch(state.capacity().max(count))?;
+        let count = self.begin_removal(state)?;
         let mut words = vec![0u32; count];
         for &r in remove {
             ensure!(
@@ -637,9 +623,22 @@ impl DensityControl {
             words[r as usize] = DECIDE_REMOVE;
         }
         self.decisions.upload(&words)?;
+        Ok(())
+    }
+
+    /// What a step that only removes sets up before writing its decisions: scratch for the
+    /// state, the count `apply` will check, and no budget cut. Returns the count.
+    fn begin_removal(&mut self, state: &SplatState) -> anyhow::Result<usize> {
+        let count = state.count();
+        ensure!(
+            count <= self.stats.capacity(),
+            "density control: {count} Gaussians but statistics for {}",
+            self.stats.capacity()
+        );
+        self.ensure_scratch(state.capacity().max(count))?;
         self.decided = Some(count);
         self.last_budget = None;
-        Ok(())
+        Ok(count)
     }
 
     /// Applies the recorded decisions: submits everything recorded in `rec` so far, reads the
