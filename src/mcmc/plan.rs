@@ -151,6 +151,10 @@ pub fn dead_rows(logits: &[f32], min_opacity: f64) -> Vec<u32> {
 /// increasing order: what a falling budget curve takes away (`--budget-draw keep`). All rows
 /// when `remove` is at least their number.
 pub fn lowest_opacity_rows(logits: &[f32], remove: usize) -> Vec<u32> {
+    // Every refinement asks, and on a rising curve the answer is none: no sort then.
+    if remove == 0 {
+        return Vec::new();
+    }
     let mut order: Vec<u32> = (0..logits.len() as u32).collect();
     let key = |i: u32| {
         let l = logits[i as usize];

@@ -90,15 +90,16 @@ pub fn view_mask(
         .collect()
 }
 
-/// Every training view's mask of a block: `(view name, cells)` for the views of `names`.
+/// Every training view's mask of a block: `(view name, cells)` for the views of `names`, from
+/// the scene's points and their ground coordinates `ground_xy`.
 pub fn block_masks(
     scene: &Scene,
     ground: &GroundFrame,
+    ground_xy: &[[f64; 2]],
     region: &Rect,
     names: &[String],
 ) -> Vec<(String, Vec<bool>)> {
     let positions: &[[f64; 3]] = scene.points.as_ref().map_or(&[], |p| &p.positions);
-    let ground_xy: Vec<[f64; 2]> = positions.iter().map(|&p| ground.coordinates(p).0).collect();
     let by_name: std::collections::HashMap<&str, &View> =
         scene.views.iter().map(|v| (v.name.as_str(), v)).collect();
     names
@@ -107,7 +108,7 @@ pub fn block_masks(
             let view = by_name.get(name.as_str())?;
             Some((
                 name.clone(),
-                view_mask(view, positions, &ground_xy, ground, region),
+                view_mask(view, positions, ground_xy, ground, region),
             ))
         })
         .collect()
@@ -129,9 +130,21 @@ pub fn write_block_masks(
          none. Fix: drop --loss-masks",
         scene.root.display()
     );
+    // The points' ground coordinates, once for every block.
+    let positions: &[[f64; 3]] = scene.points.as_ref().map_or(&[], |p| &p.positions);
+    let ground_xy: Vec<[f64; 2]> = positions
+        .iter()
+        .map(|&p| plan.ground.coordinates(p).0)
+        .collect();
     let mut shares = Vec::with_capacity(plan.blocks.len());
     for block in &plan.blocks {
-        let masks = block_masks(scene, &plan.ground, &block.region, &block.train_views);
+        let masks = block_masks(
+            scene,
+            &plan.ground,
+            &ground_xy,
+            &block.region,
+            &block.train_views,
+        );
         let share = masks
             .iter()
             .map(|(_, c)| c.iter().filter(|&&b| b).count() as f64 / c.len() as f64)
