@@ -13,7 +13,7 @@ const fn run(name: &'static str, colour: [u8; 3], what: &'static str) -> Run {
     Run { name, colour, what }
 }
 
-pub const RUNS: [Run; 32] = [
+pub const RUNS: [Run; 33] = [
     run("adc", [40, 40, 40], "ADC, the base model's own density control"),
     run("adc-threshold-1e-4", [200, 120, 0], "ADC with its gradient threshold halved to 1e-4 (alias adc-1e-4)"),
     run("adc+lpm", [220, 30, 30], "ADC + LPM with our rules (`train --lpm`; alias lpm)"),
@@ -34,7 +34,7 @@ pub const RUNS: [Run; 32] = [
     run("adc-exact", [20, 130, 130], "ADC at an exact budget: the best-scoring candidates its growth curve has room for (`--strategy adc-exact`; --budget, or adc's count under --match-adc-count)"),
     run("adc-exact+lpm", [240, 60, 120], "the same guided by LPM's zone weights (count-neutral)"),
     run("adc-exact+lpm-lowered", [140, 20, 60], "the same ranked over LPM's lowered threshold, the paper's rule (`--lpm-rank lowered`)"),
-    run("mcmc", [0, 90, 200], "3DGS as MCMC at --budget (`--strategy mcmc`)"),
+    run("mcmc", [0, 90, 200], "3DGS as MCMC at --budget (`--strategy mcmc`; a start above the budget kept whole and falling to it, or as --budget-draw says)"),
     run("mcmc+lpm", [250, 170, 0], "MCMC guided by LPM: relocation targets and growth sources drawn ∝ opacity × the zone weight"),
     run("adc-exact+lpm-local", [180, 0, 90], "the exact budget guided by zones local by construction (`--lpm-zone local`: one a block, a depth band of observed points, ≤ 1 % of the model)"),
     run("mcmc+lpm-local", [200, 120, 0], "MCMC guided by local zones"),
@@ -45,6 +45,7 @@ pub const RUNS: [Run; 32] = [
     run("mcmc-spread", [0, 40, 120], "the same drawn spread over the cloud: one Gaussian from each cell of the finest grid the budget allows (`--budget-draw spread --budget-refit-scales`)"),
     run("mcmc-start", [100, 200, 250], "MCMC from its own start as gsplat ships it: opacity 0.5, a tenth of the neighbours' spacing (`--init-opacity 0.5 --init-scale 0.1`)"),
     run("mcmc-keep", [20, 160, 200], "MCMC from every initial Gaussian at a budget below them: the count falls to the budget along the densify window, the least opaque removed at each refinement (`--budget-draw keep`)"),
+    run("mcmc-drawn", [70, 70, 200], "MCMC from a start above the budget drawn down to it at random (`--budget-draw random`): what mcmc ran until keep became its default"),
     run("mcmc-opaque", [160, 60, 20], "MCMC from points of opacity 0.5 at the neighbours' spacing (`--init-opacity 0.5`)"),
 ];
 

@@ -268,10 +268,10 @@ fn local_zones_never_hold_more_than_their_share_of_the_model() {
     }
 }
 
-/// A budget below the initial count (`0.5x`): the run starts from that many of the SfM points
-/// (drawn at random; the exact budget's run here spread over the cloud, its scales refitted)
-/// and ends densification there, MCMC and the exact budget alike, rather than training the
-/// whole start and cutting it later. config.json says how the start was drawn.
+/// A budget below the initial count (`0.5x`) with a draw: the run starts from that many of the
+/// SfM points (the exact budget's by default at random; MCMC's here as named, spread over the
+/// cloud, its scales refitted) and ends densification there, rather than training the whole
+/// start and cutting it later. config.json says how the start was drawn.
 #[test]
 fn a_budget_below_the_start_draws_the_start_down_to_it() {
     let dir = tempfile::tempdir().unwrap();
@@ -281,9 +281,9 @@ fn a_budget_below_the_start_draws_the_start_down_to_it() {
     let initial = count_at(&history_counts(&full), 10);
     let half = (0.5 * initial as f64).round() as u64;
     for (strategy, draw) in [
-        ("mcmc", &[][..]),
+        ("adc-exact", &[][..]),
         (
-            "adc-exact",
+            "mcmc",
             &["--budget-draw", "spread", "--budget-refit-scales"][..],
         ),
     ] {
@@ -319,24 +319,14 @@ fn a_budget_below_the_start_draws_the_start_down_to_it() {
     }
 }
 
-/// `--budget-draw keep`: MCMC starts from every initial Gaussian and falls to the budget along
-/// the densify window (two steps: half the way at the first, the budget at the last), the
-/// least opaque removed; a strategy that cannot remove is refused.
+/// MCMC's default below its start (`--budget-draw keep`): it starts from every initial Gaussian
+/// and falls to the budget along the densify window (two steps: half the way at the first, the
+/// budget at the last), the least opaque removed; a strategy that cannot remove is refused.
 #[test]
 fn a_kept_start_falls_to_the_budget_under_mcmc_and_is_refused_elsewhere() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("keep");
-    let o = train(
-        &out,
-        &[
-            "--strategy",
-            "mcmc",
-            "--budget",
-            "0.5x",
-            "--budget-draw",
-            "keep",
-        ],
-    );
+    let o = train(&out, &["--strategy", "mcmc", "--budget", "0.5x"]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{err}");
     assert!(err.contains("starting from all of them"), "{err}");

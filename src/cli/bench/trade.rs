@@ -185,9 +185,13 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                 if !drawn_told.contains(&(t, seed)) {
                     eprintln!(
                         "bench trade: budget {t} below the {initial} initial Gaussians of seed \
-                         {seed}: its runs start from {t} of them, drawn at random (the same draw \
-                         for each; mcmc-spread's spread over the cloud; mcmc-keep's kept whole, \
-                         falling to {t})"
+                         {seed}: the adc runs start from {t} of them, drawn at random (the same \
+                         draw for each); the mcmc runs {} (mcmc-drawn's drawn at random, \
+                         mcmc-spread's spread over the cloud, mcmc-keep's kept whole)",
+                        match super::trade_runs::mcmc_draw(args) {
+                            Draw::Keep => format!("keep their start whole, falling to {t}"),
+                            d => format!("are drawn ({})", d.name()),
+                        }
                     );
                     drawn_told.push((t, seed));
                 }
@@ -205,8 +209,9 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
             if let Some(c) = &lpm {
                 c.validate()?;
             }
-            // A kept start (mcmc-keep) falls from the initial count to the budget.
-            let start = match run_draw(name).0 {
+            // A kept start (mcmc's by default) falls from the initial count to the budget.
+            let draw = run_draw(name, super::trade_runs::mcmc_draw(args));
+            let start = match draw.0 {
                 Draw::Keep => initial,
                 _ => target.map_or(initial, |t| t.min(initial)),
             };
@@ -222,7 +227,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                 cfg,
                 lpm,
                 mcmc,
-                draw: run_draw(name),
+                draw,
                 look: run_look(name),
                 trainer: None,
                 seconds: 0.0,

@@ -111,6 +111,13 @@ pub struct TradeArgs {
     /// (5 % a step; mcmc's default).
     #[arg(long, value_name = "CURVE", value_parser = lpmsplat::train::density::growth::Growth::parse)]
     pub budget_growth: Option<lpmsplat::train::density::growth::Growth>,
+    /// How the mcmc runs not named for a draw (mcmc, mcmc+lpm*, mcmc-start, mcmc-opaque) come
+    /// down to a budget below the start: keep (the default, as `train --strategy mcmc`),
+    /// random or spread (`train --budget-draw`). The adc runs always draw at random;
+    /// mcmc-drawn, mcmc-refit, mcmc-spread and mcmc-keep name their own. Until keep became
+    /// the default every mcmc run drew at random: `--budget-draw random` repeats those figures.
+    #[arg(long, value_enum, value_name = "DRAW")]
+    pub budget_draw: Option<lpmsplat::splats::budget_draw::Draw>,
     /// LPM runs: a zone's candidate's score weight under a budget (as `train
     /// --lpm-zone-weight`; default 1.5).
     #[arg(long, value_name = "W")]
@@ -150,6 +157,7 @@ pub fn settings_json(args: &TradeArgs) -> serde_json::Value {
         "match_adc_count": args.match_adc_count,
         "budget": lpmsplat::bench::budget::BenchBudget::setting(&args.budget),
         "budget_growth": args.budget_growth.map(|g| g.name()),
+        "budget_draw": (!args.budget.is_empty()).then(|| crate::cli::bench::trade_runs::mcmc_draw(args).name()),
         "lpm_zone_weight": args.lpm_zone_weight,
         "lpm_surface_share": args.lpm_surface_share,
         "init": format!("{:?}", args.init).to_lowercase(),

@@ -107,6 +107,13 @@ fn settings_of(json: &Value) -> (serde_json::Map<String, Value>, bool) {
         ] {
             m.entry(k).or_insert(Value::Null);
         }
+        // Before --budget-draw: every mcmc run below its start drew it at random.
+        let drew = if m["budget"].is_null() {
+            Value::Null
+        } else {
+            Value::from("random")
+        };
+        m.entry("budget_draw").or_insert(drew);
         return (m, true);
     }
     let mut m = serde_json::Map::new();

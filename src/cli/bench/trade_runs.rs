@@ -86,14 +86,22 @@ pub fn abs_grad_applies(model: BaseModel) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// How run `name`'s start is drawn down to a budget below it: the draw and whether the kept
+/// How the mcmc runs that name no draw come down to a budget below their start
+/// (`--budget-draw`; by default kept whole, as `train --strategy mcmc`).
+pub fn mcmc_draw(args: &TradeArgs) -> Draw {
+    args.budget_draw.unwrap_or(Draw::Keep)
+}
+
+/// How run `name`'s start comes down to a budget below it: the draw and whether the kept
 /// Gaussians' scales are refitted to their new spacing (`train --budget-draw`,
-/// `--budget-refit-scales`).
-pub fn run_draw(name: &str) -> (Draw, bool) {
+/// `--budget-refit-scales`). `mcmc`: the draw of the mcmc runs that name none.
+pub fn run_draw(name: &str, mcmc: Draw) -> (Draw, bool) {
     match name {
+        "mcmc-drawn" => (Draw::Random, false),
         "mcmc-refit" => (Draw::Random, true),
         "mcmc-spread" => (Draw::Spread, true),
         "mcmc-keep" => (Draw::Keep, false),
+        _ if name.starts_with("mcmc") => (mcmc, false),
         _ => (Draw::Random, false),
     }
 }

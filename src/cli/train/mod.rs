@@ -28,9 +28,9 @@ use progress::TrainingLog;
 use setup::{resume_hint, save_after_oom};
 use std::time::Instant;
 
-/// `--budget-draw keep`: the start is kept whole and the strategy's curve falls to the budget.
+/// `--budget-draw keep` (MCMC's default): the start is kept whole and the strategy's curve falls to the budget.
 fn sa_keeps(args: &TrainArgs) -> bool {
-    args.density_strategy.budget_draw == Draw::Keep
+    args.density_strategy.draw() == Draw::Keep
 }
 
 pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
@@ -96,14 +96,14 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
                 "budget {t} below the {} initial Gaussians: starting from {t} of them, drawn \
                  {}{}",
                 init.len(),
-                match sa.budget_draw {
+                match sa.draw() {
                     Draw::Random => "at random",
                     Draw::Spread => "spread over the cloud",
                     Draw::Keep => "(kept)",
                 },
                 if refit { ", scales refitted" } else { "" }
             );
-            lpmsplat::splats::budget_draw::draw_down(init, t, args.seed, sa.budget_draw, refit)
+            lpmsplat::splats::budget_draw::draw_down(init, t, args.seed, sa.draw(), refit)
         }
         _ => init,
     };

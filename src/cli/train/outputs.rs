@@ -223,7 +223,7 @@ impl Finished<'_> {
                 let sa = &args.density_strategy;
                 if sa.budget.is_some() {
                     cfg["budget_draw"] = serde_json::json!({
-                        "draw": sa.budget_draw.name(),
+                        "draw": sa.draw().name(),
                         "refit_scales": sa.budget_refit_scales && args.init_ply.is_none(),
                     });
                 }
