@@ -136,6 +136,22 @@ struct RasterPush {
     tile_offset: u32,
 }
 
+/// The median-depth pass (`glsl/render/median_depth.comp`) and its output.
+struct MedianDepth {
+    pipe: ComputePipeline,
+    /// One float a pixel (allocated by the first frame, regrown with the capacity).
+    depth: Option<GpuBuffer<f32>>,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct MedianPush {
+    rc: RenderConstants,
+    camera_index: u32,
+    /// The band's first tile.
+    tile_offset: u32,
+}
+
 /// What a frame needs besides the splats and the camera buffer.
 #[derive(Clone, Copy)]
 pub struct FrameSettings<'a> {
@@ -245,6 +261,9 @@ pub struct Renderer {
     raster_features: Option<((u32, bool), ComputePipeline)>,
     /// The last frame's feature channels, `[pix·channels + c]` (when it had some).
     feature_image: Option<GpuBuffer<f32>>,
+    /// The median-depth pass and its per-pixel output, when asked for
+    /// ([`Renderer::with_median_depth`]).
+    median: Option<MedianDepth>,
     depth_sort: RadixSort,
     tile_sort: RadixSort,
     /// The group counts of the tile-ranges pass and the binning kernels, from the frame's pair
@@ -373,6 +392,7 @@ impl Renderer {
             raster: Self::raster_pipeline(ctx, default_pixels_per_invocation(&ctx.info), 0, false)?,
             raster_features: None,
             feature_image: None,
+            median: None,
             depth_sort: RadixSort::dropping(ctx, capacity.gaussians as u64)?,
             tile_sort: RadixSort::new(ctx, capacity.intersections as u64)?,
             pair_groups: DispatchSize::new(ctx, 2)?,
@@ -393,6 +413,47 @@ impl Renderer {
         self.raster_pixels = pixels;
         self.raster_features = None;
         Ok(self)
+    }
+
+    /// A renderer that also writes every frame's median depth per pixel
+    /// (`glsl/render/median_depth.comp`: the camera depth of the splat that takes the pixel's
+    /// transmittance below ½, 0 where none does), read by [`Renderer::read_median_depth`].
+    pub fn with_median_depth(mut self) -> anyhow::Result<Self> {
+        self.median = Some(MedianDepth {
+            pipe: ComputePipeline::new(
+                &self.ctx,
+                "render/median_depth",
+                shaders::RENDER_MEDIAN_DEPTH,
+                6,
+                std::mem::size_of::<MedianPush>() as u32,
+                256,
+                &[],
+            )?,
+            depth: None,
+        });
+        Ok(self)
+    }
+
+    /// The median-depth output (`None` before the first frame or without
+    /// [`Renderer::with_median_depth`]); tests poison it.
+    pub fn median_depth_buffer(&self) -> Option<&GpuBuffer<f32>> {
+        self.median.as_ref().and_then(|m| m.depth.as_ref())
+    }
+
+    /// The last frame's median depth per pixel, row-major (0 where the transmittance stayed at
+    /// ½ or above); refused for a renderer made without [`Renderer::with_median_depth`].
+    pub fn read_median_depth(&self) -> anyhow::Result<Vec<f32>> {
+        let cam = self
+            .last_camera
+            .ok_or_else(|| anyhow::anyhow!("no frame rendered yet"))?;
+        let depth = self
+            .median
+            .as_ref()
+            .and_then(|m| m.depth.as_ref())
+            .ok_or_else(|| {
+                anyhow::anyhow!("this renderer writes no median depth (with_median_depth)")
+            })?;
+        depth.read_range(0, (cam.width() * cam.height()) as usize)
     }
 
     /// The rasterizer with `extra` feature channels (0: colour only), decoding them in its
@@ -652,6 +713,18 @@ impl Renderer {
                 )?);
             }
         }
+        if let Some(m) = self.median.as_mut() {
+            let need = self.capacity.pixels.max(1);
+            if m.depth.as_ref().is_none_or(|b| b.len() < need) {
+                m.depth = None;
+                m.depth = Some(GpuBuffer::new(
+                    &ctx,
+                    "median depth",
+                    need,
+                    BufferKind::DeviceLocal,
+                )?);
+            }
+        }
         // A decoding rasterizer's stage holds the decoder too.
         let decoded = settings.features.is_some_and(|f| f.decoded_by.is_some());
         let label = if decoded {
@@ -715,6 +788,27 @@ impl Renderer {
             );
             rec.barrier();
             stamp(rec, timestamps.as_deref_mut(), label);
+            if let Some(m) = &self.median {
+                rec.dispatch_named(
+                    &m.pipe,
+                    &[
+                        ("splats", &f.projected.splats),
+                        ("bounds", &f.projected.bounds),
+                        ("sorted_ids", ids),
+                        ("ranges", &f.tile_ranges),
+                        ("cameras", cameras),
+                        ("median_depth", m.depth.as_ref().expect("allocated above")),
+                    ],
+                    &MedianPush {
+                        rc: settings.constants,
+                        camera_index,
+                        tile_offset: band.first_row * camera.tiles_x(),
+                    },
+                    ctx.groups_1d(band.tiles(camera), 1),
+                );
+                rec.barrier();
+                stamp(rec, timestamps.as_deref_mut(), "median depth");
+            }
         }
         self.finish_frame(rec, camera, bands.len());
         Ok(())

@@ -226,7 +226,7 @@ impl Trainer {
         }
         // The passes see the configuration's world lengths in the scene's training frame.
         let frame_config = config.in_training_frame(&scene.frame);
-        let mut model_rules = passes::rules_for_config(&frame_config, scene, &init)?;
+        let mut model_rules = passes::rules_for_config(ctx, &frame_config, scene, &init)?;
         let mut init = init;
         if fresh {
             for rule in model_rules.iter_mut() {

@@ -38,18 +38,25 @@ fn row_pairs(r: &Renderer, cam: &CameraGpu) -> Vec<u64> {
         .collect()
 }
 
-/// Every per-pixel output of the last frame of `r`.
-fn outputs(r: &Renderer, cam: &CameraGpu) -> (Vec<u32>, Vec<u32>, Vec<u32>) {
+/// Every per-pixel output of the last frame of `r` (the median depth too, where it writes one).
+fn outputs(r: &Renderer, cam: &CameraGpu) -> [Vec<u32>; 4] {
     let px = (cam.width() * cam.height()) as usize;
     let bits = |v: Vec<f32>| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-    (
+    [
         bits(r.read_image().unwrap()),
         bits(r.frame.final_t.read_range(0, px).unwrap()),
         r.frame.last_index.read_range(0, px).unwrap(),
-    )
+        match r.median_depth_buffer() {
+            Some(_) => bits(r.read_median_depth().unwrap()),
+            None => Vec::new(),
+        },
+    ]
 }
 
 fn poison(r: &Renderer) {
+    if let Some(m) = r.median_depth_buffer() {
+        m.upload(&vec![f32::NAN; m.len()]).unwrap();
+    }
     let f = &r.frame;
     f.image.upload(&vec![f32::NAN; f.image.len()]).unwrap();
     f.final_t.upload(&vec![f32::NAN; f.final_t.len()]).unwrap();
@@ -104,7 +111,10 @@ fn a_frame_drawn_in_bands_is_the_whole_frame_bit_for_bit() {
         };
         let label = format!("seed {seed}, {n} Gaussians at {w}×{h}, {channels} channels");
 
-        let mut whole = Renderer::for_camera(&ctx, n, &cam).unwrap();
+        let mut whole = Renderer::for_camera(&ctx, n, &cam)
+            .unwrap()
+            .with_median_depth()
+            .unwrap();
         whole
             .render_blocking(&splats, &cameras, 0, &cam, &frame)
             .unwrap();
@@ -125,7 +135,10 @@ fn a_frame_drawn_in_bands_is_the_whole_frame_bit_for_bit() {
         };
 
         let limit = banding_limit(&rows);
-        let mut banded = Renderer::new(&ctx, Capacity::for_frame(n, &cam)).unwrap();
+        let mut banded = Renderer::new(&ctx, Capacity::for_frame(n, &cam))
+            .unwrap()
+            .with_median_depth()
+            .unwrap();
         banded.limit_pairs(limit);
         poison(&banded);
         banded

@@ -387,6 +387,90 @@ fn random_scenes_match_the_reference() {
     ctx.check_validation().unwrap();
 }
 
+/// The median-depth pass (`glsl/render/median_depth.comp`, SpacetimeGaussians' guided sampling
+/// reads it) against the reference's median depth on random scenes: the camera depth of the
+/// splat that takes a pixel's transmittance below ½, 0 where none does. The output is poisoned
+/// before each frame. A pixel whose transmittance lands within f32 rounding of ½ (or that has
+/// a splat at the alpha_min edge) may take the splat before or after; such pixels must be rare.
+#[test]
+fn the_median_depth_pass_matches_the_reference() {
+    let ctx = ctx();
+    let mut renderer = renderer(&ctx).with_median_depth().unwrap();
+    let settings = RenderSettings::default();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(0x3ED1);
+    let (mut pixels, mut with_depth, mut differ) = (0usize, 0usize, 0usize);
+    for seed in 0..seed_count(120) {
+        let n = rng.gen_range(1..200);
+        let g = scenes::random_gaussians(&mut rng, n);
+        let (w, h) = (rng.gen_range(1..70), rng.gen_range(1..70));
+        let (camera, pose) = scenes::random_view(&mut rng, w, h);
+        let label = format!("seed {seed} ({n} Gaussians, {w}×{h})");
+        // Once to size the output, then poisoned and drawn again.
+        render_gpu(
+            &ctx,
+            &mut renderer,
+            &g,
+            0,
+            &camera,
+            &pose,
+            [0.0; 3],
+            &settings,
+        );
+        let out = renderer.median_depth_buffer().unwrap();
+        out.upload(&vec![f32::NAN; out.len()]).unwrap();
+        let (frame, exact) = render_gpu(
+            &ctx,
+            &mut renderer,
+            &g,
+            0,
+            &camera,
+            &pose,
+            [0.0; 3],
+            &settings,
+        );
+        let gpu = renderer.read_median_depth().unwrap();
+        let r = reference::render(&exact, &camera, &pose, 0, [0.0; 3], &settings).unwrap();
+        let footprints: Vec<Footprint> = frame
+            .projected
+            .iter()
+            .map(|p| Footprint {
+                mean2d: [p.mean_x as f64, p.mean_y as f64],
+                conic: [p.conic_a as f64, p.conic_b as f64, p.conic_c as f64],
+                opacity: p.opacity as f64,
+            })
+            .collect();
+        let edges = alpha_min_edges(&r.projected, &footprints, &r.bins, &camera, &settings, 1e-4);
+        let mut here = 0;
+        for (pix, (&d, want)) in gpu.iter().zip(&r.raster.median_depth).enumerate() {
+            assert!(d.is_finite() && d >= 0.0, "{label}: pixel {pix} wrote {d}");
+            let same = match want {
+                Some(z) => d > 0.0 && (d as f64 - z).abs() <= 1e-5 * (1.0 + z.abs()),
+                None => d == 0.0,
+            };
+            if !same {
+                // Only where a choice within rounding exists: T at the pixel's end near ½ or
+                // below it (the crossing lies somewhere in the list), or an alpha_min edge.
+                assert!(
+                    edges[pix] > 0 || r.raster.final_transmittance[pix] < 0.5 + 1e-4,
+                    "{label}: pixel {pix} median {d} vs {want:?}"
+                );
+                here += 1;
+            }
+        }
+        assert!(
+            here <= gpu.len() / 200 + 1,
+            "{label}: {here} of {} pixels disagree on the median depth",
+            gpu.len()
+        );
+        pixels += gpu.len();
+        with_depth += r.raster.median_depth.iter().flatten().count();
+        differ += here;
+    }
+    eprintln!("{pixels} pixels, {with_depth} with a median depth, {differ} within rounding");
+    assert!(with_depth > pixels / 10, "the scenes must cover pixels");
+    ctx.check_validation().unwrap();
+}
+
 /// Long thin splats at every angle, faint and opaque: the GPU pairs each with the tiles its
 /// ellipse reaches (glsl/common/tile_rows.glsl), the same lists as the reference's
 /// `Projected::row_tiles`, the same image, and far fewer pairs than the rectangles hold.

@@ -13,9 +13,9 @@ use std::sync::Arc;
 use lpmsplat::gpu::{GpuContext, GpuOptions};
 use lpmsplat::models::BaseModel;
 use lpmsplat::scene::{images, LoadOptions, Scene};
-use lpmsplat::splats::{random_init, GaussianParams, SH_C0};
+use lpmsplat::splats::{random_init, ExtraGroup, ExtraValues, GaussianParams, SH_C0};
 use lpmsplat::train::config::GuidedSamplingSettings;
-use lpmsplat::train::passes::guided_sampling::{error_seeds, ray_points, view_depth};
+use lpmsplat::train::passes::guided_sampling::{error_seeds, ray_points, view_depths};
 use lpmsplat::train::trainer::{TrainConfig, Trainer};
 use rand::SeedableRng;
 
@@ -146,23 +146,62 @@ fn blob(p: &mut GaussianParams, at: [f64; 3], scale: f32, opacity: f64) {
     p.sh_dc.push([(0.5 / SH_C0) as f32; 3]);
 }
 
+/// The view depth is the largest median depth of the engine's render (f32 camera depths), for
+/// a still model as for a video model at a time; a view of faint blobs has none. The median
+/// depth pass itself is held to the f64 reference in tests/gpu/forward.rs.
 #[test]
 fn view_depth_is_the_largest_median_depth() {
+    let ctx = ctx();
     let scene = fixture();
     let v = &scene.views[scene.train[0]];
+    let view = [(v.camera, v.pose)];
     let world = |x: f64, y: f64, z: f64| v.pose.inverse_transform([x, y, z]);
+    let near = |d: Option<f64>, want: f64| d.is_some_and(|d| (d - want).abs() < 1e-5 * want);
     // One opaque blob straight ahead at depth 3, another at depth 6 off to the side.
     let mut p = GaussianParams::empty(0);
     blob(&mut p, world(0.0, 0.0, 3.0), 0.3, 0.99);
-    let one = view_depth(&p, &v.camera, &v.pose).unwrap().unwrap();
-    assert!((one - 3.0).abs() < 1e-6, "{one}");
+    let one = view_depths(&ctx, &p, 0.0, &view).unwrap();
+    assert!(near(one[0], 3.0), "{one:?}");
     blob(&mut p, world(2.0, 0.0, 6.0), 0.6, 0.99);
-    let two = view_depth(&p, &v.camera, &v.pose).unwrap().unwrap();
-    assert!((two - 6.0).abs() < 1e-6, "{two}");
+    // The same view twice: one depth each.
+    let two = view_depths(&ctx, &p, 0.0, &[view[0], view[0]]).unwrap();
+    assert!(
+        two.len() == 2 && two.iter().all(|&d| near(d, 6.0)),
+        "{two:?}"
+    );
     // Faint blobs never take a pixel below ½ transmittance: no depth.
     let mut faint = GaussianParams::empty(0);
     blob(&mut faint, world(0.0, 0.0, 3.0), 0.3, 0.3);
-    assert_eq!(view_depth(&faint, &v.camera, &v.pose).unwrap(), None);
+    assert_eq!(view_depths(&ctx, &faint, 0.0, &view).unwrap(), vec![None]);
+    // A video model is drawn at the time asked for: a blob at depth 3 whose motion carries it
+    // to depth 5 at t = 1 (m₁ along the camera's z in world coordinates).
+    let mut video = GaussianParams::empty(0);
+    blob(&mut video, world(0.0, 0.0, 3.0), 0.3, 0.99);
+    let dz = {
+        let a = world(0.0, 0.0, 3.0);
+        let b = world(0.0, 0.0, 5.0);
+        [0, 1, 2].map(|c| (b[c] - a[c]) as f32)
+    };
+    let mut motion = vec![0.0f32; 9];
+    motion[..3].copy_from_slice(&dz);
+    // A temporal log-scale of 10 keeps the blob opaque at every time in [0, 1].
+    video.extra = [
+        ("motion", motion),
+        ("omega", vec![0.0; 4]),
+        ("trbf_center", vec![0.0]),
+        ("trbf_scale", vec![10.0]),
+    ]
+    .into_iter()
+    .map(|(name, values)| ExtraValues {
+        group: ExtraGroup::new(name, values.len()),
+        values,
+    })
+    .collect();
+    ctx.check_validation().unwrap();
+    let at = |t: f64| view_depths(&ctx, &video, t, &view).unwrap()[0];
+    assert!(near(at(0.0), 3.0), "{:?}", at(0.0));
+    assert!(near(at(1.0), 5.0), "{:?}", at(1.0));
+    ctx.check_validation().unwrap();
 }
 
 fn ctx() -> Arc<GpuContext> {

@@ -24,8 +24,8 @@
 //!
 //! Differences from the official code, each deliberate: the rotation is the identity quaternion
 //! (the official zero quaternion normalises to the identity in its rasterizer); `D` comes from
-//! the f64 reference renderer at a width of at most [`DEPTH_WIDTH`] pixels (the largest median
-//! depth barely depends on resolution), and a camera whose initial render has no pixel with a
+//! the engine's renderer (its median-depth pass) at a width of at most [`DEPTH_WIDTH`] pixels
+//! (the largest median depth barely depends on resolution), and a camera whose initial render has no pixel with a
 //! median depth (the official code would take the maximum of nothing) is not sampled; the
 //! official N3DV world-z cull is not applied (it is scene-specific).
 
@@ -33,10 +33,13 @@ use std::sync::Arc;
 
 use anyhow::Context;
 use rand::{Rng, SeedableRng};
-use rayon::prelude::*;
 
-use crate::reference::{self, RefGaussians, RenderSettings};
+use crate::gpu::{GpuBuffer, GpuContext, Recorder};
+use crate::render::forward::{FrameSettings, Renderer};
+use crate::render::layout::CameraGpu;
+use crate::render::spacetime::{TemporalBuffers, TimedModel};
 use crate::scene::{PinholeCamera, Pose, View};
+use crate::splats::gpu::GpuSplats;
 use crate::splats::knn::mean_sq_dist_knn;
 use crate::splats::GaussianParams;
 use crate::train::config::GuidedSamplingSettings;
@@ -140,29 +143,65 @@ pub fn ray_points(
     out
 }
 
-/// The largest median depth of `still` (a still model) rendered from `camera` at `pose` (at a
-/// width of at most [`DEPTH_WIDTH`]); `None` when no pixel's transmittance falls below ½.
-pub fn view_depth(
-    still: &GaussianParams,
-    camera: &PinholeCamera,
-    pose: &Pose,
-) -> anyhow::Result<Option<f64>> {
-    let cam = if camera.width > DEPTH_WIDTH {
-        let h = ((camera.height as f64 * DEPTH_WIDTH as f64 / camera.width as f64).round() as u32)
-            .max(1);
-        camera.resized(DEPTH_WIDTH, h)
-    } else {
-        *camera
-    };
-    let g = RefGaussians::from_params(still);
-    let out = reference::render(&g, &cam, pose, 0, [0.0; 3], &RenderSettings::default())?;
-    Ok(out
-        .raster
-        .median_depth
+/// The largest median depth of each of `views` (camera, pose) looking at `model` (a video
+/// model at time `t`; a still model as it is), drawn by the engine's renderer at a width of at
+/// most [`DEPTH_WIDTH`] with the default rasterizer constants (`render::forward`'s median-depth
+/// pass); `None` for a view where no pixel's transmittance falls below ½.
+pub fn view_depths(
+    ctx: &Arc<GpuContext>,
+    model: &GaussianParams,
+    t: f64,
+    views: &[(PinholeCamera, Pose)],
+) -> anyhow::Result<Vec<Option<f64>>> {
+    if views.is_empty() {
+        return Ok(Vec::new());
+    }
+    let cams: Vec<CameraGpu> = views
         .iter()
-        .flatten()
-        .copied()
-        .fold(None, |m: Option<f64>, d| Some(m.map_or(d, |m| m.max(d)))))
+        .map(|(camera, pose)| {
+            let cam = if camera.width > DEPTH_WIDTH {
+                let h = ((camera.height as f64 * DEPTH_WIDTH as f64 / camera.width as f64).round()
+                    as u32)
+                    .max(1);
+                camera.resized(DEPTH_WIDTH, h)
+            } else {
+                *camera
+            };
+            CameraGpu::new(&cam, pose)
+        })
+        .collect();
+    let n = model.len();
+    let splats = GpuSplats::upload(ctx, model, n.max(1))?;
+    // A video model is drawn as the still model it is at `t` (the temporal step).
+    let timed = match TemporalBuffers::of(&splats) {
+        Ok(_) => {
+            let timed = TimedModel::new(ctx, &splats, None)?;
+            let mut rec = Recorder::new(ctx)?;
+            rec.begin()?;
+            timed.record(&mut rec, &splats, t as f32)?;
+            rec.submit_and_wait()?;
+            Some(timed)
+        }
+        Err(_) => None,
+    };
+    let still = timed.as_ref().map_or(&splats, |m| &m.instant);
+    let cameras = GpuBuffer::from_slice(ctx, "depth cameras", &cams)?;
+    let mut renderer = Renderer::for_camera(ctx, n.max(1), &cams[0])?.with_median_depth()?;
+    let settings = FrameSettings::plain(still.sh_degree, [0.0; 3]);
+    let mut out = Vec::with_capacity(cams.len());
+    for (i, cam) in cams.iter().enumerate() {
+        renderer.fit_camera(cam)?;
+        renderer.render_blocking(still, &cameras, i as u32, cam, &settings)?;
+        let depth = renderer.read_median_depth()?;
+        out.push(
+            depth
+                .iter()
+                .filter(|&&d| d > 0.0)
+                .fold(None, |m: Option<f32>, &d| Some(m.map_or(d, |m| m.max(d))))
+                .map(f64::from),
+        );
+    }
+    Ok(out)
 }
 
 /// What the sampler did at one step (the CLI prints it; `metrics.json` keeps them).
@@ -288,6 +327,7 @@ impl GuidedSampler {
     /// The sampler of a video scene's training views (`times`: every view's time), with the
     /// view depths of `initial` at the earliest time of each camera.
     pub fn new(
+        ctx: &Arc<GpuContext>,
         settings: GuidedSamplingSettings,
         seed: u64,
         views: &[View],
@@ -317,13 +357,17 @@ impl GuidedSampler {
             .map(|&v| times[v])
             .fold(f64::INFINITY, f64::min);
         let t0 = if t0.is_finite() { t0 } else { 0.0 };
-        let still = crate::reference::spacetime::still_at(initial, t0)
-            .context("guided sampling: the initial model has no temporal groups")?;
-        // One f64 reference render per camera, in parallel (seconds each at 30k Gaussians).
-        let depth = first_view
-            .par_iter()
-            .map(|&v| view_depth(&still, &views[v].camera, &views[v].pose))
-            .collect::<anyhow::Result<Vec<_>>>()?;
+        anyhow::ensure!(
+            crate::render::spacetime::GROUPS
+                .iter()
+                .all(|&(g, _)| initial.extra_values(g).is_some()),
+            "guided sampling: the initial model has no temporal groups"
+        );
+        let cameras: Vec<(PinholeCamera, Pose)> = first_view
+            .iter()
+            .map(|&v| (views[v].camera, views[v].pose))
+            .collect();
+        let depth = view_depths(ctx, initial, t0, &cameras)?;
         let cameras = first_view.len();
         Ok(Self {
             settings,

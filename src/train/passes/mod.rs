@@ -256,6 +256,7 @@ pub fn for_config(
 /// sampling and its Neural 3D Video culls when its settings ask for them), for `scene`'s
 /// training views from `initial`.
 pub fn rules_for_config(
+    ctx: &std::sync::Arc<crate::gpu::GpuContext>,
     config: &TrainConfig,
     scene: &crate::scene::Scene,
     initial: &GaussianParams,
@@ -266,6 +267,7 @@ pub fn rules_for_config(
         scene.view_times.as_deref(),
     ) {
         rules.push(Box::new(guided_sampling::GuidedSampler::new(
+            ctx,
             g,
             config.seed,
             &scene.views,
