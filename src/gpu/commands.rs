@@ -142,9 +142,8 @@ impl Recorder {
         }
     }
 
-    /// Records a dispatch of `groups` workgroups.
-    /// [`Recorder::dispatch`] with each buffer given by the name the kernel's GLSL gives its
-    /// binding (the block's member: `positions`, `g_sh_rest0`, …), in any order: the kernel's
+    /// Records a dispatch of `groups` workgroups, each buffer given by the name the kernel's GLSL
+    /// gives its binding (the block's member: `positions`, `g_sh_rest0`, …), in any order: the kernel's
     /// declaration is the one place binding numbers are written, and a list is never matched
     /// to it by position. Every binding must be named exactly once.
     pub fn dispatch_named<P: Pod>(
@@ -155,10 +154,11 @@ impl Recorder {
         groups: [u32; 3],
     ) {
         let ordered = order_by_name(p, buffers);
-        self.dispatch(p, &ordered, push, groups);
+        self.dispatch_ordered(p, &ordered, push, groups);
     }
 
-    pub fn dispatch<P: Pod>(
+    /// The dispatch itself, the buffers in binding order ([`order_by_name`]'s).
+    fn dispatch_ordered<P: Pod>(
         &mut self,
         p: &ComputePipeline,
         buffers: &[&dyn Bindable],
@@ -176,16 +176,18 @@ impl Recorder {
         }
     }
 
-    /// Records a dispatch whose group counts the GPU wrote into `args` at `offset` (3 × u32).
-    pub fn dispatch_indirect<P: Pod>(
+    /// Records a dispatch whose group counts the GPU wrote into `args` at `offset` (3 × u32),
+    /// the buffers by name as for [`Recorder::dispatch_named`].
+    pub fn dispatch_indirect_named<P: Pod>(
         &mut self,
         p: &ComputePipeline,
-        buffers: &[&dyn Bindable],
+        buffers: &[(&str, &dyn Bindable)],
         push: &P,
         args: &GpuBuffer<u32>,
         offset_elems: usize,
     ) {
-        self.bind(p, buffers, bytemuck::bytes_of(push));
+        let ordered = order_by_name(p, buffers);
+        self.bind(p, &ordered, bytemuck::bytes_of(push));
         unsafe {
             self.ctx
                 .device

@@ -354,9 +354,9 @@ impl LpmGpu {
                 groups,
             );
             rec.barrier();
-            rec.dispatch(
+            rec.dispatch_named(
                 &self.select_pick,
-                &[&sel.state, &sel.hist],
+                &[("state", &sel.state), ("hist", &sel.hist)],
                 &PickPush { pass, ..pick },
                 [1, 1, 1],
             );
@@ -522,16 +522,20 @@ impl LpmGpu {
         };
         let sum_groups = pixels.div_ceil(WG * SUM_ITEMS);
         rec.barrier();
-        rec.dispatch(
+        rec.dispatch_named(
             &self.error_sums,
-            &[img.render, img.gt, &self.partials],
+            &[
+                ("render", img.render),
+                ("gt", img.gt),
+                ("partials", &self.partials),
+            ],
             &image_push,
             self.ctx.groups_1d(sum_groups as u64, 1),
         );
         rec.barrier();
-        rec.dispatch(
+        rec.dispatch_named(
             &self.error_mean,
-            &[&self.partials, &self.scales],
+            &[("partials", &self.partials), ("scales", &self.scales)],
             &MeanPush {
                 groups: sum_groups,
                 pixels,
@@ -574,9 +578,13 @@ impl LpmGpu {
                 ranks: 2,
             },
         );
-        rec.dispatch(
+        rec.dispatch_named(
             &self.error_blocks,
-            &[&self.error, &self.error_select.state, block_counts],
+            &[
+                ("error", &self.error),
+                ("state", &self.error_select.state),
+                ("counts", block_counts),
+            ],
             &BlocksPush {
                 width: w,
                 height: h,

@@ -573,9 +573,13 @@ impl LpmStrategy {
         // strategy that takes a guide (MCMC), the zone weights alone, and its own step.
         let count = t.state.count();
         if self.inner.takes_guide() {
-            t.rec.dispatch(
+            t.rec.dispatch_named(
                 &self.threshold_scale,
-                &[&self.flags, &self.scale, &self.weight],
+                &[
+                    ("flags", &self.flags),
+                    ("scale", &self.scale),
+                    ("weight_out", &self.weight),
+                ],
                 &ScalePush {
                     count: count as u32,
                     ratio: 1.0,
@@ -602,9 +606,13 @@ impl LpmStrategy {
             });
             return Ok(outcome);
         }
-        t.rec.dispatch(
+        t.rec.dispatch_named(
             &self.threshold_scale,
-            &[&self.flags, &self.scale, &self.weight],
+            &[
+                ("flags", &self.flags),
+                ("scale", &self.scale),
+                ("weight_out", &self.weight),
+            ],
             &ScalePush {
                 count: count as u32,
                 ratio: self.config.threshold_ratio,
@@ -617,9 +625,13 @@ impl LpmStrategy {
         t.rec.fill(&self.counters, 0);
         t.rec.barrier();
         let authors = self.config.prune == PruneMode::Authors;
-        t.rec.dispatch(
+        t.rec.dispatch_named(
             &self.lowered_count,
-            &[t.density.decisions(), &self.candidates, &self.counters],
+            &[
+                ("decisions", t.density.decisions()),
+                ("candidates", &self.candidates),
+                ("counters", &self.counters),
+            ],
             &ModePush {
                 count: count as u32,
                 mode: authors as u32,

@@ -151,9 +151,9 @@ impl McmcKernels {
                         continue;
                     }
                     let n = (plan.copies * width) as u64;
-                    rec.dispatch(
+                    rec.dispatch_named(
                         &self.copy_rows,
-                        &[pairs, buf],
+                        &[("pairs", pairs), ("rows", buf)],
                         &RowsPush {
                             count: plan.copies as u32,
                             width: width as u32,

@@ -243,9 +243,9 @@ impl Decoder {
             self.groups(pixels),
         );
         rec.barrier();
-        rec.dispatch(
+        rec.dispatch_named(
             &self.reduce,
-            &[&self.partial, weight_grads],
+            &[("partial", &self.partial), ("grads", weight_grads)],
             &ReducePush {
                 rows: self.rows(pixels) as u32,
                 weights: WEIGHTS as u32,

@@ -61,9 +61,9 @@ impl DispatchSize {
             "dispatch size slot {slot} out of range"
         );
         rec.barrier();
-        rec.dispatch(
+        rec.dispatch_named(
             &self.pipeline,
-            &[counts, &self.args],
+            &[("counts", counts), ("args", &self.args)],
             &Push {
                 count_index,
                 per_group: per_group.clamp(1, u32::MAX as u64) as u32,

@@ -152,9 +152,9 @@ impl SmoothingFilter {
             groups,
         );
         rec.barrier();
-        rec.dispatch(
+        rec.dispatch_named(
             &self.fill,
-            &[&self.values, &self.seen_max],
+            &[("filter3d", &self.values), ("seen_max", &self.seen_max)],
             &CountPush {
                 count: count as u32,
             },

@@ -110,9 +110,9 @@ impl PrefixScan {
         for (l, partials) in self.levels.iter().enumerate() {
             let src: &GpuBuffer<u32> = if l == 0 { data } else { &self.levels[l - 1] };
             let (args, at) = self.sizes.args(l as u32);
-            rec.dispatch_indirect(
+            rec.dispatch_indirect_named(
                 &self.reduce,
-                &[src, partials, counts],
+                &[("data", src), ("partials", partials), ("counts", counts)],
                 &ReducePush {
                     count_index,
                     divisor: divisor as u32,
@@ -139,10 +139,21 @@ impl PrefixScan {
                 total_index: if l == top { total_index } else { u32::MAX },
             };
             if l == top {
-                rec.dispatch(&self.downsweep, &[buf, partials, counts], &push, [1, 1, 1]);
+                rec.dispatch_named(
+                    &self.downsweep,
+                    &[("data", buf), ("partials", partials), ("counts", counts)],
+                    &push,
+                    [1, 1, 1],
+                );
             } else {
                 let (args, at) = self.sizes.args(l as u32);
-                rec.dispatch_indirect(&self.downsweep, &[buf, partials, counts], &push, args, at);
+                rec.dispatch_indirect_named(
+                    &self.downsweep,
+                    &[("data", buf), ("partials", partials), ("counts", counts)],
+                    &push,
+                    args,
+                    at,
+                );
             }
             rec.barrier();
         }

@@ -418,9 +418,9 @@ impl RadixSort {
                 (scratch_keys, scratch_values, keys, values)
             };
             rec.barrier();
-            rec.dispatch_indirect(
+            rec.dispatch_indirect_named(
                 upsweep,
-                &[ki, &self.hist, counts],
+                &[("keys", ki), ("hist", &self.hist), ("counts", counts)],
                 &UpPush {
                     count_index,
                     hist_len_index,
@@ -436,9 +436,16 @@ impl RadixSort {
             let total = dropping.map(|d| d.kept_index);
             self.scan
                 .record(rec, &self.hist, counts, hist_len_index, total);
-            rec.dispatch_indirect(
+            rec.dispatch_indirect_named(
                 scatter,
-                &[ki, vi, ko, vo, &self.hist, counts],
+                &[
+                    ("keys_in", ki),
+                    ("vals_in", vi),
+                    ("keys_out", ko),
+                    ("vals_out", vo),
+                    ("hist", &self.hist),
+                    ("counts", counts),
+                ],
                 &ScatterPush {
                     count_index,
                     shift,

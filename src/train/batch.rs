@@ -103,9 +103,9 @@ impl GradBlend {
                 sg.name(),
                 sg.len()
             );
-            rec.dispatch(
+            rec.dispatch_named(
                 &self.pipe,
-                &[dg, sg],
+                &[("dst", dg), ("src", sg)],
                 &BlendPush { n: n as u32, scale },
                 self.ctx.groups_1d(n as u64, WG),
             );

@@ -374,7 +374,12 @@ impl Loss {
                     sums,
                 );
                 rec.barrier();
-                rec.dispatch(&self.reduce, &[&self.partials, loss_out], &push, [1, 1, 1]);
+                rec.dispatch_named(
+                    &self.reduce,
+                    &[("partials", &self.partials), ("loss_out", loss_out)],
+                    &push,
+                    [1, 1, 1],
+                );
                 rec.dispatch_named(
                     bwd,
                     &[
@@ -429,7 +434,12 @@ impl Loss {
                     sums,
                 );
                 rec.barrier();
-                rec.dispatch(&self.reduce, &[&self.partials, loss_out], &push, [1, 1, 1]);
+                rec.dispatch_named(
+                    &self.reduce,
+                    &[("partials", &self.partials), ("loss_out", loss_out)],
+                    &push,
+                    [1, 1, 1],
+                );
                 rec.dispatch_named(
                     bwd_h,
                     &[

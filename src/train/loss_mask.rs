@@ -102,9 +102,9 @@ impl GpuLossMasks {
             3 * px
         );
         rec.barrier();
-        rec.dispatch(
+        rec.dispatch_named(
             &self.pipe,
-            &[&self.bits, grad],
+            &[("mask", &self.bits), ("grad", grad)],
             &MaskPush {
                 width,
                 height,

@@ -91,8 +91,12 @@ impl NonFiniteCheck {
                 slot: slot as u32,
             };
             let groups = self.ctx.groups_1d(floats as u64, WG);
-            self.rec
-                .dispatch(&self.pipe, &[*buf, &self.first], &push, groups);
+            self.rec.dispatch_named(
+                &self.pipe,
+                &[("values", *buf), ("first", &self.first)],
+                &push,
+                groups,
+            );
         }
         self.rec.barrier();
         self.rec.copy(&self.first, &self.first_host, names.len());

@@ -38,17 +38,17 @@ fn subgroup_scan_matches_host_and_reports_device_subgroup_size() {
         let info = GpuBuffer::<u32>::new(&ctx, "info", 1, BufferKind::DeviceLocal).unwrap();
         let mut rec = Recorder::new(&ctx).unwrap();
         // Poison the outputs so an element the kernel skips is caught.
-        rec.dispatch(
+        rec.dispatch_named(
             &fill,
-            &[&out],
+            &[("data", &out)],
             &[n as u32, 0xDEAD_BEEFu32],
             ctx.groups_1d(n as u64, 64),
         );
         rec.fill(&info, 0);
         rec.barrier();
-        rec.dispatch(
+        rec.dispatch_named(
             &pipe,
-            &[&input, &out, &info],
+            &[("xs", &input), ("ys", &out), ("subgroup_size", &info)],
             &[n as u32, 3u32],
             ctx.groups_1d(n as u64, wg),
         );
@@ -174,9 +174,9 @@ fn large_dispatches_spill_into_y() {
     let mut rec = Recorder::new(&ctx).unwrap();
     rec.fill(&buf, 1);
     rec.barrier();
-    rec.dispatch(
+    rec.dispatch_named(
         &fill,
-        &[&buf],
+        &[("data", &buf)],
         &[n as u32 - 1, 42u32],
         ctx.groups_1d(n as u64 - 1, 32),
     );
@@ -230,9 +230,9 @@ fn held_frees_wait_for_the_last_guard() {
             ComputePipeline::new(&ctx, "fill", shaders::UTIL_FILL_U32, 1, 8, 64, &[]).unwrap();
         let mut rec = Recorder::new(&ctx).unwrap();
         for _ in 0..8 {
-            rec.dispatch(
+            rec.dispatch_named(
                 &fill,
-                &[&buf],
+                &[("data", &buf)],
                 &[n as u32, 7u32],
                 ctx.groups_1d(n as u64, 64),
             );

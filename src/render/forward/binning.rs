@@ -113,15 +113,15 @@ impl Renderer {
         let push = pairing.push(band, slot);
         // 3. Tile counts in depth order, scan, emit pairs, each over the kept Gaussians.
         let (visible_args, visible_at) = self.pair_groups.args(VISIBLE_GROUPS);
-        rec.dispatch_indirect(
+        rec.dispatch_indirect_named(
             &self.gather,
             &[
-                &f.projected.bounds,
-                depth_ids,
-                &f.touched,
-                &f.counts,
-                &self.totals.device,
-                &f.projected.splats,
+                ("bounds", &f.projected.bounds),
+                ("depth_sorted_ids", depth_ids),
+                ("touched", &f.touched),
+                ("counts", &f.counts),
+                ("pair_total", &self.totals.device),
+                ("splats", &f.projected.splats),
             ],
             &push,
             visible_args,
@@ -134,16 +134,16 @@ impl Renderer {
             COUNT_VISIBLE,
             Some(COUNT_INTERSECTIONS),
         );
-        rec.dispatch_indirect(
+        rec.dispatch_indirect_named(
             &self.emit,
             &[
-                &f.projected.bounds,
-                depth_ids,
-                &f.touched,
-                &f.tile_keys,
-                &f.tile_vals,
-                &f.counts,
-                &f.projected.splats,
+                ("bounds", &f.projected.bounds),
+                ("depth_sorted_ids", depth_ids),
+                ("offsets", &f.touched),
+                ("keys", &f.tile_keys),
+                ("vals", &f.tile_vals),
+                ("counts", &f.counts),
+                ("splats", &f.projected.splats),
             ],
             &EmitPush {
                 pairing: push,
@@ -177,9 +177,13 @@ impl Renderer {
         self.pair_groups
             .record(rec, &f.counts, COUNT_STORED_PAIRS, WG as u64, PAIR_GROUPS);
         let (args, at) = self.pair_groups.args(PAIR_GROUPS);
-        rec.dispatch_indirect(
+        rec.dispatch_indirect_named(
             &self.ranges,
-            &[keys, &f.tile_ranges, &f.counts],
+            &[
+                ("keys", keys),
+                ("ranges", &f.tile_ranges),
+                ("counts", &f.counts),
+            ],
             &(),
             args,
             at,
@@ -204,14 +208,14 @@ impl Renderer {
         rec.barrier();
         let (args, at) = self.pair_groups.args(VISIBLE_GROUPS);
         let f = &self.frame;
-        rec.dispatch_indirect(
+        rec.dispatch_indirect_named(
             &self.row_pairs,
             &[
-                &f.projected.bounds,
-                self.depth_ids(),
-                &f.counts,
-                &f.projected.splats,
-                rows,
+                ("bounds", &f.projected.bounds),
+                ("depth_sorted_ids", self.depth_ids()),
+                ("counts", &f.counts),
+                ("splats", &f.projected.splats),
+                ("row_totals", rows),
             ],
             &pairing.push(&TileBand::whole(camera), 0),
             args,

@@ -133,9 +133,13 @@ impl SurfelRegularisers {
         let maps = &renderer.surfel.maps;
         let groups = self.ctx.groups_1d(px as u64, WG);
         let inv_p = 1.0 / px.max(1) as f32;
-        rec.dispatch(
+        rec.dispatch_named(
             &self.surface_depth,
-            &[maps, &f.final_t, &self.surf_depth],
+            &[
+                ("maps", maps),
+                ("final_t", &f.final_t),
+                ("surf_depth", &self.surf_depth),
+            ],
             &DepthPush {
                 pixels: px as u32,
                 depth_ratio: weights.depth_ratio,

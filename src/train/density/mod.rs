@@ -560,9 +560,9 @@ impl DensityControl {
         let Some(cut) = budget::budget_cut(&decisions, &scores, cap) else {
             return Ok(());
         };
-        rec.dispatch(
+        rec.dispatch_named(
             &self.budget,
-            &[&self.decisions, &self.scores],
+            &[("decisions", &self.decisions), ("scores", &self.scores)],
             &BudgetPush {
                 count: count as u32,
                 cut_score: cut.score,
@@ -598,9 +598,12 @@ impl DensityControl {
             hi,
         };
         rec.barrier();
-        rec.dispatch(
+        rec.dispatch_named(
             &self.prune_box,
-            &[&state.params.positions, &self.decisions],
+            &[
+                ("positions", &state.params.positions),
+                ("decisions", &self.decisions),
+            ],
             &push,
             self.ctx.groups_1d(count as u64, WG),
         );
@@ -678,9 +681,13 @@ impl DensityControl {
 
         // Phase 1: slots, scan, and the three numbers the host needs.
         rec.barrier();
-        rec.dispatch(
+        rec.dispatch_named(
             &self.expand,
-            &[&self.decisions, &self.slots, &self.counts],
+            &[
+                ("decisions", &self.decisions),
+                ("slots", &self.slots),
+                ("counts", &self.counts),
+            ],
             &CountPush {
                 count: count as u32,
             },

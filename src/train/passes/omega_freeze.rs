@@ -118,12 +118,12 @@ impl OmegaFreezer {
     ) -> Result<()> {
         rec.barrier();
         if count > 0 {
-            rec.dispatch(
+            rec.dispatch_named(
                 &self.masks,
                 &[
-                    group(params, "omega")?,
-                    group(grads, "omega")?,
-                    &grads.rotations,
+                    ("omega", group(params, "omega")?),
+                    ("g_omega", group(grads, "omega")?),
+                    ("g_rotations", &grads.rotations),
                 ],
                 &(count as u32),
                 self.ctx.groups_1d(count as u64, WG),

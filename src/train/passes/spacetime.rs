@@ -737,9 +737,9 @@ impl ModelPasses for SpacetimePasses {
             return Ok(());
         }
         rec.barrier();
-        rec.dispatch(
+        rec.dispatch_named(
             pipe,
-            &[centres],
+            &[("t_center", centres)],
             &CentresPush {
                 first: new.start as u32,
                 end: new.end as u32,
