@@ -8,15 +8,35 @@
 //! four extra parameter groups and the temporal step before the 3DGS passes,
 //! [`crate::train::passes::spacetime`]).
 
+mod gaussians3d;
+mod mip_splatting;
+pub mod model;
 pub mod options;
+mod pixel_gs;
+mod spacetime;
+mod surfels2d;
 
+pub use model::Model;
 pub use options::ModelOptions;
 
 use crate::splats::GaussianParams;
-use crate::train::config::SpacetimeTraining;
 use crate::train::density::Statistic;
-use crate::train::passes::surfels::{SurfelTraining, UNUSED_LOG_SCALE};
+use crate::train::passes::surfels::UNUSED_LOG_SCALE;
 use crate::train::trainer::TrainConfig;
+
+/// The config of a model of still 3D Gaussians (3DGS, Pixel-GS, Mip-Splatting): `statistic`
+/// densifies it, `mip` turns Mip-Splatting's filters on, and no other model's section stays.
+fn still_gaussians(config: &mut TrainConfig, statistic: Statistic, mip: bool) {
+    config.density.statistic = statistic;
+    config.mip_filters = mip;
+    config.surfels = None;
+    config.spacetime = None;
+}
+
+/// Whether `config` trains still 3D Gaussians (no surfels, no time).
+fn is_still_gaussians(config: &TrainConfig) -> bool {
+    config.surfels.is_none() && config.spacetime.is_none()
+}
 
 /// A still initial model as SpacetimeGaussians' initial one: every Gaussian gets the temporal
 /// groups (no motion, no angular velocity, temporal log-scale 0) with its temporal centre drawn
@@ -169,59 +189,44 @@ impl BaseModel {
         }
     }
 
+    /// The registry: each model's [`Model`], the one place a model is listed by value.
+    pub fn model(&self) -> &'static dyn Model {
+        match self {
+            BaseModel::Gaussians3d => &gaussians3d::Gaussians3d,
+            BaseModel::PixelGs => &pixel_gs::PixelGs,
+            BaseModel::MipSplatting => &mip_splatting::MipSplatting,
+            BaseModel::Surfels2d => &surfels2d::Surfels2d,
+            BaseModel::SpacetimeLite => &spacetime::Spacetime { full: false },
+            BaseModel::SpacetimeFull => &spacetime::Spacetime { full: true },
+        }
+    }
+
     /// The CLI name.
     pub fn name(&self) -> &'static str {
-        match self {
-            BaseModel::Gaussians3d => "3dgs",
-            BaseModel::PixelGs => "pixel-gs",
-            BaseModel::MipSplatting => "mip-splatting",
-            BaseModel::Surfels2d => "2dgs",
-            BaseModel::SpacetimeLite => "spacetime-lite",
-            BaseModel::SpacetimeFull => "spacetime-full",
-        }
+        self.model().name()
     }
 
     /// SpacetimeGaussians (lite or full): a video model.
     pub fn is_spacetime(&self) -> bool {
-        matches!(self, BaseModel::SpacetimeLite | BaseModel::SpacetimeFull)
+        self.model().is_spacetime()
+    }
+
+    /// The iteration densification stops at in the model's official code: 9000 for
+    /// SpacetimeGaussians (its `densify_until_iter`), 15,000 (the Inria default) for the others.
+    pub fn default_densify_until(&self) -> u32 {
+        self.model().default_densify_until()
     }
 
     /// The prune threshold on opacity when the user gives none (2DGS's `opacity_cull` 0.05,
     /// else the Inria 0.005).
-    /// The iteration densification stops at in the model's official code: 9000 for
-    /// SpacetimeGaussians (its `densify_until_iter`; its opacity resets then fall at 3000 and
-    /// 6000 only), 15,000 (the Inria default) for the others.
-    pub fn default_densify_until(&self) -> u32 {
-        if self.is_spacetime() {
-            9000
-        } else {
-            15_000
-        }
-    }
-
     pub fn default_min_opacity(&self) -> f64 {
-        match self {
-            BaseModel::Surfels2d => 0.05,
-            _ => 0.005,
-        }
+        self.model().default_min_opacity()
     }
 
-    /// Turns a 3DGS-style initial model into this model's: for 2DGS, random rotations (the
-    /// official `torch.rand(N, 4)`, here seeded) and the unused third log-scale
-    /// ([`UNUSED_LOG_SCALE`]); other models unchanged.
-    pub fn initialise(&self, mut params: GaussianParams, seed: u64) -> GaussianParams {
-        if *self == BaseModel::Surfels2d {
-            use rand::{Rng, SeedableRng};
-            let mut rng = rand_pcg::Pcg64::seed_from_u64(seed ^ 0x2D65);
-            for (l, q) in params.log_scales.iter_mut().zip(&mut params.rotations) {
-                l[2] = UNUSED_LOG_SCALE;
-                *q = [0; 4].map(|_| rng.gen_range(0.0..1.0f32).max(1e-3));
-            }
-        }
-        if self.is_spacetime() {
-            params = with_temporal_groups(params, seed, *self == BaseModel::SpacetimeFull);
-        }
-        params
+    /// Turns a 3DGS-style initial model into this model's: for 2DGS, random rotations and the
+    /// unused third log-scale; for the video models, the temporal groups.
+    pub fn initialise(&self, params: GaussianParams, seed: u64) -> GaussianParams {
+        self.model().initialise(params, seed)
     }
 
     /// [`BaseModel::initialise`] for points of which the first `times.len()` were observed at
@@ -258,36 +263,8 @@ impl BaseModel {
         times: Option<Vec<f32>>,
         ply: Option<&std::path::Path>,
     ) -> anyhow::Result<Box<dyn crate::render::view::ViewRenderer>> {
-        use crate::render::view::{GaussianView, SpacetimeView, SurfelView};
-        Ok(match self {
-            BaseModel::Surfels2d => Box::new(SurfelView::new(ctx, gaussians, camera)?),
-            BaseModel::SpacetimeLite | BaseModel::SpacetimeFull => {
-                let Some(times) = times else {
-                    anyhow::bail!(
-                        "--model {} renders a video model at each view's time; this scene is \
-                         still (or these cameras have no time). Fix: point at the video scene \
-                         the model was trained on",
-                        self.name()
-                    );
-                };
-                let decoder = match (self, ply) {
-                    (BaseModel::SpacetimeFull, Some(p)) => {
-                        Some(crate::splats::decoder_json::read_for(p)?)
-                    }
-                    (BaseModel::SpacetimeFull, None) => anyhow::bail!(
-                        "--model spacetime-full needs its PLY's path to find the decoder"
-                    ),
-                    _ => None,
-                };
-                Box::new(SpacetimeView::new(ctx, gaussians, camera, times, decoder)?)
-            }
-            _ => Box::new(GaussianView::new(
-                ctx,
-                gaussians,
-                camera,
-                self.render_constants(),
-            )?),
-        })
+        self.model()
+            .view_renderer(ctx, gaussians, camera, times, ply, self.render_constants())
     }
 
     /// Maps a model of this base model through a change of frame `x ↦ k·x + b`
@@ -295,12 +272,8 @@ impl BaseModel {
     /// say (a surfel's third log-scale is a fixed marker, SpacetimeGaussians' motion
     /// coefficients are lengths per unit time).
     pub fn map_frame(&self, params: &mut GaussianParams, map: (f64, [f64; 3])) {
-        let lengths: &[&str] = if self.is_spacetime() {
-            &["motion"]
-        } else {
-            &[]
-        };
-        params.map_frame(map, lengths, *self == BaseModel::Surfels2d);
+        let m = self.model();
+        params.map_frame(map, m.length_groups(), m.fixed_third_scale());
     }
 
     /// Reads a model of this base model that another file holds in the user's frame (less the
@@ -326,17 +299,7 @@ impl BaseModel {
     pub fn read_ply(&self, path: &std::path::Path) -> anyhow::Result<GaussianParams> {
         let names = crate::splats::ply::vertex_property_names(path)?;
         self.check_ply_properties(path, &names)?;
-        let params = match self {
-            BaseModel::SpacetimeLite => {
-                crate::splats::ply::read_ply_extras(path, &crate::render::spacetime::extra_groups())
-            }
-            BaseModel::SpacetimeFull => crate::splats::ply::read_ply_extras(
-                path,
-                &crate::train::passes::spacetime::extra_groups_of(true),
-            ),
-            BaseModel::Surfels2d => crate::splats::ply::read_ply_two_scales(path, UNUSED_LOG_SCALE),
-            _ => crate::splats::read_ply(path),
-        }?;
+        let params = self.model().read_ply(path)?;
         if let Some(w) = self.check_ply_shape(path, &params)? {
             eprintln!("warning: {}: {w}", path.display());
         }
@@ -434,7 +397,7 @@ impl BaseModel {
         // the surfel's own (it only shrinks from UNUSED_LOG_SCALE, while a surfel whose other
         // two scales shrank past e^−13 would fail the ratio).
         let flat = |l: &[f32; 3]| l[2] <= UNUSED_LOG_SCALE || l[2] <= l[0].max(l[1]) - 1000f32.ln();
-        if *self == BaseModel::Surfels2d {
+        if self.model().fixed_third_scale() {
             if let Some(i) = params.log_scales.iter().position(|l| !flat(l)) {
                 let l = params.log_scales[i];
                 return Err(crate::error::InputError::new(
@@ -476,55 +439,16 @@ impl BaseModel {
     /// Sets what this model changes in `config` (leaves the rest, the 3DGS defaults or the
     /// user's flags, alone).
     pub fn configure(&self, config: &mut TrainConfig) {
-        config.density.statistic = match self {
-            BaseModel::Gaussians3d
-            | BaseModel::MipSplatting
-            | BaseModel::Surfels2d
-            | BaseModel::SpacetimeLite
-            | BaseModel::SpacetimeFull => Statistic::Gradient,
-            BaseModel::PixelGs => Statistic::pixel_gs(),
-        };
-        config.mip_filters = *self == BaseModel::MipSplatting;
-        config.surfels = match (self, config.surfels) {
-            (BaseModel::Surfels2d, Some(t)) => Some(t),
-            (BaseModel::Surfels2d, None) => Some(SurfelTraining::default()),
-            _ => None,
-        };
-        config.spacetime = match (self.is_spacetime(), config.spacetime) {
-            (true, Some(r)) => Some(r),
-            (true, None) => Some(SpacetimeTraining::default()),
-            _ => None,
-        };
-        if let Some(st) = config.spacetime.as_mut() {
-            st.full = match (self, st.full) {
-                (BaseModel::SpacetimeFull, Some(f)) => Some(f),
-                (BaseModel::SpacetimeFull, None) => Some(Default::default()),
-                _ => None,
-            };
-        }
-        if self.is_spacetime() {
-            config.sh_degree = 0;
-            // The official batch: two cameras at one time per step.
-            config.batch_views = 2;
-        }
+        self.model().configure(config)
     }
 
-    /// The model a config trains (the inverse of [`BaseModel::configure`]).
+    /// The model a config trains (the inverse of [`BaseModel::configure`]): the one model whose
+    /// [`Model::trains`] holds (3DGS for a config none claims).
     pub fn of(config: &TrainConfig) -> BaseModel {
-        if config.surfels.is_some() {
-            return BaseModel::Surfels2d;
-        }
-        if let Some(st) = &config.spacetime {
-            return match st.full {
-                Some(_) => BaseModel::SpacetimeFull,
-                None => BaseModel::SpacetimeLite,
-            };
-        }
-        match (config.density.statistic, config.mip_filters) {
-            (_, true) => BaseModel::MipSplatting,
-            (Statistic::Gradient, false) => BaseModel::Gaussians3d,
-            (Statistic::PixelWeighted { .. }, false) => BaseModel::PixelGs,
-        }
+        Self::ALL
+            .into_iter()
+            .find(|m| m.model().trains(config))
+            .unwrap_or_default()
     }
 }
 
@@ -558,6 +482,17 @@ mod tests {
             let mut c = TrainConfig::default();
             m.configure(&mut c);
             assert_eq!(BaseModel::of(&c), m);
+            // Exactly one model claims a config, whichever model configured it before.
+            for before in BaseModel::ALL {
+                let mut c = TrainConfig::default();
+                before.configure(&mut c);
+                m.configure(&mut c);
+                let claim: Vec<_> = BaseModel::ALL
+                    .into_iter()
+                    .filter(|o| o.model().trains(&c))
+                    .collect();
+                assert_eq!(claim, [m], "{} after {}", m.name(), before.name());
+            }
         }
         let e = BaseModel::parse("mip").unwrap_err().to_string();
         assert!(

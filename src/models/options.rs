@@ -49,13 +49,7 @@ impl BaseModel {
     /// Whether the absolute-gradient test (`--densify-abs-grad`) combines with this model's
     /// densification statistic: the models densified by the mean gradient of 3D Gaussians.
     pub fn takes_abs_grad(&self) -> bool {
-        matches!(
-            self,
-            BaseModel::Gaussians3d
-                | BaseModel::MipSplatting
-                | BaseModel::SpacetimeLite
-                | BaseModel::SpacetimeFull
-        )
+        self.model().takes_abs_grad()
     }
 
     /// Sets what this model changes in `config` ([`BaseModel::configure`]) with the model

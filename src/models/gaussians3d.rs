@@ -1,0 +1,24 @@
+//! 3D Gaussian Splatting (Kerbl et al. 2023) with the Inria defaults: every default of
+//! [`Model`] is its.
+
+use super::model::Model;
+use crate::train::density::Statistic;
+use crate::train::trainer::TrainConfig;
+
+pub struct Gaussians3d;
+
+impl Model for Gaussians3d {
+    fn name(&self) -> &'static str {
+        "3dgs"
+    }
+
+    fn configure(&self, config: &mut TrainConfig) {
+        super::still_gaussians(config, Statistic::Gradient, false);
+    }
+
+    fn trains(&self, config: &TrainConfig) -> bool {
+        super::is_still_gaussians(config)
+            && !config.mip_filters
+            && matches!(config.density.statistic, Statistic::Gradient)
+    }
+}

@@ -1,0 +1,89 @@
+//! What one base model is, as one value: [`Model`], implemented once per model in this folder
+//! (`gaussians3d.rs`, `pixel_gs.rs`, `mip_splatting.rs`, `surfels2d.rs`, `spacetime.rs`) and
+//! listed once in [`super::BaseModel::model`], the registry. A model says what it changes in a
+//! training run's config and how to tell a config of its own, its defaults, how its initial
+//! model and its PLYs look, and which renderer draws it; the rest of the engine asks the
+//! registry and names no model.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use crate::gpu::GpuContext;
+use crate::render::layout::{CameraGpu, RenderConstants};
+use crate::render::view::{GaussianView, ViewRenderer};
+use crate::splats::GaussianParams;
+use crate::train::trainer::TrainConfig;
+
+/// One base model. Only `name`, `configure` and `trains` have no default: the defaults are
+/// 3DGS's (the Inria values, 3D Gaussians in the Inria PLY layout, drawn by the 3D-Gaussian
+/// renderer).
+pub trait Model: Sync {
+    /// The command line's and the PLY header's name (`--model NAME`).
+    fn name(&self) -> &'static str;
+
+    /// Sets what this model changes in `config`, leaving the rest (the 3DGS defaults or the
+    /// user's flags) alone; a section of its own the config already holds is kept.
+    fn configure(&self, config: &mut TrainConfig);
+
+    /// Whether `config` trains this model: exactly one model's `trains` holds for any config
+    /// one of them configured (the inverse of [`Model::configure`]).
+    fn trains(&self, config: &TrainConfig) -> bool;
+
+    /// A video model: Gaussians in time, trained on multi-view video.
+    fn is_spacetime(&self) -> bool {
+        false
+    }
+
+    /// The iteration densification stops at in the model's official code.
+    fn default_densify_until(&self) -> u32 {
+        15_000
+    }
+
+    /// The prune threshold on opacity when the user gives none.
+    fn default_min_opacity(&self) -> f64 {
+        0.005
+    }
+
+    /// Whether the absolute-gradient test (`--densify-abs-grad`) combines with its
+    /// densification statistic (the models densified by the mean gradient of 3D Gaussians).
+    fn takes_abs_grad(&self) -> bool {
+        true
+    }
+
+    /// Turns a 3DGS-style initial model (from points) into this model's.
+    fn initialise(&self, params: GaussianParams, _seed: u64) -> GaussianParams {
+        params
+    }
+
+    /// The extra groups that are lengths (moved and scaled with the frame, as positions).
+    fn length_groups(&self) -> &'static [&'static str] {
+        &[]
+    }
+
+    /// Whether its third log-scale is a fixed marker rather than a length (a surfel's).
+    fn fixed_third_scale(&self) -> bool {
+        false
+    }
+
+    /// Reads a trained PLY in this model's layout (after the header checks).
+    fn read_ply(&self, path: &Path) -> anyhow::Result<GaussianParams> {
+        crate::splats::read_ply(path)
+    }
+
+    /// A renderer for its trained models (eval, render, orbit). `times`: every camera's time
+    /// (video scenes); `ply`: the model's file (for what sits beside it); `constants`: the
+    /// rasterizer constants its training used.
+    fn view_renderer(
+        &self,
+        ctx: &Arc<GpuContext>,
+        gaussians: usize,
+        camera: &CameraGpu,
+        _times: Option<Vec<f32>>,
+        _ply: Option<&Path>,
+        constants: RenderConstants,
+    ) -> anyhow::Result<Box<dyn ViewRenderer>> {
+        Ok(Box::new(GaussianView::new(
+            ctx, gaussians, camera, constants,
+        )?))
+    }
+}

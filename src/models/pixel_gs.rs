@@ -1,0 +1,30 @@
+//! Pixel-GS (Zhang et al., ECCV 2024): 3DGS with the densification statistic weighted by the
+//! pixels each Gaussian covers per view, the depth factor on the statistic only (the official
+//! code's defaults; docs/algorithms/base-models.md §3).
+
+use super::model::Model;
+use crate::train::density::Statistic;
+use crate::train::trainer::TrainConfig;
+
+pub struct PixelGs;
+
+impl Model for PixelGs {
+    fn name(&self) -> &'static str {
+        "pixel-gs"
+    }
+
+    fn configure(&self, config: &mut TrainConfig) {
+        super::still_gaussians(config, Statistic::pixel_gs(), false);
+    }
+
+    fn trains(&self, config: &TrainConfig) -> bool {
+        super::is_still_gaussians(config)
+            && !config.mip_filters
+            && matches!(config.density.statistic, Statistic::PixelWeighted { .. })
+    }
+
+    /// Its statistic is not the mean gradient the absolute test replaces.
+    fn takes_abs_grad(&self) -> bool {
+        false
+    }
+}

@@ -1,0 +1,113 @@
+//! SpacetimeGaussians (Li et al., CVPR 2024), lite and full: 3D Gaussians with cubic motion,
+//! linear rotation and a temporal opacity, trained on multi-view video with colour of SH
+//! degree 0 (lite), or with 9 feature channels turned into RGB per pixel by a small MLP that
+//! also sees the viewing ray (full). Four extra parameter groups (the full model: two more) and
+//! the temporal step before the 3DGS passes ([`crate::train::passes::spacetime`]);
+//! docs/algorithms/base-models.md §4.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use super::model::Model;
+use crate::gpu::GpuContext;
+use crate::render::layout::{CameraGpu, RenderConstants};
+use crate::render::view::{SpacetimeView, ViewRenderer};
+use crate::splats::GaussianParams;
+use crate::train::config::SpacetimeTraining;
+use crate::train::density::Statistic;
+use crate::train::trainer::TrainConfig;
+
+/// `full`: the full model (features and decoder); else the lite one.
+pub struct Spacetime {
+    pub full: bool,
+}
+
+impl Model for Spacetime {
+    fn name(&self) -> &'static str {
+        if self.full {
+            "spacetime-full"
+        } else {
+            "spacetime-lite"
+        }
+    }
+
+    fn configure(&self, config: &mut TrainConfig) {
+        config.density.statistic = Statistic::Gradient;
+        config.mip_filters = false;
+        config.surfels = None;
+        let mut st = config.spacetime.unwrap_or_else(SpacetimeTraining::default);
+        st.full = match (self.full, st.full) {
+            (true, Some(f)) => Some(f),
+            (true, None) => Some(Default::default()),
+            (false, _) => None,
+        };
+        config.spacetime = Some(st);
+        config.sh_degree = 0;
+        // The official batch: two cameras at one time per step.
+        config.batch_views = 2;
+    }
+
+    fn trains(&self, config: &TrainConfig) -> bool {
+        config.surfels.is_none()
+            && config
+                .spacetime
+                .as_ref()
+                .is_some_and(|st| st.full.is_some() == self.full)
+    }
+
+    fn is_spacetime(&self) -> bool {
+        true
+    }
+
+    /// Its `densify_until_iter`; its opacity resets then fall at 3000 and 6000 only.
+    fn default_densify_until(&self) -> u32 {
+        9000
+    }
+
+    /// The temporal groups ([`super::with_temporal_groups`]), and the full model's features.
+    fn initialise(&self, params: GaussianParams, seed: u64) -> GaussianParams {
+        super::with_temporal_groups(params, seed, self.full)
+    }
+
+    /// The motion coefficients are lengths per unit of time.
+    fn length_groups(&self) -> &'static [&'static str] {
+        &["motion"]
+    }
+
+    fn read_ply(&self, path: &Path) -> anyhow::Result<GaussianParams> {
+        crate::splats::ply::read_ply_extras(
+            path,
+            &crate::train::passes::spacetime::extra_groups_of(self.full),
+        )
+    }
+
+    /// The model at each camera's time; the full model's decoder from beside its PLY.
+    fn view_renderer(
+        &self,
+        ctx: &Arc<GpuContext>,
+        gaussians: usize,
+        camera: &CameraGpu,
+        times: Option<Vec<f32>>,
+        ply: Option<&Path>,
+        _constants: RenderConstants,
+    ) -> anyhow::Result<Box<dyn ViewRenderer>> {
+        let Some(times) = times else {
+            anyhow::bail!(
+                "--model {} renders a video model at each view's time; this scene is still (or \
+                 these cameras have no time). Fix: point at the video scene the model was \
+                 trained on",
+                self.name()
+            );
+        };
+        let decoder = match (self.full, ply) {
+            (true, Some(p)) => Some(crate::splats::decoder_json::read_for(p)?),
+            (true, None) => {
+                anyhow::bail!("--model spacetime-full needs its PLY's path to find the decoder")
+            }
+            (false, _) => None,
+        };
+        Ok(Box::new(SpacetimeView::new(
+            ctx, gaussians, camera, times, decoder,
+        )?))
+    }
+}

@@ -1,0 +1,76 @@
+//! 2D Gaussian Splatting (Huang et al., SIGGRAPH 2024): surfels with the normal-consistency
+//! and depth-distortion regularisers, the official densification statistic and its 0.05
+//! opacity prune; their own passes ([`crate::train::passes::surfels`]) and renderer.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use super::model::Model;
+use crate::gpu::GpuContext;
+use crate::render::layout::{CameraGpu, RenderConstants};
+use crate::render::view::{SurfelView, ViewRenderer};
+use crate::splats::GaussianParams;
+use crate::train::density::Statistic;
+use crate::train::passes::surfels::UNUSED_LOG_SCALE;
+use crate::train::trainer::TrainConfig;
+
+pub struct Surfels2d;
+
+impl Model for Surfels2d {
+    fn name(&self) -> &'static str {
+        "2dgs"
+    }
+
+    fn configure(&self, config: &mut TrainConfig) {
+        config.density.statistic = Statistic::Gradient;
+        config.mip_filters = false;
+        config.surfels = Some(config.surfels.unwrap_or_default());
+        config.spacetime = None;
+    }
+
+    fn trains(&self, config: &TrainConfig) -> bool {
+        config.surfels.is_some()
+    }
+
+    fn default_min_opacity(&self) -> f64 {
+        0.05
+    }
+
+    /// A surfel's statistic is its own (the official 2DGS one).
+    fn takes_abs_grad(&self) -> bool {
+        false
+    }
+
+    /// Random rotations (the official `torch.rand(N, 4)`, here seeded) and the unused third
+    /// log-scale ([`UNUSED_LOG_SCALE`]).
+    fn initialise(&self, mut params: GaussianParams, seed: u64) -> GaussianParams {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(seed ^ 0x2D65);
+        for (l, q) in params.log_scales.iter_mut().zip(&mut params.rotations) {
+            l[2] = UNUSED_LOG_SCALE;
+            *q = [0; 4].map(|_| rng.gen_range(0.0..1.0f32).max(1e-3));
+        }
+        params
+    }
+
+    fn fixed_third_scale(&self) -> bool {
+        true
+    }
+
+    /// Ours keep the marker as a third scale; the official layout has two scales.
+    fn read_ply(&self, path: &Path) -> anyhow::Result<GaussianParams> {
+        crate::splats::ply::read_ply_two_scales(path, UNUSED_LOG_SCALE)
+    }
+
+    fn view_renderer(
+        &self,
+        ctx: &Arc<GpuContext>,
+        gaussians: usize,
+        camera: &CameraGpu,
+        _times: Option<Vec<f32>>,
+        _ply: Option<&Path>,
+        _constants: RenderConstants,
+    ) -> anyhow::Result<Box<dyn ViewRenderer>> {
+        Ok(Box::new(SurfelView::new(ctx, gaussians, camera)?))
+    }
+}
