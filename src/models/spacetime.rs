@@ -13,7 +13,6 @@ use crate::gpu::GpuContext;
 use crate::render::layout::{CameraGpu, RenderConstants};
 use crate::render::view::{SpacetimeView, ViewRenderer};
 use crate::splats::GaussianParams;
-use crate::train::config::SpacetimeTraining;
 use crate::train::density::Statistic;
 use crate::train::trainer::TrainConfig;
 
@@ -35,7 +34,7 @@ impl Model for Spacetime {
         config.density.statistic = Statistic::Gradient;
         config.mip_filters = false;
         config.surfels = None;
-        let mut st = config.spacetime.unwrap_or_else(SpacetimeTraining::default);
+        let mut st = config.spacetime.unwrap_or_default();
         st.full = match (self.full, st.full) {
             (true, Some(f)) => Some(f),
             (true, None) => Some(Default::default()),
