@@ -188,7 +188,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                          {seed}: the adc runs start from {t} of them, drawn at random (the same \
                          draw for each); the mcmc runs {} (mcmc-drawn's drawn at random, \
                          mcmc-spread's spread over the cloud, mcmc-keep's kept whole)",
-                        match super::trade_runs::mcmc_draw(args) {
+                        match args.mcmc_draw() {
                             Draw::Keep => format!("keep their start whole, falling to {t}"),
                             d => format!("are drawn ({})", d.name()),
                         }
@@ -210,7 +210,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                 c.validate()?;
             }
             // A kept start (mcmc's by default) falls from the initial count to the budget.
-            let draw = run_draw(name, super::trade_runs::mcmc_draw(args));
+            let draw = run_draw(name, args.mcmc_draw());
             let start = match draw.0 {
                 Draw::Keep => initial,
                 _ => target.map_or(initial, |t| t.min(initial)),

@@ -143,6 +143,15 @@ pub struct TradeArgs {
     pub lpips: LpipsArgs,
 }
 
+impl TradeArgs {
+    /// How the mcmc runs that name no draw come down to a budget below their start
+    /// (`--budget-draw`; by default kept whole, as `train --strategy mcmc`).
+    pub fn mcmc_draw(&self) -> lpmsplat::splats::budget_draw::Draw {
+        self.budget_draw
+            .unwrap_or(lpmsplat::splats::budget_draw::Draw::Keep)
+    }
+}
+
 /// What changes the runs beyond the scene, model, resolution and calendar (trade.json's
 /// `settings`): `bench merge` pools only runs whose files agree here, and names the others by
 /// the difference. Settings whose name starts with `lpm_` change only the LPM runs.
@@ -157,7 +166,7 @@ pub fn settings_json(args: &TradeArgs) -> serde_json::Value {
         "match_adc_count": args.match_adc_count,
         "budget": lpmsplat::bench::budget::BenchBudget::setting(&args.budget),
         "budget_growth": args.budget_growth.map(|g| g.name()),
-        "budget_draw": (!args.budget.is_empty()).then(|| crate::cli::bench::trade_runs::mcmc_draw(args).name()),
+        "budget_draw": (!args.budget.is_empty()).then(|| args.mcmc_draw().name()),
         "lpm_zone_weight": args.lpm_zone_weight,
         "lpm_surface_share": args.lpm_surface_share,
         "init": format!("{:?}", args.init).to_lowercase(),

@@ -86,12 +86,6 @@ pub fn abs_grad_applies(model: BaseModel) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// How the mcmc runs that name no draw come down to a budget below their start
-/// (`--budget-draw`; by default kept whole, as `train --strategy mcmc`).
-pub fn mcmc_draw(args: &TradeArgs) -> Draw {
-    args.budget_draw.unwrap_or(Draw::Keep)
-}
-
 /// How run `name`'s start comes down to a budget below it: the draw and whether the kept
 /// Gaussians' scales are refitted to their new spacing (`train --budget-draw`,
 /// `--budget-refit-scales`). `mcmc`: the draw of the mcmc runs that name none.
