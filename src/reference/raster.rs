@@ -231,6 +231,15 @@ impl Footprint {
         }
     }
 
+    /// The footprint the GPU's preprocess wrote (f32, widened).
+    pub fn of_gpu(p: &crate::render::layout::ProjectedGpu) -> Self {
+        Footprint {
+            mean2d: [p.mean_x as f64, p.mean_y as f64],
+            conic: [p.conic_a as f64, p.conic_b as f64, p.conic_c as f64],
+            opacity: p.opacity as f64,
+        }
+    }
+
     /// `opacity·exp(power)` at the pixel centre (px, py), before any clamp or threshold
     /// (power above 0, possible only by rounding, counts as 0).
     pub fn raw_alpha(&self, px: f64, py: f64) -> f64 {

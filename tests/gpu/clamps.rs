@@ -198,15 +198,7 @@ fn compare(
             "{label}: Gaussian {i} drawn on the GPU vs in the reference"
         );
     }
-    let footprints: Vec<Footprint> = frame
-        .projected
-        .iter()
-        .map(|p| Footprint {
-            mean2d: [p.mean_x as f64, p.mean_y as f64],
-            conic: [p.conic_a as f64, p.conic_b as f64, p.conic_c as f64],
-            opacity: p.opacity as f64,
-        })
-        .collect();
+    let footprints: Vec<Footprint> = frame.projected.iter().map(Footprint::of_gpu).collect();
     let edges = alpha_min_edges(&r.projected, &footprints, &r.bins, camera, settings, 1e-4);
     let scale = r
         .projected

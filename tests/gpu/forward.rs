@@ -258,15 +258,7 @@ fn compare(
         );
         return 0.0;
     }
-    let gpu_footprints: Vec<Footprint> = frame
-        .projected
-        .iter()
-        .map(|p| Footprint {
-            mean2d: [p.mean_x as f64, p.mean_y as f64],
-            conic: [p.conic_a as f64, p.conic_b as f64, p.conic_c as f64],
-            opacity: p.opacity as f64,
-        })
-        .collect();
+    let gpu_footprints: Vec<Footprint> = frame.projected.iter().map(Footprint::of_gpu).collect();
     compare_tile_lists(frame, &r, &gpu_footprints, camera, settings, label);
     // A splat whose alpha at a pixel lands within f32 rounding of alpha_min may be blended on
     // one side and skipped on the other (seed 547 of 3,000 below; elongated splats, whose
@@ -430,15 +422,7 @@ fn the_median_depth_pass_matches_the_reference() {
         );
         let gpu = renderer.read_median_depth().unwrap();
         let r = reference::render(&exact, &camera, &pose, 0, [0.0; 3], &settings).unwrap();
-        let footprints: Vec<Footprint> = frame
-            .projected
-            .iter()
-            .map(|p| Footprint {
-                mean2d: [p.mean_x as f64, p.mean_y as f64],
-                conic: [p.conic_a as f64, p.conic_b as f64, p.conic_c as f64],
-                opacity: p.opacity as f64,
-            })
-            .collect();
+        let footprints: Vec<Footprint> = frame.projected.iter().map(Footprint::of_gpu).collect();
         let edges = alpha_min_edges(&r.projected, &footprints, &r.bins, &camera, &settings, 1e-4);
         let mut here = 0;
         for (pix, (&d, want)) in gpu.iter().zip(&r.raster.median_depth).enumerate() {
