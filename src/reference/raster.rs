@@ -213,6 +213,70 @@ pub fn rasterize(
     Ok(out)
 }
 
+/// What each Gaussian gave a frame, summed over the pixels it was blended into
+/// ([`contributions`]; `glsl/render/contributions.comp` on the GPU).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ContributionSums {
+    /// The weights of those pixels.
+    pub weight: Vec<f64>,
+    /// Their number.
+    pub pixels: Vec<f64>,
+    /// Its blending weights `T·alpha` there.
+    pub blend: Vec<f64>,
+    /// Its 2D mean's distance to their centres.
+    pub distance: Vec<f64>,
+}
+
+/// Walks every pixel's list as [`rasterize`] blends it and sums, per Gaussian blended there,
+/// the pixel's weight (`pixel_weights`, row-major), 1, `T·alpha` and the distance from its 2D
+/// mean to the pixel centre.
+pub fn contributions(
+    projected: &[Projected],
+    bins: &TileBins,
+    camera: &PinholeCamera,
+    settings: &RenderSettings,
+    pixel_weights: &[f64],
+) -> Result<ContributionSums> {
+    let n = camera.width as usize * camera.height as usize;
+    ensure!(
+        pixel_weights.len() == n,
+        "reference contributions: {} pixel weights for a {}×{} frame",
+        pixel_weights.len(),
+        camera.width,
+        camera.height
+    );
+    let zeros = vec![0.0; projected.len()];
+    let mut out = ContributionSums {
+        weight: zeros.clone(),
+        pixels: zeros.clone(),
+        blend: zeros.clone(),
+        distance: zeros,
+    };
+    for j in 0..camera.height {
+        for i in 0..camera.width {
+            let pix = j as usize * camera.width as usize + i as usize;
+            let (px, py) = (i as f64 + 0.5, j as f64 + 0.5);
+            let mut t = 1.0;
+            for &g in &bins.lists[bins.tile_of_pixel(i, j)] {
+                let Some(s) = sample_splat(&projected[g as usize], px, py, settings) else {
+                    continue;
+                };
+                let next_t = t * (1.0 - s.alpha);
+                if !settings.smooth && next_t < settings.t_min {
+                    break;
+                }
+                let g = g as usize;
+                out.weight[g] += pixel_weights[pix];
+                out.pixels[g] += 1.0;
+                out.blend[g] += t * s.alpha;
+                out.distance[g] += s.d[0].hypot(s.d[1]);
+                t = next_t;
+            }
+        }
+    }
+    Ok(out)
+}
+
 /// A splat's footprint as another renderer computed it: 2D mean, conic and opacity (for
 /// [`alpha_min_edges`]).
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -152,6 +152,42 @@ struct MedianPush {
     tile_offset: u32,
 }
 
+/// The contributions pass (`glsl/render/contributions.comp`): its input, one weight a pixel,
+/// and its per-Gaussian sums (allocated by the first frame, regrown with the capacity).
+struct ContributionPass {
+    pipe: ComputePipeline,
+    buffers: Option<ContributionBuffers>,
+}
+
+struct ContributionBuffers {
+    pixel_weights: GpuBuffer<f32>,
+    /// weight, pixel count, T·alpha, distance: one buffer each, so that each binding holds one
+    /// float a Gaussian.
+    sums: [GpuBuffer<f32>; 4],
+}
+
+/// What each Gaussian gave the last frame of a renderer made
+/// [`Renderer::with_contributions`], summed over the pixels it was blended into.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Contributions {
+    /// The pixels' weights ([`Renderer::pixel_weights_buffer`]).
+    pub weight: Vec<f32>,
+    /// The pixels (a float: the kernel adds 1.0 a pixel).
+    pub pixels: Vec<f32>,
+    /// Its blending weights `T·alpha`.
+    pub blend: Vec<f32>,
+    /// Its 2D mean's distance to the pixel centres (pixels).
+    pub distance: Vec<f32>,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct ContributionPush {
+    rc: RenderConstants,
+    camera_index: u32,
+    tile_offset: u32,
+}
+
 /// What a frame needs besides the splats and the camera buffer.
 #[derive(Clone, Copy)]
 pub struct FrameSettings<'a> {
@@ -264,6 +300,8 @@ pub struct Renderer {
     /// The median-depth pass and its per-pixel output, when asked for
     /// ([`Renderer::with_median_depth`]).
     median: Option<MedianDepth>,
+    /// The contributions pass, when asked for ([`Renderer::with_contributions`]).
+    contributions: Option<ContributionPass>,
     depth_sort: RadixSort,
     tile_sort: RadixSort,
     /// The group counts of the tile-ranges pass and the binning kernels, from the frame's pair
@@ -393,6 +431,7 @@ impl Renderer {
             raster_features: None,
             feature_image: None,
             median: None,
+            contributions: None,
             depth_sort: RadixSort::dropping(ctx, capacity.gaussians as u64)?,
             tile_sort: RadixSort::new(ctx, capacity.intersections as u64)?,
             pair_groups: DispatchSize::new(ctx, 2)?,
@@ -454,6 +493,66 @@ impl Renderer {
                 anyhow::anyhow!("this renderer writes no median depth (with_median_depth)")
             })?;
         depth.read_range(0, (cam.width() * cam.height()) as usize)
+    }
+
+    /// A renderer that also sums, per Gaussian, what it gave every frame
+    /// (`glsl/render/contributions.comp`: the weights of the pixels it was blended into, their
+    /// number, its blending weights and its distances to them), read by
+    /// [`Renderer::read_contributions`]. The pixel weights are the caller's: upload them into
+    /// [`Renderer::pixel_weights_buffer`] (sized by a first frame) before the frame.
+    pub fn with_contributions(mut self) -> anyhow::Result<Self> {
+        self.contributions = Some(ContributionPass {
+            pipe: ComputePipeline::new(
+                &self.ctx,
+                "render/contributions",
+                shaders::RENDER_CONTRIBUTIONS,
+                9,
+                std::mem::size_of::<ContributionPush>() as u32,
+                256,
+                &[],
+            )?,
+            buffers: None,
+        });
+        Ok(self)
+    }
+
+    /// The pixel weights the contributions pass reads, row-major, one a pixel of the frame
+    /// (`None` before the first frame or without [`Renderer::with_contributions`]).
+    pub fn pixel_weights_buffer(&self) -> Option<&GpuBuffer<f32>> {
+        let b = self.contributions.as_ref()?.buffers.as_ref()?;
+        Some(&b.pixel_weights)
+    }
+
+    /// The contributions pass's four per-Gaussian sums (weight, pixels, blend, distance);
+    /// tests poison them.
+    pub fn contribution_buffers(&self) -> Option<&[GpuBuffer<f32>; 4]> {
+        let b = self.contributions.as_ref()?.buffers.as_ref()?;
+        Some(&b.sums)
+    }
+
+    /// What each of the first `count` Gaussians gave the last frame; refused for a renderer
+    /// made without [`Renderer::with_contributions`].
+    pub fn read_contributions(&self, count: usize) -> anyhow::Result<Contributions> {
+        anyhow::ensure!(self.last_camera.is_some(), "no frame rendered yet");
+        let b = self
+            .contributions
+            .as_ref()
+            .and_then(|c| c.buffers.as_ref())
+            .ok_or_else(|| {
+                anyhow::anyhow!("this renderer sums no contributions (with_contributions)")
+            })?;
+        anyhow::ensure!(
+            count <= self.capacity.gaussians,
+            "renderer: {count} contributions asked of a renderer sized for {} Gaussians",
+            self.capacity.gaussians
+        );
+        let [w, p, t, d] = &b.sums;
+        Ok(Contributions {
+            weight: w.read_range(0, count)?,
+            pixels: p.read_range(0, count)?,
+            blend: t.read_range(0, count)?,
+            distance: d.read_range(0, count)?,
+        })
     }
 
     /// The rasterizer with `extra` feature channels (0: colour only), decoding them in its
@@ -725,6 +824,37 @@ impl Renderer {
                 )?);
             }
         }
+        if let Some(c) = self.contributions.as_mut() {
+            let (pixels, gaussians) = (self.capacity.pixels.max(1), self.capacity.gaussians.max(1));
+            let small = c
+                .buffers
+                .as_ref()
+                .is_none_or(|b| b.pixel_weights.len() < pixels || b.sums[0].len() < gaussians);
+            if small {
+                c.buffers = None;
+                let sum =
+                    |name: &str| GpuBuffer::new(&ctx, name, gaussians, BufferKind::DeviceLocal);
+                c.buffers = Some(ContributionBuffers {
+                    pixel_weights: GpuBuffer::new(
+                        &ctx,
+                        "pixel weights",
+                        pixels,
+                        BufferKind::DeviceLocal,
+                    )?,
+                    sums: [
+                        sum("contribution weight")?,
+                        sum("contribution pixels")?,
+                        sum("contribution blend")?,
+                        sum("contribution distance")?,
+                    ],
+                });
+            }
+            let b = c.buffers.as_ref().expect("allocated above");
+            for s in &b.sums {
+                rec.fill_range(s, splats.count.max(1), 0);
+            }
+            rec.barrier();
+        }
         // A decoding rasterizer's stage holds the decoder too.
         let decoded = settings.features.is_some_and(|f| f.decoded_by.is_some());
         let label = if decoded {
@@ -808,6 +938,31 @@ impl Renderer {
                 );
                 rec.barrier();
                 stamp(rec, timestamps.as_deref_mut(), "median depth");
+            }
+            if let Some(c) = &self.contributions {
+                let b = c.buffers.as_ref().expect("allocated above");
+                rec.dispatch_named(
+                    &c.pipe,
+                    &[
+                        ("splats", &f.projected.splats),
+                        ("sorted_ids", ids),
+                        ("ranges", &f.tile_ranges),
+                        ("cameras", cameras),
+                        ("pixel_weights", &b.pixel_weights),
+                        ("weight_sum", &b.sums[0]),
+                        ("pixel_count", &b.sums[1]),
+                        ("blend_sum", &b.sums[2]),
+                        ("distance_sum", &b.sums[3]),
+                    ],
+                    &ContributionPush {
+                        rc: settings.constants,
+                        camera_index,
+                        tile_offset: band.first_row * camera.tiles_x(),
+                    },
+                    ctx.groups_1d(band.tiles(camera), 1),
+                );
+                rec.barrier();
+                stamp(rec, timestamps.as_deref_mut(), "contributions");
             }
         }
         self.finish_frame(rec, camera, bands.len());

@@ -455,6 +455,107 @@ fn the_median_depth_pass_matches_the_reference() {
     ctx.check_validation().unwrap();
 }
 
+/// The contributions pass (each Gaussian's sums over the pixels it was blended into: their
+/// weights, their number, T·alpha and the distance to its centre) against the reference's walk
+/// of the same lists, on random scenes with random pixel weights. A pixel where a choice within
+/// rounding exists (an alpha_min edge, or a stop near t_min) may count a Gaussian once more or
+/// less; everywhere else the sums agree to float rounding.
+#[test]
+fn the_contributions_pass_matches_the_reference() {
+    let ctx = ctx();
+    let mut renderer = renderer(&ctx).with_contributions().unwrap();
+    let settings = RenderSettings::default();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(0xC047);
+    let (mut gaussians, mut blended, mut differ) = (0usize, 0usize, 0usize);
+    for seed in 0..seed_count(80) {
+        let n = rng.gen_range(1..200);
+        let g = scenes::random_gaussians(&mut rng, n);
+        let (w, h) = (rng.gen_range(1..70), rng.gen_range(1..70));
+        let (camera, pose) = scenes::random_view(&mut rng, w, h);
+        let label = format!("seed {seed} ({n} Gaussians, {w}×{h})");
+        // Once to size the buffers, then weights uploaded, sums poisoned, drawn again.
+        render_gpu(
+            &ctx,
+            &mut renderer,
+            &g,
+            0,
+            &camera,
+            &pose,
+            [0.0; 3],
+            &settings,
+        );
+        let weights: Vec<f32> = (0..w * h).map(|_| rng.gen_range(0.0..2.0)).collect();
+        renderer
+            .pixel_weights_buffer()
+            .unwrap()
+            .upload(&weights)
+            .unwrap();
+        for b in renderer.contribution_buffers().unwrap() {
+            b.upload(&vec![f32::NAN; b.len()]).unwrap();
+        }
+        let (frame, exact) = render_gpu(
+            &ctx,
+            &mut renderer,
+            &g,
+            0,
+            &camera,
+            &pose,
+            [0.0; 3],
+            &settings,
+        );
+        let gpu = renderer.read_contributions(n).unwrap();
+        let r = reference::render(&exact, &camera, &pose, 0, [0.0; 3], &settings).unwrap();
+        let wide: Vec<f64> = weights.iter().map(|&v| v as f64).collect();
+        let want =
+            reference::raster::contributions(&r.projected, &r.bins, &camera, &settings, &wide)
+                .unwrap();
+        let footprints: Vec<Footprint> = frame.projected.iter().map(Footprint::of_gpu).collect();
+        let edges = alpha_min_edges(&r.projected, &footprints, &r.bins, &camera, &settings, 1e-4);
+        let unsure = edges.iter().filter(|&&e| e > 0).count()
+            + r.raster
+                .final_transmittance
+                .iter()
+                .filter(|&&t| t < 2.0 * settings.t_min)
+                .count();
+        let mut here = 0;
+        for i in 0..n {
+            let got = [gpu.weight[i], gpu.pixels[i], gpu.blend[i], gpu.distance[i]];
+            let exp = [
+                want.weight[i],
+                want.pixels[i],
+                want.blend[i],
+                want.distance[i],
+            ];
+            assert!(
+                got.iter().all(|v| v.is_finite()),
+                "{label}: Gaussian {i} summed {got:?}"
+            );
+            let same = got
+                .iter()
+                .zip(exp)
+                .all(|(&a, b)| (a as f64 - b).abs() <= 1e-4 * (1.0 + b.abs()));
+            if !same {
+                // A pixel more or less, and only where some pixel's walk is unsure.
+                assert!(
+                    unsure > 0 && (got[1] as f64 - exp[1]).abs() <= unsure as f64,
+                    "{label}: Gaussian {i} summed {got:?}, the reference {exp:?}"
+                );
+                here += 1;
+            }
+        }
+        assert!(
+            here <= n / 20 + 1,
+            "{label}: {here} of {n} Gaussians disagree"
+        );
+        gaussians += n;
+        blended += want.pixels.iter().filter(|&&p| p > 0.0).count();
+        differ += here;
+    }
+    eprintln!("{gaussians} Gaussians, {blended} blended somewhere, {differ} within rounding");
+    assert!(blended > gaussians / 4, "the scenes must blend Gaussians");
+    ctx.check_validation().unwrap();
+}
+
 /// Long thin splats at every angle, faint and opaque: the GPU pairs each with the tiles its
 /// ellipse reaches (glsl/common/tile_rows.glsl), the same lists as the reference's
 /// `Projected::row_tiles`, the same image, and far fewer pairs than the rectangles hold.
