@@ -12,7 +12,8 @@
 // scores[i]: how far a candidate is over the threshold, all on one scale: statistic /
 // grad_threshold (flag 32: over its own scaled threshold, the paper's LPM ranking), the larger
 // of that and the absolute gradient's ratio, +∞ over a threshold ≤ 0, times score_weight[i]
-// with flag 16 (a strategy's guide); 0 for the others. The Gaussian budget ranks additions by
+// with flag 16 (a strategy's guide), or score_weight[i] itself with flags 16 and 64 (a
+// strategy's own ranking, src/taming/); 0 for the others. The Gaussian budget ranks additions by
 // it (src/train/density/budget.rs). Flag 8 (the exact budget, src/train/density/growth.rs):
 // every Gaussian with a positive statistic is a candidate and the budget chooses among them
 // (nothing is then "lowered").
@@ -31,7 +32,8 @@ layout(std430, set = 0, binding = 9) readonly buffer ScoreWeight { float score_w
 layout(push_constant) uniform Push {
     uint count;
     uint flags;  // 1: prune large (world size); 2: use threshold_scale; 4: absolute-gradient test;
-                 // 8: every seen Gaussian a candidate; 16: use score_weight; 32: rank lowered
+                 // 8: every seen Gaussian a candidate; 16: use score_weight; 32: rank lowered;
+                 // 64: score_weight replaces the score
     float grad_threshold;
     float log_clone_max;      // ln(percent_dense · extent)
     float min_opacity_logit;  // logit(min_opacity)
@@ -58,7 +60,9 @@ void main() {
     precise float grad_ratio = by_grad ? (over > 0.0 ? stat / over : INF) : 0.0;
     precise float abs_ratio = by_abs ? (abs_threshold > 0.0 ? abs_stat / abs_threshold : INF) : 0.0;
     precise float score = max(grad_ratio, abs_ratio);
-    if ((flags & 16u) != 0u && densify) score = score * score_weight[i];
+    if ((flags & 16u) != 0u && densify) {
+        score = (flags & 64u) != 0u ? score_weight[i] : score * score_weight[i];
+    }
     scores[i] = score;
     float ls = max(max(log_scales[3u * i], log_scales[3u * i + 1u]), log_scales[3u * i + 2u]);
     bool clone = densify && ls <= log_clone_max;

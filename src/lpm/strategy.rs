@@ -46,7 +46,7 @@ use crate::scene::image_source::{ImageSource, TrainImages};
 use crate::scene::{Image, Scene, View};
 use crate::shaders;
 use crate::splats::gpu::grown_capacity;
-use crate::train::density::{DensifyArgs, DensifyOutcome};
+use crate::train::density::{DensifyArgs, DensifyOutcome, ScoreInput};
 use crate::train::strategy::{
     Adc, DensityContext, DensityStrategy, Guide, IterationView, StrategyEvent,
 };
@@ -620,8 +620,13 @@ impl LpmStrategy {
             },
             self.ctx.groups_1d(count as u64, WG),
         );
-        t.density
-            .record_decide(t.rec, t.state, args, Some(&self.scale), Some(&self.weight))?;
+        t.density.record_decide(
+            t.rec,
+            t.state,
+            args,
+            Some(&self.scale),
+            Some(ScoreInput::Weight(&self.weight)),
+        )?;
         t.rec.fill(&self.counters, 0);
         t.rec.barrier();
         let authors = self.config.prune == PruneMode::Authors;

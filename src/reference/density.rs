@@ -7,7 +7,7 @@ use super::project::{normalize_quat, quat_to_rotation};
 use crate::splats::{ExtraValues, GaussianParams};
 use crate::train::density::rng::rng_normal;
 use crate::train::density::{
-    Thresholds, DECIDE_CLONE, DECIDE_LOWERED, DECIDE_REMOVE, DECIDE_SPLIT,
+    ScoreInput, Thresholds, DECIDE_CLONE, DECIDE_LOWERED, DECIDE_REMOVE, DECIDE_SPLIT,
 };
 
 /// Parameters and their Adam moments (the moments use the parameter layout).
@@ -185,12 +185,12 @@ fn candidacy(
 /// Every Gaussian's score as `decide.comp` writes it (the same f32 operations): a candidate's
 /// statistic over `grad_threshold` (over its own scaled threshold with
 /// [`Thresholds::rank_lowered`]), the larger ratio when both tests pass, +∞ over a threshold
-/// ≤ 0, times its `score_weight`; 0 for the others ([`crate::train::density::budget`] ranks additions by it).
+/// ≤ 0, times its `score` weight or replaced by its `score`; 0 for the others ([`crate::train::density::budget`] ranks additions by it).
 pub fn scores(
     t: &Thresholds,
     stats: &HostStats,
     threshold_scale: Option<&[f32]>,
-    score_weight: Option<&[f32]>,
+    score: Option<ScoreInput<&[f32]>>,
     abs_threshold: Option<f32>,
 ) -> Vec<f32> {
     let ratio = |pass: bool, v: f32, thr: f32| match (pass, thr > 0.0) {
@@ -211,10 +211,11 @@ pub fn scores(
             };
             let grad = ratio(by_grad, stat, over);
             let abs = ratio(by_abs, abs_stat, abs_threshold.unwrap_or(f32::INFINITY));
-            let score = grad.max(abs);
-            match score_weight {
-                Some(w) if by_grad || by_abs => score * w[i],
-                _ => score,
+            let ratio = grad.max(abs);
+            match score {
+                Some(ScoreInput::Weight(w)) if by_grad || by_abs => ratio * w[i],
+                Some(ScoreInput::Replace(w)) if by_grad || by_abs => w[i],
+                _ => ratio,
             }
         })
         .collect()

@@ -14,8 +14,8 @@ use lpmsplat::train::density::budget::{self, BudgetCut};
 use lpmsplat::train::density::growth::{BudgetCurve, Growth};
 use lpmsplat::train::density::rng::fold_seed;
 use lpmsplat::train::density::{
-    reset_logit, DensifyArgs, DensifyPhase, DensityConfig, DensityControl, Statistic, Thresholds,
-    DECIDE_CLONE, DECIDE_LOWERED, DECIDE_REMOVE, DECIDE_SPLIT,
+    reset_logit, DensifyArgs, DensifyPhase, DensityConfig, DensityControl, ScoreInput, Statistic,
+    Thresholds, DECIDE_CLONE, DECIDE_LOWERED, DECIDE_REMOVE, DECIDE_SPLIT,
 };
 use rand::{Rng, SeedableRng};
 use std::sync::Arc;
@@ -367,7 +367,7 @@ fn random_steps_match_the_host_reference_and_grow_past_the_capacity() {
         dc.config = cfg_step;
         let args = DensifyArgs {
             extent: extent as f64,
-            prune_large: step % 2 == 1,
+            prune_large: step % 2 == 1 && step != 7,
             iteration: 600 + 100 * step,
             phase: DensifyPhase::Both,
         };
@@ -449,13 +449,14 @@ fn random_steps_match_the_host_reference_and_grow_past_the_capacity() {
 /// every kept one; a cap the step does not reach changes nothing. Steps 4–6 take the guided
 /// and exact modes: 4 the exact budget (every seen Gaussian a candidate, the count lands on the
 /// curve's target, score weights given), 5 the paper's ranking over the lowered threshold, 6
-/// score weights on one scale under a cap.
+/// score weights on one scale under a cap, 7 the exact budget ranked by a strategy's own
+/// scores (`ScoreInput::Replace`).
 #[test]
 fn a_gaussian_budget_keeps_the_additions_furthest_over_their_threshold() {
     let ctx = ctx();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(91);
     let (n, degree, extent) = (3_000usize, 1u32, 3.0f32);
-    for step in 0..7u32 {
+    for step in 0..8u32 {
         let params = random_params(&mut rng, n, degree, extent);
         let m = random_moments(&mut rng, n, degree, false);
         let v = random_moments(&mut rng, n, degree, true);
@@ -468,7 +469,7 @@ fn a_gaussian_budget_keeps_the_additions_furthest_over_their_threshold() {
             }
         }
         // The exact budget's curve: step 2 of 4 from n to 1.5 n (taming: 0.75 of the room).
-        let exact = (step == 4).then_some(BudgetCurve {
+        let exact = matches!(step, 4 | 7).then_some(BudgetCurve {
             target: n + n / 2,
             growth: Growth::Taming,
             initial: n,
@@ -483,7 +484,7 @@ fn a_gaussian_budget_keeps_the_additions_furthest_over_their_threshold() {
         };
         let args = DensifyArgs {
             extent: extent as f64,
-            prune_large: step % 2 == 1,
+            prune_large: step % 2 == 1 && step != 7,
             iteration: 200 + step,
             phase: DensifyPhase::Both,
         };
@@ -495,6 +496,12 @@ fn a_gaussian_budget_keeps_the_additions_furthest_over_their_threshold() {
         let weight: Option<Vec<f32>> = matches!(step, 4 | 6).then(|| {
             (0..n)
                 .map(|_| if rng.gen_bool(0.3) { 1.5 } else { 1.0 })
+                .collect()
+        });
+        // A strategy's own scores: any non-negative value, ties included.
+        let own: Option<Vec<f32>> = (step == 7).then(|| {
+            (0..n)
+                .map(|_| (rng.gen_range(0..400) as f32) * 0.25)
                 .collect()
         });
         let t = Thresholds::new(&cfg, &args).unwrap();
@@ -511,10 +518,10 @@ fn a_gaussian_budget_keeps_the_additions_furthest_over_their_threshold() {
         // Step 3: a cap above what the step reaches.
         let cap = match step {
             3 => natural + 10,
-            4 => exact.unwrap().target_at(args.iteration, n),
+            4 | 7 => exact.unwrap().target_at(args.iteration, n),
             _ => n + (natural - n) / 3,
         };
-        if step == 4 {
+        if exact.is_some() {
             assert_eq!(
                 cap,
                 n + 3 * (n / 2) / 4,
@@ -534,17 +541,16 @@ fn a_gaussian_budget_keeps_the_additions_furthest_over_their_threshold() {
             .map(|s| GpuBuffer::from_slice(&ctx, "threshold scale", s).unwrap());
         let weight_buf = weight
             .as_ref()
+            .or(own.as_ref())
             .map(|s| GpuBuffer::from_slice(&ctx, "score weight", s).unwrap());
+        let score_in = weight_buf.as_ref().map(|b| match own {
+            Some(_) => ScoreInput::Replace(b),
+            None => ScoreInput::Weight(b),
+        });
         let mut rec = Recorder::new(&ctx).unwrap();
         rec.begin().unwrap();
-        dc.record_decide(
-            &mut rec,
-            &state,
-            &args,
-            scale_buf.as_ref(),
-            weight_buf.as_ref(),
-        )
-        .unwrap();
+        dc.record_decide(&mut rec, &state, &args, scale_buf.as_ref(), score_in)
+            .unwrap();
         rec.submit_and_wait().unwrap();
         rec.begin().unwrap();
 
@@ -552,7 +558,12 @@ fn a_gaussian_budget_keeps_the_additions_furthest_over_their_threshold() {
         // and the host divide exactly), and a score is two divisions: within 6 ULP of the
         // reference, and 0 or +inf exactly where it is. The cut and the decisions follow the
         // GPU's own scores, which the budget pass ranks.
-        let want_scores = reference::scores(&t, &stats, scale.as_deref(), weight.as_deref(), q);
+        let score_ref = match (&weight, &own) {
+            (Some(w), _) => Some(ScoreInput::Weight(w.as_slice())),
+            (_, Some(o)) => Some(ScoreInput::Replace(o.as_slice())),
+            _ => None,
+        };
+        let want_scores = reference::scores(&t, &stats, scale.as_deref(), score_ref, q);
         let scores = dc.scores().read_range(0, n).unwrap();
         for (i, (&g, &w)) in scores.iter().zip(&want_scores).enumerate() {
             let ulps = (g.to_bits() as i64 - w.to_bits() as i64).abs();
@@ -604,7 +615,7 @@ fn a_gaussian_budget_keeps_the_additions_furthest_over_their_threshold() {
                     dropped
                 );
                 assert!(dropped > 0 && dropped_max <= kept_min, "{label}");
-                if step == 4 {
+                if exact.is_some() {
                     // Exact: the count is the target (a split pruned anyway may save 2).
                     assert!(
                         after == cap || after + 1 == cap,

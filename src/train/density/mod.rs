@@ -52,7 +52,8 @@ pub mod rng;
 mod rules;
 
 pub use rules::{
-    reset_logit, DensifyArgs, DensifyOutcome, DensifyPhase, DensityConfig, Statistic, Thresholds,
+    reset_logit, DensifyArgs, DensifyOutcome, DensifyPhase, DensityConfig, ScoreInput, Statistic,
+    Thresholds,
 };
 
 use super::adam::SplatState;
@@ -432,8 +433,8 @@ impl DensityControl {
 
     /// Records the decision kernel for `state` (see the module docs). `threshold_scale`, when
     /// given, multiplies the gradient threshold per Gaussian (e.g. 0.5 inside LPM zones);
-    /// `score_weight` multiplies each candidate's score, the ranking a budget keeps the best of
-    /// (a guide's preference, e.g. LPM's zones). May reallocate the scratch buffers (decisions,
+    /// `score` multiplies each candidate's score, the ranking a budget keeps the best of (a
+    /// guide's preference, e.g. LPM's zones), or replaces it (a strategy's own ranking). May reallocate the scratch buffers (decisions,
     /// slots) when the state outgrew them, so record it once per step and follow it with
     /// [`DensityControl::apply`].
     pub fn record_decide(
@@ -442,8 +443,9 @@ impl DensityControl {
         state: &SplatState,
         args: &DensifyArgs,
         threshold_scale: Option<&GpuBuffer<f32>>,
-        score_weight: Option<&GpuBuffer<f32>>,
+        score: Option<ScoreInput<&GpuBuffer<f32>>>,
     ) -> anyhow::Result<()> {
+        let score_weight = score.map(|s| *s.values());
         let t = Thresholds::new(&self.config, args)?;
         let count = state.count();
         ensure!(
@@ -495,7 +497,8 @@ impl DensityControl {
                 | ((abs_threshold.is_some() as u32) << 2)
                 | ((t.rank_all as u32) << 3)
                 | ((score_weight.is_some() as u32) << 4)
-                | ((t.rank_lowered as u32) << 5),
+                | ((t.rank_lowered as u32) << 5)
+                | ((matches!(score, Some(ScoreInput::Replace(_))) as u32) << 6),
             grad_threshold: t.grad_threshold,
             log_clone_max: t.log_clone_max,
             min_opacity_logit: t.min_opacity_logit,

@@ -131,6 +131,25 @@ impl DensityConfig {
     }
 }
 
+/// A strategy's say in a density step's ranking, one value per Gaussian: what the budget keeps
+/// the best of. Which Gaussians are candidates does not change.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ScoreInput<T> {
+    /// Multiplies each candidate's statistic ratio (a guide's preference: LPM's zones).
+    Weight(T),
+    /// Is each candidate's score (a ranking of the strategy's own: the blended score of
+    /// `crate::taming`).
+    Replace(T),
+}
+
+impl<T> ScoreInput<T> {
+    pub fn values(&self) -> &T {
+        match self {
+            ScoreInput::Weight(v) | ScoreInput::Replace(v) => v,
+        }
+    }
+}
+
 /// Per-step inputs.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DensifyArgs {
