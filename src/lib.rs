@@ -24,6 +24,7 @@ pub mod settings;
 pub mod splats;
 pub mod strategies;
 pub mod synthetic;
+pub mod taming;
 pub mod train;
 pub mod triangulated_init;
 

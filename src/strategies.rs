@@ -13,6 +13,7 @@ use crate::lpm::strategy::LpmStrategy;
 use crate::mcmc::{McmcConfig, McmcStrategy};
 use crate::scene::image_source::TrainImages;
 use crate::scene::{images, Image, Scene};
+use crate::taming::{BlendConfig, BlendedScore};
 use crate::train::strategy::{DensityStrategy, Primitive};
 use crate::train::trainer::{TrainConfig, Trainer};
 
@@ -45,20 +46,54 @@ pub fn build_lpm(
     LpmStrategy::new(ctx, scene, train_images.clone(), corr, config)
 }
 
-/// The strategy of a run of `config` with `mcmc` and/or LPM (`lpm`), or `None` for the
-/// trainer's own ADC: MCMC alone, LPM around ADC, or LPM guiding MCMC.
+/// What a run's density strategy is built on, LPM aside.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Base {
+    /// The trainer's own ADC (with or without an exact budget).
+    Adc,
+    Mcmc(McmcConfig),
+    /// The exact-budget ADC ranked by the blended score.
+    Blend(BlendConfig),
+}
+
+impl Base {
+    /// MCMC when `mcmc` is given, else the blended score when `blend` is, else ADC.
+    pub fn of(mcmc: Option<McmcConfig>, blend: Option<BlendConfig>) -> Base {
+        match (mcmc, blend) {
+            (Some(m), _) => Base::Mcmc(m),
+            (None, Some(b)) => Base::Blend(b),
+            (None, None) => Base::Adc,
+        }
+    }
+}
+
+/// The strategy of a run of `config` on `base` and/or LPM (`lpm`), or `None` for the trainer's
+/// own ADC: MCMC or the blended score alone, LPM around ADC, or LPM guiding either.
 pub fn assemble(
     ctx: &Arc<GpuContext>,
     scene: &Scene,
     train_images: &TrainImages,
     config: &TrainConfig,
     lpm: Option<LpmConfig>,
-    mcmc: Option<McmcConfig>,
+    base: Base,
     cache_dir: &Path,
 ) -> anyhow::Result<Option<Box<dyn DensityStrategy>>> {
+    if let Base::Blend(_) = base {
+        anyhow::ensure!(
+            config.density.exact_budget.is_some(),
+            "the blended score ranks the exact-budget ADC's candidates. Fix: --strategy \
+             adc-exact --budget N with --budget-score blend"
+        );
+        anyhow::ensure!(
+            config.surfels.is_none() && config.spacetime.is_none() && !config.mip_filters,
+            "the blended score draws its views with the plain 3D Gaussian renderer, not this \
+             model's (2DGS, SpacetimeGaussians and Mip-Splatting render otherwise). Fix: \
+             --budget-score gradient, or --model 3dgs / pixel-gs"
+        );
+    }
     if let Some(c) = lpm.as_ref().filter(|c| c.surface_share > 0.0) {
         anyhow::ensure!(
-            mcmc.is_some(),
+            matches!(base, Base::Mcmc(_)),
             "LPM surface share {} (--lpm-surface-share) moves MCMC's dead Gaussians onto the \
              zones' surface samples; this run has no MCMC. Fix: add --strategy mcmc --budget N, \
              or drop --lpm-surface-share",
@@ -71,20 +106,25 @@ pub fn assemble(
             c.surface_share
         );
     }
-    let mcmc = match mcmc {
-        Some(c) => Some(McmcStrategy::new(ctx, c, primitive_of(config))?),
-        None => None,
+    let base: Option<Box<dyn DensityStrategy>> = match base {
+        Base::Mcmc(c) => Some(Box::new(McmcStrategy::new(ctx, c, primitive_of(config))?)),
+        Base::Blend(b) => Some(Box::new(BlendedScore::new(
+            ctx,
+            scene,
+            train_images.clone(),
+            b,
+        )?)),
+        Base::Adc => None,
     };
-    Ok(match (lpm, mcmc) {
-        (Some(c), mcmc) => {
+    Ok(match (lpm, base) {
+        (Some(c), base) => {
             let lpm = build_lpm(ctx, scene, train_images, c, cache_dir)?;
-            Some(match mcmc {
-                Some(m) => Box::new(lpm.wrapping(Box::new(m))),
+            Some(match base {
+                Some(m) => Box::new(lpm.wrapping(m)),
                 None => Box::new(lpm),
             })
         }
-        (None, Some(m)) => Some(Box::new(m)),
-        (None, None) => None,
+        (None, base) => base,
     })
 }
 
@@ -93,5 +133,13 @@ pub fn mcmc_of(trainer: &Trainer) -> Option<&McmcStrategy> {
     trainer.strategy_as::<McmcStrategy>().or_else(|| {
         let lpm = trainer.strategy_as::<LpmStrategy>()?;
         lpm.inner().as_any().downcast_ref::<McmcStrategy>()
+    })
+}
+
+/// The run's blended-score strategy, on its own or guided by LPM; `None` for the others.
+pub fn blended_of(trainer: &Trainer) -> Option<&BlendedScore> {
+    trainer.strategy_as::<BlendedScore>().or_else(|| {
+        let lpm = trainer.strategy_as::<LpmStrategy>()?;
+        lpm.inner().as_any().downcast_ref::<BlendedScore>()
     })
 }

@@ -13,7 +13,7 @@ const fn run(name: &'static str, colour: [u8; 3], what: &'static str) -> Run {
     Run { name, colour, what }
 }
 
-pub const RUNS: [Run; 33] = [
+pub const RUNS: [Run; 35] = [
     run("adc", [40, 40, 40], "ADC, the base model's own density control"),
     run("adc-threshold-1e-4", [200, 120, 0], "ADC with its gradient threshold halved to 1e-4 (alias adc-1e-4)"),
     run("adc+lpm", [220, 30, 30], "ADC + LPM with our rules (`train --lpm`; alias lpm)"),
@@ -46,6 +46,8 @@ pub const RUNS: [Run; 33] = [
     run("mcmc-start", [100, 200, 250], "MCMC from its own start as gsplat ships it: opacity 0.5, a tenth of the neighbours' spacing (`--init-opacity 0.5 --init-scale 0.1`)"),
     run("mcmc-keep", [20, 160, 200], "MCMC from every initial Gaussian at a budget below them: the count falls to the budget along the densify window, the least opaque removed at each refinement (`--budget-draw keep`)"),
     run("mcmc-drawn", [70, 70, 200], "MCMC from a start above the budget drawn down to it at random (`--budget-draw random`): what mcmc ran until keep became its default"),
+    run("adc-exact-blend", [0, 180, 110], "the exact budget ranked by Taming-3DGS's blended score over 10 sampled views instead of the gradient statistic (`--budget-score blend`)"),
+    run("adc-exact-blend+lpm-local", [220, 90, 40], "the same guided by local zones: each score times the zone weight"),
     run("mcmc-opaque", [160, 60, 20], "MCMC from points of opacity 0.5 at the neighbours' spacing (`--init-opacity 0.5`)"),
 ];
 

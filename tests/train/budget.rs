@@ -108,6 +108,102 @@ fn the_exact_budget_lands_on_its_curve_and_mcmc_grows_five_percent_a_step() {
     assert!(m["lpm"].is_object(), "{}", m["lpm"]);
 }
 
+/// `--budget-score blend`: the exact budget ranked by the blended score lands on the same curve
+/// as the gradient ranking (only the order the room is given out in changes), so the counts
+/// match step for step while the models differ; metrics.json records its two scored steps and
+/// their settings; guided by LPM it still lands there. Refused where it cannot rank: without
+/// adc-exact, or for a model the plain renderer does not draw.
+#[test]
+fn the_blended_score_ranks_the_exact_budget_without_changing_its_counts() {
+    let dir = tempfile::tempdir().unwrap();
+    let flags = ["--strategy", "adc-exact", "--budget", "1.3x"];
+    let grad = dir.path().join("gradient");
+    let o = train(&grad, &flags);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let blend = dir.path().join("blend");
+    let o = train(
+        &blend,
+        &[
+            &flags[..],
+            &["--budget-score", "blend", "--budget-score-views", "3"],
+        ]
+        .concat(),
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (hg, hb) = (history_counts(&grad), history_counts(&blend));
+    assert_eq!(hg, hb, "the same curve, step for step");
+    let read = |p: &Path| std::fs::read(p.join("point_cloud.ply")).unwrap();
+    assert_ne!(
+        read(&grad),
+        read(&blend),
+        "the ranking chose other Gaussians"
+    );
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(blend.join("metrics.json")).unwrap()).unwrap();
+    let b = &m["blended_score"];
+    assert_eq!(b["steps"], 2, "{b}");
+    assert_eq!(b["settings"]["views"], 3, "{b}");
+    assert_eq!(b["settings"]["weights"]["opacity"], 100.0, "{b}");
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(grad.join("metrics.json")).unwrap()).unwrap();
+    assert!(m["blended_score"].is_null());
+
+    let guided = dir.path().join("blend_lpm");
+    let o = train(
+        &guided,
+        &[
+            &flags[..],
+            &["--budget-score", "blend", "--lpm", "--lpm-zone", "local"],
+        ]
+        .concat(),
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let h = history_counts(&guided);
+    assert_eq!(count_at(&h, 70), count_at(&hb, 70), "{h:?}");
+
+    for (extra, says) in [
+        (
+            &["--budget", "2x", "--budget-score", "blend"][..],
+            "adc-exact",
+        ),
+        (
+            &[
+                "--strategy",
+                "adc-exact",
+                "--budget",
+                "2x",
+                "--budget-score",
+                "blend",
+                "--model",
+                "mip-splatting",
+            ][..],
+            "--budget-score gradient",
+        ),
+        (
+            &[
+                "--strategy",
+                "adc-exact",
+                "--budget",
+                "2x",
+                "--budget-score",
+                "blend",
+                "--budget-score-views",
+                "0",
+            ][..],
+            "--budget-score-views",
+        ),
+    ] {
+        let out = dir.path().join("refused");
+        let o = train(&out, extra);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            !o.status.success() && err.contains(says),
+            "{extra:?}: {err}"
+        );
+        assert!(!out.join("metrics.json").exists());
+    }
+}
+
 #[test]
 fn a_strategy_without_its_budget_or_a_bad_budget_is_refused() {
     let dir = tempfile::tempdir().unwrap();

@@ -36,6 +36,7 @@ use lpmsplat::scene::Scene;
 use lpmsplat::splats::budget_draw::Draw;
 use lpmsplat::splats::gpu::GpuSplats;
 use lpmsplat::splats::init::Look;
+use lpmsplat::taming::BlendConfig;
 use lpmsplat::train::density::growth::{BudgetCurve, Growth};
 use lpmsplat::train::trainer::{TrainConfig, Trainer, ViewMetrics};
 use std::io::Write;
@@ -227,6 +228,10 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                 cfg,
                 lpm,
                 mcmc,
+                blend: name.starts_with("adc-exact-blend").then(|| BlendConfig {
+                    seed,
+                    ..BlendConfig::default()
+                }),
                 draw,
                 look: run_look(name),
                 trainer: None,
@@ -275,7 +280,7 @@ pub fn run(gpu: &GpuOptions, args: &TradeArgs) -> anyhow::Result<()> {
                     &train_images,
                     &r.cfg,
                     r.lpm.clone(),
-                    r.mcmc,
+                    lpmsplat::strategies::Base::of(r.mcmc, r.blend),
                     &args.out,
                 )?;
                 if let Some(s) = strategy {
@@ -597,6 +602,8 @@ struct Run {
     lpm: Option<LpmConfig>,
     /// MCMC's settings, for the mcmc run.
     mcmc: Option<McmcConfig>,
+    /// The blended score's settings, for the adc-exact-blend runs.
+    blend: Option<BlendConfig>,
     /// How a start above its budget is drawn down to it, and whether the scales are refitted.
     draw: (Draw, bool),
     /// How its start from points looks (opacity, scale factor).

@@ -191,7 +191,7 @@ pub fn run(gpu: &GpuOptions, args: &TrainArgs) -> anyhow::Result<()> {
         &train_images,
         &config,
         lpm_config.clone(),
-        mcmc,
+        lpmsplat::strategies::Base::of(mcmc, strategy_args.blend(args.seed)),
         &args.out,
     )?;
     if let Some(s) = strategy {

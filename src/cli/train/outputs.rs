@@ -194,6 +194,7 @@ impl Finished<'_> {
                 j
             }),
             "exact_budget": config.density.exact_budget.map(|b| b.to_json()),
+            "blended_score": lpmsplat::strategies::blended_of(trainer).map(|b| b.totals_json()),
         })
     }
 

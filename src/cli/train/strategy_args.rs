@@ -4,6 +4,7 @@
 use clap::{Args, ValueEnum};
 use lpmsplat::mcmc::McmcConfig;
 use lpmsplat::splats::budget_draw::Draw;
+use lpmsplat::taming::BlendConfig;
 use lpmsplat::train::density::growth::{Budget, BudgetCurve, Growth};
 use lpmsplat::train::schedule::DensitySchedule;
 
@@ -17,6 +18,16 @@ pub enum StrategyName {
     /// 3DGS as Markov chain Monte Carlo: dead Gaussians move onto live ones, growth to the
     /// budget by 5 % a refinement, position noise, opacity and scale regularisers.
     Mcmc,
+}
+
+/// How the exact budget ranks its candidates.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum BudgetScore {
+    /// The gradient statistic over the threshold.
+    Gradient,
+    /// Taming-3DGS's blended score over a few sampled training views: coverage, blending
+    /// weight, the error and edges of the pixels covered, opacity, size and gradient.
+    Blend,
 }
 
 #[derive(Args, Debug, Clone)]
@@ -47,6 +58,13 @@ pub struct StrategyArgs {
     /// a start from points; a trained --init-ply keeps its own scales.
     #[arg(long)]
     pub budget_refit_scales: bool,
+    /// adc-exact: how candidates are ranked for the budget's room (blend: 3DGS and Pixel-GS;
+    /// two renders a sampled view a densify step).
+    #[arg(long, value_enum, default_value_t = BudgetScore::Gradient)]
+    pub budget_score: BudgetScore,
+    /// --budget-score blend: training views drawn a densify step.
+    #[arg(long, value_name = "N", default_value_t = 10)]
+    pub budget_score_views: usize,
     /// mcmc: the position noise's learning rate (× the position learning rate).
     #[arg(long, default_value_t = 5e5)]
     pub mcmc_noise_lr: f64,
@@ -102,6 +120,15 @@ impl StrategyArgs {
         })
     }
 
+    /// The blended score's settings, when asked for (`seed` keys its draw of views).
+    pub fn blend(&self, seed: u64) -> Option<BlendConfig> {
+        (self.budget_score == BudgetScore::Blend).then(|| BlendConfig {
+            views: self.budget_score_views,
+            seed,
+            ..BlendConfig::default()
+        })
+    }
+
     /// MCMC's settings around `curve`.
     pub fn mcmc(&self, curve: BudgetCurve, seed: u64) -> McmcConfig {
         McmcConfig {
@@ -152,6 +179,14 @@ impl StrategyArgs {
             self.draw() != Draw::Keep || !self.budget_refit_scales,
             "--budget-draw keep with --budget-refit-scales: nothing is drawn, so no scale is \
              refitted. Fix: drop --budget-refit-scales"
+        );
+        ensure!(
+            self.budget_score == BudgetScore::Gradient || self.strategy == StrategyName::AdcExact,
+            "--budget-score blend ranks the exact budget's candidates. Fix: --strategy adc-exact"
+        );
+        ensure!(
+            self.budget_score_views > 0,
+            "--budget-score-views 0: the blended score needs at least one view a step"
         );
         if self.strategy == StrategyName::Mcmc {
             ensure!(
