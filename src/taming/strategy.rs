@@ -199,13 +199,17 @@ impl BlendedScore {
                     })
                     .collect(),
             };
-            renderer.render_blocking(
-                &t.state.params,
-                &self.camera_buffer,
-                k as u32,
-                &cam,
-                &settings,
-            )?;
+            // Once for the view's error, once with its pixel importance uploaded.
+            let draw = |r: &mut Renderer| {
+                r.render_blocking(
+                    &t.state.params,
+                    &self.camera_buffer,
+                    k as u32,
+                    &cam,
+                    &settings,
+                )
+            };
+            draw(renderer)?;
             let image = renderer.read_image()?;
             let l1 = crate::metrics::l1(&image, &truth_rgb)?;
             let ssim = crate::metrics::ssim(&image, &truth_rgb, width, height)?;
@@ -215,13 +219,7 @@ impl BlendedScore {
                 .pixel_weights_buffer()
                 .expect("allocated by the first frame")
                 .upload(&importance)?;
-            renderer.render_blocking(
-                &t.state.params,
-                &self.camera_buffer,
-                k as u32,
-                &cam,
-                &settings,
-            )?;
+            draw(renderer)?;
             let sums = renderer.read_contributions(n)?;
             let bounds = renderer.frame.projected.bounds.read_range(0, n)?;
             let view = ViewTerms {
