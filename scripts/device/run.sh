@@ -47,6 +47,10 @@
 #            BLOCK_FRACTION sets the LPM runs' --lpm-block-fraction (0.7 led at -r 4);
 #            MATCH=1 holds the other runs to ADC's count at every iteration instead;
 #            THRESHOLD_RATIO=1 runs LPM without its lowered threshold (its resets only)
+#   blend7k  bench trade on the packed scene at full size, 7k of the 30k calendar: the exact
+#            budget ranked by the gradient statistic and by Taming-3DGS's blended score
+#            (adc-exact, adc-exact-blend) at one count, --budget COUNT (default 1M), seed SEED (0);
+#            TRADE_RUNS replaces the list (e.g. adc-exact,adc-exact-blend,mcmc)
 #   MODEL=NAME (2dgs, pixel-gs, mip-splatting) sets the base model of trade7k, trade30k,
 #            local7k and budget7k (default 3dgs)
 #   train30k train the packed scene at full size with LPM, 30k iterations, --timestamps
@@ -363,12 +367,20 @@ for s in "$@"; do
                 ${THRESHOLD_RATIO:+--lpm-threshold-ratio "$THRESHOLD_RATIO"} "${model_args[@]}" \
                 -o "$work/budget7k"
         ;;
+    blend7k)
+        # The blended score against the gradient ranking at one exact count, interleaved.
+        need_scene blend7k &&
+            step blend7k 900 "$bin" bench trade "$scene" -r 1 --iterations 7000 --calendar 30000 \
+                --runs "${TRADE_RUNS:-adc-exact,adc-exact-blend}" --budget "${COUNT:-1M}" \
+                --seed "${SEED:-0}" --eval-at 3500 --fps-frames 5 "${model_args[@]}" \
+                -o "$work/blend7k"
+        ;;
     train30k)
         need_scene train30k &&
             step train30k 900 "$bin" train "$scene" -r 1 --iterations 30000 --lpm --eval-every 5000 \
                 --timestamps -o "$work/train30k"
         ;;
-    *) echo "$s: unknown step (info tests demo ahead fps sortdigits fpspair trade7k trade30k ablate7k pair30k serial30k layouts lossbench losslayouts stgs local7k budget7k train30k)" >>"$summary" ;;
+    *) echo "$s: unknown step (info tests demo ahead fps sortdigits fpspair trade7k trade30k ablate7k pair30k serial30k layouts lossbench losslayouts stgs local7k budget7k blend7k train30k)" >>"$summary" ;;
     esac
     collect
 done
