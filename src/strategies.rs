@@ -11,18 +11,17 @@ use crate::lpm;
 use crate::lpm::config::LpmConfig;
 use crate::lpm::strategy::LpmStrategy;
 use crate::mcmc::{McmcConfig, McmcStrategy};
+use crate::models::BaseModel;
 use crate::scene::image_source::TrainImages;
 use crate::scene::{images, Image, Scene};
 use crate::taming::{BlendConfig, BlendedScore};
 use crate::train::strategy::{DensityStrategy, Primitive};
 use crate::train::trainer::{TrainConfig, Trainer};
 
-/// The shape of the primitives a run trains (2DGS's surfels or 3D Gaussians).
+/// The shape of the primitives a run trains (2DGS's surfels or 3D Gaussians), as its base
+/// model says.
 pub fn primitive_of(config: &TrainConfig) -> Primitive {
-    match config.surfels.is_some() {
-        true => Primitive::Surfel,
-        false => Primitive::Gaussian,
-    }
+    BaseModel::of(config).model().primitive()
 }
 
 /// Builds the LPM state for a trainer: correspondences from the cache in `cache_dir` (built and

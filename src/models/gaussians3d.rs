@@ -3,9 +3,13 @@
 
 use super::model::Model;
 use crate::train::density::Statistic;
+use crate::train::passes::ModelTraining;
 use crate::train::trainer::TrainConfig;
 
 pub struct Gaussians3d;
+
+/// The 3D-Gaussian passes (the defaults).
+impl ModelTraining for Gaussians3d {}
 
 impl Model for Gaussians3d {
     fn name(&self) -> &'static str {

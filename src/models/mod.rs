@@ -15,6 +15,7 @@ pub mod options;
 mod pixel_gs;
 mod spacetime;
 mod surfels2d;
+mod trainer;
 
 pub use model::Model;
 pub use options::ModelOptions;

@@ -2,8 +2,8 @@
 //! (`gaussians3d.rs`, `pixel_gs.rs`, `mip_splatting.rs`, `surfels2d.rs`, `spacetime.rs`) and
 //! listed once in [`super::BaseModel::model`], the registry. A model says what it changes in a
 //! training run's config and how to tell a config of its own, its defaults, how its initial
-//! model and its PLYs look, and which renderer draws it; the rest of the engine asks the
-//! registry and names no model.
+//! model and its PLYs look, which renderer draws it, and which passes train it; the rest of
+//! the engine asks the registry and names no model.
 
 use std::path::Path;
 use std::sync::Arc;
@@ -12,12 +12,15 @@ use crate::gpu::GpuContext;
 use crate::render::layout::{CameraGpu, RenderConstants};
 use crate::render::view::{GaussianView, ViewRenderer};
 use crate::splats::GaussianParams;
+use crate::train::passes::ModelTraining;
 use crate::train::trainer::TrainConfig;
 
 /// One base model. Only `name`, `configure` and `trains` have no default: the defaults are
 /// 3DGS's (the Inria values, 3D Gaussians in the Inria PLY layout, drawn by the 3D-Gaussian
-/// renderer).
-pub trait Model: Sync {
+/// renderer). What the trainer asks of it (its passes, its own density rules, which of its
+/// parameters are lengths) is its [`ModelTraining`], defined beside the trainer so that the
+/// trainer names no model.
+pub trait Model: ModelTraining {
     /// The command line's and the PLY header's name (`--model NAME`).
     fn name(&self) -> &'static str;
 
@@ -53,16 +56,6 @@ pub trait Model: Sync {
     /// Turns a 3DGS-style initial model (from points) into this model's.
     fn initialise(&self, params: GaussianParams, _seed: u64) -> GaussianParams {
         params
-    }
-
-    /// The extra groups that are lengths (moved and scaled with the frame, as positions).
-    fn length_groups(&self) -> &'static [&'static str] {
-        &[]
-    }
-
-    /// Whether its third log-scale is a fixed marker rather than a length (a surfel's).
-    fn fixed_third_scale(&self) -> bool {
-        false
     }
 
     /// Reads a trained PLY in this model's layout (after the header checks).

@@ -4,9 +4,13 @@
 
 use super::model::Model;
 use crate::train::density::Statistic;
+use crate::train::passes::ModelTraining;
 use crate::train::trainer::TrainConfig;
 
 pub struct PixelGs;
+
+/// The 3D-Gaussian passes (the defaults).
+impl ModelTraining for PixelGs {}
 
 impl Model for PixelGs {
     fn name(&self) -> &'static str {

@@ -10,15 +10,86 @@ use std::sync::Arc;
 
 use super::model::Model;
 use crate::gpu::GpuContext;
+use crate::render::forward::Capacity;
 use crate::render::layout::{CameraGpu, RenderConstants};
 use crate::render::view::{SpacetimeView, ViewRenderer};
+use crate::scene::Scene;
 use crate::splats::GaussianParams;
 use crate::train::density::Statistic;
+use crate::train::passes::guided_sampling::GuidedSampler;
+use crate::train::passes::spacetime::SpacetimePasses;
+use crate::train::passes::world_culls::WorldCuller;
+use crate::train::passes::{ModelPasses, ModelTraining};
+use crate::train::strategy::ModelRule;
 use crate::train::trainer::TrainConfig;
 
 /// `full`: the full model (features and decoder); else the lite one.
 pub struct Spacetime {
     pub full: bool,
+}
+
+impl ModelTraining for Spacetime {
+    /// The 3DGS passes on the model at each view's time; a still scene is refused.
+    fn passes(
+        &self,
+        ctx: &Arc<GpuContext>,
+        config: &TrainConfig,
+        cameras: &[CameraGpu],
+        train_views: &[usize],
+        view_times: Option<&[f64]>,
+        capacity: usize,
+        frame: Capacity,
+    ) -> anyhow::Result<Box<dyn ModelPasses>> {
+        let Some(times) = view_times else {
+            anyhow::bail!(
+                "SpacetimeGaussians trains on a video scene (views with times); this scene is \
+                 still. Fix: point at a Neural 3D Video or Panoptic scene folder"
+            );
+        };
+        Ok(Box::new(SpacetimePasses::new(
+            ctx,
+            config,
+            cameras,
+            train_views,
+            times,
+            capacity,
+            frame,
+        )?))
+    }
+
+    /// Guided error sampling and the Neural 3D Video culls, when the config asks for them.
+    fn rules(
+        &self,
+        ctx: &Arc<GpuContext>,
+        config: &TrainConfig,
+        scene: &Scene,
+        initial: &GaussianParams,
+    ) -> anyhow::Result<Vec<Box<dyn ModelRule>>> {
+        let mut rules: Vec<Box<dyn ModelRule>> = Vec::new();
+        if let (Some(g), Some(times)) = (
+            config.spacetime.as_ref().and_then(|s| s.guided),
+            scene.view_times.as_deref(),
+        ) {
+            rules.push(Box::new(GuidedSampler::new(
+                ctx,
+                g,
+                config.seed,
+                &scene.views,
+                &scene.train,
+                times,
+                initial,
+            )?));
+        }
+        if let Some(w) = config.spacetime.as_ref().and_then(|s| s.world_culls) {
+            rules.push(Box::new(WorldCuller::new(w, &scene.frame, initial)?));
+        }
+        Ok(rules)
+    }
+
+    /// The motion coefficients are lengths per unit of time.
+    fn length_groups(&self) -> &'static [&'static str] {
+        &["motion"]
+    }
 }
 
 impl Model for Spacetime {
@@ -66,11 +137,6 @@ impl Model for Spacetime {
     /// The temporal groups ([`super::with_temporal_groups`]), and the full model's features.
     fn initialise(&self, params: GaussianParams, seed: u64) -> GaussianParams {
         super::with_temporal_groups(params, seed, self.full)
-    }
-
-    /// The motion coefficients are lengths per unit of time.
-    fn length_groups(&self) -> &'static [&'static str] {
-        &["motion"]
     }
 
     fn read_ply(&self, path: &Path) -> anyhow::Result<GaussianParams> {

@@ -7,14 +7,45 @@ use std::sync::Arc;
 
 use super::model::Model;
 use crate::gpu::GpuContext;
+use crate::render::forward::Capacity;
 use crate::render::layout::{CameraGpu, RenderConstants};
 use crate::render::view::{SurfelView, ViewRenderer};
 use crate::splats::GaussianParams;
 use crate::train::density::Statistic;
-use crate::train::passes::surfels::UNUSED_LOG_SCALE;
+use crate::train::passes::surfels::{SurfelPasses, UNUSED_LOG_SCALE};
+use crate::train::passes::{ModelPasses, ModelTraining};
+use crate::train::strategy::Primitive;
 use crate::train::trainer::TrainConfig;
 
 pub struct Surfels2d;
+
+impl ModelTraining for Surfels2d {
+    fn passes(
+        &self,
+        ctx: &Arc<GpuContext>,
+        config: &TrainConfig,
+        _cameras: &[CameraGpu],
+        _train_views: &[usize],
+        _view_times: Option<&[f64]>,
+        capacity: usize,
+        frame: Capacity,
+    ) -> anyhow::Result<Box<dyn ModelPasses>> {
+        Ok(Box::new(SurfelPasses::new(
+            ctx,
+            capacity,
+            frame,
+            config.raster_pixels,
+        )?))
+    }
+
+    fn primitive(&self) -> Primitive {
+        Primitive::Surfel
+    }
+
+    fn fixed_third_scale(&self) -> bool {
+        true
+    }
+}
 
 impl Model for Surfels2d {
     fn name(&self) -> &'static str {
@@ -51,10 +82,6 @@ impl Model for Surfels2d {
             *q = [0; 4].map(|_| rng.gen_range(0.0..1.0f32).max(1e-3));
         }
         params
-    }
-
-    fn fixed_third_scale(&self) -> bool {
-        true
     }
 
     /// Ours keep the marker as a third scale; the official layout has two scales.

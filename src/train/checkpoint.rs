@@ -40,6 +40,7 @@ use std::sync::Arc;
 
 use anyhow::Context;
 
+use super::passes::ModelTraining;
 use super::trainer::{TrainConfig, Trainer};
 use crate::error::{bad_input, write_atomic};
 use crate::gpu::{GpuBuffer, GpuContext};
@@ -746,26 +747,29 @@ impl Trainer {
 
     /// A trainer continuing the run saved in `checkpoint` (read from `path`, named in errors)
     /// on `scene`, which must be the scene it was trained on, with the same configuration
-    /// (only `iterations` may differ).
-    pub fn resume(
+    /// (only `iterations` may differ), of `model` (`Trainer::resume`, in `models/`, picks it
+    /// from the config).
+    pub fn resume_with_model(
         ctx: &Arc<GpuContext>,
         scene: &Scene,
         train_images: impl Into<TrainImages>,
         config: TrainConfig,
         path: &Path,
+        model: &dyn ModelTraining,
     ) -> anyhow::Result<Self> {
         let ck = Checkpoint::read(path)?;
-        Self::restore(ctx, scene, train_images, config, &ck, path)
+        Self::restore_with_model(ctx, scene, train_images, config, &ck, path, model)
     }
 
-    /// As [`Trainer::resume`] from a checkpoint already in memory.
-    pub fn restore(
+    /// As [`Trainer::resume_with_model`] from a checkpoint already in memory.
+    pub fn restore_with_model(
         ctx: &Arc<GpuContext>,
         scene: &Scene,
         train_images: impl Into<TrainImages>,
         config: TrainConfig,
         ck: &Checkpoint,
         path: &Path,
+        model: &dyn ModelTraining,
     ) -> anyhow::Result<Self> {
         // The extra groups come with the model, which the configuration comparison below checks.
         let here = SceneFingerprint::of(
@@ -779,12 +783,11 @@ impl Trainer {
         let mut moved;
         let ck = if ck.fingerprint.frame.is_none() {
             moved = ck.clone();
-            let lengths: &[&str] = if config.spacetime.is_some() {
-                &["motion"]
-            } else {
-                &[]
-            };
-            moved.into_frame(&scene.frame, config.surfels.is_some(), lengths);
+            moved.into_frame(
+                &scene.frame,
+                model.fixed_third_scale(),
+                model.length_groups(),
+            );
             &moved
         } else {
             ck
@@ -856,7 +859,7 @@ impl Trainer {
                 path.display()
             )
         })?;
-        let mut t = Trainer::set_up(ctx, scene, train_images, &params, config, false)?;
+        let mut t = Trainer::set_up(ctx, scene, train_images, &params, config, model, false)?;
         for rule in t.model_rules.iter_mut() {
             if let Some(state) = rule_states.get(rule.name()) {
                 rule.restore_state(state)

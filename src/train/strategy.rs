@@ -268,7 +268,7 @@ pub struct StepSeen<'a> {
 }
 
 /// A base model's own density rule, run by the trainer after every step besides the density
-/// strategy (SpacetimeGaussians' guided error sampling); made by `passes::rules_for_config`.
+/// strategy (SpacetimeGaussians' guided error sampling); made by the model's `passes::ModelTraining::rules`.
 pub trait ModelRule {
     fn name(&self) -> &'static str;
     /// Edits the initial model of a fresh run before it is uploaded (not called when a run

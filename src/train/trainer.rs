@@ -38,7 +38,7 @@ use super::density::{DensifyOutcome, DensityControl};
 use super::image_cache::{CacheStats, ImageCache, ImageSlot};
 use super::loss::{Loss, LOSS_SLOT_FLOATS};
 use super::loss_mask::GpuLossMasks;
-use super::passes::{self, FrameArgs, GradArgs, ModelPasses};
+use super::passes::{FrameArgs, GradArgs, ModelPasses, ModelTraining};
 use super::schedule::sh_degree_at;
 use super::strategy::{Adc, DensityStrategy, IterationView, ModelRule, StrategyEvent};
 use crate::gpu::{
@@ -180,21 +180,23 @@ pub(super) fn snapshot_or<'a>(
 }
 
 impl Trainer {
-    /// Sets up training of `init` on the training views of `scene` (image `k` of
-    /// `train_images` is that of `scene.train[k]`: a `&Vec<Image>` in memory, or
-    /// [`TrainImages::streamed`] from the files).
-    pub fn new(
+    /// Sets up training of `init`, a model of `model`, on the training views of `scene`
+    /// (image `k` of `train_images` is that of `scene.train[k]`: a `&Vec<Image>` in memory, or
+    /// [`TrainImages::streamed`] from the files). `Trainer::new` (in `models/`) picks `model`
+    /// from the config.
+    pub fn with_model(
         ctx: &Arc<GpuContext>,
         scene: &Scene,
         train_images: impl Into<TrainImages>,
         init: &GaussianParams,
         config: TrainConfig,
+        model: &dyn ModelTraining,
     ) -> anyhow::Result<Self> {
-        Self::set_up(ctx, scene, train_images, init, config, true)
+        Self::set_up(ctx, scene, train_images, init, config, model, true)
     }
 
-    /// [`Trainer::new`]; `fresh`: a new run, whose initial model the base model's own rules
-    /// may edit first ([`ModelRule::prepare_initial`]); a resumed run's model is the
+    /// [`Trainer::with_model`]; `fresh`: a new run, whose initial model the base model's own
+    /// rules may edit first ([`ModelRule::prepare_initial`]); a resumed run's model is the
     /// checkpoint's as it is.
     pub(super) fn set_up(
         ctx: &Arc<GpuContext>,
@@ -202,6 +204,7 @@ impl Trainer {
         train_images: impl Into<TrainImages>,
         init: &GaussianParams,
         config: TrainConfig,
+        model: &dyn ModelTraining,
         fresh: bool,
     ) -> anyhow::Result<Self> {
         let train_images = train_images.into();
@@ -226,7 +229,7 @@ impl Trainer {
         }
         // The passes see the configuration's world lengths in the scene's training frame.
         let frame_config = config.in_training_frame(&scene.frame);
-        let mut model_rules = passes::rules_for_config(ctx, &frame_config, scene, &init)?;
+        let mut model_rules = model.rules(ctx, &frame_config, scene, &init)?;
         let mut init = init;
         if fresh {
             for rule in model_rules.iter_mut() {
@@ -249,7 +252,7 @@ impl Trainer {
         let pixels = (max_w * max_h) as usize;
         let mut density = config.density;
         density.seed = config.seed;
-        let passes = passes::for_config(
+        let passes = model.passes(
             ctx,
             &frame_config,
             &cameras_host,

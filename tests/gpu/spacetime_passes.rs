@@ -311,18 +311,20 @@ fn a_still_scene_is_refused() {
     let mut rng = Pcg64::seed_from_u64(1);
     let (c, p) = random_view(&mut rng, 16, 16);
     let cams = [CameraGpu::new(&c, &p)];
-    let e = lpmsplat::train::passes::for_config(
-        &ctx,
-        &config,
-        &cams,
-        &[0],
-        None,
-        10,
-        Capacity::for_frame(10, &cams[0]),
-    )
-    .err()
-    .unwrap()
-    .to_string();
+    let e = BaseModel::SpacetimeLite
+        .model()
+        .passes(
+            &ctx,
+            &config,
+            &cams,
+            &[0],
+            None,
+            10,
+            Capacity::for_frame(10, &cams[0]),
+        )
+        .err()
+        .unwrap()
+        .to_string();
     assert!(e.contains("video scene") && e.contains("Fix:"), "{e}");
 }
 

@@ -1,7 +1,7 @@
 //! A base model's GPU passes, as the trainer drives them: the frame (forward), the gradients
 //! (backward, with the model's own losses), the buffers the model keeps per Gaussian beside the
 //! optimised parameters, and the renders for evaluation and export. The trainer loop knows only
-//! this trait; [`for_config`] picks the implementation:
+//! this trait; the base model makes it ([`ModelTraining::passes`]). The implementations:
 //!
 //! - [`gaussians::GaussianPasses`]: 3D Gaussians (3DGS, Pixel-GS's pixel counts, Mip-Splatting's
 //!   filters);
@@ -205,83 +205,60 @@ pub trait ModelPasses: Send {
     ) -> Result<GaussianParams>;
 }
 
-/// The passes of the model `config` trains, sized for `capacity` Gaussians and the largest
-/// training view (`frame`: pixels and tiles).
-#[allow(clippy::too_many_arguments)]
-pub fn for_config(
-    ctx: &Arc<GpuContext>,
-    config: &TrainConfig,
-    cameras: &[CameraGpu],
-    train_views: &[usize],
-    view_times: Option<&[f64]>,
-    capacity: usize,
-    frame: Capacity,
-) -> Result<Box<dyn ModelPasses>> {
-    if config.spacetime.is_some() {
-        let Some(times) = view_times else {
-            anyhow::bail!(
-                "SpacetimeGaussians trains on a video scene (views with times); this scene is \
-                 still. Fix: point at a Neural 3D Video or Panoptic scene folder"
-            );
-        };
-        return Ok(Box::new(spacetime::SpacetimePasses::new(
+/// What the trainer asks of a base model: the passes that draw and differentiate it, its own
+/// density rules, and which of its parameters are lengths. Every model implements it in
+/// `models/` (it is a supertrait of `models::Model`) and the trainer receives it
+/// ([`super::trainer::Trainer::with_model`]), so the trainer names no model. The defaults are
+/// 3D Gaussians' (3DGS, Pixel-GS and Mip-Splatting share the passes and differ in their
+/// config: the statistic, the filters).
+pub trait ModelTraining: Sync {
+    /// The passes for `config`, sized for `capacity` Gaussians and the largest training view
+    /// (`frame`: pixels and tiles); `view_times`: every view's time on a video scene.
+    #[allow(clippy::too_many_arguments)]
+    fn passes(
+        &self,
+        ctx: &Arc<GpuContext>,
+        config: &TrainConfig,
+        cameras: &[CameraGpu],
+        train_views: &[usize],
+        _view_times: Option<&[f64]>,
+        capacity: usize,
+        frame: Capacity,
+    ) -> Result<Box<dyn ModelPasses>> {
+        Ok(Box::new(gaussians::GaussianPasses::new(
             ctx,
             config,
             cameras,
             train_views,
-            times,
             capacity,
             frame,
-        )?));
+        )?))
     }
-    Ok(match &config.surfels {
-        Some(_) => Box::new(surfels::SurfelPasses::new(
-            ctx,
-            capacity,
-            frame,
-            config.raster_pixels,
-        )?),
-        None => Box::new(gaussians::GaussianPasses::new(
-            ctx,
-            config,
-            cameras,
-            train_views,
-            capacity,
-            frame,
-        )?),
-    })
-}
 
-/// The base model's own density rules besides the strategy (SpacetimeGaussians' guided error
-/// sampling and its Neural 3D Video culls when its settings ask for them), for `scene`'s
-/// training views from `initial`.
-pub fn rules_for_config(
-    ctx: &std::sync::Arc<crate::gpu::GpuContext>,
-    config: &TrainConfig,
-    scene: &crate::scene::Scene,
-    initial: &GaussianParams,
-) -> Result<Vec<Box<dyn ModelRule>>> {
-    let mut rules: Vec<Box<dyn ModelRule>> = Vec::new();
-    if let (Some(g), Some(times)) = (
-        config.spacetime.as_ref().and_then(|s| s.guided),
-        scene.view_times.as_deref(),
-    ) {
-        rules.push(Box::new(guided_sampling::GuidedSampler::new(
-            ctx,
-            g,
-            config.seed,
-            &scene.views,
-            &scene.train,
-            times,
-            initial,
-        )?));
+    /// The model's own density rules besides the strategy, for `scene`'s training views from
+    /// `initial` (SpacetimeGaussians' guided error sampling and Neural 3D Video culls).
+    fn rules(
+        &self,
+        _ctx: &Arc<GpuContext>,
+        _config: &TrainConfig,
+        _scene: &crate::scene::Scene,
+        _initial: &GaussianParams,
+    ) -> Result<Vec<Box<dyn ModelRule>>> {
+        Ok(Vec::new())
     }
-    if let Some(w) = config.spacetime.as_ref().and_then(|s| s.world_culls) {
-        rules.push(Box::new(world_culls::WorldCuller::new(
-            w,
-            &scene.frame,
-            initial,
-        )?));
+
+    /// The shape of its primitives (for strategies that add some).
+    fn primitive(&self) -> Primitive {
+        Primitive::Gaussian
     }
-    Ok(rules)
+
+    /// The extra groups that are lengths (moved and scaled with the frame, as positions).
+    fn length_groups(&self) -> &'static [&'static str] {
+        &[]
+    }
+
+    /// Whether its third log-scale is a fixed marker rather than a length (a surfel's).
+    fn fixed_third_scale(&self) -> bool {
+        false
+    }
 }
