@@ -104,3 +104,24 @@ pub fn write_atomic(
         }
     }
 }
+
+/// Creates `out` and proves it writable before any work is done, so that a long run (`train`,
+/// `bench trade`, `bench merge`) never fails at its end for want of a place to write.
+pub fn prepare_output(out: &Path) -> anyhow::Result<()> {
+    use anyhow::Context;
+    std::fs::create_dir_all(out).with_context(|| {
+        format!(
+            "{}: cannot create the output folder. Fix: choose a writable --out",
+            out.display()
+        )
+    })?;
+    let probe = out.join(".lpmsplat-write-test");
+    std::fs::write(&probe, b"ok").with_context(|| {
+        format!(
+            "{}: the output folder is not writable. Fix: choose a writable --out",
+            out.display()
+        )
+    })?;
+    let _ = std::fs::remove_file(probe);
+    Ok(())
+}

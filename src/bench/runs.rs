@@ -1,5 +1,5 @@
 //! The runs `bench trade` can compare, by name: each one's colour in the plots and what it is.
-//! `trade_runs` configures them; `--runs`' help is written from this table.
+//! [`super::trade::run_config`] configures them; `--runs`' help is written from this table.
 
 /// A run `bench trade` can compare: its name, its colour in the plots and what it is (the
 /// `--runs` help is written from these, so the list there is always this table).

@@ -1,10 +1,8 @@
 //! `--image-cache`: how much GPU memory the training images may take (shared by `train` and
-//! `bench trade`).
-
-use std::sync::Arc;
+//! `bench trade`; the cache itself is [`TrainImages::within_cache`]).
 
 use clap::Args;
-use lpmsplat::scene::image_source::{TrainImages, ViewImages};
+use lpmsplat::scene::image_source::TrainImages;
 use lpmsplat::scene::Scene;
 
 #[derive(Args, Debug, Clone)]
@@ -21,15 +19,6 @@ pub struct ImageCacheArgs {
 impl ImageCacheArgs {
     /// The scene's training images, read from their files within the budget.
     pub fn train_images(&self, scene: &Scene) -> anyhow::Result<TrainImages> {
-        anyhow::ensure!(
-            self.image_cache.is_finite() && self.image_cache > 0.0,
-            "--image-cache {}: the cache must hold at least one step's images. Fix: pass a size \
-             in MiB, e.g. --image-cache 512",
-            self.image_cache
-        );
-        Ok(TrainImages::streamed(
-            Arc::new(ViewImages::new(scene, &scene.train)?),
-            (self.image_cache * (1u64 << 20) as f64) as u64,
-        ))
+        TrainImages::within_cache(scene, self.image_cache)
     }
 }

@@ -1,11 +1,12 @@
 //! LPIPS for the commands that score renders (`eval`, `train`'s evaluations, `bench trade`):
-//! the weights flag they share, and filling each view's score in.
+//! the weights flag they share, and filling each view's score in ([`lpmsplat::lpips::scores`],
+//! re-exported here).
 
 use clap::Args;
 use lpmsplat::lpips::Lpips;
-use lpmsplat::scene::Image;
-use lpmsplat::train::trainer::ViewMetrics;
 use std::path::PathBuf;
+
+pub use lpmsplat::lpips::scores::{mean, score_view};
 
 /// The flag, flattened into each command that scores renders.
 #[derive(Args, Debug, Clone)]
@@ -27,28 +28,3 @@ impl LpipsArgs {
 
 /// What the JSON and tables say when LPIPS was not computed.
 pub const NOT_COMPUTED: &str = "LPIPS not computed: pass --lpips-weights FILE (see docs/lpips.md)";
-
-/// Scores one view's render against its ground truth (already composited on the background
-/// PSNR and SSIM used) into its metrics; nothing without weights.
-pub fn score_view(
-    lpips: Option<&Lpips>,
-    metrics: &mut ViewMetrics,
-    render: &[f32],
-    truth: &Image,
-) -> anyhow::Result<()> {
-    if let Some(net) = lpips {
-        metrics.lpips = Some(net.distance(
-            render,
-            &truth.rgb,
-            truth.width as usize,
-            truth.height as usize,
-        )?);
-    }
-    Ok(())
-}
-
-/// The mean LPIPS of views scored by [`score_view`] (`None` when none was).
-pub fn mean(metrics: &[ViewMetrics]) -> Option<f64> {
-    let scored: Vec<f64> = metrics.iter().filter_map(|m| m.lpips).collect();
-    (!scored.is_empty()).then(|| scored.iter().sum::<f64>() / scored.len() as f64)
-}

@@ -20,6 +20,7 @@
 //! reduced to its distance before the next layer, so memory stays at about two layers' maps.
 
 mod alexnet;
+pub mod scores;
 pub mod weights;
 
 use crate::error::InputError;

@@ -12,6 +12,7 @@ mod gaussians3d;
 mod mip_splatting;
 pub mod model;
 pub mod options;
+pub mod output;
 mod pixel_gs;
 mod spacetime;
 mod surfels2d;

@@ -100,6 +100,21 @@ impl TrainImages {
             cache_bytes: Some(cache_bytes),
         }
     }
+
+    /// `scene`'s training images, read from their files within a cache of `cache_mib` MiB of
+    /// GPU memory (`--image-cache`, shared by `train` and the `bench trade` harness).
+    pub fn within_cache(scene: &Scene, cache_mib: f64) -> anyhow::Result<Self> {
+        anyhow::ensure!(
+            cache_mib.is_finite() && cache_mib > 0.0,
+            "--image-cache {}: the cache must hold at least one step's images. Fix: pass a size \
+             in MiB, e.g. --image-cache 512",
+            cache_mib
+        );
+        Ok(Self::streamed(
+            Arc::new(ViewImages::new(scene, &scene.train)?),
+            (cache_mib * (1u64 << 20) as f64) as u64,
+        ))
+    }
 }
 
 impl From<&Vec<Image>> for TrainImages {

@@ -22,7 +22,6 @@ use std::time::Instant;
 mod trade;
 mod trade_args;
 mod trade_merge;
-mod trade_runs;
 mod trade_sweep;
 
 #[derive(Args, Debug)]

@@ -1,9 +1,10 @@
 //! `bench trade`'s command line: the scene, the runs, their calendar and the settings every
-//! run shares, and [`settings_json`], what of them trade.json records for `bench merge`.
+//! run shares, and [`TradeArgs::settings`], the harness's settings they make.
 
 use crate::cli::lpips_scores::LpipsArgs;
 use crate::cli::SceneArgs;
 use clap::Args;
+use lpmsplat::bench::trade::TradeSettings;
 use lpmsplat::lpm::config::PruneMode;
 use lpmsplat::models::BaseModel;
 use lpmsplat::train::passes::world_culls::N3dvCulls;
@@ -144,35 +145,96 @@ pub struct TradeArgs {
 }
 
 impl TradeArgs {
-    /// How the mcmc runs that name no draw come down to a budget below their start
-    /// (`--budget-draw`; by default kept whole, as `train --strategy mcmc`).
-    pub fn mcmc_draw(&self) -> lpmsplat::splats::budget_draw::Draw {
-        self.budget_draw
-            .unwrap_or(lpmsplat::splats::budget_draw::Draw::Keep)
+    /// The harness's settings: the flags as they are, the scene's resolved into its load
+    /// options (which refuses `-r 0`).
+    pub fn settings(&self) -> anyhow::Result<TradeSettings> {
+        Ok(TradeSettings {
+            scene: self.scene.scene.clone(),
+            load_options: self.scene.load_options()?,
+            test_split: self.scene.test_split.clone(),
+            frames: self.scene.frames,
+            image_cache_mib: self.images.image_cache,
+            lpips_weights: self.lpips.lpips_weights.clone(),
+            iterations: self.iterations,
+            model: self.model,
+            calendar: self.calendar,
+            eval_at: self.eval_at.clone(),
+            init_points: self.init_points,
+            init: self.init,
+            out: self.out.clone(),
+            seed: self.seed,
+            seeds: self.seeds,
+            fps_frames: self.fps_frames,
+            runs: self.runs.clone(),
+            sequential: self.sequential,
+            lpm_block: self.lpm_block,
+            lpm_prune: self.lpm_prune,
+            lpm_block_fraction: self.lpm_block_fraction,
+            lpm_threshold_ratio: self.lpm_threshold_ratio,
+            densify_abs_grad: self.densify_abs_grad,
+            max_gaussians: self.max_gaussians,
+            budget: self.budget.clone(),
+            budget_growth: self.budget_growth,
+            budget_draw: self.budget_draw,
+            lpm_zone_weight: self.lpm_zone_weight,
+            lpm_surface_share: self.lpm_surface_share,
+            match_adc_count: self.match_adc_count,
+            n3dv_culls: self.n3dv_culls,
+            report_view: self.report_view.clone(),
+        })
     }
 }
 
-/// What changes the runs beyond the scene, model, resolution and calendar (trade.json's
-/// `settings`): `bench merge` pools only runs whose files agree here, and names the others by
-/// the difference. Settings whose name starts with `lpm_` change only the LPM runs.
-pub fn settings_json(args: &TradeArgs) -> serde_json::Value {
-    serde_json::json!({
-        "lpm_block": args.lpm_block,
-        "lpm_block_fraction": args.lpm_block_fraction,
-        "lpm_prune": args.lpm_prune.as_ref().map(PruneMode::name),
-        "lpm_threshold_ratio": args.lpm_threshold_ratio,
-        "densify_abs_grad": args.densify_abs_grad,
-        "max_gaussians": args.max_gaussians,
-        "match_adc_count": args.match_adc_count,
-        "budget": lpmsplat::bench::budget::BenchBudget::setting(&args.budget),
-        "budget_growth": args.budget_growth.map(|g| g.name()),
-        "budget_draw": (!args.budget.is_empty()).then(|| args.mcmc_draw().name()),
-        "lpm_zone_weight": args.lpm_zone_weight,
-        "lpm_surface_share": args.lpm_surface_share,
-        "init": format!("{:?}", args.init).to_lowercase(),
-        "init_points": args.init_points,
-        "n3dv_culls": format!("{:?}", args.n3dv_culls).to_lowercase(),
-        "test_split": args.scene.test_split,
-        "frames": args.scene.frames.map(|f| serde_json::json!({"start": f.start, "count": f.count})),
-    })
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        trade: TradeArgs,
+    }
+
+    #[test]
+    fn the_trade_flags_become_the_harness_settings_as_given() {
+        let args = Cli::parse_from([
+            "bench",
+            "scene",
+            "-r",
+            "4",
+            "--iterations",
+            "3000",
+            "--max-gaussians",
+            "9",
+            "--lpm-block",
+            "6",
+            "--lpm-prune",
+            "off",
+            "--runs",
+            "adc,lpm",
+            "--budget",
+            "1x,0.5x-adc",
+            "--image-cache",
+            "512",
+            "-o",
+            "elsewhere",
+        ]);
+        let s = args.trade.settings().unwrap();
+        assert_eq!(s.scene, PathBuf::from("scene"));
+        assert_eq!(s.load_options.resolution_factor, Some(4));
+        assert_eq!((s.test_split.as_deref(), s.frames), (None, None));
+        assert_eq!((s.iterations, s.max_gaussians), (3000, Some(9)));
+        assert_eq!((s.lpm_block, s.lpm_prune), (6, Some(PruneMode::Off)));
+        assert_eq!(s.runs, ["adc", "lpm"]);
+        assert_eq!(s.budget, args.trade.budget);
+        assert_eq!(s.image_cache_mib, 512.0);
+        assert_eq!(s.out, PathBuf::from("elsewhere"));
+        // With a budget trade.json records how the mcmc runs come down to it: kept whole unless
+        // --budget-draw says otherwise.
+        assert_eq!(s.record()["budget_draw"], "keep");
+        // -r 0 is refused as every command that loads a scene refuses it.
+        let zero = Cli::parse_from(["bench", "scene", "-r", "0"]);
+        assert!(zero.trade.settings().is_err());
+    }
 }

@@ -1,19 +1,21 @@
-//! The runs `bench trade` can compare (ADC, LPM and their ablations, by name) and how each is
-//! configured: the calendar every run follows and each LPM run's rules.
+//! How each run `bench trade` can compare ([`RUNS`]: ADC, LPM and their ablations, by name) is
+//! configured: which runs `--runs` selects, the calendar every run follows, each LPM run's
+//! rules, how a run's start comes down to a budget and the budget it trains under.
 
-use super::trade_args::TradeArgs;
+use super::TradeSettings;
+use crate::bench::runs::RUNS;
+use crate::lpm::config::{LpmConfig, PruneMode};
+use crate::lpm::pairing::RegionKeypoints;
+use crate::lpm::region_units::RegionUnit;
+use crate::lpm::{ConeRadius, NeighbourChoice, ZoneGeometry};
+use crate::mcmc::McmcConfig;
+use crate::models::BaseModel;
+use crate::scene::Scene;
+use crate::splats::budget_draw::Draw;
+use crate::splats::init::Look;
+use crate::train::density::growth::{BudgetCurve, Growth};
+use crate::train::trainer::TrainConfig;
 use anyhow::Context;
-use lpmsplat::lpm::config::{LpmConfig, PruneMode};
-use lpmsplat::lpm::pairing::RegionKeypoints;
-use lpmsplat::lpm::region_units::RegionUnit;
-use lpmsplat::lpm::{ConeRadius, NeighbourChoice, ZoneGeometry};
-use lpmsplat::models::BaseModel;
-use lpmsplat::scene::Scene;
-use lpmsplat::splats::budget_draw::Draw;
-use lpmsplat::splats::init::Look;
-use lpmsplat::train::trainer::TrainConfig;
-
-pub use lpmsplat::bench::runs::RUNS;
 
 /// Whether run `name` fills an exact budget (the exact-budget ADC runs and MCMC).
 pub fn fills_budget(name: &str) -> bool {
@@ -24,28 +26,28 @@ pub fn fills_budget(name: &str) -> bool {
 /// its official code names on a 30k calendar (densification, opacity resets, the position
 /// learning rate's decay, the models' own rules' starts) scaled to `calendar` iterations.
 pub fn calendar_config(
-    args: &TradeArgs,
+    settings: &TradeSettings,
     scene: &Scene,
     calendar: u32,
 ) -> anyhow::Result<TrainConfig> {
     let scale = |t: u32| ((t as u64 * calendar as u64) / 30_000) as u32;
     let mut base = TrainConfig {
-        iterations: args.iterations,
-        seed: args.seed,
-        background: lpmsplat::train::config::Background::choose(None, scene.background)?,
+        iterations: settings.iterations,
+        seed: settings.seed,
+        background: crate::train::config::Background::choose(None, scene.background)?,
         ..TrainConfig::default()
     };
     base.schedule.densify_from = scale(500);
-    base.schedule.densify_until = scale(args.model.default_densify_until());
+    base.schedule.densify_until = scale(settings.model.default_densify_until());
     base.schedule.opacity_reset_interval = (scale(3000) / 100).max(1) * 100;
     base.lr.position_max_steps = calendar;
-    base.density.min_opacity = args.model.default_min_opacity();
-    args.model.configure(&mut base);
-    if args.densify_abs_grad {
-        abs_grad_applies(args.model)?;
+    base.density.min_opacity = settings.model.default_min_opacity();
+    settings.model.configure(&mut base);
+    if settings.densify_abs_grad {
+        abs_grad_applies(settings.model)?;
         base.density.abs_grad = true;
     }
-    base.density.max_gaussians = args.max_gaussians;
+    base.density.max_gaussians = settings.max_gaussians;
     if let Some(g) = base.spacetime.as_mut().and_then(|s| s.guided.as_mut()) {
         // SpacetimeGaussians' guided sampling on the same calendar (official 1600 and 100).
         g.from = scale(g.from);
@@ -60,10 +62,10 @@ pub fn calendar_config(
         f.from = scale(f.from);
     }
     // The Neural 3D Video culls on the same calendar (official: every 1000 of 30k).
-    lpmsplat::train::passes::world_culls::apply_choice(
-        args.n3dv_culls,
+    crate::train::passes::world_culls::apply_choice(
+        settings.n3dv_culls,
         &scene.root,
-        args.model.name(),
+        settings.model.name(),
         &mut base,
         scale(1000),
     )?;
@@ -122,7 +124,11 @@ const LOOSE_BLOCK_FRACTION: f32 = 0.7;
 
 /// LPM's configuration for run `name` (None for the runs without LPM), on `cfg`'s calendar
 /// and seed, with the benchmark's LPM overrides.
-pub fn run_lpm_config(name: &str, cfg: &TrainConfig, args: &TradeArgs) -> Option<LpmConfig> {
+pub fn run_lpm_config(
+    name: &str,
+    cfg: &TrainConfig,
+    settings: &TradeSettings,
+) -> Option<LpmConfig> {
     if !name.contains("lpm") {
         return None;
     }
@@ -171,24 +177,36 @@ pub fn run_lpm_config(name: &str, cfg: &TrainConfig, args: &TradeArgs) -> Option
         c.region_unit = RegionUnit::RandomBlocks;
     }
     if surface {
-        c.surface_share = args.lpm_surface_share.unwrap_or(SURFACE_SHARE);
+        c.surface_share = settings.lpm_surface_share.unwrap_or(SURFACE_SHARE);
     }
-    if let Some(p) = args.lpm_prune {
+    if let Some(p) = settings.lpm_prune {
         c.prune = p;
     }
-    if let Some(r) = args.lpm_threshold_ratio {
+    if let Some(r) = settings.lpm_threshold_ratio {
         c.threshold_ratio = r;
     }
-    if let Some(w) = args.lpm_zone_weight {
+    if let Some(w) = settings.lpm_zone_weight {
         c.zone_weight = w;
     }
-    c.regions.block = args.lpm_block;
+    c.regions.block = settings.lpm_block;
     c.regions.keep_fraction = if name == "lpm-loose-blocks" {
         LOOSE_BLOCK_FRACTION
     } else {
-        args.lpm_block_fraction
+        settings.lpm_block_fraction
     };
     Some(c)
+}
+
+/// The runs `runs` selects ([`selected_runs`]), once the benchmark is known to train
+/// something: what every `bench trade` checks first, the harness itself and the command line
+/// before it writes a Slurm sweep of it.
+pub fn runs_to_train(iterations: u32, seeds: u32, runs: &[String]) -> anyhow::Result<Vec<usize>> {
+    anyhow::ensure!(
+        iterations > 0,
+        "bench trade: --iterations 0. Fix: pass at least 1"
+    );
+    anyhow::ensure!(seeds > 0, "bench trade: --seeds 0. Fix: pass at least 1");
+    selected_runs(runs)
 }
 
 /// Indices into [`RUNS`] for the `--runs` list (all when empty), in table order.
@@ -221,32 +239,130 @@ pub fn selected_runs(names: &[String]) -> anyhow::Result<Vec<usize>> {
     out.sort_unstable();
     Ok(out)
 }
+
+/// The budget of run `name` on `cfg` (its initial model of `initial` Gaussians, the budget
+/// `target` resolved before the start was drawn down to it, its calendar):
+/// a cap for ADC and its LPM runs, the exact budget for adc-exact* (adc's count under
+/// --match-adc-count when no --budget is given), and MCMC's settings for mcmc (returned).
+pub fn apply_budget(
+    name: &str,
+    cfg: &mut TrainConfig,
+    settings: &TradeSettings,
+    (initial, target): (usize, Option<usize>),
+    calendar: u32,
+) -> anyhow::Result<Option<McmcConfig>> {
+    anyhow::ensure!(
+        !fills_budget(name)
+            || !settings.budget.is_empty()
+            || (settings.match_adc_count && !name.starts_with("mcmc")),
+        "bench trade: run {name} fills a Gaussian budget. Fix: pass --budget N (e.g. adc's final \
+         count), or --match-adc-count for the adc-exact runs"
+    );
+    let mcmc = name.starts_with("mcmc");
+    if mcmc {
+        crate::mcmc::config::apply_schedule(&mut cfg.schedule, calendar, None);
+    }
+    if name.ends_with("lpm-lowered") {
+        cfg.density.rank_lowered = true;
+    }
+    let window = (
+        cfg.schedule.densify_from,
+        cfg.schedule
+            .densify_until
+            .min(settings.iterations.saturating_add(1)),
+        cfg.schedule.interval,
+    );
+    let curve = |default: Growth| {
+        target.map(|target| BudgetCurve {
+            target,
+            growth: settings.budget_growth.unwrap_or(default),
+            initial,
+            window,
+        })
+    };
+    if mcmc {
+        let c = curve(Growth::Mcmc).expect("checked above");
+        // The cap stops a guide's added points at the budget too.
+        cfg.density.max_gaussians = Some(c.target);
+        return Ok(Some(McmcConfig {
+            seed: cfg.seed,
+            ..McmcConfig::with_budget(c)
+        }));
+    }
+    if name.starts_with("adc-exact") {
+        // Without a budget the cap (adc's count, moved every iteration) decides each step.
+        cfg.density.exact_budget = Some(curve(Growth::Taming).unwrap_or(BudgetCurve {
+            target: usize::MAX / 4,
+            growth: Growth::Linear,
+            initial,
+            window,
+        }));
+    } else if let Some(c) = curve(Growth::Taming) {
+        cfg.density.max_gaussians = Some(
+            cfg.density
+                .max_gaussians
+                .map_or(c.target, |m| m.min(c.target)),
+        );
+    }
+    Ok(None)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
+    /// `bench trade scene`'s settings with the command line's defaults, changed by `f`.
+    fn settings(f: impl FnOnce(&mut TradeSettings)) -> TradeSettings {
+        let mut s = TradeSettings {
+            scene: "scene".into(),
+            load_options: Default::default(),
+            test_split: None,
+            frames: None,
+            image_cache_mib: 2048.0,
+            lpips_weights: None,
+            iterations: 30_000,
+            model: BaseModel::default(),
+            calendar: None,
+            eval_at: Vec::new(),
+            init_points: 100_000,
+            init: crate::initial::InitSource::Auto,
+            out: "bench_trade".into(),
+            seed: 0,
+            seeds: 1,
+            fps_frames: 20,
+            runs: Vec::new(),
+            sequential: false,
+            lpm_block: 0,
+            lpm_prune: None,
+            lpm_block_fraction: 0.85,
+            lpm_threshold_ratio: None,
+            densify_abs_grad: false,
+            max_gaussians: None,
+            budget: Vec::new(),
+            budget_growth: None,
+            budget_draw: None,
+            lpm_zone_weight: None,
+            lpm_surface_share: None,
+            match_adc_count: false,
+            n3dv_culls: crate::train::passes::world_culls::N3dvCulls::Auto,
+            report_view: None,
+        };
+        f(&mut s);
+        s
+    }
+
     #[test]
     fn the_calendar_scales_the_official_schedule() {
-        use clap::Parser;
-        #[derive(Parser)]
-        struct Cli {
-            #[command(flatten)]
-            trade: TradeArgs,
-        }
         let root = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/lund_door_small");
         let scene = Scene::load(std::path::Path::new(root), &Default::default()).unwrap();
         // The shortened calendar the LPM tables use: 3,000 iterations on a 3,000 calendar is
         // train's --densify-from 50 --densify-until 1500 --opacity-reset-interval 300
         // --lr-position-max-steps 3000.
-        let args = Cli::parse_from([
-            "bench",
-            "scene",
-            "--iterations",
-            "3000",
-            "--max-gaussians",
-            "9",
-        ]);
-        let c = calendar_config(&args.trade, &scene, 3000).unwrap();
+        let settings = settings(|s| {
+            s.iterations = 3000;
+            s.max_gaussians = Some(9);
+        });
+        let c = calendar_config(&settings, &scene, 3000).unwrap();
         let s = &c.schedule;
         assert_eq!(
             (s.densify_from, s.densify_until, s.opacity_reset_interval),
@@ -256,33 +372,30 @@ mod tests {
         assert_eq!(c.density.max_gaussians, Some(9));
         // The full calendar is the official schedule itself; the reset interval stays a
         // multiple of 100 and at least 100 on a short one.
-        let c = calendar_config(&args.trade, &scene, 30_000).unwrap();
+        let c = calendar_config(&settings, &scene, 30_000).unwrap();
         let s = &c.schedule;
         assert_eq!(
             (s.densify_from, s.densify_until, s.opacity_reset_interval),
             (500, 15_000, 3000)
         );
-        let c = calendar_config(&args.trade, &scene, 1000).unwrap();
+        let c = calendar_config(&settings, &scene, 1000).unwrap();
         assert_eq!(c.schedule.opacity_reset_interval, 100);
     }
 
     #[test]
     fn each_lpm_run_gets_its_rules_and_the_benchmark_overrides() {
-        use clap::Parser;
-        #[derive(Parser)]
-        struct Cli {
-            #[command(flatten)]
-            trade: TradeArgs,
-        }
-        let args = Cli::parse_from(["bench", "scene", "--lpm-block", "6", "--lpm-prune", "off"]);
+        let args = settings(|s| {
+            s.lpm_block = 6;
+            s.lpm_prune = Some(PruneMode::Off);
+        });
         let cfg = TrainConfig {
             seed: 7,
             ..TrainConfig::default()
         };
-        assert!(run_lpm_config("adc", &cfg, &args.trade).is_none());
-        let ours = run_lpm_config("adc+lpm", &cfg, &args.trade).unwrap();
-        let authors = run_lpm_config("lpm-authors", &cfg, &args.trade).unwrap();
-        let authors_adc = run_lpm_config("lpm-authors-adc", &cfg, &args.trade).unwrap();
+        assert!(run_lpm_config("adc", &cfg, &args).is_none());
+        let ours = run_lpm_config("adc+lpm", &cfg, &args).unwrap();
+        let authors = run_lpm_config("lpm-authors", &cfg, &args).unwrap();
+        let authors_adc = run_lpm_config("lpm-authors-adc", &cfg, &args).unwrap();
         assert!(!ours.skip_adc_without_zone && ours.add_points);
         assert!(authors.skip_adc_without_zone && !authors.add_points);
         // The same rules as lpm-authors but for ADC on steps without a zone.
@@ -297,15 +410,15 @@ mod tests {
                 (cfg.schedule.densify_from, cfg.schedule.densify_until)
             );
         }
-        let no_add = run_lpm_config("lpm-no-add", &cfg, &args.trade).unwrap();
+        let no_add = run_lpm_config("lpm-no-add", &cfg, &args).unwrap();
         assert!(!no_add.add_points && no_add.reset);
-        let no_reset = run_lpm_config("lpm-no-reset", &cfg, &args.trade).unwrap();
+        let no_reset = run_lpm_config("lpm-no-reset", &cfg, &args).unwrap();
         assert!(no_reset.add_points && !no_reset.reset);
-        let sphere = run_lpm_config("lpm-sphere", &cfg, &args.trade).unwrap();
+        let sphere = run_lpm_config("lpm-sphere", &cfg, &args).unwrap();
         assert_eq!(sphere.zones.geometry, ZoneGeometry::Sphere);
-        let plain = Cli::parse_from(["bench", "scene"]);
-        let additive = run_lpm_config("lpm-additive", &cfg, &plain.trade).unwrap();
-        let default = run_lpm_config("adc+lpm", &cfg, &plain.trade).unwrap();
+        let plain = settings(|_| {});
+        let additive = run_lpm_config("lpm-additive", &cfg, &plain).unwrap();
+        let default = run_lpm_config("adc+lpm", &cfg, &plain).unwrap();
         assert_eq!(additive.prune, PruneMode::Additive);
         assert_ne!(default.prune, PruneMode::Additive);
         let mut same = additive.clone();
@@ -313,15 +426,15 @@ mod tests {
         assert_eq!(same, default, "only the pruning differs");
         assert_eq!(ours.zones.geometry, ZoneGeometry::Triangulated);
         // lpm-slab: our rules but for the zone's shape.
-        let slab = run_lpm_config("lpm-slab", &cfg, &plain.trade).unwrap();
+        let slab = run_lpm_config("lpm-slab", &cfg, &plain).unwrap();
         assert_eq!(slab.zones.geometry, ZoneGeometry::Slab);
         let mut same = slab.clone();
         same.zones.geometry = ZoneGeometry::Triangulated;
         assert_eq!(same, default, "only the zone geometry differs");
         // The local zones, and the control that differs from them only in where the blocks are.
-        let local = run_lpm_config("adc-exact+lpm-local", &cfg, &plain.trade).unwrap();
-        let random = run_lpm_config("adc-exact+lpm-random", &cfg, &plain.trade).unwrap();
-        let mcmc_local = run_lpm_config("mcmc+lpm-local", &cfg, &plain.trade).unwrap();
+        let local = run_lpm_config("adc-exact+lpm-local", &cfg, &plain).unwrap();
+        let random = run_lpm_config("adc-exact+lpm-random", &cfg, &plain).unwrap();
+        let mcmc_local = run_lpm_config("mcmc+lpm-local", &cfg, &plain).unwrap();
         assert_eq!(local, default.clone().with_local_zones());
         assert_eq!(mcmc_local, local);
         assert_eq!(
@@ -332,20 +445,20 @@ mod tests {
         same.region_unit = RegionUnit::Blocks;
         assert_eq!(same, local, "only the blocks' choice differs");
         // lpm-loose-blocks: our rules but for the block fraction, whatever the flag says.
-        let loose = run_lpm_config("lpm-loose-blocks", &cfg, &plain.trade).unwrap();
+        let loose = run_lpm_config("lpm-loose-blocks", &cfg, &plain).unwrap();
         assert_eq!(loose.regions.keep_fraction, 0.7);
         let mut same = loose.clone();
         same.regions.keep_fraction = default.regions.keep_fraction;
         assert_eq!(same, default, "only the block fraction differs");
-        let flagged = Cli::parse_from(["bench", "scene", "--lpm-block-fraction", "0.6"]);
-        let loose = run_lpm_config("lpm-loose-blocks", &cfg, &flagged.trade).unwrap();
-        let ours = run_lpm_config("adc+lpm", &cfg, &flagged.trade).unwrap();
+        let flagged = settings(|s| s.lpm_block_fraction = 0.6);
+        let loose = run_lpm_config("lpm-loose-blocks", &cfg, &flagged).unwrap();
+        let ours = run_lpm_config("adc+lpm", &cfg, &flagged).unwrap();
         assert_eq!(
             (loose.regions.keep_fraction, ours.regions.keep_fraction),
             (0.7, 0.6)
         );
         // lpm-local-resets: our rules but for the reset's largest zone.
-        let local = run_lpm_config("lpm-local-resets", &cfg, &plain.trade).unwrap();
+        let local = run_lpm_config("lpm-local-resets", &cfg, &plain).unwrap();
         assert_eq!(local.reset_max_zone_radius, Some(1.0));
         let mut same = local.clone();
         same.reset_max_zone_radius = None;
