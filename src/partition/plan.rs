@@ -68,6 +68,23 @@ pub struct PartitionOptions {
     pub growth: f64,
     /// The training image cache (MiB): images beyond it stream from disk.
     pub image_cache_mib: f64,
+    /// A coarse model of the whole scene every block starts from (`--coarse`).
+    pub coarse: Option<CoarseStart>,
+}
+
+/// A coarse model of the whole scene (a short `train` of it) that every block starts from,
+/// as CityGaussian's prior: in each view a block then finds the rest of the scene already
+/// there, in front of and behind its own region, and learns its region against it instead of
+/// explaining the other blocks' content with Gaussians of its own (floaters the merge would
+/// keep). Every block holds it whole, so it adds to every block's Gaussians; the merge keeps
+/// only what lies in each core. The block runs get `--init-ply` on a fresh start only (a
+/// resumed run continues from its checkpoint).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CoarseStart {
+    /// The model's PLY, absolute.
+    pub ply: PathBuf,
+    /// Its Gaussians.
+    pub gaussians: u64,
 }
 
 /// One block of a plan.
@@ -127,6 +144,9 @@ pub struct Plan {
     pub budget: Option<u64>,
     /// `train` arguments every block's run gets (after the block's folder).
     pub train_args: Vec<String>,
+    /// The coarse model every block starts from, if any (`--init-ply` of a fresh block run).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub coarse: Option<CoarseStart>,
     pub whole: Whole,
     pub blocks: Vec<Block>,
 }
@@ -381,14 +401,25 @@ pub fn make_plan(
             scene.root.display()
         );
     }
+    anyhow::ensure!(
+        opts.coarse.is_none() || opts.budget.is_none(),
+        "--coarse with --budget: every block would start above its share of the budget (it \
+         holds the whole coarse model), and how to share a budget then is not measured. Fix: \
+         drop one of them"
+    );
+    // A block that starts from the coarse model holds all of it besides its own growth.
+    let coarse = opts.coarse.as_ref().map_or(0, |c| c.gaussians);
     let expected = |region_points: usize, train_views: usize| -> u64 {
-        match opts.budget {
-            Some(b) if total_points == 0 => {
-                (b as f64 * train_views as f64 / scene.train.len() as f64).ceil() as u64
+        coarse
+            + match opts.budget {
+                Some(b) if total_points == 0 => {
+                    (b as f64 * train_views as f64 / scene.train.len() as f64).ceil() as u64
+                }
+                Some(b) => {
+                    (b as f64 * region_points as f64 / total_points.max(1) as f64).ceil() as u64
+                }
+                None => (region_points as f64 * opts.growth).ceil() as u64,
             }
-            Some(b) => (b as f64 * region_points as f64 / total_points.max(1) as f64).ceil() as u64,
-            None => (region_points as f64 * opts.growth).ceil() as u64,
-        }
     };
     let whole_expected = opts
         .budget
@@ -486,6 +517,7 @@ pub fn make_plan(
         visibility: opts.visibility,
         budget: opts.budget,
         train_args,
+        coarse: opts.coarse.clone(),
         whole,
         blocks,
     })

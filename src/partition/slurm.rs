@@ -95,6 +95,9 @@ pub struct JobArray {
     pub done_file: String,
     /// Whether a cell whose folder holds `checkpoint.bin` resumes from it (`--resume`).
     pub resumes: bool,
+    /// Arguments a cell gets only when it starts fresh (a block's `--init-ply` of the coarse
+    /// model, which `train` refuses beside `--resume`).
+    pub fresh_args: Vec<String>,
     pub cell_mem_mib: u64,
     /// The collecting job's `lpmsplat` arguments.
     pub merge_args: Vec<String>,
@@ -155,10 +158,11 @@ touch "$run"/{done}
         } else {
             " (a stopped one starts again)"
         },
-        resume = if array.resumes {
-            "if [ -f \"$run/checkpoint.bin\" ]; then\n  echo \"$name: resuming from $run/checkpoint.bin\"\n  args+=(--resume \"$run/checkpoint.bin\")\nfi\n"
-        } else {
-            ""
+        resume = match (array.resumes, array.fresh_args.is_empty()) {
+            (true, true) => "if [ -f \"$run/checkpoint.bin\" ]; then\n  echo \"$name: resuming from $run/checkpoint.bin\"\n  args+=(--resume \"$run/checkpoint.bin\")\nfi\n".to_string(),
+            (true, false) => format!("if [ -f \"$run/checkpoint.bin\" ]; then\n  echo \"$name: resuming from $run/checkpoint.bin\"\n  args+=(--resume \"$run/checkpoint.bin\")\nelse\n  args+=({})\nfi\n", words(&array.fresh_args)),
+            (false, true) => String::new(),
+            (false, false) => format!("args+=({})\n", words(&array.fresh_args)),
         },
     );
 
@@ -215,7 +219,8 @@ echo "merge: job ${{merge%%;*}}"
 
 /// The job array that trains `plan`'s blocks (in `dir`, absolute) and merges them: a task a
 /// block, `train <block folder> -o runs/<block>` with the plan's train arguments, the block's
-/// budget when the plan shares one out, and a checkpoint every `opts.checkpoint_every`.
+/// budget when the plan shares one out, the coarse model as its start when the plan has one
+/// (on a fresh start), and a checkpoint every `opts.checkpoint_every`.
 pub fn block_array(plan: &Plan, dir: &Path, opts: &SlurmOptions) -> JobArray {
     let has_checkpoint_flag = plan
         .train_args
@@ -254,6 +259,9 @@ pub fn block_array(plan: &Plan, dir: &Path, opts: &SlurmOptions) -> JobArray {
         cells,
         done_file: super::merge::BLOCK_DONE.into(),
         resumes: true,
+        fresh_args: plan.coarse.as_ref().map_or_else(Vec::new, |c| {
+            vec!["--init-ply".into(), c.ply.display().to_string()]
+        }),
         cell_mem_mib: task_memory_mib(plan),
         merge_args: vec![
             "merge".into(),

@@ -25,6 +25,7 @@ fn opts(grid: GridChoice) -> PartitionOptions {
         budget: None,
         growth: 20.0,
         image_cache_mib: 2048.0,
+        coarse: None,
     }
 }
 
@@ -656,4 +657,136 @@ fn transforms_scenes_partition_into_blocks_train_reads() {
         .blocks
         .iter()
         .all(|b| b.train_views.len() < whole.train.len()));
+}
+
+/// `partition --coarse`: the plan records the coarse model and counts it in every block's
+/// estimate; a block task starts from it when fresh and not when it resumes (`train` refuses
+/// `--init-ply` beside `--resume`); a real block run starts with its Gaussians; and the flags
+/// that would contradict it are refused by name.
+#[test]
+fn a_coarse_model_is_every_fresh_blocks_start_and_counted_in_the_plan() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene =
+        Scene::load_in_file_frame(&data("lund_door_small"), &LoadOptions::default()).unwrap();
+    let pts = &scene.points.as_ref().unwrap().positions;
+    let lo = [0, 1, 2].map(|k| pts.iter().map(|p| p[k]).fold(f64::MAX, f64::min));
+    let hi = [0, 1, 2].map(|k| pts.iter().map(|p| p[k]).fold(f64::MIN, f64::max));
+    let coarse = tmp.path().join("coarse.ply");
+    write_ply_with_comments(
+        &coarse,
+        &spread(700, 3, lo, hi),
+        &["lpmsplat model 3dgs".to_string()],
+    )
+    .unwrap();
+    let out = tmp.path().join("plan");
+    let partition = |out: &Path, more: &[&str]| {
+        let mut c = lpmsplat();
+        c.args(["partition"])
+            .arg(data("lund_door_small"))
+            .args([
+                "-r",
+                "4",
+                "--blocks",
+                "2x1",
+                "--slurm",
+                "--slurm-gres",
+                "none",
+            ])
+            .args(more)
+            .arg("-o")
+            .arg(out)
+            .args(["--", "--iterations", "5"]);
+        c
+    };
+    let coarse_flag = ["--coarse", coarse.to_str().unwrap()];
+    let text = run_ok(&mut partition(&out, &coarse_flag));
+    assert!(text.contains("700 Gaussians"), "{text}");
+    let plan = Plan::read(&out.join("plan.json")).unwrap();
+    let c = plan
+        .coarse
+        .as_ref()
+        .expect("the plan records the coarse model");
+    assert_eq!(c.gaussians, 700);
+    assert!(c.ply.is_absolute() && c.ply.ends_with("coarse.ply"));
+    // The same plan without it: every block's estimate is 700 Gaussians lower, and its memory.
+    run_ok(&mut partition(&tmp.path().join("bare"), &[]));
+    let bare = Plan::read(&tmp.path().join("bare/plan.json")).unwrap();
+    assert!(bare.coarse.is_none());
+    for (b, o) in plan.blocks.iter().zip(&bare.blocks) {
+        assert_eq!(
+            b.expected_gaussians,
+            o.expected_gaussians + 700,
+            "{}",
+            b.name
+        );
+        assert!(b.memory_mib > o.memory_mib, "{}", b.name);
+    }
+
+    // A stand-in binary prints the arguments a task passes: --init-ply on a fresh start,
+    // --resume and no --init-ply once the block's folder holds a checkpoint.
+    let echo = tmp.path().join("echo-args.sh");
+    std::fs::write(&echo, "#!/bin/sh\nprintf '%s\\n' \"$@\"\n").unwrap();
+    let task = out.join("slurm/task.sh");
+    let args_of_task = || {
+        run_ok(
+            std::process::Command::new("bash")
+                .arg(&task)
+                .arg("0")
+                .env_remove("SLURM_ARRAY_TASK_ID")
+                .env("LPMSPLAT", &echo),
+        )
+    };
+    std::fs::set_permissions(&echo, std::os::unix::fs::PermissionsExt::from_mode(0o755)).unwrap();
+    let run0 = out.join("runs").join(&plan.blocks[0].name);
+    let fresh = args_of_task();
+    assert!(
+        fresh.contains(&format!("--init-ply\n{}\n", c.ply.display()))
+            && !fresh.contains("--resume"),
+        "{fresh}"
+    );
+    std::fs::remove_file(run0.join("metrics.json")).ok();
+    std::fs::write(run0.join("checkpoint.bin"), b"stand-in").unwrap();
+    let resumed = args_of_task();
+    assert!(
+        resumed.contains("--resume") && !resumed.contains("--init-ply"),
+        "{resumed}"
+    );
+    std::fs::remove_dir_all(&run0).unwrap();
+
+    // A real block run from the printed command's start: it begins with the coarse model.
+    let text = run_ok(
+        lpmsplat()
+            .arg("train")
+            .arg(out.join(&plan.blocks[0].folder))
+            .arg("-o")
+            .arg(&run0)
+            .args(&plan.train_args)
+            .arg("--init-ply")
+            .arg(&c.ply),
+    );
+    assert!(text.contains("700 initial Gaussians"), "{text}");
+
+    // Refused, each naming the fix: the start given to train directly, a budget beside it,
+    // a missing file.
+    let (ok, text) = run(lpmsplat()
+        .args(["partition"])
+        .arg(data("lund_door_small"))
+        .args(["--blocks", "2x1", "-o"])
+        .arg(tmp.path().join("p2"))
+        .args(["--", "--init-ply"])
+        .arg(&coarse));
+    assert!(!ok && text.contains("--coarse PLY"), "{text}");
+    let (ok, text) = run(&mut partition(
+        &tmp.path().join("p3"),
+        &[coarse_flag[0], coarse_flag[1], "--budget", "20k"],
+    ));
+    assert!(!ok && text.contains("--coarse with --budget"), "{text}");
+    let (ok, text) = run(lpmsplat()
+        .args(["partition"])
+        .arg(data("lund_door_small"))
+        .args(["--blocks", "2x1", "--coarse"])
+        .arg(tmp.path().join("nothing.ply"))
+        .arg("-o")
+        .arg(tmp.path().join("p4")));
+    assert!(!ok && text.contains("nothing.ply"), "{text}");
 }
