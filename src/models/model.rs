@@ -8,6 +8,7 @@
 use std::path::Path;
 use std::sync::Arc;
 
+use super::options::{ModelOptions, ModelSetting};
 use crate::gpu::GpuContext;
 use crate::render::layout::{CameraGpu, RenderConstants};
 use crate::render::view::{GaussianView, ViewRenderer};
@@ -47,10 +48,20 @@ pub trait Model: ModelTraining {
         0.005
     }
 
-    /// Whether the absolute-gradient test (`--densify-abs-grad`) combines with its
-    /// densification statistic (the models densified by the mean gradient of 3D Gaussians).
-    fn takes_abs_grad(&self) -> bool {
-        true
+    /// The model settings it takes (the flags of [`super::options::ModelOptions`]); the
+    /// others are refused by name. The default: the absolute-gradient test, which combines
+    /// with the mean gradient of 3D Gaussians (3DGS's statistic).
+    fn settings(&self) -> &'static [ModelSetting] {
+        &[ModelSetting::AbsGrad]
+    }
+
+    /// Applies the settings given in `o` (only those of [`Model::settings`], after
+    /// [`Model::configure`]) to `config`.
+    fn apply_settings(&self, o: &ModelOptions, config: &mut TrainConfig) -> anyhow::Result<()> {
+        if o.densify_abs_grad {
+            config.density.abs_grad = true;
+        }
+        Ok(())
     }
 
     /// Turns a 3DGS-style initial model (from points) into this model's.

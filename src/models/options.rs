@@ -1,11 +1,12 @@
 //! The settings that belong to one base model or another (2DGS's regularisers, the spacetime
 //! models' rules, the absolute-gradient test of the gradient-densified models), as the user
-//! gave them. Each model takes the ones it knows ([`BaseModel::apply_options`]) and refuses
-//! the others by the flag's name, so which model accepts what is written here, beside the
-//! models, and not in the command line's parser.
+//! gave them. Each model says which it takes and applies them in its own file
+//! ([`super::Model::settings`], [`super::Model::apply_settings`]); [`BaseModel::apply_options`]
+//! refuses the others by the flag's name and the models that take it. Not in the command
+//! line's parser.
 
 use super::BaseModel;
-use crate::train::config::{ChildTime, OmegaFreeze};
+use crate::train::config::ChildTime;
 use crate::train::trainer::TrainConfig;
 
 /// Model settings as given: `None` (or `false`) where not given, and the model's default
@@ -31,6 +32,22 @@ pub struct ModelOptions {
     pub densify_abs_grad: bool,
 }
 
+/// A model's own setting, as a group of flags: what a model declares it takes
+/// ([`super::Model::settings`]) and the flags [`ModelOptions::given`] names.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ModelSetting {
+    /// 2DGS's regularisers and depth ratio.
+    SurfelRegularisers,
+    /// The spacetime models' time of split and cloned children.
+    ChildTime,
+    /// The spacetime models' guided error sampling.
+    GuidedSampling,
+    /// The spacetime models' angular-velocity freeze.
+    OmegaFreeze,
+    /// The absolute-gradient test, for models densified by the mean gradient.
+    AbsGrad,
+}
+
 impl ModelOptions {
     /// `--omega-freeze`'s value: an iteration or `off`.
     pub fn parse_omega_freeze(v: &str) -> anyhow::Result<Option<u32>> {
@@ -43,91 +60,82 @@ impl ModelOptions {
             }),
         }
     }
+
+    /// The flags given, each with the setting it belongs to.
+    pub fn given(&self) -> Vec<(&'static str, ModelSetting)> {
+        use ModelSetting::*;
+        [
+            (
+                "--lambda-normal",
+                self.lambda_normal.is_some(),
+                SurfelRegularisers,
+            ),
+            (
+                "--normal-from",
+                self.normal_from.is_some(),
+                SurfelRegularisers,
+            ),
+            (
+                "--lambda-dist",
+                self.lambda_dist.is_some(),
+                SurfelRegularisers,
+            ),
+            ("--dist-from", self.dist_from.is_some(), SurfelRegularisers),
+            (
+                "--depth-ratio",
+                self.depth_ratio.is_some(),
+                SurfelRegularisers,
+            ),
+            ("--child-time", self.child_time.is_some(), ChildTime),
+            (
+                "--guided-sampling",
+                self.guided_sampling.is_some(),
+                GuidedSampling,
+            ),
+            ("--guided-from", self.guided_from.is_some(), GuidedSampling),
+            ("--omega-freeze", self.omega_freeze.is_some(), OmegaFreeze),
+            ("--densify-abs-grad", self.densify_abs_grad, AbsGrad),
+        ]
+        .into_iter()
+        .filter(|&(_, given, _)| given)
+        .map(|(flag, _, setting)| (flag, setting))
+        .collect()
+    }
 }
 
 impl BaseModel {
     /// Whether the absolute-gradient test (`--densify-abs-grad`) combines with this model's
     /// densification statistic: the models densified by the mean gradient of 3D Gaussians.
     pub fn takes_abs_grad(&self) -> bool {
-        self.model().takes_abs_grad()
+        self.model().settings().contains(&ModelSetting::AbsGrad)
     }
 
     /// Sets what this model changes in `config` ([`BaseModel::configure`]) with the model
-    /// settings the user gave; a setting of another model is refused, naming its flag.
+    /// settings the user gave ([`super::Model::apply_settings`]); a setting the model does not
+    /// take ([`super::Model::settings`]) is refused, naming its flag and the models that take
+    /// it.
     pub fn apply_options(&self, o: &ModelOptions, config: &mut TrainConfig) -> anyhow::Result<()> {
-        let name = self.name();
-        if *self == BaseModel::Surfels2d {
-            let mut t = config.surfels.unwrap_or_default();
-            t.normal_weight = o.lambda_normal.unwrap_or(t.normal_weight);
-            t.normal_from = o.normal_from.unwrap_or(t.normal_from);
-            t.distortion_weight = o.lambda_dist.unwrap_or(t.distortion_weight);
-            t.distortion_from = o.dist_from.unwrap_or(t.distortion_from);
-            t.depth_ratio = o.depth_ratio.unwrap_or(t.depth_ratio);
-            config.surfels = Some(t);
-        } else {
-            for (flag, given) in [
-                ("--lambda-normal", o.lambda_normal.is_some()),
-                ("--normal-from", o.normal_from.is_some()),
-                ("--lambda-dist", o.lambda_dist.is_some()),
-                ("--dist-from", o.dist_from.is_some()),
-                ("--depth-ratio", o.depth_ratio.is_some()),
-            ] {
-                anyhow::ensure!(
-                    !given,
-                    "{flag} applies to --model 2dgs only (this run trains {name}). Fix: drop the \
-                     flag or pass --model 2dgs"
+        for (flag, setting) in o.given() {
+            if !self.model().settings().contains(&setting) {
+                let takers: Vec<&str> = Self::ALL
+                    .iter()
+                    .filter(|m| m.model().settings().contains(&setting))
+                    .map(|m| m.name())
+                    .collect();
+                let takers = match takers.split_last() {
+                    Some((last, [])) => last.to_string(),
+                    Some((last, rest)) => format!("{} or {last}", rest.join(", ")),
+                    None => "none".into(),
+                };
+                anyhow::bail!(
+                    "{flag} applies to --model {takers} only (this run trains {}). Fix: drop the \
+                     flag",
+                    self.name()
                 );
             }
         }
         self.configure(config);
-        match (config.spacetime.as_mut(), o.child_time) {
-            (Some(st), Some(ct)) => st.child_time = ct,
-            (None, Some(_)) => anyhow::bail!(
-                "--child-time applies to --model spacetime-lite or spacetime-full only (this run \
-                 trains {name}). Fix: drop the flag"
-            ),
-            _ => {}
-        }
-        if o.guided_sampling.is_some() || o.guided_from.is_some() {
-            let Some(st) = config.spacetime.as_mut() else {
-                anyhow::bail!(
-                    "--guided-sampling and --guided-from apply to --model spacetime-full or \
-                     spacetime-lite only (this run trains {name}). Fix: drop the flag"
-                );
-            };
-            if o.guided_sampling == Some(false) {
-                anyhow::ensure!(
-                    o.guided_from.is_none(),
-                    "--guided-from with --guided-sampling off: nothing would sample. Fix: drop \
-                     one of them"
-                );
-                st.guided = None;
-            } else if let (Some(g), Some(from)) = (st.guided.as_mut(), o.guided_from) {
-                g.from = from;
-            }
-        }
-        if o.densify_abs_grad {
-            anyhow::ensure!(
-                self.takes_abs_grad(),
-                "--densify-abs-grad applies to the models densified by the mean gradient: 3dgs, \
-                 mip-splatting, spacetime-lite, spacetime-full (this run trains {name}, whose \
-                 statistic it would not combine with). Fix: drop the flag"
-            );
-            config.density.abs_grad = true;
-        }
-        if let Some(freeze) = o.omega_freeze {
-            let Some(st) = config.spacetime.as_mut() else {
-                anyhow::bail!(
-                    "--omega-freeze applies to the spacetime models only (this run trains \
-                     {name}). Fix: drop the flag"
-                );
-            };
-            st.omega_freeze = freeze.map(|from| OmegaFreeze {
-                from,
-                ..st.omega_freeze.unwrap_or_default()
-            });
-        }
-        Ok(())
+        self.model().apply_settings(o, config)
     }
 }
 
@@ -160,7 +168,7 @@ mod tests {
                     guided_from: Some(100),
                     ..Default::default()
                 },
-                "--guided-sampling and --guided-from",
+                "--guided-from",
                 &[BaseModel::SpacetimeLite, BaseModel::SpacetimeFull],
             ),
             (

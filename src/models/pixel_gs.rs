@@ -3,6 +3,7 @@
 //! code's defaults; docs/algorithms/base-models.md §3).
 
 use super::model::Model;
+use super::options::ModelSetting;
 use crate::train::density::Statistic;
 use crate::train::passes::ModelTraining;
 use crate::train::trainer::TrainConfig;
@@ -27,8 +28,8 @@ impl Model for PixelGs {
             && matches!(config.density.statistic, Statistic::PixelWeighted { .. })
     }
 
-    /// Its statistic is not the mean gradient the absolute test replaces.
-    fn takes_abs_grad(&self) -> bool {
-        false
+    /// Its statistic counts pixels; the absolute-gradient test is not combined with it.
+    fn settings(&self) -> &'static [ModelSetting] {
+        &[]
     }
 }

@@ -9,12 +9,14 @@ use std::path::Path;
 use std::sync::Arc;
 
 use super::model::Model;
+use super::options::{ModelOptions, ModelSetting};
 use crate::gpu::GpuContext;
 use crate::render::forward::Capacity;
 use crate::render::layout::{CameraGpu, RenderConstants};
 use crate::render::view::{SpacetimeView, ViewRenderer};
 use crate::scene::Scene;
 use crate::splats::GaussianParams;
+use crate::train::config::OmegaFreeze;
 use crate::train::density::Statistic;
 use crate::train::passes::guided_sampling::GuidedSampler;
 use crate::train::passes::spacetime::SpacetimePasses;
@@ -127,6 +129,45 @@ impl Model for Spacetime {
 
     fn is_spacetime(&self) -> bool {
         true
+    }
+
+    fn settings(&self) -> &'static [ModelSetting] {
+        &[
+            ModelSetting::ChildTime,
+            ModelSetting::GuidedSampling,
+            ModelSetting::OmegaFreeze,
+            ModelSetting::AbsGrad,
+        ]
+    }
+
+    fn apply_settings(&self, o: &ModelOptions, config: &mut TrainConfig) -> anyhow::Result<()> {
+        let st = config
+            .spacetime
+            .as_mut()
+            .expect("configure gives a spacetime model its section");
+        if let Some(ct) = o.child_time {
+            st.child_time = ct;
+        }
+        if o.guided_sampling == Some(false) {
+            anyhow::ensure!(
+                o.guided_from.is_none(),
+                "--guided-from with --guided-sampling off: nothing would sample. Fix: drop one \
+                 of them"
+            );
+            st.guided = None;
+        } else if let (Some(g), Some(from)) = (st.guided.as_mut(), o.guided_from) {
+            g.from = from;
+        }
+        if let Some(freeze) = o.omega_freeze {
+            st.omega_freeze = freeze.map(|from| OmegaFreeze {
+                from,
+                ..st.omega_freeze.unwrap_or_default()
+            });
+        }
+        if o.densify_abs_grad {
+            config.density.abs_grad = true;
+        }
+        Ok(())
     }
 
     /// Its `densify_until_iter`; its opacity resets then fall at 3000 and 6000 only.

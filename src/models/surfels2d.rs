@@ -6,6 +6,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use super::model::Model;
+use super::options::{ModelOptions, ModelSetting};
 use crate::gpu::GpuContext;
 use crate::render::forward::Capacity;
 use crate::render::layout::{CameraGpu, RenderConstants};
@@ -67,9 +68,21 @@ impl Model for Surfels2d {
         0.05
     }
 
-    /// A surfel's statistic is its own (the official 2DGS one).
-    fn takes_abs_grad(&self) -> bool {
-        false
+    /// Its regularisers; its statistic is its own (the official 2DGS one), not combined with
+    /// the absolute-gradient test.
+    fn settings(&self) -> &'static [ModelSetting] {
+        &[ModelSetting::SurfelRegularisers]
+    }
+
+    fn apply_settings(&self, o: &ModelOptions, config: &mut TrainConfig) -> anyhow::Result<()> {
+        let mut t = config.surfels.unwrap_or_default();
+        t.normal_weight = o.lambda_normal.unwrap_or(t.normal_weight);
+        t.normal_from = o.normal_from.unwrap_or(t.normal_from);
+        t.distortion_weight = o.lambda_dist.unwrap_or(t.distortion_weight);
+        t.distortion_from = o.dist_from.unwrap_or(t.distortion_from);
+        t.depth_ratio = o.depth_ratio.unwrap_or(t.depth_ratio);
+        config.surfels = Some(t);
+        Ok(())
     }
 
     /// Random rotations (the official `torch.rand(N, 4)`, here seeded) and the unused third

@@ -453,7 +453,10 @@ fn cli_guided_sampling_reports_its_choice_and_can_be_turned_off() {
     let o = cli_train(&["--guided-sampling", "off", "--iterations", "5"], &off);
     let text = String::from_utf8_lossy(&o.stderr).to_string();
     assert!(
-        !o.status.success() && text.contains("spacetime-lite only"),
+        !o.status.success()
+            && text.contains(
+                "--guided-sampling applies to --model spacetime-lite or spacetime-full only"
+            ),
         "{text}"
     );
 }
