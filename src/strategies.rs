@@ -84,7 +84,13 @@ pub fn assemble(
              adc-exact --budget N with --budget-score blend"
         );
         anyhow::ensure!(
-            config.surfels.is_none() && config.spacetime.is_none() && !config.mip_filters,
+            {
+                let model = BaseModel::of(config).model();
+                model.primitive() == Primitive::Gaussian
+                    && !model.is_spacetime()
+                    && config.render_constants()
+                        == crate::render::layout::RenderConstants::default()
+            },
             "the blended score draws its views with the plain 3D Gaussian renderer, not this \
              model's (2DGS, SpacetimeGaussians and Mip-Splatting render otherwise). Fix: \
              --budget-score gradient, or --model 3dgs / pixel-gs"

@@ -3,6 +3,7 @@
 
 use super::model::Model;
 use crate::train::density::Statistic;
+use crate::train::model_section::NamedModel;
 use crate::train::passes::ModelTraining;
 use crate::train::trainer::TrainConfig;
 
@@ -17,12 +18,6 @@ impl Model for Gaussians3d {
     }
 
     fn configure(&self, config: &mut TrainConfig) {
-        super::still_gaussians(config, Statistic::Gradient, false);
-    }
-
-    fn trains(&self, config: &TrainConfig) -> bool {
-        super::is_still_gaussians(config)
-            && !config.mip_filters
-            && matches!(config.density.statistic, Statistic::Gradient)
+        super::still_gaussians(config, Statistic::Gradient, NamedModel(self.name()));
     }
 }

@@ -27,17 +27,14 @@ use crate::train::passes::surfels::UNUSED_LOG_SCALE;
 use crate::train::trainer::TrainConfig;
 
 /// The config of a model of still 3D Gaussians (3DGS, Pixel-GS, Mip-Splatting): `statistic`
-/// densifies it, `mip` turns Mip-Splatting's filters on, and no other model's section stays.
-fn still_gaussians(config: &mut TrainConfig, statistic: Statistic, mip: bool) {
+/// densifies it and `section` is its section.
+fn still_gaussians(
+    config: &mut TrainConfig,
+    statistic: Statistic,
+    section: impl crate::train::model_section::ModelSection,
+) {
     config.density.statistic = statistic;
-    config.mip_filters = mip;
-    config.surfels = None;
-    config.spacetime = None;
-}
-
-/// Whether `config` trains still 3D Gaussians (no surfels, no time).
-fn is_still_gaussians(config: &TrainConfig) -> bool {
-    config.surfels.is_none() && config.spacetime.is_none()
+    config.set_model(section);
 }
 
 /// A still initial model as SpacetimeGaussians' initial one: every Gaussian gets the temporal
@@ -444,13 +441,16 @@ impl BaseModel {
         self.model().configure(config)
     }
 
-    /// The model a config trains (the inverse of [`BaseModel::configure`]): the one model whose
-    /// [`Model::trains`] holds (3DGS for a config none claims).
+    /// The model a config trains (the inverse of [`BaseModel::configure`]): the one its
+    /// section names ([`crate::train::model_section::ModelSection::model_name`]).
     pub fn of(config: &TrainConfig) -> BaseModel {
+        let name = config.model.model_name();
         Self::ALL
             .into_iter()
-            .find(|m| m.model().trains(config))
-            .unwrap_or_default()
+            .find(|m| m.name() == name)
+            .unwrap_or_else(|| {
+                panic!("a config's model section names {name:?}, no model of the registry")
+            })
     }
 }
 
@@ -479,21 +479,23 @@ mod tests {
 
     #[test]
     fn names_round_trip_and_configure_is_inverted_by_of() {
+        assert_eq!(
+            BaseModel::of(&TrainConfig::default()),
+            BaseModel::Gaussians3d
+        );
         for m in BaseModel::ALL {
             assert_eq!(BaseModel::parse(m.name()).unwrap(), m);
             let mut c = TrainConfig::default();
             m.configure(&mut c);
             assert_eq!(BaseModel::of(&c), m);
-            // Exactly one model claims a config, whichever model configured it before.
+            // The config trains the model that configured it last, whichever did before, and
+            // its section's JSON names it.
             for before in BaseModel::ALL {
                 let mut c = TrainConfig::default();
                 before.configure(&mut c);
                 m.configure(&mut c);
-                let claim: Vec<_> = BaseModel::ALL
-                    .into_iter()
-                    .filter(|o| o.model().trains(&c))
-                    .collect();
-                assert_eq!(claim, [m], "{} after {}", m.name(), before.name());
+                assert_eq!(BaseModel::of(&c), m, "{} after {}", m.name(), before.name());
+                assert_eq!(c.to_json()["model"], m.name());
             }
         }
         let e = BaseModel::parse("mip").unwrap_err().to_string();

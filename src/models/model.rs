@@ -16,7 +16,7 @@ use crate::splats::GaussianParams;
 use crate::train::passes::ModelTraining;
 use crate::train::trainer::TrainConfig;
 
-/// One base model. Only `name`, `configure` and `trains` have no default: the defaults are
+/// One base model. Only `name` and `configure` have no default: the defaults are
 /// 3DGS's (the Inria values, 3D Gaussians in the Inria PLY layout, drawn by the 3D-Gaussian
 /// renderer). What the trainer asks of it (its passes, its own density rules, which of its
 /// parameters are lengths) is its [`ModelTraining`], defined beside the trainer so that the
@@ -26,12 +26,10 @@ pub trait Model: ModelTraining {
     fn name(&self) -> &'static str;
 
     /// Sets what this model changes in `config`, leaving the rest (the 3DGS defaults or the
-    /// user's flags) alone; a section of its own the config already holds is kept.
+    /// user's flags) alone: its section ([`TrainConfig::model`], whose name is this model's;
+    /// a section of its own the config already holds is kept) and the shared settings it
+    /// fixes.
     fn configure(&self, config: &mut TrainConfig);
-
-    /// Whether `config` trains this model: exactly one model's `trains` holds for any config
-    /// one of them configured (the inverse of [`Model::configure`]).
-    fn trains(&self, config: &TrainConfig) -> bool;
 
     /// A video model: Gaussians in time, trained on multi-view video.
     fn is_spacetime(&self) -> bool {
@@ -63,6 +61,11 @@ pub trait Model: ModelTraining {
         }
         Ok(())
     }
+
+    /// Moves the iterations of its own section (regularisers' starts, rules' schedules) onto a
+    /// shorter calendar: `scale` maps an iteration of the official 30,000 onto it (`bench
+    /// trade`'s calendars).
+    fn rescale_calendar(&self, _config: &mut TrainConfig, _scale: &dyn Fn(u32) -> u32) {}
 
     /// Turns a 3DGS-style initial model (from points) into this model's.
     fn initialise(&self, params: GaussianParams, _seed: u64) -> GaussianParams {

@@ -6,7 +6,7 @@
 //! line's parser.
 
 use super::BaseModel;
-use crate::train::config::ChildTime;
+use crate::train::passes::spacetime_settings::ChildTime;
 use crate::train::trainer::TrainConfig;
 
 /// Model settings as given: `None` (or `false`) where not given, and the model's default
@@ -212,13 +212,25 @@ mod tests {
         BaseModel::Surfels2d
             .apply_options(&cases[0].0, &mut c)
             .unwrap();
-        assert_eq!(c.surfels.unwrap().distortion_weight, 1000.0);
+        assert_eq!(
+            c.model_settings::<crate::train::passes::surfels::SurfelTraining>()
+                .unwrap()
+                .distortion_weight,
+            1000.0
+        );
         let mut c = TrainConfig::default();
         BaseModel::SpacetimeLite
             .apply_options(&cases[3].0, &mut c)
             .unwrap();
-        assert_eq!(c.spacetime.unwrap().omega_freeze, None);
-        assert!(TrainConfig::default().spacetime.is_none());
+        assert_eq!(
+            c.model_settings::<crate::train::passes::spacetime::SpacetimeTraining>()
+                .unwrap()
+                .omega_freeze,
+            None
+        );
+        assert!(TrainConfig::default()
+            .model_settings::<crate::train::passes::spacetime::SpacetimeTraining>()
+            .is_none());
     }
 
     #[test]

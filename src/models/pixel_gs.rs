@@ -5,6 +5,7 @@
 use super::model::Model;
 use super::options::ModelSetting;
 use crate::train::density::Statistic;
+use crate::train::model_section::NamedModel;
 use crate::train::passes::ModelTraining;
 use crate::train::trainer::TrainConfig;
 
@@ -19,13 +20,7 @@ impl Model for PixelGs {
     }
 
     fn configure(&self, config: &mut TrainConfig) {
-        super::still_gaussians(config, Statistic::pixel_gs(), false);
-    }
-
-    fn trains(&self, config: &TrainConfig) -> bool {
-        super::is_still_gaussians(config)
-            && !config.mip_filters
-            && matches!(config.density.statistic, Statistic::PixelWeighted { .. })
+        super::still_gaussians(config, Statistic::pixel_gs(), NamedModel(self.name()));
     }
 
     /// Its statistic counts pixels; the absolute-gradient test is not combined with it.

@@ -16,10 +16,10 @@ use crate::render::layout::{CameraGpu, RenderConstants};
 use crate::render::view::{SpacetimeView, ViewRenderer};
 use crate::scene::Scene;
 use crate::splats::GaussianParams;
-use crate::train::config::OmegaFreeze;
 use crate::train::density::Statistic;
 use crate::train::passes::guided_sampling::GuidedSampler;
 use crate::train::passes::spacetime::SpacetimePasses;
+use crate::train::passes::spacetime_settings::{OmegaFreeze, SpacetimeTraining};
 use crate::train::passes::world_culls::WorldCuller;
 use crate::train::passes::{ModelPasses, ModelTraining};
 use crate::train::strategy::ModelRule;
@@ -68,10 +68,10 @@ impl ModelTraining for Spacetime {
         initial: &GaussianParams,
     ) -> anyhow::Result<Vec<Box<dyn ModelRule>>> {
         let mut rules: Vec<Box<dyn ModelRule>> = Vec::new();
-        if let (Some(g), Some(times)) = (
-            config.spacetime.as_ref().and_then(|s| s.guided),
-            scene.view_times.as_deref(),
-        ) {
+        let section = config.model_settings::<SpacetimeTraining>();
+        if let (Some(g), Some(times)) =
+            (section.and_then(|s| s.guided), scene.view_times.as_deref())
+        {
             rules.push(Box::new(GuidedSampler::new(
                 ctx,
                 g,
@@ -82,7 +82,7 @@ impl ModelTraining for Spacetime {
                 initial,
             )?));
         }
-        if let Some(w) = config.spacetime.as_ref().and_then(|s| s.world_culls) {
+        if let Some(w) = section.and_then(|s| s.world_culls) {
             rules.push(Box::new(WorldCuller::new(w, &scene.frame, initial)?));
         }
         Ok(rules)
@@ -105,26 +105,19 @@ impl Model for Spacetime {
 
     fn configure(&self, config: &mut TrainConfig) {
         config.density.statistic = Statistic::Gradient;
-        config.mip_filters = false;
-        config.surfels = None;
-        let mut st = config.spacetime.unwrap_or_default();
+        let mut st = config
+            .model_settings::<SpacetimeTraining>()
+            .copied()
+            .unwrap_or_default();
         st.full = match (self.full, st.full) {
             (true, Some(f)) => Some(f),
             (true, None) => Some(Default::default()),
             (false, _) => None,
         };
-        config.spacetime = Some(st);
+        config.set_model(st);
         config.sh_degree = 0;
         // The official batch: two cameras at one time per step.
         config.batch_views = 2;
-    }
-
-    fn trains(&self, config: &TrainConfig) -> bool {
-        config.surfels.is_none()
-            && config
-                .spacetime
-                .as_ref()
-                .is_some_and(|st| st.full.is_some() == self.full)
     }
 
     fn is_spacetime(&self) -> bool {
@@ -141,9 +134,9 @@ impl Model for Spacetime {
     }
 
     fn apply_settings(&self, o: &ModelOptions, config: &mut TrainConfig) -> anyhow::Result<()> {
-        let st = config
-            .spacetime
-            .as_mut()
+        let mut st = config
+            .model_settings::<SpacetimeTraining>()
+            .copied()
             .expect("configure gives a spacetime model its section");
         if let Some(ct) = o.child_time {
             st.child_time = ct;
@@ -164,10 +157,25 @@ impl Model for Spacetime {
                 ..st.omega_freeze.unwrap_or_default()
             });
         }
+        config.set_model(st);
         if o.densify_abs_grad {
             config.density.abs_grad = true;
         }
         Ok(())
+    }
+
+    /// Guided sampling's start and gap (official 1600 and 100) and the angular-velocity split
+    /// (official 8001 of 30k).
+    fn rescale_calendar(&self, config: &mut TrainConfig, scale: &dyn Fn(u32) -> u32) {
+        config.update_model_settings(|s: &mut SpacetimeTraining| {
+            if let Some(g) = s.guided.as_mut() {
+                g.from = scale(g.from);
+                g.gap = scale(g.gap);
+            }
+            if let Some(f) = s.omega_freeze.as_mut() {
+                f.from = scale(f.from);
+            }
+        });
     }
 
     /// Its `densify_until_iter`; its opacity resets then fall at 3000 and 6000 only.

@@ -13,7 +13,7 @@ use crate::render::layout::{CameraGpu, RenderConstants};
 use crate::render::view::{SurfelView, ViewRenderer};
 use crate::splats::GaussianParams;
 use crate::train::density::Statistic;
-use crate::train::passes::surfels::{SurfelPasses, UNUSED_LOG_SCALE};
+use crate::train::passes::surfels::{SurfelPasses, SurfelTraining, UNUSED_LOG_SCALE};
 use crate::train::passes::{ModelPasses, ModelTraining};
 use crate::train::strategy::Primitive;
 use crate::train::trainer::TrainConfig;
@@ -55,13 +55,8 @@ impl Model for Surfels2d {
 
     fn configure(&self, config: &mut TrainConfig) {
         config.density.statistic = Statistic::Gradient;
-        config.mip_filters = false;
-        config.surfels = Some(config.surfels.unwrap_or_default());
-        config.spacetime = None;
-    }
-
-    fn trains(&self, config: &TrainConfig) -> bool {
-        config.surfels.is_some()
+        let own = config.model_settings::<SurfelTraining>().copied();
+        config.set_model(own.unwrap_or_default());
     }
 
     fn default_min_opacity(&self) -> f64 {
@@ -75,14 +70,25 @@ impl Model for Surfels2d {
     }
 
     fn apply_settings(&self, o: &ModelOptions, config: &mut TrainConfig) -> anyhow::Result<()> {
-        let mut t = config.surfels.unwrap_or_default();
+        let mut t = config
+            .model_settings::<SurfelTraining>()
+            .copied()
+            .unwrap_or_default();
         t.normal_weight = o.lambda_normal.unwrap_or(t.normal_weight);
         t.normal_from = o.normal_from.unwrap_or(t.normal_from);
         t.distortion_weight = o.lambda_dist.unwrap_or(t.distortion_weight);
         t.distortion_from = o.dist_from.unwrap_or(t.distortion_from);
         t.depth_ratio = o.depth_ratio.unwrap_or(t.depth_ratio);
-        config.surfels = Some(t);
+        config.set_model(t);
         Ok(())
+    }
+
+    /// The regularisers' starts (official 7000 and 3000 of 30k).
+    fn rescale_calendar(&self, config: &mut TrainConfig, scale: &dyn Fn(u32) -> u32) {
+        config.update_model_settings(|t: &mut SurfelTraining| {
+            t.normal_from = scale(t.normal_from);
+            t.distortion_from = scale(t.distortion_from);
+        });
     }
 
     /// Random rotations (the official `torch.rand(N, 4)`, here seeded) and the unused third

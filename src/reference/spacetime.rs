@@ -188,7 +188,7 @@ pub fn still_at(
     Some(s)
 }
 
-/// SpacetimeGaussians' angular-velocity split (`train::config::OmegaFreeze`'s thresholds):
+/// SpacetimeGaussians' angular-velocity split (`train::passes::spacetime_settings::OmegaFreeze`'s thresholds):
 /// whether a Gaussian keeps its angular velocity at the selection — it moves
 /// (Σ|m₁| > `motion_above`), its largest scale lies strictly inside `scale_between`, and
 /// σ(o) > `opacity_above` (`glsl/spacetime/omega_select.comp`).

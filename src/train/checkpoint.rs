@@ -831,7 +831,13 @@ impl Trainer {
             .and_then(|o| o.remove("model_rules"))
             .unwrap_or(serde_json::Value::Null);
         let model_state = saved.as_object_mut().and_then(|o| o.remove("model_state"));
-        let diffs = config_differences(&saved, &config.to_json());
+        // A checkpoint written before the config had a model section (December 2026) keeps
+        // the model's settings under their old top-level keys and names no model.
+        let now = match saved.get("model") {
+            Some(_) => config.to_json(),
+            None => config.to_legacy_json(),
+        };
+        let diffs = config_differences(&saved, &now);
         if !diffs.is_empty() {
             return bad_input(
                 path,

@@ -10,6 +10,7 @@ pub mod density;
 pub mod image_cache;
 pub mod loss;
 pub mod loss_mask;
+pub mod model_section;
 pub mod nan_check;
 pub mod passes;
 pub mod schedule;

@@ -1020,7 +1020,7 @@ fn mip_splatting_renders_trains_and_exports_like_the_reference() {
         *l -= 3.0;
     }
     let mut cfg = fixed_config(1);
-    cfg.mip_filters = true;
+    lpmsplat::models::BaseModel::MipSplatting.configure(&mut cfg);
     let mut t = Trainer::new(&ctx, &scene, &train, &model, cfg.clone()).unwrap();
     let exact = RefGaussians::from_params(&model);
     let cams: Vec<_> = scene
@@ -1122,7 +1122,6 @@ fn cli_mip_splatting_trains_and_evaluates_at_other_scales() {
     let config: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("config.json")).unwrap()).unwrap();
     assert_eq!(config["model"], "mip-splatting");
-    assert_eq!(config["mip_filters"], true);
     let metrics: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
     let trained = metrics["psnr"].as_f64().unwrap();
@@ -1432,6 +1431,52 @@ fn format_2_checkpoints_still_resume() {
     // And it trains on.
     r.step().unwrap();
     ctx.check_validation().unwrap();
+}
+
+/// A checkpoint written before the config had a model section (its model's settings under
+/// the old top-level keys, `mip_filters` and `surfels`, and no model name) resumes with the
+/// flags it was trained with, and is refused, naming the old key, with another model's.
+#[test]
+fn checkpoints_from_before_the_model_section_still_resume() {
+    use lpmsplat::models::BaseModel;
+    let ctx = ctx();
+    let scene = lego();
+    let images = images::load_images(&scene, &scene.train).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    for (model, key) in [
+        (BaseModel::MipSplatting, "mip_filters"),
+        (BaseModel::Surfels2d, "surfels"),
+    ] {
+        let config = || {
+            let mut c = fixed_config(5);
+            model.configure(&mut c);
+            c
+        };
+        let init = model.initialise(ground_truth_model(43, 120), 0);
+        let mut t = Trainer::new(&ctx, &scene, &images, &init, config()).unwrap();
+        t.step().unwrap();
+        let mut ck = t.checkpoint(&scene).unwrap();
+        let mut j: serde_json::Value = serde_json::from_str(&ck.config_json).unwrap();
+        assert_eq!(j["model"], model.name());
+        // The layout of before: no model name, the settings at the top.
+        let o = j.as_object_mut().unwrap();
+        let settings = o.remove("model_settings");
+        o.remove("model");
+        o.insert(
+            key.to_string(),
+            settings.unwrap_or(serde_json::Value::Bool(true)),
+        );
+        ck.config_json = j.to_string();
+        let path = dir.path().join(format!("{}.bin", model.name()));
+        std::fs::write(&path, ck.to_bytes()).unwrap();
+        let r = Trainer::resume(&ctx, &scene, &images, config(), &path).unwrap();
+        assert_eq!((r.iteration, BaseModel::of(&r.config)), (1, model));
+        let e = Trainer::resume(&ctx, &scene, &images, fixed_config(5), &path)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains(key) && e.contains("other settings"), "{e}");
+    }
 }
 
 /// The default `--init auto` triangulates a video scene's points (the fixture's 64×48 frames

@@ -14,8 +14,8 @@ use lpmsplat::gpu::{GpuContext, GpuOptions};
 use lpmsplat::models::BaseModel;
 use lpmsplat::scene::{images, LoadOptions, Scene};
 use lpmsplat::splats::{random_init, ExtraGroup, ExtraValues, GaussianParams, SH_C0};
-use lpmsplat::train::config::GuidedSamplingSettings;
 use lpmsplat::train::passes::guided_sampling::{error_seeds, ray_points, view_depths};
+use lpmsplat::train::passes::spacetime_settings::GuidedSamplingSettings;
 use lpmsplat::train::trainer::{TrainConfig, Trainer};
 use rand::SeedableRng;
 
@@ -255,7 +255,9 @@ fn sampling_config() -> TrainConfig {
     // No density steps: every new row comes from the sampler.
     cfg.schedule.densify_from = 10_000;
     cfg.schedule.densify_until = 10_000;
-    let st = cfg.spacetime.as_mut().unwrap();
+    let mut st = *cfg
+        .model_settings::<lpmsplat::train::passes::spacetime::SpacetimeTraining>()
+        .unwrap();
     // Gates every camera passes, an early start and short gap, smaller and laxer patches (a
     // 64×48 image holds few 16-pixel patches of 85 % error).
     st.guided = Some(GuidedSamplingSettings {
@@ -267,6 +269,7 @@ fn sampling_config() -> TrainConfig {
         patch_fraction: 0.5,
         ..GuidedSamplingSettings::default()
     });
+    cfg.set_model(st);
     cfg
 }
 
@@ -428,10 +431,10 @@ fn cli_guided_sampling_reports_its_choice_and_can_be_turned_off() {
     );
     let config: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("config.json")).unwrap()).unwrap();
-    assert_eq!(config["spacetime"]["guided_sampling"]["from"], 3);
+    assert_eq!(config["model_settings"]["guided_sampling"]["from"], 3);
     // The official schedule's end of densification, and no N3DV culls on the fixture's world.
     assert_eq!(config["density"]["densify_until"], 9000);
-    assert!(config["spacetime"].get("world_culls").is_none());
+    assert!(config["model_settings"].get("world_culls").is_none());
 
     let off = dir.path().join("off");
     let o = cli_train(
@@ -448,7 +451,7 @@ fn cli_guided_sampling_reports_its_choice_and_can_be_turned_off() {
     assert!(o.status.success());
     let config: serde_json::Value =
         serde_json::from_slice(&std::fs::read(off.join("config.json")).unwrap()).unwrap();
-    assert!(config["spacetime"]["guided_sampling"].is_null());
+    assert!(config["model_settings"]["guided_sampling"].is_null());
     // Only for the video model.
     let o = cli_train(&["--guided-sampling", "off", "--iterations", "5"], &off);
     let text = String::from_utf8_lossy(&o.stderr).to_string();

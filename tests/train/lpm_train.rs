@@ -1121,7 +1121,7 @@ fn as_surfels(mut p: GaussianParams) -> GaussianParams {
 fn surfel_config(interval: u32) -> TrainConfig {
     let mut c = config(1e9, interval);
     BaseModel::Surfels2d.configure(&mut c);
-    c.surfels = Some(SurfelTraining {
+    c.set_model(SurfelTraining {
         normal_from: 0,
         distortion_from: 0,
         distortion_weight: 1000.0,

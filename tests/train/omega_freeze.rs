@@ -13,8 +13,8 @@ use lpmsplat::reference::spacetime::{omega_marked, temporal_of};
 use lpmsplat::splats::gpu::GpuSplats;
 use lpmsplat::splats::{random_init, GaussianParams};
 use lpmsplat::train::adam::SplatState;
-use lpmsplat::train::config::OmegaFreeze;
 use lpmsplat::train::passes::omega_freeze::OmegaFreezer;
+use lpmsplat::train::passes::spacetime_settings::OmegaFreeze;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 
@@ -162,7 +162,9 @@ fn training_keeps_unmarked_angular_velocities_at_zero() {
         ..Default::default()
     };
     lpmsplat::models::BaseModel::SpacetimeLite.configure(&mut cfg);
-    let st = cfg.spacetime.as_mut().unwrap();
+    let mut st = *cfg
+        .model_settings::<lpmsplat::train::passes::spacetime::SpacetimeTraining>()
+        .unwrap();
     st.guided = None;
     // The opacity test alone decides (densification starts after this run).
     st.omega_freeze = Some(OmegaFreeze {
@@ -171,6 +173,7 @@ fn training_keeps_unmarked_angular_velocities_at_zero() {
         scale_between: [0.0, 1e9],
         opacity_above: 0.5,
     });
+    cfg.set_model(st);
     let (center, half) = scene.random_init_box();
     let mut init = lpmsplat::models::BaseModel::SpacetimeLite
         .initialise(random_init(800, center, [half; 3], 5, 0).unwrap(), 0);

@@ -62,7 +62,7 @@ fn spacetime_lite_learns_the_motion_a_still_model_cannot() {
     assert_eq!(config["model"], "spacetime-lite", "{config}");
     assert_eq!(config["sh_degree"], 0, "{config}");
     assert!(
-        config["spacetime"]["lr_t_log_scale"].is_number(),
+        config["model_settings"]["lr_t_log_scale"].is_number(),
         "{config}"
     );
     // The PLY holds the temporal groups under SpacetimeGaussians' names.
@@ -449,7 +449,7 @@ fn spacetime_full_trains_its_decoder_saves_it_and_renders_it_back() {
         serde_json::from_slice(&std::fs::read(out.join("config.json")).unwrap()).unwrap();
     assert_eq!(config["model"], "spacetime-full", "{config}");
     assert!(
-        config["spacetime"]["full"]["lr_decoder"].is_number(),
+        config["model_settings"]["full"]["lr_decoder"].is_number(),
         "{config}"
     );
     let ply = std::fs::read(out.join("point_cloud.ply")).unwrap();

@@ -9,9 +9,9 @@ use lpmsplat::gpu::{GpuContext, GpuOptions};
 use lpmsplat::models::BaseModel;
 use lpmsplat::scene::{images, LoadOptions, Scene};
 use lpmsplat::splats::{random_init, GaussianParams};
-use lpmsplat::train::config::ChildTime;
 use lpmsplat::train::density::{DensifyArgs, DensifyPhase, DensityConfig, Thresholds};
 use lpmsplat::train::passes::spacetime::random_child_centre;
+use lpmsplat::train::passes::spacetime_settings::ChildTime;
 use lpmsplat::train::trainer::{TrainConfig, Trainer};
 
 fn centres(p: &GaussianParams) -> Vec<f32> {
@@ -40,7 +40,9 @@ fn densify_once(
         ..TrainConfig::default()
     };
     BaseModel::SpacetimeLite.configure(&mut cfg);
-    cfg.spacetime.as_mut().unwrap().child_time = child_time;
+    assert!(cfg.update_model_settings(
+        |s: &mut lpmsplat::train::passes::spacetime::SpacetimeTraining| s.child_time = child_time
+    ));
     cfg.schedule.densify_from = 0;
     cfg.schedule.interval = 2;
     cfg.density.grad_threshold = 1e-12;

@@ -85,7 +85,7 @@ fn train_2dgs_learns_and_renders_depth_and_normals() {
     let config: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("config.json")).unwrap()).unwrap();
     assert_eq!(config["model"], "2dgs", "{config}");
-    assert_eq!(config["surfels"]["normal_from"], 60, "{config}");
+    assert_eq!(config["model_settings"]["normal_from"], 60, "{config}");
     assert_eq!(config["density"]["min_opacity"], 0.05, "{config}");
 
     let ply = out.join("point_cloud.ply");

@@ -13,10 +13,11 @@ use lpmsplat::scene::{images, LoadOptions, Scene};
 use lpmsplat::splats::gpu::GpuSplats;
 use lpmsplat::splats::{random_init, GaussianParams};
 use lpmsplat::train::adam::SplatState;
-use lpmsplat::train::config::{LaterCulls, TrainConfig, WorldCulls};
+use lpmsplat::train::config::TrainConfig;
 use lpmsplat::train::density::{
     DensifyArgs, DensifyPhase, DensityConfig, DensityControl, DECIDE_REMOVE,
 };
+use lpmsplat::train::passes::spacetime_settings::{LaterCulls, WorldCulls};
 use lpmsplat::train::passes::world_culls::{for_scene, CullEvent};
 use lpmsplat::train::trainer::Trainer;
 use rand::{Rng, SeedableRng};
@@ -188,13 +189,16 @@ fn training_culls_before_after_densification_and_outside_the_initial_box() {
         offset: 5,
         box_at: 30,
     };
-    let st = cfg.spacetime.as_mut().unwrap();
+    let mut st = *cfg
+        .model_settings::<lpmsplat::train::passes::spacetime::SpacetimeTraining>()
+        .unwrap();
     st.guided = None;
     st.omega_freeze = None;
     st.world_culls = Some(WorldCulls {
         below_z: user_below_z,
         later: Some(later),
     });
+    cfg.set_model(st);
     let mut t = Trainer::new(&ctx, &scene, &images, &init, cfg.clone()).unwrap();
     let below = init
         .positions
@@ -327,7 +331,7 @@ fn cli_turns_the_culls_on_for_an_official_scene_and_explains_a_foreign_world() {
     assert!(ok, "{text}");
     let config: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("config.json")).unwrap()).unwrap();
-    assert!(config["spacetime"].get("world_culls").is_none());
+    assert!(config["model_settings"].get("world_culls").is_none());
     // A still model has no such rule.
     let (ok, text) = cli_train(&fixture(), &["--n3dv-culls", "official"], &out);
     assert!(

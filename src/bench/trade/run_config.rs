@@ -48,19 +48,9 @@ pub fn calendar_config(
         base.density.abs_grad = true;
     }
     base.density.max_gaussians = settings.max_gaussians;
-    if let Some(g) = base.spacetime.as_mut().and_then(|s| s.guided.as_mut()) {
-        // SpacetimeGaussians' guided sampling on the same calendar (official 1600 and 100).
-        g.from = scale(g.from);
-        g.gap = scale(g.gap);
-    }
-    if let Some(f) = base
-        .spacetime
-        .as_mut()
-        .and_then(|s| s.omega_freeze.as_mut())
-    {
-        // The angular-velocity split on the same calendar (official 8001 of 30k).
-        f.from = scale(f.from);
-    }
+    // The model's own iterations (2DGS's regularisers, SpacetimeGaussians' rules) on the same
+    // calendar.
+    settings.model.model().rescale_calendar(&mut base, &scale);
     // The Neural 3D Video culls on the same calendar (official: every 1000 of 30k).
     crate::train::passes::world_culls::apply_choice(
         settings.n3dv_culls,
@@ -69,11 +59,6 @@ pub fn calendar_config(
         &mut base,
         scale(1000),
     )?;
-    if let Some(t) = base.surfels.as_mut() {
-        // 2DGS's regularisers start on the same calendar (official 7000 and 3000 of 30k).
-        t.normal_from = scale(t.normal_from);
-        t.distortion_from = scale(t.distortion_from);
-    }
     Ok(base)
 }
 

@@ -204,7 +204,6 @@ impl Finished<'_> {
         let mut cfg = self.config.to_json();
         cfg["scene"] = serde_json::json!(args.scene.scene.display().to_string());
         cfg["resolution"] = serde_json::json!(args.scene.resolution);
-        cfg["model"] = serde_json::json!(args.model.name());
         cfg["strategy"] = serde_json::json!(args
             .density_strategy
             .strategy

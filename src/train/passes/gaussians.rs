@@ -29,7 +29,8 @@ pub struct GaussianPasses {
     pixel_count: Option<GpuBuffer<u32>>,
     /// Each Gaussian's absolute-gradient statistic this iteration (with `density.abs_grad`).
     abs_grad: Option<GpuBuffer<f32>>,
-    /// Mip-Splatting's 3D filter (with `mip_filters`).
+    /// Mip-Splatting's 3D filter: it comes with the 2D Mip filter, whose bit the model's
+    /// constants carry ([`RenderConstants::MIP_2D`]).
     filter: Option<SmoothingFilter>,
     /// The filter does not hold the current model's values (after density control).
     filter_stale: bool,
@@ -70,7 +71,8 @@ impl GaussianPasses {
         if abs {
             backward = backward.with_abs_grad(ctx)?;
         }
-        let filter = if config.mip_filters {
+        let constants = config.render_constants();
+        let filter = if constants.flags & RenderConstants::MIP_2D != 0 {
             Some(SmoothingFilter::new(ctx, cameras, train_views, capacity)?)
         } else {
             None
@@ -79,7 +81,7 @@ impl GaussianPasses {
             ctx: ctx.clone(),
             renderer,
             backward,
-            constants: config.render_constants(),
+            constants,
             pixel_count: counts
                 .then(|| GpuBuffer::new(ctx, "pixel count", capacity, BufferKind::DeviceLocal))
                 .transpose()?,

@@ -34,6 +34,7 @@ use std::sync::Arc;
 use anyhow::Context;
 use rand::{Rng, SeedableRng};
 
+use super::spacetime_settings::GuidedSamplingSettings;
 use crate::gpu::{GpuBuffer, GpuContext, Recorder};
 use crate::render::forward::{FrameSettings, Renderer};
 use crate::render::layout::CameraGpu;
@@ -42,7 +43,6 @@ use crate::scene::{PinholeCamera, Pose, View};
 use crate::splats::gpu::GpuSplats;
 use crate::splats::knn::mean_sq_dist_knn;
 use crate::splats::GaussianParams;
-use crate::train::config::GuidedSamplingSettings;
 use crate::train::density::append::{append_with_extras, NewGaussian};
 use crate::train::strategy::{DensityContext, ModelRule, StepSeen, StrategyEvent};
 

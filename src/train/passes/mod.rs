@@ -14,6 +14,8 @@ pub mod gaussians;
 pub mod guided_sampling;
 pub mod omega_freeze;
 pub mod spacetime;
+pub mod spacetime_settings;
+pub mod surfel_settings;
 pub mod surfels;
 pub mod world_culls;
 

@@ -1,5 +1,5 @@
 //! SpacetimeGaussians' angular-velocity / rotation split on the GPU
-//! ([`crate::train::config::OmegaFreeze`]; kernels `glsl/spacetime/omega_{select,masks}.comp`,
+//! ([`crate::train::passes::spacetime_settings::OmegaFreeze`]; kernels `glsl/spacetime/omega_{select,masks}.comp`,
 //! oracle [`crate::reference::spacetime::omega_marked`]): at the selection step the unmarked
 //! Gaussians' angular velocities become 0 and the group's Adam moments are cleared (the
 //! official code replaces the tensor in the optimizer); at every later step, before Adam, the
@@ -11,11 +11,11 @@ use std::sync::Arc;
 
 use anyhow::{ensure, Result};
 
+use super::spacetime_settings::OmegaFreeze;
 use crate::gpu::{ComputePipeline, GpuContext, Recorder};
 use crate::shaders;
 use crate::splats::gpu::GpuSplats;
 use crate::train::adam::SplatState;
-use crate::train::config::OmegaFreeze;
 
 const WG: u32 = 256;
 

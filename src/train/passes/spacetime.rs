@@ -25,6 +25,8 @@ use std::sync::Arc;
 use anyhow::{ensure, Result};
 
 use super::gaussians::GaussianPasses;
+use super::spacetime_settings::ChildTime;
+use super::spacetime_settings::FullModelRates;
 use super::{FrameArgs, GradArgs, ModelPasses};
 use crate::gpu::{BufferKind, ComputePipeline, GpuBuffer, GpuContext, Recorder, TimestampPool};
 use crate::render::backward::FeatureGrads;
@@ -39,8 +41,7 @@ use crate::splats::gpu::{grown_capacity, GpuSplats};
 use crate::splats::GaussianParams;
 use crate::train::adam::Adam;
 use crate::train::adam::SplatState;
-use crate::train::config::FullModelRates;
-use crate::train::config::{ChildTime, TrainConfig};
+use crate::train::config::TrainConfig;
 use crate::train::density::rng::{fold_seed, rng_uniform};
 use crate::train::density::DensityControl;
 use crate::train::strategy::{FramePositions, Primitive};
@@ -164,7 +165,7 @@ fn feature_groups(s: &GpuSplats) -> Result<FeatureGroups<'_>> {
         t_center: group("trbf_center")?,
     })
 }
-pub use crate::train::config::SpacetimeTraining;
+pub use super::spacetime_settings::SpacetimeTraining;
 
 pub struct SpacetimePasses {
     ctx: Arc<GpuContext>,
@@ -233,7 +234,7 @@ impl SpacetimePasses {
             view_times.len(),
             cameras.len()
         );
-        let Some(rates) = config.spacetime else {
+        let Some(&rates) = config.model_settings::<SpacetimeTraining>() else {
             anyhow::bail!("SpacetimeGaussians' passes need the config's temporal rates");
         };
         ensure!(

@@ -34,7 +34,7 @@ use crate::train::strategy::Primitive;
 /// The third log-scale of a surfel in the 3-float storage (module docs): e^−20 ≈ 2e-9.
 pub const UNUSED_LOG_SCALE: f32 = -20.0;
 
-pub use crate::train::config::SurfelTraining;
+pub use super::surfel_settings::SurfelTraining;
 
 pub struct SurfelPasses {
     ctx: Arc<GpuContext>,
@@ -147,7 +147,10 @@ impl ModelPasses for SurfelPasses {
         // The backward reads the frame's tile lists, which a frame drawn in bands lacks.
         self.renderer.base.whole_frame()?;
         let f = &g.frame;
-        let training = config.surfels.unwrap_or_default();
+        let training = config
+            .model_settings::<SurfelTraining>()
+            .copied()
+            .unwrap_or_default();
         self.regularisers.record(
             rec,
             &self.renderer,

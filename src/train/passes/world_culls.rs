@@ -1,5 +1,5 @@
 //! SpacetimeGaussians' culls by world position on Neural 3D Video
-//! ([`crate::train::config::WorldCulls`]; docs/algorithms/base-models.md §4.6): the official code removes every
+//! ([`crate::train::passes::spacetime_settings::WorldCulls`]; docs/algorithms/base-models.md §4.6): the official code removes every
 //! Gaussian with world z < 4.5 before training (its `densify` modes 1 and 2, which the N3DV
 //! configs use), and in mode 1 repeats that after densification and once removes the Gaussians
 //! outside the bounding box of the initial points. These are the official rules for that
@@ -20,8 +20,9 @@ use std::sync::Arc;
 use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
+use super::spacetime_settings::{SpacetimeTraining, WorldCulls};
 use crate::splats::GaussianParams;
-use crate::train::config::{TrainConfig, WorldCulls};
+use crate::train::config::TrainConfig;
 use crate::train::density::{DensifyArgs, DensifyPhase};
 use crate::train::strategy::{DensityContext, ModelRule, StepSeen, StrategyEvent};
 
@@ -50,7 +51,7 @@ pub fn apply_choice(
     per_thousand: u32,
 ) -> anyhow::Result<()> {
     let until = config.schedule.densify_until;
-    let Some(st) = config.spacetime.as_mut() else {
+    let Some(mut st) = config.model_settings::<SpacetimeTraining>().copied() else {
         anyhow::ensure!(
             matches!(choice, N3dvCulls::Auto | N3dvCulls::Off),
             "--n3dv-culls applies to the spacetime models only (this run trains {}). Fix: drop \
@@ -66,6 +67,7 @@ pub fn apply_choice(
         N3dvCulls::Off => None,
     };
     st.world_culls = later.map(|l| WorldCulls::n3dv(l, until, per_thousand));
+    config.set_model(st);
     Ok(())
 }
 
