@@ -4,7 +4,6 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use lpmsplat::models::BaseModel;
 use lpmsplat::partition::{self, blocks, slurm, GridChoice, PartitionOptions, Plan, Targets};
 use lpmsplat::scene::{colmap, Scene, SceneFormat};
 
@@ -65,10 +64,15 @@ pub struct PartitionArgs {
     /// iterations) that every block starts from (`--init-ply` on a fresh start): each block
     /// then learns its region against the rest of the scene already in place instead of
     /// explaining the other blocks' content with floaters. On Truck 2x2 it takes the merged
-    /// model from 3.3 dB behind the whole scene's to level with it; each block holds the whole
-    /// coarse model, which the plan's estimates count (docs/partition.md).
+    /// model from 3.3 dB behind the whole scene's to level with it. A block starts from the
+    /// coarse Gaussians in its region and a share of the rest (--coarse-backdrop), written as
+    /// `coarse.ply` in its folder and counted in the plan's estimates (docs/partition.md).
     #[arg(long, value_name = "PLY")]
     pub coarse: Option<PathBuf>,
+    /// With --coarse: the share of the coarse model outside a block's region that the block
+    /// keeps as its backdrop, the most opaque and largest Gaussians first (1: all of it).
+    #[arg(long, value_name = "SHARE", default_value_t = 1.0, requires = "coarse")]
+    pub coarse_backdrop: f64,
     #[command(flatten)]
     pub slurm: super::slurm_args::SlurmArgs,
     /// `train` arguments for every block, after `--` (e.g. `-- --iterations 30000 --lpm`).
@@ -151,17 +155,11 @@ pub fn run(args: &PartitionArgs) -> anyhow::Result<()> {
          estimates count it, and a resumed block must not get it). Fix: pass it as \
          `partition --coarse PLY`"
     );
-    let coarse = match &args.coarse {
-        Some(path) => {
-            let model = BaseModel::for_ply(None, path)?;
-            let gaussians = model.read_ply(path)?.len() as u64;
-            Some(partition::plan::CoarseStart {
-                ply: std::path::absolute(path)?,
-                gaussians,
-            })
-        }
-        None => None,
-    };
+    let coarse = args
+        .coarse
+        .as_deref()
+        .map(|path| partition::coarse::CoarseModel::read(path, args.coarse_backdrop))
+        .transpose()?;
     let mut train_args = Vec::new();
     if let Some(r) = args.scene.resolution {
         train_args.extend(["-r".to_string(), r.to_string()]);
@@ -182,6 +180,9 @@ pub fn run(args: &PartitionArgs) -> anyhow::Result<()> {
     match &model {
         Some(model) => blocks::write_block_folders(&out, &plan, model, &scene.root)?,
         None => blocks::write_transforms_block_folders(&out, &plan, &scene.root)?,
+    }
+    if let Some(c) = &popts.coarse {
+        partition::coarse::write_block_starts(&out, &plan, c)?;
     }
     if args.loss_masks {
         let shares = partition::masks::write_block_masks(&out, &plan, &scene)?;
@@ -215,7 +216,10 @@ pub fn run(args: &PartitionArgs) -> anyhow::Result<()> {
                 None => String::new(),
             };
             let start = match &plan.coarse {
-                Some(c) => format!(" --init-ply {}", c.ply.display()),
+                Some(_) => format!(
+                    " --init-ply {}",
+                    out.join(partition::coarse::block_start_path(b)).display()
+                ),
                 None => String::new(),
             };
             println!(
@@ -251,24 +255,26 @@ fn print_plan(plan: &Plan) {
     );
     if let Some(c) = &plan.coarse {
         println!(
-            "every block starts from the coarse model {} ({} Gaussians, counted in each \
-             block's estimate)",
+            "every block starts from the coarse model {} ({} Gaussians): those in its region \
+             and {:.0} % of the rest (its coarse.ply, counted in its estimate)",
             c.ply.display(),
-            c.gaussians
+            c.gaussians,
+            100.0 * c.backdrop
         );
     }
     println!(
-        "{:<8} {:>6} {:>5} {:>9} {:>9} {:>11} {:>9}",
-        "block", "train", "test", "core pts", "region", "Gaussians", "MiB"
+        "{:<8} {:>6} {:>5} {:>9} {:>9} {:>9} {:>11} {:>9}",
+        "block", "train", "test", "core pts", "region", "start", "Gaussians", "MiB"
     );
     for b in &plan.blocks {
         println!(
-            "{:<8} {:>6} {:>5} {:>9} {:>9} {:>11} {:>9.0}",
+            "{:<8} {:>6} {:>5} {:>9} {:>9} {:>9} {:>11} {:>9.0}",
             b.name,
             b.train_views.len(),
             b.test_views.len(),
             b.core_points,
             b.region_points,
+            b.start_gaussians.map_or("-".into(), |s| s.to_string()),
             b.expected_gaussians,
             b.memory_mib
         );

@@ -7,6 +7,7 @@
 
 pub mod assign;
 pub mod blocks;
+pub mod coarse;
 pub mod grid;
 pub mod ground;
 pub mod masks;

@@ -69,22 +69,31 @@ pub struct PartitionOptions {
     /// The training image cache (MiB): images beyond it stream from disk.
     pub image_cache_mib: f64,
     /// A coarse model of the whole scene every block starts from (`--coarse`).
-    pub coarse: Option<CoarseStart>,
+    pub coarse: Option<super::coarse::CoarseModel>,
 }
 
 /// A coarse model of the whole scene (a short `train` of it) that every block starts from,
 /// as CityGaussian's prior: in each view a block then finds the rest of the scene already
 /// there, in front of and behind its own region, and learns its region against it instead of
 /// explaining the other blocks' content with Gaussians of its own (floaters the merge would
-/// keep). Every block holds it whole, so it adds to every block's Gaussians; the merge keeps
-/// only what lies in each core. The block runs get `--init-ply` on a fresh start only (a
-/// resumed run continues from its checkpoint).
+/// keep). A block starts from the coarse Gaussians in its region and the `backdrop` share of
+/// the others ([`super::coarse`]; written as `coarse.ply` in its folder), which adds to its
+/// Gaussians; the merge keeps only what lies in each core. The block runs get `--init-ply` on
+/// a fresh start only (a resumed run continues from its checkpoint).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CoarseStart {
     /// The model's PLY, absolute.
     pub ply: PathBuf,
     /// Its Gaussians.
     pub gaussians: u64,
+    /// The share of its Gaussians outside a block's region that the block keeps (plans from
+    /// before the share existed kept all of them).
+    #[serde(default = "whole_backdrop")]
+    pub backdrop: f64,
+}
+
+fn whole_backdrop() -> f64 {
+    1.0
 }
 
 /// One block of a plan.
@@ -106,8 +115,12 @@ pub struct Block {
     pub region_points: usize,
     /// SfM points in the core.
     pub core_points: usize,
-    /// The block's Gaussian budget (`--budget` given) or estimate.
+    /// The block's Gaussian budget (`--budget` given) or estimate (its start included).
     pub expected_gaussians: u64,
+    /// The Gaussians of its start from the coarse model (`<folder>/coarse.ply`), if the plan
+    /// has one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub start_gaussians: Option<u64>,
     /// Estimated device memory of its training run, MiB.
     pub memory_mib: f64,
 }
@@ -407,10 +420,9 @@ pub fn make_plan(
          holds the whole coarse model), and how to share a budget then is not measured. Fix: \
          drop one of them"
     );
-    // A block that starts from the coarse model holds all of it besides its own growth.
-    let coarse = opts.coarse.as_ref().map_or(0, |c| c.gaussians);
-    let expected = |region_points: usize, train_views: usize| -> u64 {
-        coarse
+    // A block that starts from the coarse model holds its start besides its own growth.
+    let expected = |start: u64, region_points: usize, train_views: usize| -> u64 {
+        start
             + match opts.budget {
                 Some(b) if total_points == 0 => {
                     (b as f64 * train_views as f64 / scene.train.len() as f64).ceil() as u64
@@ -460,7 +472,12 @@ pub fn make_plan(
                 };
                 let train_views = pick(&scene.train);
                 let test_views = pick(&scene.test);
-                let expected_gaussians = expected(region_points, train_views.len());
+                let start = opts
+                    .coarse
+                    .as_ref()
+                    .map(|c| c.rows_for(&ground, &region).len() as u64);
+                let expected_gaussians =
+                    expected(start.unwrap_or(0), region_points, train_views.len());
                 let name = format!("b{}_{}", k / rows, k % rows);
                 Block {
                     folder: PathBuf::from("blocks").join(&name),
@@ -478,6 +495,7 @@ pub fn make_plan(
                     region_points,
                     core_points: core_pts.len(),
                     expected_gaussians,
+                    start_gaussians: start,
                 }
             })
             .collect()
@@ -517,7 +535,7 @@ pub fn make_plan(
         visibility: opts.visibility,
         budget: opts.budget,
         train_args,
-        coarse: opts.coarse.clone(),
+        coarse: opts.coarse.as_ref().map(|c| c.start.clone()),
         whole,
         blocks,
     })

@@ -81,6 +81,9 @@ fn header(name: &str, opts: &SlurmOptions, log: &str) -> String {
 pub struct Cell {
     pub name: String,
     pub args: Vec<String>,
+    /// Arguments it gets only when it starts fresh (a block's `--init-ply` of its start from
+    /// the coarse model, which `train` refuses beside `--resume`).
+    pub fresh_args: Vec<String>,
 }
 
 /// A job array and the job that collects it, as scripts.
@@ -95,9 +98,6 @@ pub struct JobArray {
     pub done_file: String,
     /// Whether a cell whose folder holds `checkpoint.bin` resumes from it (`--resume`).
     pub resumes: bool,
-    /// Arguments a cell gets only when it starts fresh (a block's `--init-ply` of the coarse
-    /// model, which `train` refuses beside `--resume`).
-    pub fresh_args: Vec<String>,
     pub cell_mem_mib: u64,
     /// The collecting job's `lpmsplat` arguments.
     pub merge_args: Vec<String>,
@@ -119,7 +119,13 @@ pub fn scripts(array: &JobArray, opts: &SlurmOptions) -> Vec<(&'static str, Stri
         .cells
         .iter()
         .enumerate()
-        .map(|(k, c)| format!("  {k}) args=({}) ;;\n", words(&c.args)))
+        .map(|(k, c)| {
+            format!(
+                "  {k}) args=({}); fresh=({}) ;;\n",
+                words(&c.args),
+                words(&c.fresh_args)
+            )
+        })
         .collect();
     let done = quote(&array.done_file);
 
@@ -158,11 +164,9 @@ touch "$run"/{done}
         } else {
             " (a stopped one starts again)"
         },
-        resume = match (array.resumes, array.fresh_args.is_empty()) {
-            (true, true) => "if [ -f \"$run/checkpoint.bin\" ]; then\n  echo \"$name: resuming from $run/checkpoint.bin\"\n  args+=(--resume \"$run/checkpoint.bin\")\nfi\n".to_string(),
-            (true, false) => format!("if [ -f \"$run/checkpoint.bin\" ]; then\n  echo \"$name: resuming from $run/checkpoint.bin\"\n  args+=(--resume \"$run/checkpoint.bin\")\nelse\n  args+=({})\nfi\n", words(&array.fresh_args)),
-            (false, true) => String::new(),
-            (false, false) => format!("args+=({})\n", words(&array.fresh_args)),
+        resume = match array.resumes {
+            true => "if [ -f \"$run/checkpoint.bin\" ]; then\n  echo \"$name: resuming from $run/checkpoint.bin\"\n  args+=(--resume \"$run/checkpoint.bin\")\nelse\n  args+=(\"${fresh[@]}\")\nfi\n",
+            false => "args+=(\"${fresh[@]}\")\n",
         },
     );
 
@@ -249,6 +253,15 @@ pub fn block_array(plan: &Plan, dir: &Path, opts: &SlurmOptions) -> JobArray {
             Cell {
                 name: b.name.clone(),
                 args,
+                fresh_args: match &plan.coarse {
+                    Some(_) => vec![
+                        "--init-ply".into(),
+                        dir.join(super::coarse::block_start_path(b))
+                            .display()
+                            .to_string(),
+                    ],
+                    None => Vec::new(),
+                },
             }
         })
         .collect();
@@ -259,9 +272,6 @@ pub fn block_array(plan: &Plan, dir: &Path, opts: &SlurmOptions) -> JobArray {
         cells,
         done_file: super::merge::BLOCK_DONE.into(),
         resumes: true,
-        fresh_args: plan.coarse.as_ref().map_or_else(Vec::new, |c| {
-            vec!["--init-ply".into(), c.ply.display().to_string()]
-        }),
         cell_mem_mib: task_memory_mib(plan),
         merge_args: vec![
             "merge".into(),

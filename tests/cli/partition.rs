@@ -659,10 +659,12 @@ fn transforms_scenes_partition_into_blocks_train_reads() {
         .all(|b| b.train_views.len() < whole.train.len()));
 }
 
-/// `partition --coarse`: the plan records the coarse model and counts it in every block's
-/// estimate; a block task starts from it when fresh and not when it resumes (`train` refuses
-/// `--init-ply` beside `--resume`); a real block run starts with its Gaussians; and the flags
-/// that would contradict it are refused by name.
+/// `partition --coarse`: the plan records the coarse model and counts each block's start from
+/// it in the block's estimate; by default a block starts from all of it, with
+/// `--coarse-backdrop S` from the Gaussians in its region and the top share S of the others
+/// by opacity × area; a block task starts from its `coarse.ply` when fresh and not when it
+/// resumes (`train` refuses `--init-ply` beside `--resume`); a real block run starts with its
+/// Gaussians; and the flags that would contradict it are refused by name.
 #[test]
 fn a_coarse_model_is_every_fresh_blocks_start_and_counted_in_the_plan() {
     let tmp = tempfile::tempdir().unwrap();
@@ -672,12 +674,12 @@ fn a_coarse_model_is_every_fresh_blocks_start_and_counted_in_the_plan() {
     let lo = [0, 1, 2].map(|k| pts.iter().map(|p| p[k]).fold(f64::MAX, f64::min));
     let hi = [0, 1, 2].map(|k| pts.iter().map(|p| p[k]).fold(f64::MIN, f64::max));
     let coarse = tmp.path().join("coarse.ply");
-    write_ply_with_comments(
-        &coarse,
-        &spread(700, 3, lo, hi),
-        &["lpmsplat model 3dgs".to_string()],
-    )
-    .unwrap();
+    // Opacities of eleven levels: the backdrop's ranking has something to rank.
+    let mut coarse_model = spread(700, 3, lo, hi);
+    for (i, o) in coarse_model.opacity_logits.iter_mut().enumerate() {
+        *o = ((i * 37) % 11) as f32 - 5.0;
+    }
+    write_ply_with_comments(&coarse, &coarse_model, &["lpmsplat model 3dgs".to_string()]).unwrap();
     let out = tmp.path().join("plan");
     let partition = |out: &Path, more: &[&str]| {
         let mut c = lpmsplat();
@@ -720,6 +722,60 @@ fn a_coarse_model_is_every_fresh_blocks_start_and_counted_in_the_plan() {
             b.name
         );
         assert!(b.memory_mib > o.memory_mib, "{}", b.name);
+        assert_eq!(b.start_gaussians, Some(700), "{}", b.name);
+        let start = lpmsplat::splats::read_ply(&out.join(&b.folder).join("coarse.ply")).unwrap();
+        assert_eq!(start.positions, coarse_model.positions, "{}", b.name);
+    }
+
+    // A quarter of the backdrop: each block's start is its region's Gaussians and the most
+    // important quarter (rounded up) of the others, as counted in the plan and written.
+    let quarter = tmp.path().join("quarter");
+    run_ok(&mut partition(
+        &quarter,
+        &[coarse_flag[0], coarse_flag[1], "--coarse-backdrop", "0.25"],
+    ));
+    let qplan = Plan::read(&quarter.join("plan.json")).unwrap();
+    assert_eq!(qplan.coarse.as_ref().unwrap().backdrop, 0.25);
+    let importance = |i: usize| {
+        let o = 1.0 / (1.0 + (-(coarse_model.opacity_logits[i] as f64)).exp());
+        let s = coarse_model.log_scales[i].map(|l| (l as f64).exp());
+        o * (s[0] * s[1] + s[0] * s[2] + s[1] * s[2])
+    };
+    for (b, o) in qplan.blocks.iter().zip(&bare.blocks) {
+        let in_region = |i: usize| {
+            let p = coarse_model.positions[i].map(|v| v as f64);
+            b.region.contains(qplan.ground.coordinates(p).0)
+        };
+        let (inside, outside): (Vec<usize>, Vec<usize>) = (0..700).partition(|&i| in_region(i));
+        let start =
+            lpmsplat::splats::read_ply(&quarter.join(&b.folder).join("coarse.ply")).unwrap();
+        let kept: Vec<usize> = (0..700)
+            .filter(|&i| start.positions.contains(&coarse_model.positions[i]))
+            .collect();
+        let kept_outside: Vec<usize> = outside
+            .iter()
+            .copied()
+            .filter(|i| kept.contains(i))
+            .collect();
+        assert!(!inside.is_empty() && !outside.is_empty(), "{}", b.name);
+        assert!(inside.iter().all(|i| kept.contains(i)), "{}", b.name);
+        assert_eq!(kept_outside.len(), outside.len().div_ceil(4), "{}", b.name);
+        let dropped_best = outside
+            .iter()
+            .filter(|i| !kept.contains(i))
+            .map(|&i| importance(i))
+            .fold(0.0, f64::max);
+        assert!(
+            kept_outside.iter().all(|&i| importance(i) >= dropped_best),
+            "{}: the backdrop keeps the most important",
+            b.name
+        );
+        assert_eq!(start.len(), kept.len());
+        assert_eq!(b.start_gaussians, Some(kept.len() as u64));
+        assert_eq!(
+            b.expected_gaussians,
+            o.expected_gaussians + kept.len() as u64
+        );
     }
 
     // A stand-in binary prints the arguments a task passes: --init-ply on a fresh start,
@@ -739,8 +795,9 @@ fn a_coarse_model_is_every_fresh_blocks_start_and_counted_in_the_plan() {
     std::fs::set_permissions(&echo, std::os::unix::fs::PermissionsExt::from_mode(0o755)).unwrap();
     let run0 = out.join("runs").join(&plan.blocks[0].name);
     let fresh = args_of_task();
+    let start0 = out.join(&plan.blocks[0].folder).join("coarse.ply");
     assert!(
-        fresh.contains(&format!("--init-ply\n{}\n", c.ply.display()))
+        fresh.contains(&format!("--init-ply\n{}\n", start0.display()))
             && !fresh.contains("--resume"),
         "{fresh}"
     );
@@ -762,7 +819,7 @@ fn a_coarse_model_is_every_fresh_blocks_start_and_counted_in_the_plan() {
             .arg(&run0)
             .args(&plan.train_args)
             .arg("--init-ply")
-            .arg(&c.ply),
+            .arg(&start0),
     );
     assert!(text.contains("700 initial Gaussians"), "{text}");
 
@@ -789,4 +846,9 @@ fn a_coarse_model_is_every_fresh_blocks_start_and_counted_in_the_plan() {
         .arg("-o")
         .arg(tmp.path().join("p4")));
     assert!(!ok && text.contains("nothing.ply"), "{text}");
+    let (ok, text) = run(&mut partition(
+        &tmp.path().join("p5"),
+        &[coarse_flag[0], coarse_flag[1], "--coarse-backdrop", "1.5"],
+    ));
+    assert!(!ok && text.contains("--coarse-backdrop 1.5"), "{text}");
 }

@@ -65,6 +65,7 @@ pub fn write(args: &TradeArgs, slurm_args: &SlurmArgs) -> anyhow::Result<()> {
             Cell {
                 name: format!("seed-{s}"),
                 args: a,
+                fresh_args: Vec::new(),
             }
         })
         .collect();
@@ -78,7 +79,6 @@ pub fn write(args: &TradeArgs, slurm_args: &SlurmArgs) -> anyhow::Result<()> {
         // trade.json is rewritten after every run: the task's own marker says it finished.
         done_file: "task.done".into(),
         resumes: false,
-        fresh_args: Vec::new(),
         cell_mem_mib: 16384,
         merge_args,
         merge_mem_mib: 2048,
