@@ -16,7 +16,9 @@
 // strategy's own ranking, src/taming/); 0 for the others. The Gaussian budget ranks additions by
 // it (src/train/density/budget.rs). Flag 8 (the exact budget, src/train/density/growth.rs):
 // every Gaussian with a positive statistic is a candidate and the budget chooses among them
-// (nothing is then "lowered").
+// (nothing is then "lowered"). Flag 128 (a growth region, src/train/density/region.rs): a
+// Gaussian whose centre lies outside the region's two bands is no candidate by either test
+// (it is never cloned nor split, its score is 0); the prune tests are unchanged.
 layout(local_size_x_id = 0) in;
 #include "decisions.glsl"
 layout(std430, set = 0, binding = 0) readonly buffer Accum { float grad_accum[]; };
@@ -29,11 +31,12 @@ layout(std430, set = 0, binding = 6) writeonly buffer Decisions { uint decisions
 layout(std430, set = 0, binding = 7) readonly buffer AbsAccum { float abs_accum[]; };
 layout(std430, set = 0, binding = 8) writeonly buffer Scores { float scores[]; };
 layout(std430, set = 0, binding = 9) readonly buffer ScoreWeight { float score_weight[]; };
+layout(std430, set = 0, binding = 10) readonly buffer Positions { float positions[]; };
 layout(push_constant) uniform Push {
     uint count;
     uint flags;  // 1: prune large (world size); 2: use threshold_scale; 4: absolute-gradient test;
                  // 8: every seen Gaussian a candidate; 16: use score_weight; 32: rank lowered;
-                 // 64: score_weight replaces the score
+                 // 64: score_weight replaces the score; 128: grow only inside the region
     float grad_threshold;
     float log_clone_max;      // ln(percent_dense · extent)
     float min_opacity_logit;  // logit(min_opacity)
@@ -41,7 +44,20 @@ layout(push_constant) uniform Push {
     float log_split_shrink;   // ln(1.6)
     float screen_max;         // < 0: off
     float abs_threshold;      // with flag 4
+    // With flag 128, per band: its axis, lo and hi (the centre's dot product with the axis
+    // must lie in [lo, hi)).
+    float b0x, b0y, b0z, b0lo, b0hi;
+    float b1x, b1y, b1z, b1lo, b1hi;
 };
+
+bool grows_at(uint i) {
+    if ((flags & 128u) == 0u) return true;
+    float px = positions[3u * i], py = positions[3u * i + 1u], pz = positions[3u * i + 2u];
+    // `precise`: the same f32 operations in the same order as the host reference.
+    precise float c0 = b0x * px + b0y * py + b0z * pz;
+    precise float c1 = b1x * px + b1y * py + b1z * pz;
+    return c0 >= b0lo && c0 < b0hi && c1 >= b1lo && c1 < b1hi;
+}
 
 void main() {
     uint i = linear_index();
@@ -53,8 +69,10 @@ void main() {
     if ((flags & 2u) != 0u) thr = grad_threshold * threshold_scale[i];
     precise float abs_stat = dn > 0.0 ? abs_accum[i] / dn : 0.0;
     bool rank_all = (flags & 8u) != 0u;
-    bool by_abs = (flags & 4u) != 0u && (rank_all ? abs_stat > 0.0 : abs_stat >= abs_threshold);
-    bool by_grad = rank_all ? (stat > 0.0 && grad_threshold < INF) : stat >= thr;
+    bool grows = grows_at(i);
+    bool by_abs = grows && (flags & 4u) != 0u
+        && (rank_all ? abs_stat > 0.0 : abs_stat >= abs_threshold);
+    bool by_grad = grows && (rank_all ? (stat > 0.0 && grad_threshold < INF) : stat >= thr);
     bool densify = by_grad || by_abs;
     precise float over = (flags & 32u) != 0u ? thr : grad_threshold;
     precise float grad_ratio = by_grad ? (over > 0.0 ? stat / over : INF) : 0.0;

@@ -73,6 +73,11 @@ pub struct PartitionArgs {
     /// keeps as its backdrop, the most opaque and largest Gaussians first (1: all of it).
     #[arg(long, value_name = "SHARE", default_value_t = 1.0, requires = "coarse")]
     pub coarse_backdrop: f64,
+    /// Each block clones and splits only Gaussians in its region (its core and margin): every
+    /// block run gets `--grow-within <its folder>/region.json`, so a block does not regrow the
+    /// rest of the scene its views see (with --coarse, its backdrop stays as it came).
+    #[arg(long)]
+    pub grow_within_region: bool,
     #[command(flatten)]
     pub slurm: super::slurm_args::SlurmArgs,
     /// `train` arguments for every block, after `--` (e.g. `-- --iterations 30000 --lpm`).
@@ -174,7 +179,8 @@ pub fn run(args: &PartitionArgs) -> anyhow::Result<()> {
         image_cache_mib: args.image_cache,
         coarse,
     };
-    let plan = partition::make_plan(&scene, frame, &popts, train_args)?;
+    let mut plan = partition::make_plan(&scene, frame, &popts, train_args)?;
+    plan.grow_within_region = args.grow_within_region;
     std::fs::create_dir_all(&args.out)?;
     let out = std::path::absolute(&args.out)?;
     match &model {
@@ -183,6 +189,9 @@ pub fn run(args: &PartitionArgs) -> anyhow::Result<()> {
     }
     if let Some(c) = &popts.coarse {
         partition::coarse::write_block_starts(&out, &plan, c)?;
+    }
+    if plan.grow_within_region {
+        blocks::write_growth_regions(&out, &plan)?;
     }
     if args.loss_masks {
         let shares = partition::masks::write_block_masks(&out, &plan, &scene)?;
@@ -222,8 +231,15 @@ pub fn run(args: &PartitionArgs) -> anyhow::Result<()> {
                 ),
                 None => String::new(),
             };
+            let region = match plan.grow_within_region {
+                true => format!(
+                    " --grow-within {}",
+                    out.join(blocks::region_path(b)).display()
+                ),
+                false => String::new(),
+            };
             println!(
-                "  lpmsplat train {} -o {} {}{budget}{start}",
+                "  lpmsplat train {} -o {} {}{budget}{start}{region}",
                 out.join(&b.folder).display(),
                 out.join("runs").join(&b.name).display(),
                 plan.train_args.join(" "),

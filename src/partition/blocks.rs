@@ -6,12 +6,14 @@
 //! ([`crate::scene::transforms::subset`]), with the scene's other entries linked in.
 
 use std::collections::{HashMap, HashSet};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
+use super::grid::Interval;
 use super::plan::{Block, Plan};
 use crate::scene::colmap::{self, ColmapModel};
 use crate::scene::split::TEST_VIEWS_FILE;
 use crate::scene::transforms::subset::{write_subset, TRANSFORMS_FILES};
+use crate::train::density::region::{GrowthRegion, RegionBand};
 
 /// The block's COLMAP model: its views' images and cameras, the points whose ground position
 /// lies in its region with their tracks cut to those images, and the images' keypoints
@@ -152,6 +154,47 @@ pub fn write_transforms_block_folders(
             }
             std::os::unix::fs::symlink(scene_root.join(name), &link)?;
         }
+    }
+    Ok(())
+}
+
+/// The name of a block's growth region in its folder (`train --grow-within`).
+pub const REGION_FILE: &str = "region.json";
+
+/// Where a block's region file lies, relative to the plan's folder.
+pub fn region_path(block: &Block) -> PathBuf {
+    block.folder.join(REGION_FILE)
+}
+
+/// A block's region (its core grown by the margin) as a growth region in the scene's own
+/// frame: a band along each ground axis, `axis · p` in `[lo, hi)` where the ground coordinate
+/// `axis · (p − origin)` lies in the region's interval.
+pub fn growth_region(plan: &Plan, block: &Block) -> GrowthRegion {
+    let band = |axis: [f64; 3], i: Interval| {
+        let at = axis[0] * plan.ground.origin[0]
+            + axis[1] * plan.ground.origin[1]
+            + axis[2] * plan.ground.origin[2];
+        RegionBand {
+            axis,
+            lo: i.lo.map_or(f64::NEG_INFINITY, |l| l + at),
+            hi: i.hi.map_or(f64::INFINITY, |h| h + at),
+        }
+    };
+    GrowthRegion {
+        bands: [
+            band(plan.ground.u, block.region.u),
+            band(plan.ground.v, block.region.v),
+        ],
+    }
+}
+
+/// Writes every block's growth region (`<folder>/region.json`) under the plan's folder `out`.
+pub fn write_growth_regions(out: &Path, plan: &Plan) -> anyhow::Result<()> {
+    for block in &plan.blocks {
+        std::fs::write(
+            out.join(region_path(block)),
+            growth_region(plan, block).to_json().to_string(),
+        )?;
     }
     Ok(())
 }

@@ -160,6 +160,9 @@ pub struct Plan {
     /// The coarse model every block starts from, if any (`--init-ply` of a fresh block run).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub coarse: Option<CoarseStart>,
+    /// Each block grows only in its region (`train --grow-within <folder>/region.json`).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub grow_within_region: bool,
     pub whole: Whole,
     pub blocks: Vec<Block>,
 }
@@ -536,6 +539,7 @@ pub fn make_plan(
         budget: opts.budget,
         train_args,
         coarse: opts.coarse.as_ref().map(|c| c.start.clone()),
+        grow_within_region: false,
         whole,
         blocks,
     })

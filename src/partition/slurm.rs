@@ -244,6 +244,14 @@ pub fn block_array(plan: &Plan, dir: &Path, opts: &SlurmOptions) -> JobArray {
             if plan.budget.is_some() {
                 args.extend(["--budget".into(), b.expected_gaussians.to_string()]);
             }
+            if plan.grow_within_region {
+                args.extend([
+                    "--grow-within".into(),
+                    dir.join(super::blocks::region_path(b))
+                        .display()
+                        .to_string(),
+                ]);
+            }
             if !has_checkpoint_flag {
                 args.extend([
                     "--checkpoint-every".into(),

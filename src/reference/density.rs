@@ -127,7 +127,8 @@ pub fn decide_with_abs(
     (0..params.len())
         .map(|i| {
             let (stat, thr) = statistic_and_threshold(t, stats, threshold_scale, i);
-            let (by_grad, by_abs) = candidacy(t, stats, stat, thr, abs_threshold, i);
+            let grows = t.grows_at(params.positions[i]);
+            let (by_grad, by_abs) = candidacy(t, stats, stat, thr, abs_threshold, i, grows);
             let densify = by_grad || by_abs;
             let s = params.log_scales[i];
             let ls = s[0].max(s[1]).max(s[2]);
@@ -163,7 +164,8 @@ pub fn decide_with_abs(
 
 /// Whether Gaussian `i` is a candidate by the gradient test and by the absolute-gradient test,
 /// as `decide.comp` forms them: over the (scaled) threshold, or under the exact budget
-/// ([`Thresholds::rank_all`]) any positive statistic on a step that grows.
+/// ([`Thresholds::rank_all`]) any positive statistic on a step that grows; neither where the
+/// growth region does not hold the Gaussian (`grows` false).
 fn candidacy(
     t: &Thresholds,
     stats: &HostStats,
@@ -171,8 +173,12 @@ fn candidacy(
     thr: f32,
     abs_threshold: Option<f32>,
     i: usize,
+    grows: bool,
 ) -> (bool, bool) {
     let abs_stat = crate::train::density::abs_quantile::average(stats.abs_accum[i], stats.denom[i]);
+    if !grows {
+        return (false, false);
+    }
     match t.rank_all {
         false => (stat >= thr, abs_threshold.is_some_and(|q| abs_stat >= q)),
         true => (
@@ -186,9 +192,11 @@ fn candidacy(
 /// statistic over `grad_threshold` (over its own scaled threshold with
 /// [`Thresholds::rank_lowered`]), the larger ratio when both tests pass, +∞ over a threshold
 /// ≤ 0, times its `score` weight or replaced by its `score`; 0 for the others ([`crate::train::density::budget`] ranks additions by it).
+/// `positions`: the Gaussians' centres (the growth region's test).
 pub fn scores(
     t: &Thresholds,
     stats: &HostStats,
+    positions: &[[f32; 3]],
     threshold_scale: Option<&[f32]>,
     score: Option<ScoreInput<&[f32]>>,
     abs_threshold: Option<f32>,
@@ -203,7 +211,8 @@ pub fn scores(
             let dn = stats.denom[i];
             let (stat, thr) = statistic_and_threshold(t, stats, threshold_scale, i);
             let abs_stat = crate::train::density::abs_quantile::average(stats.abs_accum[i], dn);
-            let (by_grad, by_abs) = candidacy(t, stats, stat, thr, abs_threshold, i);
+            let grows = t.grows_at(positions[i]);
+            let (by_grad, by_abs) = candidacy(t, stats, stat, thr, abs_threshold, i, grows);
             let over = if t.rank_lowered {
                 thr
             } else {

@@ -149,7 +149,7 @@ impl TrainConfig {
     }
 
     /// This configuration with its lengths in world units (those of the model's section,
-    /// [`ModelSection::in_training_frame`]) moved into a scene's training frame
+    /// [`ModelSection::in_training_frame`], and the growth region) moved into a scene's training frame
     /// ([`crate::scene::frame`]). The configuration a run records keeps the user's units; the
     /// passes are built from this one.
     pub fn in_training_frame(&self, frame: &crate::scene::SceneFrame) -> TrainConfig {
@@ -157,6 +157,7 @@ impl TrainConfig {
         if let Some(moved) = self.model.in_training_frame(frame) {
             c.model = moved;
         }
+        c.density.grow_within = self.density.grow_within.map(|r| r.in_training_frame(frame));
         c
     }
 
@@ -233,6 +234,10 @@ impl TrainConfig {
         // Only when set, so checkpoints from before the keys still resume.
         if let Some(b) = d.exact_budget {
             j["density"]["exact_budget"] = b.to_json();
+        }
+        // Only when set, so checkpoints from before the key still resume.
+        if let Some(r) = d.grow_within {
+            j["density"]["grow_within"] = r.to_json();
         }
         if d.rank_lowered {
             j["density"]["rank_lowered"] = serde_json::json!(true);

@@ -250,7 +250,8 @@ impl Trainer {
             max_tiles = max_tiles.max(c.tile_count());
         }
         let pixels = (max_w * max_h) as usize;
-        let mut density = config.density;
+        // The growth region in the training frame, like every other world length.
+        let mut density = frame_config.density;
         density.seed = config.seed;
         let passes = model.passes(
             ctx,

@@ -852,3 +852,116 @@ fn a_coarse_model_is_every_fresh_blocks_start_and_counted_in_the_plan() {
     ));
     assert!(!ok && text.contains("--coarse-backdrop 1.5"), "{text}");
 }
+
+/// `partition --grow-within-region`: every block's folder holds its region as a growth region
+/// (`region.json`) that holds exactly the points the plan puts in the block's region, every
+/// block task passes it (`--grow-within`), and a block run densifying with it grows less than
+/// without it and records it in config.json.
+#[test]
+fn blocks_can_grow_within_their_region_only() {
+    use lpmsplat::train::density::region::GrowthRegion;
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("plan");
+    run_ok(
+        lpmsplat()
+            .args(["partition"])
+            .arg(data("lund_door_small"))
+            .args([
+                "-r",
+                "4",
+                "--blocks",
+                "2x1",
+                "--grow-within-region",
+                "--slurm",
+            ])
+            .args(["--slurm-gres", "none", "-o"])
+            .arg(&out)
+            .args(["--", "--iterations", "5"]),
+    );
+    let plan = Plan::read(&out.join("plan.json")).unwrap();
+    assert!(plan.grow_within_region);
+    let scene =
+        Scene::load_in_file_frame(&data("lund_door_small"), &LoadOptions::default()).unwrap();
+    let pts = &scene.points.as_ref().unwrap().positions;
+    for b in &plan.blocks {
+        let region = GrowthRegion::read(&out.join(&b.folder).join("region.json")).unwrap();
+        let (mut inside, mut outside) = (0, 0);
+        for &p in pts {
+            let g = plan.ground.coordinates(p).0;
+            // The cuts lie on points: one on a bound is in or out by the last bit of the
+            // arithmetic, which a moving Gaussian never notices.
+            let on_bound = [(g[0], b.region.u), (g[1], b.region.v)]
+                .iter()
+                .any(|(x, i)| [i.lo, i.hi].iter().flatten().any(|c| (x - c).abs() < 1e-9));
+            if on_bound {
+                continue;
+            }
+            let planned = b.region.contains(g);
+            assert_eq!(region.contains(p), planned, "{}: {p:?}", b.name);
+            if planned {
+                inside += 1
+            } else {
+                outside += 1
+            }
+        }
+        assert!(inside > 0 && outside > 0, "{}", b.name);
+    }
+    let task = std::fs::read_to_string(out.join("slurm/task.sh")).unwrap();
+    for b in &plan.blocks {
+        let region = out.join(&b.folder).join("region.json");
+        assert!(
+            task.contains(&format!("--grow-within {}", region.display())),
+            "{task}"
+        );
+    }
+    // A block run that densifies, with its region and without.
+    let b = &plan.blocks[0];
+    let train = |name: &str, extra: &[&str]| -> serde_json::Value {
+        let run = tmp.path().join(name);
+        run_ok(
+            lpmsplat()
+                .arg("train")
+                .arg(out.join(&b.folder))
+                .args(["-r", "4", "--iterations", "60", "--densify-from", "10"])
+                .args([
+                    "--densify-interval",
+                    "10",
+                    "--densify-grad-threshold",
+                    "1e-6",
+                ])
+                .args(["--seed", "1", "-o"])
+                .arg(&run)
+                .args(extra),
+        );
+        let read = |f: &str| -> serde_json::Value {
+            serde_json::from_slice(&std::fs::read(run.join(f)).unwrap()).unwrap()
+        };
+        let mut m = read("metrics.json");
+        m["config"] = read("config.json");
+        m
+    };
+    let region = out.join(&b.folder).join("region.json");
+    let held = train("held", &["--grow-within", region.to_str().unwrap()]);
+    let free = train("free", &[]);
+    let count = |m: &serde_json::Value| m["gaussians"].as_u64().unwrap();
+    assert!(
+        count(&held) < count(&free),
+        "{} vs {}",
+        count(&held),
+        count(&free)
+    );
+    assert!(held["config"]["density"]["grow_within"]["bands"].is_array());
+    assert!(free["config"]["density"].get("grow_within").is_none());
+    // MCMC does not grow by clones and splits: refused.
+    let (ok, text) = run(lpmsplat()
+        .arg("train")
+        .arg(out.join(&b.folder))
+        .args(["--strategy", "mcmc", "--budget", "2x", "--grow-within"])
+        .arg(&region)
+        .arg("-o")
+        .arg(tmp.path().join("mcmc")));
+    assert!(
+        !ok && text.contains("--grow-within with --strategy mcmc"),
+        "{text}"
+    );
+}

@@ -12,6 +12,7 @@ use lpmsplat::train::adam::SplatState;
 use lpmsplat::train::density::abs_quantile::abs_grad_threshold;
 use lpmsplat::train::density::budget::{self, BudgetCut};
 use lpmsplat::train::density::growth::{BudgetCurve, Growth};
+use lpmsplat::train::density::region::{GrowthRegion, RegionBand};
 use lpmsplat::train::density::rng::fold_seed;
 use lpmsplat::train::density::{
     reset_logit, DensifyArgs, DensifyPhase, DensityConfig, DensityControl, ScoreInput, Statistic,
@@ -364,6 +365,22 @@ fn random_steps_match_the_host_reference_and_grow_past_the_capacity() {
         cfg_step.screen_size_limit = (step == 5).then_some(20.0);
         // Every other step adds the absolute-gradient test (once with the LPM scale).
         cfg_step.abs_grad = step % 2 == 0;
+        // Steps 3 and 6 grow only inside a region of two oblique bands (partition's blocks).
+        let s = std::f64::consts::FRAC_1_SQRT_2;
+        cfg_step.grow_within = (step % 3 == 0 && step > 0).then_some(GrowthRegion {
+            bands: [
+                RegionBand {
+                    axis: [s, s, 0.0],
+                    lo: -(extent as f64) / 3.0,
+                    hi: f64::INFINITY,
+                },
+                RegionBand {
+                    axis: [0.0, 0.0, 1.0],
+                    lo: f64::NEG_INFINITY,
+                    hi: extent as f64 / 4.0,
+                },
+            ],
+        });
         dc.config = cfg_step;
         let args = DensifyArgs {
             extent: extent as f64,
@@ -410,6 +427,22 @@ fn random_steps_match_the_host_reference_and_grow_past_the_capacity() {
             d,
             "step {step}"
         );
+        if let Some(region) = cfg_step.grow_within {
+            // The region held something back: without it more would grow, and nothing
+            // outside it grew.
+            let mut open = t;
+            open.region = None;
+            let free = reference::decide_with_abs(&open, &stats, &host.params, scale.as_deref(), q);
+            let grown = |d: &[u32]| d.iter().filter(|&&x| x & 6 != 0).count();
+            assert!(grown(&free) > grown(&d) && grown(&d) > 0, "step {step}");
+            for (i, &x) in d.iter().enumerate() {
+                let p = host.params.positions[i].map(|v| v as f64);
+                assert!(
+                    x & 6 == 0 || region.contains(p),
+                    "step {step}: {i} grew outside"
+                );
+            }
+        }
         let expect = reference::apply(
             &host,
             &d,
@@ -563,7 +596,14 @@ fn a_gaussian_budget_keeps_the_additions_furthest_over_their_threshold() {
             (_, Some(o)) => Some(ScoreInput::Replace(o.as_slice())),
             _ => None,
         };
-        let want_scores = reference::scores(&t, &stats, scale.as_deref(), score_ref, q);
+        let want_scores = reference::scores(
+            &t,
+            &stats,
+            &host.params.positions,
+            scale.as_deref(),
+            score_ref,
+            q,
+        );
         let scores = dc.scores().read_range(0, n).unwrap();
         for (i, (&g, &w)) in scores.iter().zip(&want_scores).enumerate() {
             let ulps = (g.to_bits() as i64 - w.to_bits() as i64).abs();

@@ -196,6 +196,13 @@ pub struct TrainArgs {
     /// Default: no cap
     #[arg(long, value_name = "N", value_parser = Budget::parse_count)]
     pub max_gaussians: Option<usize>,
+    /// Clone and split only Gaussians whose centre lies in the region FILE describes (JSON:
+    /// two bands `{"axis": [x, y, z], "lo": a, "hi": b}` in the scene's own frame; `partition
+    /// --grow-within-region` writes one per block): the others still train and are pruned,
+    /// but never multiply. Held: ADC's clones and splits, with or without a budget; not held:
+    /// LPM's point additions. Refused with --strategy mcmc (it grows by relocation).
+    #[arg(long, value_name = "FILE")]
+    pub grow_within: Option<std::path::PathBuf>,
     /// spacetime-lite, spacetime-full: the temporal centre of clones and split children: random (uniform over
     /// the segment, the official rule) or parent.
     #[arg(long, value_parser = ChildTime::parse)]
@@ -518,6 +525,16 @@ impl TrainArgs {
         c.schedule.white_background = c.background == Background::Fixed([1.0; 3]);
         self.model.apply_options(&self.model_options()?, &mut c)?;
         c.density.max_gaussians = self.max_gaussians;
+        if let Some(path) = &self.grow_within {
+            anyhow::ensure!(
+                self.density_strategy.strategy != StrategyName::Mcmc,
+                "--grow-within with --strategy mcmc: MCMC grows by relocating and sampling \
+                 Gaussians, not by ADC's clones and splits, so the region would not hold it. \
+                 Fix: drop --grow-within, or train with --strategy adc"
+            );
+            c.density.grow_within =
+                Some(lpmsplat::train::density::region::GrowthRegion::read(path)?);
+        }
         c.density.rank_lowered = self.lpm.lpm && self.lpm.lpm_rank == "lowered";
         if self.density_strategy.strategy == StrategyName::Mcmc {
             // `train`'s schedule is the official 30 000-iteration one whatever --iterations.

@@ -48,6 +48,7 @@ pub mod append;
 pub mod budget;
 pub mod growth;
 mod move_in_place;
+pub mod region;
 pub mod rng;
 mod rules;
 
@@ -133,6 +134,8 @@ struct DecidePush {
     screen_max: f32,
     /// The absolute-gradient quantile (with flag 4).
     abs_threshold: f32,
+    /// The growth region's bands (with flag 128): axis, lo, hi per band.
+    region: [f32; 10],
 }
 
 #[repr(C)]
@@ -230,7 +233,7 @@ impl DensityControl {
             decide: pipe(
                 "density/decide",
                 shaders::DENSITY_DECIDE,
-                10,
+                11,
                 size_of::<DecidePush>(),
             )?,
             budget: pipe(
@@ -498,13 +501,15 @@ impl DensityControl {
                 | ((t.rank_all as u32) << 3)
                 | ((score_weight.is_some() as u32) << 4)
                 | ((t.rank_lowered as u32) << 5)
-                | ((matches!(score, Some(ScoreInput::Replace(_))) as u32) << 6),
+                | ((matches!(score, Some(ScoreInput::Replace(_))) as u32) << 6)
+                | ((t.region.is_some() as u32) << 7),
             grad_threshold: t.grad_threshold,
             log_clone_max: t.log_clone_max,
             min_opacity_logit: t.min_opacity_logit,
             log_world_max: t.log_world_max,
             log_split_shrink: t.log_split_shrink,
             screen_max: t.screen_max,
+            region: t.region.unwrap_or([0.0; 10]),
         };
         rec.barrier();
         rec.dispatch_named(
@@ -520,6 +525,7 @@ impl DensityControl {
                 ("abs_accum", &self.stats.abs_accum),
                 ("scores", &self.scores),
                 ("score_weight", score_weight.unwrap_or(&self.dummy)),
+                ("positions", &state.params.positions),
             ],
             &push,
             self.ctx.groups_1d(count as u64, WG),

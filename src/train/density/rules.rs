@@ -97,6 +97,10 @@ pub struct DensityConfig {
     /// outside at 1.1 τ. `false` (the default): one scale for all, the statistic over
     /// `grad_threshold`, times the strategy's score weight.
     pub rank_lowered: bool,
+    /// Grow only Gaussians whose centre lies in this region ([`super::region`]; in the
+    /// user's frame here, in the training frame once the trainer has moved it): the others are
+    /// never cloned nor split. `None`: anywhere.
+    pub grow_within: Option<super::region::GrowthRegion>,
 }
 
 impl Default for DensityConfig {
@@ -115,6 +119,7 @@ impl Default for DensityConfig {
             max_gaussians: None,
             exact_budget: None,
             rank_lowered: false,
+            grow_within: None,
         }
     }
 }
@@ -201,6 +206,24 @@ pub struct Thresholds {
     pub rank_all: bool,
     /// Scores over the scaled threshold ([`DensityConfig::rank_lowered`]).
     pub rank_lowered: bool,
+    /// The region growth is held to ([`DensityConfig::grow_within`]) as the kernel takes it:
+    /// per band the axis, lo and hi in f32.
+    pub region: Option<[f32; 10]>,
+}
+
+impl Thresholds {
+    /// Whether growth may happen at `p` ([`Thresholds::region`]), computed as `decide.comp`
+    /// does: each band's f32 dot product in the same order, without fused operations.
+    pub fn grows_at(&self, p: [f32; 3]) -> bool {
+        let Some(w) = self.region else {
+            return true;
+        };
+        (0..2).all(|k| {
+            let a = &w[5 * k..5 * k + 5];
+            let c = a[0] * p[0] + a[1] * p[1] + a[2] * p[2];
+            c >= a[3] && c < a[4]
+        })
+    }
 }
 
 impl Thresholds {
@@ -269,6 +292,7 @@ impl Thresholds {
             prune_large: args.prune_large && grows && prunes,
             rank_all: cfg.exact_budget.is_some() && grows,
             rank_lowered: cfg.rank_lowered,
+            region: cfg.grow_within.map(|r| r.kernel_words()),
         })
     }
 }
