@@ -188,7 +188,7 @@ pub fn run(args: &PartitionArgs) -> anyhow::Result<()> {
         None => blocks::write_transforms_block_folders(&out, &plan, &scene.root)?,
     }
     if let Some(c) = &popts.coarse {
-        partition::coarse::write_block_starts(&out, &plan, c)?;
+        partition::blocks::write_block_starts(&out, &plan, c)?;
     }
     if plan.grow_within_region {
         blocks::write_growth_regions(&out, &plan)?;
@@ -227,7 +227,7 @@ pub fn run(args: &PartitionArgs) -> anyhow::Result<()> {
             let start = match &plan.coarse {
                 Some(_) => format!(
                     " --init-ply {}",
-                    out.join(partition::coarse::block_start_path(b)).display()
+                    out.join(partition::blocks::block_start_path(b)).display()
                 ),
                 None => String::new(),
             };

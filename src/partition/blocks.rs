@@ -8,8 +8,10 @@
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
+use super::coarse::{CoarseModel, BLOCK_START_FILE};
 use super::grid::Interval;
 use super::plan::{Block, Plan};
+use crate::models::BaseModel;
 use crate::scene::colmap::{self, ColmapModel};
 use crate::scene::split::TEST_VIEWS_FILE;
 use crate::scene::transforms::subset::{write_subset, TRANSFORMS_FILES};
@@ -194,6 +196,39 @@ pub fn write_growth_regions(out: &Path, plan: &Plan) -> anyhow::Result<()> {
         std::fs::write(
             out.join(region_path(block)),
             growth_region(plan, block).to_json().to_string(),
+        )?;
+    }
+    Ok(())
+}
+
+/// Where a block's start lies, relative to the plan's folder.
+pub fn block_start_path(block: &Block) -> PathBuf {
+    block.folder.join(BLOCK_START_FILE)
+}
+
+/// Writes every block's start (`<block folder>/coarse.ply`: the rows of
+/// [`CoarseModel::rows_for`], with the coarse file's header comments, so it is read in the
+/// same frame as the same model) under the plan's folder `out`; each file holds as many
+/// Gaussians as its block's `start_gaussians` in the plan.
+pub fn write_block_starts(out: &Path, plan: &Plan, coarse: &CoarseModel) -> anyhow::Result<()> {
+    let path = &coarse.start.ply;
+    let model = BaseModel::for_ply(None, path)?;
+    let params = model.read_ply(path)?;
+    let comments = crate::splats::ply::ply_comments(path)?;
+    for block in &plan.blocks {
+        let rows = coarse.rows_for(&plan.ground, &block.region);
+        anyhow::ensure!(
+            Some(rows.len() as u64) == block.start_gaussians,
+            "block {}: its start holds {} Gaussians, the plan counted {:?} (the coarse model \
+             changed while partitioning?)",
+            block.name,
+            rows.len(),
+            block.start_gaussians
+        );
+        crate::splats::write_ply_with_comments(
+            &out.join(block_start_path(block)),
+            &params.select_rows(&rows),
+            &comments,
         )?;
     }
     Ok(())

@@ -14,12 +14,37 @@
 
 use std::path::{Path, PathBuf};
 
+use serde::{Deserialize, Serialize};
+
 use super::grid::Rect;
 use super::ground::GroundFrame;
-use super::plan::{Block, CoarseStart, Plan};
 use crate::models::BaseModel;
 use crate::scene::frame::shift_from_comments;
 use crate::splats::GaussianParams;
+
+/// A coarse model of the whole scene (a short `train` of it) that every block starts from,
+/// as CityGaussian's prior: in each view a block then finds the rest of the scene already
+/// there, in front of and behind its own region, and learns its region against it instead of
+/// explaining the other blocks' content with Gaussians of its own (floaters the merge would
+/// keep). A block starts from the coarse Gaussians in its region and the `backdrop` share of
+/// the others (this module; written as `coarse.ply` in its folder), which adds to its
+/// Gaussians; the merge keeps only what lies in each core. The block runs get `--init-ply` on
+/// a fresh start only (a resumed run continues from its checkpoint).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CoarseStart {
+    /// The model's PLY, absolute.
+    pub ply: PathBuf,
+    /// Its Gaussians.
+    pub gaussians: u64,
+    /// The share of its Gaussians outside a block's region that the block keeps (plans from
+    /// before the share existed kept all of them).
+    #[serde(default = "whole_backdrop")]
+    pub backdrop: f64,
+}
+
+fn whole_backdrop() -> f64 {
+    1.0
+}
 
 /// The name of a block's start in its folder.
 pub const BLOCK_START_FILE: &str = "coarse.ply";
@@ -113,37 +138,4 @@ pub fn rows_for(
     inside.extend_from_slice(&outside[..keep.min(outside.len())]);
     inside.sort_unstable();
     inside
-}
-
-/// Where a block's start lies, relative to the plan's folder.
-pub fn block_start_path(block: &Block) -> PathBuf {
-    block.folder.join(BLOCK_START_FILE)
-}
-
-/// Writes every block's start (`<block folder>/coarse.ply`: the rows of
-/// [`CoarseModel::rows_for`], with the coarse file's header comments, so it is read in the
-/// same frame as the same model) under the plan's folder `out`; each file holds as many
-/// Gaussians as its block's `start_gaussians` in the plan.
-pub fn write_block_starts(out: &Path, plan: &Plan, coarse: &CoarseModel) -> anyhow::Result<()> {
-    let path = &coarse.start.ply;
-    let model = BaseModel::for_ply(None, path)?;
-    let params = model.read_ply(path)?;
-    let comments = crate::splats::ply::ply_comments(path)?;
-    for block in &plan.blocks {
-        let rows = coarse.rows_for(&plan.ground, &block.region);
-        anyhow::ensure!(
-            Some(rows.len() as u64) == block.start_gaussians,
-            "block {}: its start holds {} Gaussians, the plan counted {:?} (the coarse model \
-             changed while partitioning?)",
-            block.name,
-            rows.len(),
-            block.start_gaussians
-        );
-        crate::splats::write_ply_with_comments(
-            &out.join(block_start_path(block)),
-            &params.select_rows(&rows),
-            &comments,
-        )?;
-    }
-    Ok(())
 }

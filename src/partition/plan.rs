@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use super::assign::{views_for_block, Geometry};
+use super::coarse::{CoarseModel, CoarseStart};
 use super::grid::{balanced_cores, robust_bounds, Rect};
 use super::ground::GroundFrame;
 use crate::error::bad_input;
@@ -69,31 +70,7 @@ pub struct PartitionOptions {
     /// The training image cache (MiB): images beyond it stream from disk.
     pub image_cache_mib: f64,
     /// A coarse model of the whole scene every block starts from (`--coarse`).
-    pub coarse: Option<super::coarse::CoarseModel>,
-}
-
-/// A coarse model of the whole scene (a short `train` of it) that every block starts from,
-/// as CityGaussian's prior: in each view a block then finds the rest of the scene already
-/// there, in front of and behind its own region, and learns its region against it instead of
-/// explaining the other blocks' content with Gaussians of its own (floaters the merge would
-/// keep). A block starts from the coarse Gaussians in its region and the `backdrop` share of
-/// the others ([`super::coarse`]; written as `coarse.ply` in its folder), which adds to its
-/// Gaussians; the merge keeps only what lies in each core. The block runs get `--init-ply` on
-/// a fresh start only (a resumed run continues from its checkpoint).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct CoarseStart {
-    /// The model's PLY, absolute.
-    pub ply: PathBuf,
-    /// Its Gaussians.
-    pub gaussians: u64,
-    /// The share of its Gaussians outside a block's region that the block keeps (plans from
-    /// before the share existed kept all of them).
-    #[serde(default = "whole_backdrop")]
-    pub backdrop: f64,
-}
-
-fn whole_backdrop() -> f64 {
-    1.0
+    pub coarse: Option<CoarseModel>,
 }
 
 /// One block of a plan.

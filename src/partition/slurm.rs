@@ -264,7 +264,7 @@ pub fn block_array(plan: &Plan, dir: &Path, opts: &SlurmOptions) -> JobArray {
                 fresh_args: match &plan.coarse {
                     Some(_) => vec![
                         "--init-ply".into(),
-                        dir.join(super::coarse::block_start_path(b))
+                        dir.join(super::blocks::block_start_path(b))
                             .display()
                             .to_string(),
                     ],
