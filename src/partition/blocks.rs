@@ -11,7 +11,6 @@ use std::path::{Path, PathBuf};
 use super::coarse::{CoarseModel, BLOCK_START_FILE};
 use super::grid::Interval;
 use super::plan::{Block, Plan};
-use crate::models::BaseModel;
 use crate::scene::colmap::{self, ColmapModel};
 use crate::scene::split::TEST_VIEWS_FILE;
 use crate::scene::transforms::subset::{write_subset, TRANSFORMS_FILES};
@@ -211,10 +210,6 @@ pub fn block_start_path(block: &Block) -> PathBuf {
 /// same frame as the same model) under the plan's folder `out`; each file holds as many
 /// Gaussians as its block's `start_gaussians` in the plan.
 pub fn write_block_starts(out: &Path, plan: &Plan, coarse: &CoarseModel) -> anyhow::Result<()> {
-    let path = &coarse.start.ply;
-    let model = BaseModel::for_ply(None, path)?;
-    let params = model.read_ply(path)?;
-    let comments = crate::splats::ply::ply_comments(path)?;
     for block in &plan.blocks {
         let rows = coarse.rows_for(&plan.ground, &block.region);
         anyhow::ensure!(
@@ -227,8 +222,8 @@ pub fn write_block_starts(out: &Path, plan: &Plan, coarse: &CoarseModel) -> anyh
         );
         crate::splats::write_ply_with_comments(
             &out.join(block_start_path(block)),
-            &params.select_rows(&rows),
-            &comments,
+            &coarse.params.select_rows(&rows),
+            &coarse.comments,
         )?;
     }
     Ok(())

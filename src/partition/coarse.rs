@@ -58,6 +58,10 @@ pub struct CoarseModel {
     pub positions: Vec<[f64; 3]>,
     /// Each Gaussian's rank score as a backdrop: σ(opacity) × its surface-area proxy.
     pub importance: Vec<f64>,
+    /// The model as read (the rows the blocks' starts are cut from) and its header comments
+    /// (its model and shift, which every start keeps).
+    pub params: GaussianParams,
+    pub comments: Vec<String>,
 }
 
 impl CoarseModel {
@@ -70,7 +74,10 @@ impl CoarseModel {
              region that the block keeps lies in [0, 1] (1: all of it, 0: none). Fix: pass a \
              share such as 0.25"
         );
-        let (params, shift) = read_with_shift(path)?;
+        let model = BaseModel::for_ply(None, path)?;
+        let params = model.read_ply(path)?;
+        let comments = crate::splats::ply::ply_comments(path)?;
+        let shift = shift_from_comments(path, &comments)?;
         let positions = params
             .positions
             .iter()
@@ -84,6 +91,8 @@ impl CoarseModel {
             },
             positions,
             importance: importance(&params),
+            params,
+            comments,
         })
     }
 
@@ -99,14 +108,6 @@ impl CoarseModel {
             region,
         )
     }
-}
-
-/// The model in `path` and the shift its header records.
-fn read_with_shift(path: &Path) -> anyhow::Result<(GaussianParams, [f64; 3])> {
-    let model = BaseModel::for_ply(None, path)?;
-    let params = model.read_ply(path)?;
-    let shift = shift_from_comments(path, &crate::splats::ply::ply_comments(path)?)?;
-    Ok((params, shift))
 }
 
 /// σ(opacity) × (s₀s₁ + s₀s₂ + s₁s₂) of every Gaussian.
